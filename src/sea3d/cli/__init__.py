@@ -1,0 +1,66 @@
+"""The ``sea3d`` command: a thin shell over the library.
+
+Each area has its own module here with a ``register(subparsers)`` function that adds its
+subcommands; handlers import the heavy parts of sea3d lazily so that ``sea3d --help`` stays fast.
+This module is the one error boundary: a :class:`~sea3d.errors.Sea3dError` becomes a one-line
+message on stderr and exit status 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+from collections.abc import Sequence
+
+from sea3d import __version__
+from sea3d.errors import Sea3dError
+
+__all__ = ["build_parser", "main"]
+
+# Modules under sea3d.cli that add subcommands, in the order they appear in --help.
+_COMMAND_MODULES = ("rig", "session", "record", "sim", "calibrate", "depth", "demo")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Build the full argument parser with every area's subcommands registered."""
+    parser = argparse.ArgumentParser(
+        prog="sea3d",
+        description="Underwater stereo 3D reconstruction: rigs, sessions, calibration, depth.",
+    )
+    parser.add_argument("--version", action="version", version=f"sea3d {__version__}")
+    parser.add_argument(
+        "-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)"
+    )
+    parser.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in _COMMAND_MODULES:
+        module = importlib.import_module(f"sea3d.cli.{name}")
+        module.register(sub)
+    return parser
+
+
+def _configure_logging(verbose: int, quiet: bool) -> None:
+    level = logging.WARNING if quiet else (logging.DEBUG if verbose > 1 else logging.INFO)
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the ``sea3d`` command; return the process exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    _configure_logging(args.verbose, args.quiet)
+    handler = getattr(args, "handler", None)
+    if handler is None:
+        parser.print_help()
+        return 0 if args.command is None else 2
+    try:
+        status = handler(args)
+    except Sea3dError as err:
+        print(f"sea3d: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("sea3d: interrupted", file=sys.stderr)
+        return 130
+    return int(status or 0)

@@ -1,0 +1,87 @@
+"""The exceptions sea3d raises: one base class, one subclass per area.
+
+Catch :class:`Sea3dError` to handle anything sea3d reports about bad input or a failed stage.
+Shape and value problems also derive from :class:`ValueError`, so generic code that expects a
+``ValueError`` for bad arguments keeps working. Third-party errors are wrapped once, at the
+boundary, with ``raise XError(msg) from err``.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "CalibrationError",
+    "CameraModelError",
+    "CaptureError",
+    "ConfigError",
+    "EnhanceError",
+    "GeometryError",
+    "OdometryError",
+    "ReconError",
+    "RectifyError",
+    "RefractionError",
+    "RigFileError",
+    "Sea3dError",
+    "SessionError",
+    "SimulationError",
+    "StereoError",
+]
+
+
+class Sea3dError(Exception):
+    """Base class of every error sea3d raises on purpose."""
+
+
+class ConfigError(Sea3dError, ValueError):
+    """A configuration value or command-line option is invalid."""
+
+
+class GeometryError(Sea3dError, ValueError):
+    """An array has the wrong shape or holds values outside the valid range."""
+
+
+class CameraModelError(GeometryError):
+    """A camera model's parameters are invalid (e.g. an unknown distortion length)."""
+
+
+class RefractionError(CameraModelError):
+    """A refractive port's parameters are invalid (e.g. a dome centre outside the dome)."""
+
+
+class RigFileError(Sea3dError, ValueError):
+    """A rig or calibration file is missing, malformed, or holds invalid values."""
+
+
+class SessionError(Sea3dError):
+    """A recorded session (MCAP file or folder layout) cannot be read or written."""
+
+
+class CaptureError(Sea3dError):
+    """A live source (camera, IMU, echosounder) cannot be opened or read."""
+
+
+class CalibrationError(Sea3dError):
+    """Calibration input is unusable (too few detections, mixed sizes, ...)."""
+
+
+class RectifyError(Sea3dError):
+    """Rectification maps cannot be built for the given rig."""
+
+
+class StereoError(Sea3dError, ValueError):
+    """Stereo matching input is invalid (image sizes, disparity range, ...)."""
+
+
+class EnhanceError(Sea3dError, ValueError):
+    """Image enhancement input is invalid."""
+
+
+class OdometryError(Sea3dError):
+    """Odometry or pose-graph input is invalid."""
+
+
+class ReconError(Sea3dError):
+    """Reconstruction (point clouds, TSDF, meshes) failed or got invalid input."""
+
+
+class SimulationError(Sea3dError):
+    """A simulated scene or session cannot be built from the given configuration."""

@@ -1,0 +1,122 @@
+"""The camera model protocol shared by pinhole, dome-port and flat-port cameras.
+
+Every later stage (rectify, triangulate, calibrate, simulate, fuse) works through
+:class:`CameraModel`, so a refractive camera is never a special case. Conventions (frames, pixel
+centres, units) are in ``docs/conventions.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sea3d.errors import GeometryError
+
+__all__ = ["CameraModel", "Rays", "as_points", "as_pixels"]
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+
+@dataclass(frozen=True, eq=False)
+class Rays:
+    """A bundle of rays in one frame.
+
+    Attributes:
+        origins: ``(N, 3)`` float64, metres. For a pinhole camera the zero vector; for a port
+            camera the point where the ray leaves the outer port surface into the water.
+        directions: ``(N, 3)`` float64, unit vectors. NaN rows mark pixels that have no ray
+            (outside the lens model's domain, or total internal reflection in the port).
+    """
+
+    origins: FloatArray
+    directions: FloatArray
+
+    def __post_init__(self) -> None:
+        if self.origins.shape != self.directions.shape or self.origins.ndim != 2 or (
+            self.origins.shape[1] != 3
+        ):
+            raise GeometryError(
+                f"Rays need origins and directions of equal shape (N, 3); got "
+                f"{self.origins.shape} and {self.directions.shape}"
+            )
+
+    def __len__(self) -> int:
+        return int(self.origins.shape[0])
+
+    @property
+    def valid(self) -> BoolArray:
+        """``(N,)`` bool: rows whose origin and direction are finite."""
+        return np.isfinite(self.origins).all(axis=1) & np.isfinite(self.directions).all(axis=1)
+
+    def at(self, distance_m: FloatArray | float) -> FloatArray:
+        """Points ``origins + distance_m * directions``, ``(N, 3)`` metres."""
+        dist = np.asarray(distance_m, dtype=np.float64)
+        if dist.ndim == 1:
+            dist = dist[:, None]
+        return self.origins + dist * self.directions
+
+
+@runtime_checkable
+class CameraModel(Protocol):
+    """What every camera model provides. Everything is in the camera's own frame (x right,
+    y down, z forward; metres), and pixel ``(u, v)`` = (column, row) with integer values at pixel
+    centres."""
+
+    @property
+    def width(self) -> int:
+        """Image width in pixels."""
+        ...
+
+    @property
+    def height(self) -> int:
+        """Image height in pixels."""
+        ...
+
+    def project(self, points_cam: FloatArray) -> tuple[FloatArray, BoolArray]:
+        """Pixels of 3D points.
+
+        Args:
+            points_cam: ``(N, 3)`` float64 points in the camera frame, metres.
+
+        Returns:
+            ``uv`` ``(N, 2)`` float64 pixels and ``valid`` ``(N,)`` bool: False where the point
+            cannot be imaged (behind the camera, no refracted path). Invalid rows of ``uv`` are
+            NaN. Points outside the image bounds are still valid; callers crop.
+        """
+        ...
+
+    def unproject(self, uv: FloatArray) -> Rays:
+        """Rays of pixels.
+
+        Args:
+            uv: ``(N, 2)`` float64 pixel coordinates.
+
+        Returns:
+            :class:`Rays` in the camera frame; for port cameras they start on the outer port
+            surface and point into the water.
+        """
+        ...
+
+
+def as_points(points: object, name: str = "points") -> FloatArray:
+    """Validate and convert to an ``(N, 3)`` float64 array; raise :class:`GeometryError`."""
+    arr = np.asarray(points, dtype=np.float64)
+    if arr.ndim == 1 and arr.shape[0] == 3:
+        arr = arr[None, :]
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise GeometryError(f"{name} must have shape (N, 3), got {arr.shape}")
+    return arr
+
+
+def as_pixels(uv: object, name: str = "uv") -> FloatArray:
+    """Validate and convert to an ``(N, 2)`` float64 array; raise :class:`GeometryError`."""
+    arr = np.asarray(uv, dtype=np.float64)
+    if arr.ndim == 1 and arr.shape[0] == 2:
+        arr = arr[None, :]
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        raise GeometryError(f"{name} must have shape (N, 2), got {arr.shape}")
+    return arr
