@@ -21,6 +21,7 @@ import numpy as np
 from numba import njit, prange
 
 _INF = 1 << 20
+_GROUP = 16  # neighbouring scanlines kept together in one thread's share
 
 _M1 = np.uint64(0x5555555555555555)
 _M2 = np.uint64(0x3333333333333333)
@@ -45,186 +46,147 @@ def census_transform(img: np.ndarray, half_h: int, half_w: int) -> np.ndarray:
     """Census signature of each pixel: one bit per window neighbour darker than the centre.
 
     ``img`` (H, W) float32; window (2*half_h+1) x (2*half_w+1) <= 65 pixels; borders replicate.
-    Returns (H, W) uint64. Loops run over whole rows per window offset so that they vectorise.
+    Returns (H, W) uint64.
     """
     h, w = img.shape
     out = np.empty((h, w), np.uint64)
-    x0 = min(half_w, w)
-    x1 = max(w - half_w, x0)
     for y in prange(h):
-        sig = np.zeros(w, np.uint64)
-        row = img[y]
-        for dy in range(-half_h, half_h + 1):
-            nb = img[min(max(y + dy, 0), h - 1)]
-            for dx in range(-half_w, half_w + 1):
-                if dy == 0 and dx == 0:
-                    continue
-                for x in range(x0, x1):
-                    bit = np.uint64(1) if nb[x + dx] < row[x] else np.uint64(0)
-                    sig[x] = (sig[x] << _U1) | bit
-                for x in range(0, x0):
-                    xx = min(max(x + dx, 0), w - 1)
-                    bit = np.uint64(1) if nb[xx] < row[x] else np.uint64(0)
-                    sig[x] = (sig[x] << _U1) | bit
-                for x in range(x1, w):
-                    xx = min(max(x + dx, 0), w - 1)
-                    bit = np.uint64(1) if nb[xx] < row[x] else np.uint64(0)
-                    sig[x] = (sig[x] << _U1) | bit
+        interior_y = half_h <= y < h - half_h
         for x in range(w):
-            out[y, x] = sig[x]
+            c = img[y, x]
+            sig = np.uint64(0)
+            if interior_y and half_w <= x < w - half_w:
+                for dy in range(-half_h, half_h + 1):
+                    for dx in range(-half_w, half_w + 1):
+                        if dy != 0 or dx != 0:
+                            sig = (sig << _U1) | np.uint64(img[y + dy, x + dx] < c)
+            else:
+                for dy in range(-half_h, half_h + 1):
+                    yy = min(max(y + dy, 0), h - 1)
+                    for dx in range(-half_w, half_w + 1):
+                        if dy != 0 or dx != 0:
+                            xx = min(max(x + dx, 0), w - 1)
+                            sig = (sig << _U1) | np.uint64(img[yy, xx] < c)
+            out[y, x] = sig
     return out
 
 
 @njit(parallel=True, cache=True)
 def band_costs(
-    census_l: np.ndarray, census_r: np.ndarray, lo: np.ndarray, n: np.ndarray, k_max: int
+    census_l: np.ndarray, census_r: np.ndarray, lo: np.ndarray, n: np.ndarray, offs: np.ndarray
 ) -> np.ndarray:
     """Hamming distance of census signatures over each pixel's band.
 
-    Returns (H, W, k_max) uint8; ``cost[y, x, k]`` matches left ``x`` with right ``x - lo - k``.
-    Bands never reach past the right image's left edge (``lo + n - 1 <= x``).
+    Returns the packed volume (offs[-1],) uint8: ``cost[offs[y*W+x] + k]`` matches left ``x``
+    with right ``x - lo - k``. Bands never reach past the right image's left edge
+    (``lo + n - 1 <= x``).
     """
     h, w = census_l.shape
-    cost = np.empty((h, w, k_max), np.uint8)
+    cost = np.empty(offs[-1], np.uint8)
     for y in prange(h):
         for x in range(w):
             cl = census_l[y, x]
             base = x - lo[y, x]
+            cb = offs[y * w + x]
             for k in range(n[y, x]):
-                cost[y, x, k] = _popcount64(cl ^ census_r[y, base - k])
+                cost[cb + k] = _popcount64(cl ^ census_r[y, base - k])
     return cost
 
 
-@njit(cache=True, inline="always")
-def _path_step(
-    cost: np.ndarray,
-    cb: int,
-    lo_p: int,
-    n_p: int,
-    buf: np.ndarray,
-    qb: int,
-    lo_q: int,
-    n_q: int,
-    min_q: int,
-    p1: int,
-    p2: int,
-    pb: int,
-    total: np.ndarray,
-) -> int:
-    """One step of the path recursion.
-
-    The pixel's costs are ``cost[cb:cb + n_p]`` (flat volume, band starting at ``lo_p``); the
-    previous pixel's path costs are ``buf[qb:qb + n_q]`` (band at ``lo_q``). Writes the new path
-    costs to ``buf[pb:pb + n_p]``, adds them to ``total[cb:cb + n_p]`` and returns their minimum.
-    ``buf`` holds three slots of ``K + 2`` entries; the third (at ``2 * (K + 2)``) is scratch.
-    Only integer offsets are passed around: array views in this loop would cost reference
-    counting per pixel.
-    """
-    c2 = min_q + p2
-    m = _INF
-    if lo_p == lo_q and n_p == n_q and n_p >= 2:
-        # common case: same band; a straight loop the compiler can vectorise
-        v = min(buf[qb], buf[qb + 1] + p1)
-        v = min(v, c2)
-        v = np.int32(cost[cb]) + v - min_q
-        buf[pb] = v
-        total[cb] += v
-        m = v
-        for k in range(1, n_p - 1):
-            v = min(buf[qb + k - 1], buf[qb + k + 1]) + p1
-            v = min(v, buf[qb + k])
-            v = min(v, c2)
-            v = np.int32(cost[cb + k]) + v - min_q
-            buf[pb + k] = v
-            total[cb + k] += v
-            m = min(m, v)
-        k = n_p - 1
-        v = min(buf[qb + k], buf[qb + k - 1] + p1)
-        v = min(v, c2)
-        v = np.int32(cost[cb + k]) + v - min_q
-        buf[pb + k] = v
-        total[cb + k] += v
-        return min(m, v)
-    off = lo_p - lo_q
-    sb = buf.shape[0] // 3 * 2
-    for k in range(n_p + 2):
-        j = k - 1 + off
-        if 0 <= j < n_q:
-            buf[sb + k] = buf[qb + j]
-        else:
-            buf[sb + k] = _INF
-    for k in range(n_p):
-        v = min(buf[sb + k], buf[sb + k + 2]) + p1
-        v = min(v, buf[sb + k + 1])
-        v = min(v, c2)
-        v = np.int32(cost[cb + k]) + v - min_q
-        buf[pb + k] = v
-        total[cb + k] += v
-        m = min(m, v)
-    return m
+def band_offsets(n: np.ndarray) -> np.ndarray:
+    """Start of each pixel's band in the packed volumes: (H*W + 1,) int64 prefix sums of n."""
+    offs = np.zeros(n.size + 1, np.int64)
+    np.cumsum(n.ravel(), out=offs[1:])
+    return offs
 
 
 @njit(parallel=True, cache=True)
 def aggregate_lines(
-    cost: np.ndarray,
+    cf: np.ndarray,
     lo: np.ndarray,
     n: np.ndarray,
+    offs: np.ndarray,
+    k_max: int,
     guide: np.ndarray,
     p1: int,
     p2_lut: np.ndarray,
-    total: np.ndarray,
+    tf: np.ndarray,
     starts: np.ndarray,
     dy: int,
     dx: int,
 ) -> None:
-    """Aggregate along the scanlines of direction ``(dy, dx)`` and back; *adds* into ``total``.
+    """Aggregate along the scanlines of direction ``(dy, dx)`` and back; *adds* into ``tf``.
 
-    ``cost`` (H, W, K) uint8 and ``total`` (H, W, K) uint16 volumes; ``guide`` (H, W) uint8;
+    ``cf`` (packed, uint8) and ``tf`` (packed, uint16) are the cost and summed volumes with
+    pixel ``p = y * W + x``'s band at ``offs[p]`` (:func:`band_offsets`); ``guide`` (H, W) uint8;
     ``p2_lut[|dI|]`` the edge-adapted P2 for an intensity step ``dI``. ``starts`` (N, 2) int64
     holds the first pixel ``(y, x)`` of every scanline (the pixels whose predecessor
     ``(y - dy, x - dx)`` lies outside the image). Scanlines are independent, so they are shared
-    among threads with no synchronisation; each walks forward (path ``+r``) and then backward
-    (path ``-r``).
+    among threads with no synchronisation; each is walked forward (path ``+r``), then backward.
+
+    Path costs live in ``prev``/``cur`` with one infinite entry on each side of the band, so
+    the recursion's ``d - 1`` and ``d + 1`` need no bounds tests; when the band moves between
+    neighbours the previous costs are first re-aligned into ``tmp``. (Separate small arrays and
+    plain loops measured fastest; walking neighbouring lines in lockstep was slower.)
     """
-    h, w, kk = cost.shape
-    cf = cost.reshape(-1)
-    tf = total.reshape(-1)
+    h, w = lo.shape
+    kk = k_max
     lof = lo.reshape(-1)
     nf = n.reshape(-1)
     gf = guide.reshape(-1)
-    step = dy * w + dx
-    slot = kk + 2
     for i in prange(starts.shape[0]):
-        buf = np.empty(3 * slot, np.int32)
-        y = np.int64(starts[i, 0])
-        x = np.int64(starts[i, 1])
-        # count the line's pixels
+        prev = np.full(kk + 2, _INF, np.int32)
+        cur = np.full(kk + 2, _INF, np.int32)
+        tmp = np.full(kk + 2, _INF, np.int32)
+        y0 = np.int64(starts[i, 0])
+        x0 = np.int64(starts[i, 1])
         length = 1
-        while 0 <= y + length * dy < h and 0 <= x + length * dx < w:
+        while 0 <= y0 + length * dy < h and 0 <= x0 + length * dx < w:
             length += 1
         for direction in range(2):
             if direction == 0:
-                p = y * w + x
-                s = step
+                p = y0 * w + x0
+                s = dy * w + dx
             else:
-                p = (y + (length - 1) * dy) * w + x + (length - 1) * dx
-                s = -step
-            cb = p * kk
+                p = (y0 + (length - 1) * dy) * w + x0 + (length - 1) * dx
+                s = -(dy * w + dx)
+            np_ = nf[p]
+            cb = offs[p]
             m = _INF
-            for k in range(nf[p]):
+            for k in range(np_):
                 v = np.int32(cf[cb + k])
-                buf[k] = v
+                prev[k + 1] = v
                 tf[cb + k] += v
                 m = min(m, int(v))
-            qb = 0
-            pb = slot
+            prev[np_ + 1] = _INF
             for _ in range(length - 1):
                 q = p
-                p = p + s
+                p += s
+                n_q = np_
+                np_ = nf[p]
+                off = lof[p] - lof[q]
                 pe = p2_lut[abs(np.int32(gf[p]) - np.int32(gf[q]))]
-                m = _path_step(cf, p * kk, lof[p], nf[p], buf, qb, lof[q], nf[q], m, p1, pe, pb,
-                               tf)
-                qb, pb = pb, qb
+                c2 = m + pe
+                if off == 0 and np_ == n_q:
+                    src = prev
+                else:
+                    for k in range(np_ + 2):
+                        j = k + off
+                        tmp[k] = prev[j] if 1 <= j <= n_q else _INF
+                    src = tmp
+                cb = offs[p]
+                mm = _INF
+                for k in range(np_):
+                    v = min(src[k], src[k + 2]) + p1
+                    v = min(v, src[k + 1])
+                    v = min(v, c2)
+                    v = np.int32(cf[cb + k]) + v - m
+                    cur[k + 1] = v
+                    tf[cb + k] += v
+                    mm = min(mm, int(v))
+                cur[np_ + 1] = _INF
+                m = mm
+                prev, cur = cur, prev
 
 
 def p2_table(p1: int, p2: int, tau: float) -> np.ndarray:
@@ -235,14 +197,23 @@ def p2_table(p1: int, p2: int, tau: float) -> np.ndarray:
 
 
 def scanline_starts(h: int, w: int, dy: int, dx: int, n_threads: int) -> np.ndarray:
-    """First pixels ``(y, x)`` of the scanlines of direction ``(dy, dx)``, (N, 2) int64,
-    interleaved so that the static split of a parallel loop gives every thread a fair share
-    of long and short lines."""
+    """First pixels ``(y, x)`` of the scanlines of direction ``(dy, dx)``, (N, 2) int64.
+
+    Starts are in border order (neighbouring lines next to each other, as
+    :func:`aggregate_lines` groups them), with groups dealt round-robin to the threads' shares
+    of a static parallel split, so each thread gets long and short lines alike.
+    """
     ys, xs = np.mgrid[0:h, 0:w]
     pred_out = (ys - dy < 0) | (ys - dy >= h) | (xs - dx < 0) | (xs - dx >= w)
-    starts = np.stack([ys[pred_out], xs[pred_out]], axis=1).astype(np.int64)
+    sy, sx = ys[pred_out], xs[pred_out]
+    # border order: along rows for starts on the top/bottom edge, then along columns
+    on_row_edge = (sy - dy < 0) | (sy - dy >= h)
+    key = np.where(on_row_edge, sx, w + sy).astype(np.int64)
+    order = np.argsort(key, kind="stable")
+    starts = np.stack([sy[order], sx[order]], axis=1).astype(np.int64)
     t = max(int(n_threads), 1)
-    order = np.argsort(np.arange(len(starts)) % t, kind="stable")
+    block = np.arange(len(starts)) // _GROUP
+    order = np.argsort(block % t, kind="stable")
     return np.ascontiguousarray(starts[order])
 
 
@@ -251,6 +222,7 @@ def select_disparity(
     total: np.ndarray,
     lo: np.ndarray,
     n: np.ndarray,
+    offs: np.ndarray,
     uniqueness: float,
     lr_max_diff: int,
     subpixel: int,
@@ -265,7 +237,7 @@ def select_disparity(
     Returns disparity (H, W) float32 (NaN invalid) and confidence (H, W) float32 in [0, 1]:
     ``1 - best / second`` (0 where invalid).
     """
-    h, w, _kk = total.shape
+    h, w = lo.shape
     disp = np.empty((h, w), np.float32)
     conf = np.zeros((h, w), np.float32)
     nan = np.float32(np.nan)
@@ -276,10 +248,11 @@ def select_disparity(
         for x in range(w):
             lo_p = lo[y, x]
             np_ = n[y, x]
+            cb = offs[y * w + x]
             best = _INF
             kb = 0
             for k in range(np_):
-                s = int(total[y, x, k])
+                s = int(total[cb + k])
                 if s < best:
                     best = s
                     kb = k
@@ -290,7 +263,7 @@ def select_disparity(
             second = _INF
             for k in range(np_):
                 if k < kb - 1 or k > kb + 1:
-                    s = int(total[y, x, k])
+                    s = int(total[cb + k])
                     if s < second:
                         second = s
             dint[x] = lo_p + kb
@@ -302,9 +275,9 @@ def select_disparity(
             conf[y, x] = c
             delta = 0.0
             if subpixel > 0 and 0 < kb < np_ - 1:
-                cm = float(total[y, x, kb - 1])
+                cm = float(total[cb + kb - 1])
                 c0 = float(best)
-                cp = float(total[y, x, kb + 1])
+                cp = float(total[cb + kb + 1])
                 if subpixel == 1:
                     den = cm - 2.0 * c0 + cp
                     if den > 0:

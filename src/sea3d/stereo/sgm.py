@@ -42,14 +42,18 @@ _DIRECTIONS_16 = (*_DIRECTIONS_8, (1, 2), (1, -2), (2, 1), (2, -1))
 def choose_pyramid_levels(height: int, width: int, num_disparities: int, config: SgmConfig) -> int:
     """Number of pyramid levels above full resolution for an image and disparity range.
 
-    ``config.pyramid_levels`` if set; otherwise the fewest levels at which the coarsest full
-    volume ``H * W * D / 8**levels`` fits ``config.full_search_budget`` (and ``D >= 16`` remains).
+    ``config.pyramid_levels`` if set. Otherwise 0 (one full search) when the full volume
+    ``H * W * D`` fits ``config.full_search_budget``; else the fewest levels at which the
+    coarsest full volume (``H * W * D / 8**levels``) fits ``config.coarse_search_budget``,
+    keeping at least 16 disparities and 32 pixels a side at the coarsest level.
     """
     if config.pyramid_levels is not None:
         return config.pyramid_levels
-    levels = 0
     h, w, d = height, width, num_disparities
-    while h * w * d > config.full_search_budget and d >= 32 and min(h, w) >= 64:
+    if h * w * d <= config.full_search_budget:
+        return 0
+    levels = 0
+    while h * w * d > config.coarse_search_budget and d >= 32 and min(h, w) >= 64:
         h, w, d = (h + 1) // 2, (w + 1) // 2, (d + 1) // 2
         levels += 1
     return levels
@@ -73,24 +77,25 @@ def _level_search(
             config.band_radius_px,
         )
     k_max = int(n.max())
+    offs = K.band_offsets(n)
     t1 = time.perf_counter()
     hh, hw = config.census_height_px // 2, config.census_width_px // 2
     cl = K.census_transform(gl, hh, hw)
     cr = K.census_transform(gr, hh, hw)
-    cost = K.band_costs(cl, cr, lo, n, k_max)
+    cost = K.band_costs(cl, cr, lo, n, offs)
     t2 = time.perf_counter()
-    total = np.zeros((h, w, k_max), np.uint16)
+    total = np.zeros(cost.shape[0], np.uint16)
     dirs = _DIRECTIONS_8 if config.paths == 8 else _DIRECTIONS_16
     threads = numba.get_num_threads()
     guide = np.clip(gl + 0.5, 0, 255).astype(np.uint8)
     lut = K.p2_table(config.p1, config.p2, config.p2_edge_tau)
     for dy, dx in dirs:
         starts = K.scanline_starts(h, w, dy, dx, threads)
-        K.aggregate_lines(cost, lo, n, guide, config.p1, lut, total, starts, dy, dx)
+        K.aggregate_lines(cost, lo, n, offs, k_max, guide, config.p1, lut, total, starts, dy, dx)
     del cost
     t3 = time.perf_counter()
     disp, conf = K.select_disparity(
-        total, lo, n, config.uniqueness, config.lr_max_diff_px, _SUBPIXEL[config.subpixel]
+        total, lo, n, offs, config.uniqueness, config.lr_max_diff_px, _SUBPIXEL[config.subpixel]
     )
     t4 = time.perf_counter()
     for key, val in (("band_s", t1 - t0), ("cost_s", t2 - t1), ("aggregate_s", t3 - t2),

@@ -56,7 +56,10 @@ class SgmConfig:
     pyramid_levels: int | None = None
     """Coarse-to-fine levels above full resolution; None chooses from the image size and range."""
     full_search_budget: int = 24_000_000
-    """With ``pyramid_levels=None``, search the full range at once if H * W * D stays below this."""
+    """With ``pyramid_levels=None``: search the full range at once if H * W * D stays below."""
+    coarse_search_budget: int = 2_000_000
+    """With ``pyramid_levels=None``: otherwise add levels until the coarsest full volume
+    (H * W * D, each halved per level) stays below this."""
     band_margin_px: int = 3
     """Coarse-to-fine: extra disparities searched on each side of the coarse estimate."""
     band_max_px: int = 48
