@@ -144,7 +144,7 @@ class Recorder:
             if name not in _STREAMS:
                 raise ConfigError(f"unknown stream {name!r}; expected one of {_STREAMS}")
             if src.kind != want:
-                raise ConfigError(f"stream {name} needs a {want} source, got {src!r} ({src.kind})")
+                raise ConfigError(f"stream {name} needs {want} records, got {src!r} ({src.kind})")
         self.config = config
         self.sources = dict(sources)
         self._stop = threading.Event()

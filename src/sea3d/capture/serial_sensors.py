@@ -412,6 +412,7 @@ class PingEchosounderSource(Source):
         self._pending: list[SonarSample] = []
         self._next_poll = 0.0
         self._last_t = -1
+        self.requests_sent = 0
 
     def open(self) -> None:
         if self._stream is None:
@@ -426,6 +427,7 @@ class PingEchosounderSource(Source):
                 encode_ping_message(PING_GENERAL_REQUEST, struct.pack("<H", PING_DISTANCE), dst=1)
             )
             self._next_poll = now + self.period_s
+            self.requests_sent += 1
 
     def read(self) -> SonarSample | None:
         self.open()
