@@ -127,7 +127,7 @@ def test_request_stop_from_another_thread_closes_a_readable_session(tmp_path):
 def test_disk_space_is_checked_before_and_during_recording(tmp_path, monkeypatch):
     img = np.zeros((8, 8), np.uint8)
     config = RecorderConfig(out_path=tmp_path / "a.mcap", min_free_bytes=10**18)
-    with pytest.raises(CaptureError, match="GB free for .*a.mcap"):
+    with pytest.raises(CaptureError, match=r"GB free for .*a\.mcap"):
         Recorder(config, {"left": ArraySource([img]), "right": ArraySource([img])}).run()
     assert not (tmp_path / "a.mcap").exists()
 

@@ -102,7 +102,7 @@ def test_rig_capture_section_is_read_and_checked():
     assert s is not None and s.left.device == "/dev/video2"
     assert dict(s.right.controls) == {"operation_mode": 0, "synchronizing_function": 2}
     assert sync_settings_from_rig_yaml("cameras: {}\n") is None
-    with pytest.raises(CaptureError, match="capture.right must be a mapping with 'device'"):
+    with pytest.raises(CaptureError, match=r"capture\.right must be a mapping with 'device'"):
         sync_settings_from_rig_yaml("capture: {left: {device: /dev/video0}, right: 3}")
     with pytest.raises(CaptureError, match="must be a name and an integer"):
         sync_settings_from_rig_yaml(
