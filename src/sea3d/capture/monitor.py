@@ -110,9 +110,10 @@ _PAGE = """<!doctype html>
 <h3>sea3d monitor <span id="state"></span></h3>
 <div class="row">
  <figure><img id="img-left" alt="left"><figcaption>left, frames shown:
-  <span id="shown-left">0</span></figcaption></figure>
+  <span id="shown-left">0</span> (<span id="distinct-left">0</span> different)</figcaption></figure>
  <figure><img id="img-right" alt="right"><figcaption>right, frames shown:
-  <span id="shown-right">0</span></figcaption></figure>
+  <span id="shown-right">0</span> (<span id="distinct-right">0</span> different)</figcaption>
+ </figure>
  <figure><img id="img-disparity" alt="disparity" width="320"><figcaption>disparity preview
   (raw images, low resolution)</figcaption></figure>
 </div>
@@ -133,17 +134,29 @@ _PAGE = """<!doctype html>
 "use strict";
 const mjpeg = new URLSearchParams(location.search).get("mode") === "mjpeg";
 const shown = {left: 0, right: 0};
-const seen = {left: -1, right: -1};
+const distinct = {left: 0, right: 0};
+const lastSeq = {left: null, right: null};
 function fmt(v, d) { return (v === null || v === undefined) ? "-" : Number(v).toFixed(d); }
-function pollImage(side) {
+function show(side) {
+  shown[side] += 1;
+  document.getElementById("shown-" + side).textContent = shown[side];
+  document.getElementById("distinct-" + side).textContent = distinct[side];
+}
+async function pollImage(side) {
   const img = document.getElementById("img-" + side);
-  img.onload = () => {
-    shown[side] += 1;
-    document.getElementById("shown-" + side).textContent = shown[side];
-    if (!mjpeg) setTimeout(() => pollImage(side), 150);
-  };
-  img.onerror = () => setTimeout(() => pollImage(side), 300);
-  img.src = mjpeg ? "/stream/" + side + ".mjpg" : "/frame/" + side + ".jpg?t=" + Date.now();
+  if (mjpeg) { img.onload = () => show(side); img.src = "/stream/" + side + ".mjpg"; return; }
+  try {
+    const r = await fetch("/frame/" + side + ".jpg", {cache: "no-store"});
+    if (r.ok) {
+      const seq = r.headers.get("X-Frame-Seq");
+      if (seq !== lastSeq[side]) { distinct[side] += 1; lastSeq[side] = seq; }
+      const url = URL.createObjectURL(await r.blob());
+      await new Promise((done) => { img.onload = img.onerror = done; img.src = url; });
+      URL.revokeObjectURL(url);
+      show(side);
+    }
+  } catch (e) { /* server gone or frame not ready */ }
+  setTimeout(() => pollImage(side), 100);
 }
 function pollDisparity() {
   const img = document.getElementById("img-disparity");
