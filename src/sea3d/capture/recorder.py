@@ -59,7 +59,8 @@ class RecorderConfig:
         image_encoding: ``"png"``, ``"jpeg"`` or ``"raw"`` (MCAP only).
         png_compression: zlib level 0..9.
         jpeg_quality: 0..100.
-        queue_frames: most images waiting between capture and disk (both cameras together).
+        queue_frames: most images waiting between capture and disk (both cameras together;
+            each camera gets half).
         encoder_threads: image encoder threads.
         block_when_full: sources wait for a free slot instead of dropping (replay only).
         min_free_bytes: stop when free disk space falls below this.
@@ -161,6 +162,7 @@ class Recorder:
         }
         self._ended: set[str] = set()
         self._writer: SessionWriter | None = None
+        self._writer_thread: threading.Thread | None = None
         self._t_start = 0.0
         self._t_stop: float | None = None
         self._disk_free = 0
@@ -258,8 +260,9 @@ class Recorder:
             self._latest[stream] = rec
             self._seq[stream] += 1
             if self.config.block_when_full:
+                # Wait for the writer even after a stop request: it drains the queue.
                 while not slots.acquire(timeout=0.1):
-                    if self._stop.is_set():
+                    if self._writer_thread is not None and not self._writer_thread.is_alive():
                         self.dropped[stream] += 1
                         return
             elif not slots.acquire(blocking=False):
@@ -300,7 +303,7 @@ class Recorder:
             self.written[stream] += 1
         self._ended.add(stream)
 
-    def _write_images(self, q: queue.Queue[Any], slots: threading.Semaphore) -> None:
+    def _write_images(self, q: queue.Queue[Any], slots: dict[str, threading.Semaphore]) -> None:
         writer = self._writer
         assert writer is not None
         while True:
@@ -321,7 +324,7 @@ class Recorder:
                 self.dropped[stream] += 1
                 self._fail(f"writing {stream} t_ns={rec.t_ns} failed: {err}")
             finally:
-                slots.release()
+                slots[stream].release()
 
     # -- main -------------------------------------------------------------------------------
     def run(self) -> RecordSummary:
@@ -365,15 +368,17 @@ class Recorder:
         writer = self._writer
         assert writer is not None
         q: queue.Queue[Any] = queue.Queue()
-        slots = threading.Semaphore(cfg.queue_frames)
         pool = ThreadPoolExecutor(
             max_workers=cfg.encoder_threads, thread_name_prefix="sea3d-encode"
         )
         threads: list[threading.Thread] = []
-        image_streams = [s for s in ("left", "right") if s in self.sources]
+        image_streams: list[str] = [s for s in ("left", "right") if s in self.sources]
+        # Each camera gets its share of the queue, so one cannot starve the other.
+        per_camera = max(1, cfg.queue_frames // max(len(image_streams), 1))
+        slots = {s: threading.Semaphore(per_camera) for s in image_streams}
         for stream, src in self.sources.items():
             if stream in ("left", "right"):
-                target, args = self._capture_images, (stream, src, pool, q, slots)
+                target, args = self._capture_images, (stream, src, pool, q, slots[stream])
             else:
                 target, args = self._capture_samples, (stream, src)  # type: ignore[assignment]
             threads.append(
@@ -382,6 +387,7 @@ class Recorder:
         writer_thread = threading.Thread(
             target=self._write_images, args=(q, slots), name="sea3d-writer", daemon=True
         )
+        self._writer_thread = writer_thread
         self._t_start = time.monotonic()
         self.running = True
         writer_thread.start()
