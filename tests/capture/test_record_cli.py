@@ -145,3 +145,52 @@ def test_record_rejects_unknown_sources_and_bad_rig(tmp_path, capsys):
         == 2
     )
     assert "cannot read rig file" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("out_name", ["killed.mcap", "killed_dir"])
+def test_a_recorder_killed_with_sigkill_leaves_a_readable_session(tmp_path, out_name):
+    src = tmp_path / "in.mcap"
+    imgs = _session(src)
+    out = tmp_path / out_name
+    env = dict(os.environ, PYTHONPATH=SRC)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "sea3d",
+            "record",
+            "--left",
+            f"session:{src}",
+            "--right",
+            f"session:{src}",
+            "--out",
+            str(out),
+            "--min-free-gb",
+            "0",
+            "--replay-speed",
+            "0.1",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env=env,
+    )
+    try:
+        deadline = time.monotonic() + 30
+        n = 0
+        while n < 3 and time.monotonic() < deadline:  # until a chunk / 3 frames are on disk
+            time.sleep(0.05)
+            if out.exists():
+                try:
+                    with open_session(out) as s:
+                        n = int(s.stamps("left").size)
+                except Exception:
+                    n = 0
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+    assert n >= 3
+    with open_session(out) as s:
+        stamps = s.stamps("left")
+        assert stamps.size >= 3
+        for k in range(int(stamps.size)):
+            np.testing.assert_array_equal(s.image("left", k), imgs[k])
