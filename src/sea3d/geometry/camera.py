@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 from sea3d.errors import GeometryError
 
-__all__ = ["CameraModel", "Rays", "as_points", "as_pixels"]
+__all__ = ["CameraModel", "Rays", "as_pixels", "as_points"]
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
