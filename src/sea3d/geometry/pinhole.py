@@ -94,9 +94,7 @@ class PinholeCamera:
 
     # ----------------------------------------------------------------- construction helpers
     @classmethod
-    def from_K(
-        cls, K: object, width: int, height: int, dist: object = ()
-    ) -> PinholeCamera:
+    def from_K(cls, K: object, width: int, height: int, dist: object = ()) -> PinholeCamera:
         """Build from a 3x3 camera matrix (zero skew expected).
 
         Raises:
@@ -110,8 +108,13 @@ class PinholeCamera:
                 f"camera matrix must have zero skew and last row [0, 0, 1], got {K_arr.tolist()}"
             )
         return cls(
-            fx=K_arr[0, 0], fy=K_arr[1, 1], cx=K_arr[0, 2], cy=K_arr[1, 2],
-            width=width, height=height, dist=np.asarray(dist, dtype=np.float64),
+            fx=K_arr[0, 0],
+            fy=K_arr[1, 1],
+            cx=K_arr[0, 2],
+            cy=K_arr[1, 2],
+            width=width,
+            height=height,
+            dist=np.asarray(dist, dtype=np.float64),
         )
 
     @property
@@ -127,8 +130,13 @@ class PinholeCamera:
     def with_dist(self, dist: object) -> PinholeCamera:
         """A copy with other distortion coefficients."""
         return PinholeCamera(
-            fx=self.fx, fy=self.fy, cx=self.cx, cy=self.cy, width=self.width,
-            height=self.height, dist=np.asarray(dist, dtype=np.float64),
+            fx=self.fx,
+            fy=self.fy,
+            cx=self.cx,
+            cy=self.cy,
+            width=self.width,
+            height=self.height,
+            dist=np.asarray(dist, dtype=np.float64),
         )
 
     # ------------------------------------------------------------------ distortion maths
@@ -166,15 +174,16 @@ class PinholeCamera:
         """
         target = np.asarray(xy_distorted, dtype=np.float64)
         if not self.has_distortion:
-            return target.copy(), np.isfinite(target).all(axis=1)
+            return target.copy(), np.asarray(np.isfinite(target).all(axis=1), dtype=np.bool_)
         xy = target.copy()
-        h = 1e-7
+        hx = np.array([1e-7, 0.0])
+        hy = np.array([0.0, 1e-7])
         for _ in range(_NEWTON_ITERATIONS):
             f = self.distort(xy) - target
             if np.all(np.abs(f[np.isfinite(f).all(axis=1)]) < _UNDISTORT_TOL):
                 break
-            fx_ = (self.distort(xy + [h, 0.0]) - self.distort(xy - [h, 0.0])) / (2 * h)
-            fy_ = (self.distort(xy + [0.0, h]) - self.distort(xy - [0.0, h])) / (2 * h)
+            fx_ = (self.distort(xy + hx) - self.distort(xy - hx)) / 2e-7
+            fy_ = (self.distort(xy + hy) - self.distort(xy - hy)) / 2e-7
             a, b, c, d = fx_[:, 0], fy_[:, 0], fx_[:, 1], fy_[:, 1]
             det = a * d - b * c
             with np.errstate(divide="ignore", invalid="ignore"):

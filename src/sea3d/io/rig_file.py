@@ -74,9 +74,21 @@ FORMAT_VERSION = 1
 
 # Common sensor sizes used to guess a missing image size from the principal point.
 _COMMON_SIZES = (
-    (640, 480), (752, 480), (800, 600), (1024, 768), (1280, 720), (1280, 960), (1280, 1024),
-    (1440, 1080), (1920, 1080), (1920, 1200), (2048, 1536), (2560, 1440), (3840, 2160),
-    (3856, 2180), (4096, 2160),
+    (640, 480),
+    (752, 480),
+    (800, 600),
+    (1024, 768),
+    (1280, 720),
+    (1280, 960),
+    (1280, 1024),
+    (1440, 1080),
+    (1920, 1080),
+    (1920, 1200),
+    (2048, 1536),
+    (2560, 1440),
+    (3840, 2160),
+    (3856, 2180),
+    (4096, 2160),
 )
 
 
@@ -186,9 +198,7 @@ class _Reader:
         return arr
 
 
-def _camera_from_dict(
-    r: _Reader, data: Any, name: str, width: int, height: int
-) -> CameraModel:
+def _camera_from_dict(r: _Reader, data: Any, name: str, width: int, height: int) -> CameraModel:
     prefix = f"{name}."
     if not isinstance(data, Mapping):
         raise r.fail(name, f"expected a mapping, got {data!r}")
@@ -200,9 +210,13 @@ def _camera_from_dict(
         )
     try:
         pin = PinholeCamera(
-            fx=r.number(data, "fx_px", prefix), fy=r.number(data, "fy_px", prefix),
-            cx=r.number(data, "cx_px", prefix), cy=r.number(data, "cy_px", prefix),
-            width=width, height=height, dist=dist,
+            fx=r.number(data, "fx_px", prefix),
+            fy=r.number(data, "fy_px", prefix),
+            cx=r.number(data, "cx_px", prefix),
+            cy=r.number(data, "cy_px", prefix),
+            width=width,
+            height=height,
+            dist=dist,
         )
     except RigFileError:
         raise
@@ -260,13 +274,17 @@ def rig_from_dict(data: Any, source: str = "<dict>") -> StereoRig:
     """
     r = _Reader(source)
     if not isinstance(data, Mapping):
-        raise RigFileError(f"{source}: expected a mapping at the top level, got {type(data).__name__}")
+        raise RigFileError(
+            f"{source}: expected a mapping at the top level, got {type(data).__name__}"
+        )
     fmt = data.get("format")
     if fmt != FORMAT_NAME:
         raise r.fail("format", f"expected {FORMAT_NAME!r}, got {fmt!r}")
     version = data.get("version")
     if version != FORMAT_VERSION:
-        raise r.fail("version", f"unsupported version {version!r} (this sea3d reads {FORMAT_VERSION})")
+        raise r.fail(
+            "version", f"unsupported version {version!r} (this sea3d reads {FORMAT_VERSION})"
+        )
     width = r.number(data, "image_width_px")
     height = r.number(data, "image_height_px")
     if width <= 0 or height <= 0 or width != int(width) or height != int(height):
@@ -396,7 +414,9 @@ def _load_opencv(
             image_size = _guess_size(K1[0, 2], K1[1, 2])
             log.warning(
                 "%s holds no image size; assuming %dx%d from the principal point (pass "
-                "image_size / --size to set it)", path, *image_size,
+                "image_size / --size to set it)",
+                path,
+                *image_size,
             )
     # Orthonormalise R: exported files round to 6 digits, which breaks a strict rigidity check.
     u, _, vt = np.linalg.svd(R)
@@ -467,7 +487,9 @@ def rig_to_colmap(rig: StereoRig) -> str:
             model, params = "FULL_OPENCV", [pin.fx, pin.fy, pin.cx, pin.cy, *coeffs]
         else:
             model, params = "OPENCV", [pin.fx, pin.fy, pin.cx, pin.cy, *coeffs[:4]]
-        lines.append(f"{cam_id} {model} {rig.width} {rig.height} " + " ".join(f"{v:.12g}" for v in params))
+        lines.append(
+            f"{cam_id} {model} {rig.width} {rig.height} " + " ".join(f"{v:.12g}" for v in params)
+        )
         if isinstance(cam, DomePortCamera):
             p = cam.port
             vals = [*p.center_m, p.inner_radius_m, p.thickness_m, p.n_air, p.n_glass, p.n_water]

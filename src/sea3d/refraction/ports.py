@@ -107,9 +107,7 @@ class DomePort:
     @property
     def is_identity(self) -> bool:
         """True if the dome does not bend any ray: centred, or all indices equal."""
-        return bool(np.all(self.center_m == 0.0)) or (
-            self.n_air == self.n_glass == self.n_water
-        )
+        return bool(np.all(self.center_m == 0.0)) or (self.n_air == self.n_glass == self.n_water)
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -135,7 +133,7 @@ class FlatPort:
     n_water: float = N_WATER
 
     def __post_init__(self) -> None:
-        n = np.asarray(self.normal, dtype=np.float64).reshape(-1)
+        n: FloatArray = np.asarray(self.normal, dtype=np.float64).reshape(-1)
         norm = float(np.linalg.norm(n)) if n.shape == (3,) else 0.0
         if n.shape != (3,) or not math.isfinite(norm) or norm < 1e-12:
             raise RefractionError(f"flat-port normal must be 3 finite non-zero values, got {n}")
@@ -274,9 +272,9 @@ class _AxialPortCamera:
                 break
             th, qx, qy = theta[active], px[active], py[active]
             f = residual(th, qx, qy)
-            fp = (
-                residual(th + _FD_STEP_RAD, qx, qy) - residual(th - _FD_STEP_RAD, qx, qy)
-            ) / (2 * _FD_STEP_RAD)
+            fp = (residual(th + _FD_STEP_RAD, qx, qy) - residual(th - _FD_STEP_RAD, qx, qy)) / (
+                2 * _FD_STEP_RAD
+            )
             with np.errstate(divide="ignore", invalid="ignore"):
                 step = f / fp
             # Damp steps larger than 0.2 rad so that a poor start cannot jump past the domain.
@@ -391,10 +389,14 @@ class FlatPortCamera(_AxialPortCamera):
             forward = dx > 1e-12
             lam1 = np.where(forward, port.distance_m / dx, np.nan)
             p1x, p1y = lam1 * dx, lam1 * dy
-            gx, gy = _refract2(dx, dy, -np.ones_like(dx), np.zeros_like(dx), port.n_air / port.n_glass)
+            gx, gy = _refract2(
+                dx, dy, -np.ones_like(dx), np.zeros_like(dx), port.n_air / port.n_glass
+            )
             lam2 = port.thickness_m / gx
             p2x, p2y = p1x + lam2 * gx, p1y + lam2 * gy
-            wx, wy = _refract2(gx, gy, -np.ones_like(gx), np.zeros_like(gx), port.n_glass / port.n_water)
+            wx, wy = _refract2(
+                gx, gy, -np.ones_like(gx), np.zeros_like(gx), port.n_glass / port.n_water
+            )
         return p2x, p2y, wx, wy
 
     def _initial_angle(self, px: FloatArray, py: FloatArray) -> FloatArray:

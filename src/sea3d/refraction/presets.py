@@ -10,7 +10,7 @@ water 1.333 (Table 2.4), dome centre (-0.54, 0.58, 2.10) mm (Table 3.7; used for
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -118,7 +118,7 @@ def with_ports(
         pins.append(pin)
     if thickness_m is None:
         thickness_m = PAPER_DOME_THICKNESS_M if port == "dome" else DEFAULT_FLAT_THICKNESS_M
-    common = {
+    common: dict[str, Any] = {
         "inner_radius_m": inner_radius_m,
         "thickness_m": thickness_m,
         "n_glass": n_glass,
@@ -126,8 +126,8 @@ def with_ports(
         "n_air": n_air,
         "flat_distance_m": flat_distance_m,
     }
-    left = _with_port(pins[0], port, dome_center_m=dome_center_left_m, **common)  # type: ignore[arg-type]
-    right = _with_port(pins[1], port, dome_center_m=dome_center_right_m, **common)  # type: ignore[arg-type]
+    left = _with_port(pins[0], port, dome_center_m=dome_center_left_m, **common)
+    right = _with_port(pins[1], port, dome_center_m=dome_center_right_m, **common)
     return StereoRig(left=left, right=right, T_left_right=rig.T_left_right)
 
 
@@ -163,7 +163,11 @@ def paper_rig(
         raise ConfigError(f"focal length must be > 0 px, got {fx}")
     fy = fx * fy0 / fx0
     pin = PinholeCamera(
-        fx=fx, fy=fy, cx=(cx0 + 0.5) * sx - 0.5, cy=(cy0 + 0.5) * sy - 0.5, width=width,
+        fx=fx,
+        fy=fy,
+        cx=(cx0 + 0.5) * sx - 0.5,
+        cy=(cy0 + 0.5) * sy - 0.5,
+        width=width,
         height=height,
     )
     T_left_right = np.eye(4)
