@@ -3,10 +3,10 @@
 import cv2
 import numpy as np
 import pytest
-from tolerances import PIXEL_EXACT_PX
 
 from sea3d.errors import CameraModelError, GeometryError
 from sea3d.geometry import PinholeCamera
+from tolerances import PIXEL_EXACT_PX
 
 
 def _camera(n_coeffs: int, rng: np.random.Generator) -> PinholeCamera:

@@ -2,11 +2,11 @@
 
 import numpy as np
 import pytest
-from tolerances import PINHOLE_REDUCTION_PX, REFRACTIVE_ROUNDTRIP_PX
 
 from sea3d.errors import RefractionError
 from sea3d.geometry import PinholeCamera
 from sea3d.refraction import DomePort, DomePortCamera, FlatPort, FlatPortCamera, refract
+from tolerances import PINHOLE_REDUCTION_PX, REFRACTIVE_ROUNDTRIP_PX
 
 R_IN = 0.03125  # the paper's acrylic dome (Table 2.5)
 THICK = 0.0031
@@ -19,7 +19,8 @@ def _pinhole(dist=()):
 
 def _dome(center, dist=(), **kw):
     return DomePortCamera(
-        _pinhole(dist), DomePort(center_m=np.asarray(center), inner_radius_m=R_IN, thickness_m=THICK, **kw)
+        _pinhole(dist),
+        DomePort(center_m=np.asarray(center), inner_radius_m=R_IN, thickness_m=THICK, **kw),
     )
 
 
@@ -45,8 +46,13 @@ def test_dome_with_equal_indices_reduces_to_pinhole(rng):
 
 @pytest.mark.parametrize(
     "center_mm",
-    [PAPER_CENTER_MM := (-0.54, 0.58, 2.10), (5.0, 0.0, 0.0), (0.0, -5.0, 0.0), (0.0, 0.0, 5.0),
-     (2.9, 2.9, -2.9)],
+    [
+        PAPER_CENTER_MM := (-0.54, 0.58, 2.10),
+        (5.0, 0.0, 0.0),
+        (0.0, -5.0, 0.0),
+        (0.0, 0.0, 5.0),
+        (2.9, 2.9, -2.9),
+    ],
 )
 def test_dome_round_trip_over_full_image_and_ranges(center_mm, rng):
     cam = _dome(np.asarray(center_mm) * 1e-3, dist=(0.04, -0.01, 0.001, -0.001, 0.0))
