@@ -150,6 +150,7 @@ def test_flat_port_with_equal_indices_is_the_pinhole(rng):
     uv, valid = cam.project(pts)
     ref, vref = cam.pinhole.project(pts)
     np.testing.assert_array_equal(uv, ref)
+    np.testing.assert_array_equal(valid, vref)
     assert np.abs(uv - ref).max() <= PINHOLE_REDUCTION_PX
 
 

@@ -19,6 +19,7 @@ def test_known_angle_air_to_water():
 
 def test_normal_incidence_passes_straight():
     out, ok = refract(np.array([[0.0, 0.0, 1.0]]), [0.0, 0.0, -1.0], 1.0, 1.492)
+    assert ok.all()
     np.testing.assert_allclose(out, [[0.0, 0.0, 1.0]], atol=1e-15)
 
 
