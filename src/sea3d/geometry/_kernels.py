@@ -44,7 +44,7 @@ def undistort(xd: FloatArray, yd: FloatArray, k: FloatArray, tilt_inv: FloatArra
             fy = y * rad + k[2] * (r2 + 2.0 * y * y) + 2.0 * k[3] * x * y + k[10] * r2 + k[11] * r4
             ex = fx - tx
             ey = fy - ty
-            if abs(ex) < 1e-15 and abs(ey) < 1e-15:
+            if abs(ex) < 1e-14 and abs(ey) < 1e-14:
                 ok = True
                 break
             # Analytic Jacobian of the distortion.
