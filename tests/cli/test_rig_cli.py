@@ -171,3 +171,13 @@ def test_bad_rig_file_is_reported_not_a_traceback(tmp_path, capsys):
     bad.write_text("format: sea3d-rig\nversion: 1\n")
     assert main(["rig", "show", str(bad)]) == 2
     assert "rig.yaml: key 'image_width_px': missing" in capsys.readouterr().err
+
+
+def test_python_dash_m_runs_the_same_command():
+    import subprocess
+    import sys
+
+    out = subprocess.run(
+        [sys.executable, "-m", "sea3d", "--version"], capture_output=True, text=True, check=True
+    )
+    assert out.stdout.startswith("sea3d ")
