@@ -121,9 +121,70 @@ def _cmd_eval_disparity(args: argparse.Namespace) -> int:
 
 
 def _cmd_depth(args: argparse.Namespace) -> int:
-    from sea3d.stereo.pipeline import run_depth_command
+    import numpy as np
 
-    return run_depth_command(args, _read_image, _warm_up)
+    from sea3d.errors import StereoError
+    from sea3d.io.rig_file import load_rig
+    from sea3d.rectify import rectify_rig
+    from sea3d.stereo import make_config
+    from sea3d.stereo.depth import compute_depth, max_disparity_for_depth
+    from sea3d.stereo.files import write_depth, write_ply
+
+    if not (0 < args.min_depth < args.max_depth):
+        raise StereoError(
+            f"need 0 < --min-depth < --max-depth, got {args.min_depth} and {args.max_depth}"
+        )
+    rig = load_rig(args.rig)
+    left = _read_image(args.left)
+    right = _read_image(args.right)
+    for name, img, path in (("left", left, args.left), ("right", right, args.right)):
+        if img.shape[:2] != (rig.height, rig.width):
+            raise StereoError(
+                f"{name} image {path} is {img.shape[1]}x{img.shape[0]} but the rig "
+                f"{args.rig} is {rig.width}x{rig.height}"
+            )
+    t0 = time.perf_counter()
+    maps = rectify_rig(rig, depth_range_m=(args.min_depth, args.max_depth))
+    rectify_maps_s = time.perf_counter() - t0
+    max_d = args.max_disparity or max_disparity_for_depth(maps, args.min_depth)
+    config = make_config(args.engine, max_d)
+    compile_s = _warm_up(args.engine)
+    res = compute_depth(maps, left, right, config, max_depth_m=args.max_depth)
+    write_depth(args.output, res.depth_m)
+    if args.points:
+        write_ply(args.points, res.points_left, res.colors_rgb)
+    valid_fraction = float(np.isfinite(res.depth_m).mean())
+    summary = {
+        "output": str(args.output),
+        "points": str(args.points) if args.points else None,
+        "n_points": len(res.points_left),
+        "valid_fraction": valid_fraction,
+        "median_depth_m": float(np.nanmedian(res.depth_m)) if valid_fraction > 0 else None,
+        "refractive": maps.refractive,
+        "focal_px": maps.focal_px,
+        "baseline_m": maps.baseline_m,
+        "max_disparity_px": max_d,
+        "engine": args.engine,
+        "match_s": res.timings_s["match_s"],
+        "rectify_s": res.timings_s["rectify_s"],
+        "depth_s": res.timings_s["depth_s"],
+        "rectify_maps_s": rectify_maps_s,
+        "compile_s": compile_s,
+    }
+    for side, rep in (("left", maps.report_left), ("right", maps.report_right)):
+        if rep is not None:
+            summary[f"virtual_pinhole_{side}_rms_px"] = rep.rms_px
+            summary[f"virtual_pinhole_{side}_max_px"] = rep.max_px
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        print(
+            f"{args.output}: {100 * valid_fraction:.1f} % valid, median depth "
+            f"{summary['median_depth_m'] or float('nan'):.3f} m"
+            + (f", {len(res.points_left)} points -> {args.points}" if args.points else "")
+            + (" (refraction-corrected)" if maps.refractive else "")
+        )
+    return 0
 
 
 def register(sub: Any) -> None:

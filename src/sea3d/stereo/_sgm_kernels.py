@@ -393,3 +393,115 @@ def full_band(h: int, w: int, num_disp: int) -> tuple[np.ndarray, np.ndarray]:
         for x in range(w):
             nn[y, x] = min(num_disp, x + 1)
     return lo, nn
+
+
+@njit(parallel=True, cache=True)
+def refine_subpixel(
+    left: np.ndarray,
+    right: np.ndarray,
+    disp: np.ndarray,
+    half_h: int,
+    half_w: int,
+    iterations: int,
+    max_step: float,
+) -> np.ndarray:
+    """Refine disparities by direct image alignment, removing the cost-curve fit's bias.
+
+    For each valid pixel, the window ``(2*half_h+1) x (2*half_w+1)`` of the left image is
+    modelled as ``L = a * R(x - d) + b`` (gain ``a`` and offset ``b`` absorb brightness
+    changes between the views, ``R`` interpolated linearly along the row); ``a``, ``b`` and
+    ``d`` are updated by Gauss-Newton ``iterations`` times. Updates that move ``d`` by more
+    than ``max_step`` pixels, or degenerate (texture-less) windows, keep the input value.
+
+    ``left``, ``right`` (H, W) float32 images; ``disp`` (H, W) float32, NaN invalid.
+    Returns a new (H, W) float32 map.
+    """
+    h, w = left.shape
+    out = disp.copy()
+    for y in prange(h):
+        if y < half_h or y >= h - half_h:
+            continue
+        for x in range(half_w, w - half_w):
+            d0 = disp[y, x]
+            if d0 != d0:
+                continue
+            d = np.float64(d0)
+            # initial gain and offset from window statistics
+            sl = 0.0
+            sll = 0.0
+            n = 0
+            for yy in range(y - half_h, y + half_h + 1):
+                for xx in range(x - half_w, x + half_w + 1):
+                    v = left[yy, xx]
+                    sl += v
+                    sll += v * v
+                    n += 1
+            ok = True
+            a = 1.0
+            b = 0.0
+            for it in range(iterations + 1):
+                # accumulate normal equations for (a, b, d)
+                h00 = h01 = h02 = h11 = h12 = h22 = 0.0
+                g0 = g1 = g2 = 0.0
+                sr = 0.0
+                srr = 0.0
+                for yy in range(y - half_h, y + half_h + 1):
+                    for xx in range(x - half_w, x + half_w + 1):
+                        xr = xx - d
+                        if xr < 0.0 or xr > w - 1.001:
+                            ok = False
+                            break
+                        i0 = int(xr)
+                        f = xr - i0
+                        r0 = right[yy, i0]
+                        r1 = right[yy, i0 + 1]
+                        rv = r0 + f * (r1 - r0)
+                        sr += rv
+                        srr += rv * rv
+                        if it > 0:
+                            jd = a * (r1 - r0)  # d/dd of a * R(x - d) is -a R'; r = L - model
+                            res = left[yy, xx] - a * rv - b
+                            # J = [rv, 1, -jd]; minimise |r - J delta|^2
+                            h00 += rv * rv
+                            h01 += rv
+                            h02 -= rv * jd
+                            h11 += 1.0
+                            h12 -= jd
+                            h22 += jd * jd
+                            g0 += rv * res
+                            g1 += res
+                            g2 -= jd * res
+                    if not ok:
+                        break
+                if not ok:
+                    break
+                if it == 0:
+                    var_l = sll / n - (sl / n) ** 2
+                    var_r = srr / n - (sr / n) ** 2
+                    if var_l < 1.0 or var_r < 1.0:
+                        ok = False
+                        break
+                    a = np.sqrt(var_l / var_r)
+                    b = sl / n - a * sr / n
+                    continue
+                # solve the 3x3 system by Cramer's rule
+                det = (h00 * (h11 * h22 - h12 * h12) - h01 * (h01 * h22 - h12 * h02)
+                       + h02 * (h01 * h12 - h11 * h02))
+                if abs(det) < 1e-9:
+                    ok = False
+                    break
+                da = (g0 * (h11 * h22 - h12 * h12) - h01 * (g1 * h22 - h12 * g2)
+                      + h02 * (g1 * h12 - h11 * g2)) / det
+                db = (h00 * (g1 * h22 - g2 * h12) - g0 * (h01 * h22 - h12 * h02)
+                      + h02 * (h01 * g2 - g1 * h02)) / det
+                dd = (h00 * (h11 * g2 - h12 * g1) - h01 * (h01 * g2 - g1 * h02)
+                      + g0 * (h01 * h12 - h11 * h02)) / det
+                a += da
+                b += db
+                d += dd
+                if abs(d - d0) > max_step:
+                    ok = False
+                    break
+            if ok:
+                out[y, x] = np.float32(d)
+    return out

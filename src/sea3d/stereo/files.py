@@ -18,7 +18,16 @@ from numpy.typing import NDArray
 
 from sea3d.errors import StereoError
 
-__all__ = ["read_disparity", "read_pfm", "write_disparity", "write_pfm"]
+__all__ = [
+    "read_depth_png_mm",
+    "read_disparity",
+    "read_pfm",
+    "write_depth",
+    "write_depth_png_mm",
+    "write_disparity",
+    "write_pfm",
+    "write_ply",
+]
 
 
 def write_pfm(path: str | Path, image: np.ndarray) -> None:
@@ -173,3 +182,81 @@ def write_disparity(path: str | Path, disparity: np.ndarray) -> None:
     except OSError as err:
         raise StereoError(f"cannot write {p}: {err}") from err
 
+
+
+def write_depth_png_mm(path: str | Path, depth_m: np.ndarray) -> None:
+    """Write depth as a 16-bit PNG of **millimetres**, 0 = invalid (NaN, <= 0 or > 65.535 m).
+
+    Raises:
+        StereoError: the file cannot be written.
+    """
+    z = np.asarray(depth_m, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        mm = np.round(z * 1000.0)
+        ok = np.isfinite(mm) & (mm > 0) & (mm <= 65535)
+    out = np.where(ok, mm, 0).astype(np.uint16)
+    if not cv2.imwrite(str(path), out):
+        raise StereoError(f"cannot write 16-bit PNG {path}")
+
+
+def read_depth_png_mm(path: str | Path) -> NDArray[np.float32]:
+    """Read a 16-bit millimetre depth PNG into float32 metres, NaN where 0.
+
+    Raises:
+        StereoError: unreadable, or not a 16-bit one-channel image.
+    """
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None or img.dtype != np.uint16 or img.ndim != 2:
+        raise StereoError(f"{path}: expected a 16-bit one-channel PNG of millimetres")
+    z = img.astype(np.float32) / np.float32(1000.0)
+    z[img == 0] = np.nan
+    return z
+
+
+def write_depth(path: str | Path, depth_m: np.ndarray) -> None:
+    """Write depth in metres: ``.png`` as 16-bit millimetres (0 invalid), ``.pfm``/``.npy``/
+    ``.tif(f)`` as float32 metres with NaN invalid.
+
+    Raises:
+        StereoError: unknown suffix or unwritable file.
+    """
+    if Path(path).suffix.lower() == ".png":
+        write_depth_png_mm(path, depth_m)
+    else:
+        write_disparity(path, depth_m)
+
+
+def write_ply(path: str | Path, points: np.ndarray, colors_rgb: np.ndarray | None = None) -> None:
+    """Write a binary little-endian PLY point cloud: float32 x y z (metres) and, if given,
+    uchar red green blue.
+
+    Args:
+        points: (N, 3) metres.
+        colors_rgb: (N, 3) uint8 or None.
+
+    Raises:
+        StereoError: mismatched shapes or unwritable file.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise StereoError(f"points must be (N, 3), got {pts.shape}")
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    if colors_rgb is not None:
+        cols = np.asarray(colors_rgb)
+        if cols.shape != pts.shape:
+            raise StereoError(f"colours {cols.shape} do not match points {pts.shape}")
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    rec = np.empty(len(pts), dtype=fields)
+    rec["x"], rec["y"], rec["z"] = pts[:, 0], pts[:, 1], pts[:, 2]
+    header = ["ply", "format binary_little_endian 1.0", f"element vertex {len(pts)}",
+              "property float x", "property float y", "property float z"]
+    if colors_rgb is not None:
+        rec["red"], rec["green"], rec["blue"] = cols[:, 0], cols[:, 1], cols[:, 2]
+        header += ["property uchar red", "property uchar green", "property uchar blue"]
+    header.append("end_header")
+    try:
+        with open(path, "wb") as fh:
+            fh.write(("\n".join(header) + "\n").encode("ascii"))
+            fh.write(rec.tobytes())
+    except OSError as err:
+        raise StereoError(f"cannot write PLY {path}: {err}") from err

@@ -140,6 +140,11 @@ def match_sgm(left: np.ndarray, right: np.ndarray, config: SgmConfig) -> Dispari
         log.debug("level %d: %dx%d, %d disparities, band <= %d", lev, a.shape[1], a.shape[0],
                   nd, k_max)
         t0 = time.perf_counter()
+        if lev == 0 and config.refine_iterations > 0:
+            r = config.refine_window_px // 2
+            disp = K.refine_subpixel(a, b, disp, r, r, config.refine_iterations, 0.5)
+            timings["refine_s"] = time.perf_counter() - t0
+            t0 = time.perf_counter()
         if config.median_px > 1:
             disp = median_nan(disp, config.median_px)
         if config.speckle_size_px > 0:

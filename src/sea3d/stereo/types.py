@@ -66,6 +66,11 @@ class SgmConfig:
     """Coarse-to-fine: widest per-pixel search band, disparities."""
     band_radius_px: int = 1
     """Coarse-to-fine: half-size of the coarse window whose disparities span the band."""
+    refine_iterations: int = 2
+    """Gauss-Newton steps of direct image alignment (gain, offset, disparity) that refine each
+    disparity after the cost-curve fit, removing its pixel-locking bias; 0 disables."""
+    refine_window_px: int = 7
+    """Odd window size of that refinement, pixels."""
     median_px: int = 3
     """Size of the NaN-aware median filter applied to the result (0 or 1 disables)."""
     speckle_size_px: int = 100
