@@ -124,10 +124,10 @@ def aggregate_lines(
     ``(y - dy, x - dx)`` lies outside the image). Scanlines are independent, so they are shared
     among threads with no synchronisation; each is walked forward (path ``+r``), then backward.
 
-    Path costs live in ``prev``/``cur`` with one infinite entry on each side of the band, so
-    the recursion's ``d - 1`` and ``d + 1`` need no bounds tests; when the band moves between
-    neighbours the previous costs are first re-aligned into ``tmp``. (Separate small arrays and
-    plain loops measured fastest; walking neighbouring lines in lockstep was slower.)
+    Path costs live in rows of ``bufs`` (previous, current, re-aligned) with one infinite entry
+    on each side of the band, so the recursion's ``d - 1`` and ``d + 1`` need no bounds tests;
+    when the band moves between neighbours the previous costs are first re-aligned into the
+    third row. (Walking neighbouring lines in lockstep for cache locality measured slower.)
     """
     h, w = lo.shape
     kk = k_max
@@ -135,9 +135,7 @@ def aggregate_lines(
     nf = n.reshape(-1)
     gf = guide.reshape(-1)
     for i in prange(starts.shape[0]):
-        prev = np.full(kk + 2, _INF, np.int32)
-        cur = np.full(kk + 2, _INF, np.int32)
-        tmp = np.full(kk + 2, _INF, np.int32)
+        bufs = np.full((3, kk + 2), _INF, np.int32)
         y0 = np.int64(starts[i, 0])
         x0 = np.int64(starts[i, 1])
         length = 1
@@ -153,12 +151,13 @@ def aggregate_lines(
             np_ = nf[p]
             cb = offs[p]
             m = _INF
+            pi = 0
             for k in range(np_):
                 v = np.int32(cf[cb + k])
-                prev[k + 1] = v
+                bufs[0, k + 1] = v
                 tf[cb + k] += v
                 m = min(m, int(v))
-            prev[np_ + 1] = _INF
+            bufs[0, np_ + 1] = _INF
             for _ in range(length - 1):
                 q = p
                 p += s
@@ -167,26 +166,26 @@ def aggregate_lines(
                 off = lof[p] - lof[q]
                 pe = p2_lut[abs(np.int32(gf[p]) - np.int32(gf[q]))]
                 c2 = m + pe
-                if off == 0 and np_ == n_q:
-                    src = prev
-                else:
+                ci = 1 - pi
+                si = pi
+                if off != 0 or np_ != n_q:
                     for k in range(np_ + 2):
                         j = k + off
-                        tmp[k] = prev[j] if 1 <= j <= n_q else _INF
-                    src = tmp
+                        bufs[2, k] = bufs[pi, j] if 1 <= j <= n_q else _INF
+                    si = 2
                 cb = offs[p]
                 mm = _INF
                 for k in range(np_):
-                    v = min(src[k], src[k + 2]) + p1
-                    v = min(v, src[k + 1])
+                    v = min(bufs[si, k], bufs[si, k + 2]) + p1
+                    v = min(v, bufs[si, k + 1])
                     v = min(v, c2)
                     v = np.int32(cf[cb + k]) + v - m
-                    cur[k + 1] = v
+                    bufs[ci, k + 1] = v
                     tf[cb + k] += v
                     mm = min(mm, int(v))
-                cur[np_ + 1] = _INF
+                bufs[ci, np_ + 1] = _INF
                 m = mm
-                prev, cur = cur, prev
+                pi = ci
 
 
 def p2_table(p1: int, p2: int, tau: float) -> np.ndarray:
@@ -409,9 +408,10 @@ def refine_subpixel(
 
     For each valid pixel, the window ``(2*half_h+1) x (2*half_w+1)`` of the left image is
     modelled as ``L = a * R(x - d) + b`` (gain ``a`` and offset ``b`` absorb brightness
-    changes between the views, ``R`` interpolated linearly along the row); ``a``, ``b`` and
-    ``d`` are updated by Gauss-Newton ``iterations`` times. Updates that move ``d`` by more
-    than ``max_step`` pixels, or degenerate (texture-less) windows, keep the input value.
+    changes between the views, ``R`` interpolated linearly along the row); starting from
+    ``a = 1, b = 0``, ``a``, ``b`` and ``d`` are updated by ``iterations`` Gauss-Newton steps.
+    Updates that move ``d`` by more than ``max_step`` pixels, windows leaving the image, or
+    degenerate (texture-less) windows keep the input value.
 
     ``left``, ``right`` (H, W) float32 images; ``disp`` (H, W) float32, NaN invalid.
     Returns a new (H, W) float32 map.
@@ -425,77 +425,48 @@ def refine_subpixel(
             d0 = disp[y, x]
             if d0 != d0:
                 continue
-            d = np.float64(d0)
-            # initial gain and offset from window statistics
-            sl = 0.0
-            sll = 0.0
-            n = 0
-            for yy in range(y - half_h, y + half_h + 1):
-                for xx in range(x - half_w, x + half_w + 1):
-                    v = left[yy, xx]
-                    sl += v
-                    sll += v * v
-                    n += 1
+            d = np.float32(d0)
+            a = np.float32(1.0)
+            b = np.float32(0.0)
             ok = True
-            a = 1.0
-            b = 0.0
-            for it in range(iterations + 1):
-                # accumulate normal equations for (a, b, d)
-                h00 = h01 = h02 = h11 = h12 = h22 = 0.0
-                g0 = g1 = g2 = 0.0
-                sr = 0.0
-                srr = 0.0
-                for yy in range(y - half_h, y + half_h + 1):
-                    for xx in range(x - half_w, x + half_w + 1):
-                        xr = xx - d
-                        if xr < 0.0 or xr > w - 1.001:
-                            ok = False
-                            break
-                        i0 = int(xr)
-                        f = xr - i0
-                        r0 = right[yy, i0]
-                        r1 = right[yy, i0 + 1]
-                        rv = r0 + f * (r1 - r0)
-                        sr += rv
-                        srr += rv * rv
-                        if it > 0:
-                            jd = a * (r1 - r0)  # d/dd of a * R(x - d) is -a R'; r = L - model
-                            res = left[yy, xx] - a * rv - b
-                            # J = [rv, 1, -jd]; minimise |r - J delta|^2
-                            h00 += rv * rv
-                            h01 += rv
-                            h02 -= rv * jd
-                            h11 += 1.0
-                            h12 -= jd
-                            h22 += jd * jd
-                            g0 += rv * res
-                            g1 += res
-                            g2 -= jd * res
-                    if not ok:
-                        break
-                if not ok:
-                    break
-                if it == 0:
-                    var_l = sll / n - (sl / n) ** 2
-                    var_r = srr / n - (sr / n) ** 2
-                    if var_l < 1.0 or var_r < 1.0:
-                        ok = False
-                        break
-                    a = np.sqrt(var_l / var_r)
-                    b = sl / n - a * sr / n
-                    continue
-                # solve the 3x3 system by Cramer's rule
-                det = (h00 * (h11 * h22 - h12 * h12) - h01 * (h01 * h22 - h12 * h02)
-                       + h02 * (h01 * h12 - h11 * h02))
-                if abs(det) < 1e-9:
+            for _ in range(iterations):
+                lo_x = x - half_w - d
+                if lo_x < 0.0 or x + half_w - d > w - 1.001:
                     ok = False
                     break
-                da = (g0 * (h11 * h22 - h12 * h12) - h01 * (g1 * h22 - h12 * g2)
-                      + h02 * (g1 * h12 - h11 * g2)) / det
-                db = (h00 * (g1 * h22 - g2 * h12) - g0 * (h01 * h22 - h12 * h02)
-                      + h02 * (h01 * g2 - g1 * h02)) / det
-                dd = (h00 * (h11 * g2 - h12 * g1) - h01 * (h01 * g2 - g1 * h02)
-                      + g0 * (h01 * h12 - h11 * h02)) / det
+                h00 = h01 = h02 = h11 = h12 = h22 = np.float32(0.0)
+                g0 = g1 = g2 = np.float32(0.0)
+                i0 = int(lo_x)
+                f = np.float32(lo_x - i0)
+                for yy in range(y - half_h, y + half_h + 1):
+                    rrow = right[yy]
+                    lrow = left[yy]
+                    for k in range(2 * half_w + 1):
+                        r0 = rrow[i0 + k]
+                        r1 = rrow[i0 + k + 1]
+                        grad = r1 - r0
+                        rv = r0 + f * grad
+                        jd = a * grad
+                        res = lrow[x - half_w + k] - a * rv - b
+                        h00 += rv * rv
+                        h01 += rv
+                        h02 -= rv * jd
+                        h12 -= jd
+                        h22 += jd * jd
+                        g0 += rv * res
+                        g1 += res
+                        g2 -= jd * res
+                h11 = np.float32((2 * half_h + 1) * (2 * half_w + 1))
+                c0 = h11 * h22 - h12 * h12
+                c1 = h01 * h22 - h12 * h02
+                c2 = h01 * h12 - h11 * h02
+                det = h00 * c0 - h01 * c1 + h02 * c2
+                if abs(det) < 1e-6 * h11 * h11 * h11 or h22 < 1e-3 * h11:
+                    ok = False
+                    break
+                da = (g0 * c0 - h01 * (g1 * h22 - h12 * g2) + h02 * (g1 * h12 - h11 * g2)) / det
+                db = (h00 * (g1 * h22 - g2 * h12) - g0 * c1 + h02 * (h01 * g2 - g1 * h02)) / det
+                dd = (h00 * (h11 * g2 - h12 * g1) - h01 * (h01 * g2 - g1 * h02) + g0 * c2) / det
                 a += da
                 b += db
                 d += dd
@@ -503,5 +474,5 @@ def refine_subpixel(
                     ok = False
                     break
             if ok:
-                out[y, x] = np.float32(d)
+                out[y, x] = d
     return out

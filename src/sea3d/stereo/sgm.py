@@ -120,6 +120,16 @@ def match_sgm(left: np.ndarray, right: np.ndarray, config: SgmConfig) -> Dispari
             wide as the image.
     """
     check_pair(left, right, config.max_disparity_px)
+    # Dynamic scheduling of parallel loops: chunks of work are handed out as threads free up,
+    # so a core busy with another process does not stall every parallel region.
+    previous_chunk = numba.set_parallel_chunksize(16)
+    try:
+        return _match_sgm(left, right, config)
+    finally:
+        numba.set_parallel_chunksize(previous_chunk)
+
+
+def _match_sgm(left: np.ndarray, right: np.ndarray, config: SgmConfig) -> DisparityResult:
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
     gl, gr = to_grey_float(left, right)

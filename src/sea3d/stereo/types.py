@@ -60,16 +60,16 @@ class SgmConfig:
     coarse_search_budget: int = 2_000_000
     """With ``pyramid_levels=None``: otherwise add levels until the coarsest full volume
     (H * W * D, each halved per level) stays below this."""
-    band_margin_px: int = 3
+    band_margin_px: int = 2
     """Coarse-to-fine: extra disparities searched on each side of the coarse estimate."""
     band_max_px: int = 48
     """Coarse-to-fine: widest per-pixel search band, disparities."""
     band_radius_px: int = 1
     """Coarse-to-fine: half-size of the coarse window whose disparities span the band."""
-    refine_iterations: int = 2
+    refine_iterations: int = 1
     """Gauss-Newton steps of direct image alignment (gain, offset, disparity) that refine each
     disparity after the cost-curve fit, removing its pixel-locking bias; 0 disables."""
-    refine_window_px: int = 7
+    refine_window_px: int = 5
     """Odd window size of that refinement, pixels."""
     median_px: int = 3
     """Size of the NaN-aware median filter applied to the result (0 or 1 disables)."""
