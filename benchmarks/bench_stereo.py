@@ -8,7 +8,9 @@ ratios, the accuracy against the known disparity, and the peak resident memory o
 measured in a fresh subprocess (``VmHWM`` from /proc/self/status; tracemalloc cannot see numba's
 or OpenCV's buffers).
 
-Run: ``PYTHONPATH=src python benchmarks/bench_stereo.py [--repeats 5] [--width 1920 --height 1080]``
+Run: ``PYTHONPATH=src python benchmarks/bench_stereo.py [--repeats 5]``;
+``--middlebury ../shared/data/stereo_gt`` prints the accuracy table of docs/depth.md and
+``--refraction`` the refraction-correction table.
 """
 
 from __future__ import annotations
@@ -97,8 +99,103 @@ def worker(engine: str, inputs: Path) -> None:
                       "match_s": res.timings_s["match_s"]}))
 
 
+MIDDLEBURY = {
+    "tsukuba": ("im3.png", "im4.png", "disp3.pgm", 16, 15),
+    "venus": ("im2.png", "im6.png", "disp2.pgm", 8, 31),
+    "cones": ("im2.png", "im6.png", "disp2.png", 4, 63),
+    "teddy": ("im2.png", "im6.png", "disp2.png", 4, 63),
+}
+
+
+def middlebury_table(root: Path) -> None:
+    """Accuracy of sea3d and OpenCV (HH, SGBM; block sizes 3 and 5) on Middlebury scenes."""
+    from sea3d.eval import disparity_metrics
+    from sea3d.stereo import OpenCVSgbmConfig, SgmConfig, match
+
+    engines = {
+        "sea3d": lambda md: SgmConfig(max_disparity_px=md),
+        "sea3d fill 8": lambda md: SgmConfig(max_disparity_px=md, fill_max_px=8),
+        "sea3d 16 paths": lambda md: SgmConfig(max_disparity_px=md, paths=16),
+        "OpenCV HH w3": lambda md: OpenCVSgbmConfig(max_disparity_px=md, mode="hh",
+                                                    block_size_px=3),
+        "OpenCV HH w5": lambda md: OpenCVSgbmConfig(max_disparity_px=md, mode="hh"),
+        "OpenCV SGBM w5": lambda md: OpenCVSgbmConfig(max_disparity_px=md, mode="sgbm"),
+    }
+    print("| scene | engine | bad-0.5 % | bad-1 % | bad-2 % | bad-4 % | EPE px | density % |")
+    print("|---|---|---|---|---|---|---|---|")
+    for scene, (ln, rn, gn, scale, md) in MIDDLEBURY.items():
+        folder = root / scene
+        left = cv2.cvtColor(cv2.imread(str(folder / ln)), cv2.COLOR_BGR2RGB)
+        right = cv2.cvtColor(cv2.imread(str(folder / rn)), cv2.COLOR_BGR2RGB)
+        raw = cv2.imread(str(folder / gn), cv2.IMREAD_UNCHANGED)
+        gt = np.where(raw > 0, raw / scale, np.nan).astype(np.float32)
+        for name, mk in engines.items():
+            m = disparity_metrics(match(left, right, mk(md)).disparity_px, gt)  # type: ignore[no-untyped-call]
+            print(f"| {scene} | {name} | {m.bad_0_5:.2f} | {m.bad_1:.2f} | {m.bad_2:.2f} | "
+                  f"{m.bad_4:.2f} | {m.epe_px:.3f} | {m.density:.1f} |")
+
+
+def _render_plane(cam: object, T_left_cam: np.ndarray, depth_m: float, tex: np.ndarray,
+                  half_extent_m: float) -> np.ndarray:
+    """Ray-cast a camera's view of the textured plane z = depth_m (left frame)."""
+    h, w = cam.height, cam.width  # type: ignore[attr-defined]
+    uu, vv = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    rays = cam.unproject(np.column_stack([uu.ravel(), vv.ravel()]))  # type: ignore[attr-defined]
+    o = rays.origins @ T_left_cam[:3, :3].T + T_left_cam[:3, 3]
+    dvec = rays.directions @ T_left_cam[:3, :3].T
+    s = (depth_m - o[:, 2]) / dvec[:, 2]
+    n = tex.shape[0]
+    mx = (((o[:, 0] + s * dvec[:, 0]) / half_extent_m + 1) * 0.5 * (n - 1)).reshape(h, w)
+    my = (((o[:, 1] + s * dvec[:, 1]) / half_extent_m + 1) * 0.5 * (n - 1)).reshape(h, w)
+    img = cv2.remap(tex, mx.astype(np.float32), my.astype(np.float32), cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REFLECT)
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def refraction_table(width: int, height: int) -> None:
+    """Median |depth error| on rendered dome/flat-port planes: refraction-corrected
+    triangulation against the pinhole-in-water baseline (the in-air pinholes, f B / d)."""
+    from sea3d.geometry.rig import StereoRig
+    from sea3d.rectify import rectify_rig
+    from sea3d.refraction.presets import paper_rig
+    from sea3d.stereo import SgmConfig
+    from sea3d.stereo.depth import compute_depth, max_disparity_for_depth
+
+    rng = np.random.default_rng(0)
+    n = 2048
+    base = cv2.GaussianBlur(rng.random((n, n)).astype(np.float32), (0, 0), 1.5)
+    base = (base - base.min()) / np.ptp(base)
+    coarse = cv2.resize(rng.random((n // 32, n // 32)).astype(np.float32), (n, n))
+    tex = (255 * (0.7 * base + 0.3 * coarse)).astype(np.float32)
+    print(f"| port | depth m | corrected median err % | pinhole-in-water median err % |"
+          f" virtual pinhole RMS / max px |  ({width}x{height})")
+    print("|---|---|---|---|---|")
+    for port in ("dome", "flat"):
+        rig = paper_rig(port=port, size_px=(width, height))  # type: ignore[arg-type]
+        maps = rectify_rig(rig, depth_range_m=(1.0, 5.0))
+        naive_rig = StereoRig(left=rig.left.pinhole, right=rig.right.pinhole,  # type: ignore[attr-defined]
+                              T_left_right=rig.T_left_right)
+        naive = rectify_rig(naive_rig)
+        rep = maps.report_left
+        assert rep is not None
+        for z0 in (1.0, 2.0, 3.0, 5.0):
+            left = _render_plane(rig.left, np.eye(4), z0, tex, 1.3 * z0)
+            right = _render_plane(rig.right, rig.T_left_right, z0, tex, 1.3 * z0)
+            errs = []
+            for m in (maps, naive):
+                cfg = SgmConfig(max_disparity_px=max_disparity_for_depth(m, 0.8))
+                res = compute_depth(m, left, right, cfg)
+                errs.append(100 * float(np.median(np.abs(res.points_left[:, 2] - z0))) / z0)
+            print(f"| {port} | {z0:.1f} | {errs[0]:.3f} | {errs[1]:.2f} | "
+                  f"{rep.rms_px:.3f} / {rep.max_px:.3f} |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--middlebury", type=Path, help="print the accuracy table for this folder "
+                    "(e.g. ../shared/data/stereo_gt) instead of timing")
+    ap.add_argument("--refraction", action="store_true",
+                    help="print the refraction-correction depth table instead of timing")
     ap.add_argument("--width", type=int, default=1920)
     ap.add_argument("--height", type=int, default=1080)
     ap.add_argument("--repeats", type=int, default=5)
@@ -107,6 +204,13 @@ def main() -> None:
     args = ap.parse_args()
     if args.worker:
         worker(args.worker, args.inputs)
+        return
+    if args.middlebury:
+        middlebury_table(args.middlebury)
+        return
+    if args.refraction:
+        refraction_table(args.width if args.width != 1920 else 960,
+                         args.height if args.height != 1080 else 540)
         return
 
     import numba

@@ -80,7 +80,8 @@ def test_sgm_coarse_to_fine_matches_full_search(paths: int) -> None:
     rng = np.random.default_rng(0)
     left, right, d_true = _slanted_pair(rng, h=160, w=320, d0=40.0, slope=0.05)
     full = match(left, right, SgmConfig(max_disparity_px=79, pyramid_levels=0, paths=paths))
-    c2f = match(left, right, SgmConfig(max_disparity_px=79, pyramid_levels=2, paths=paths))
+    c2f = match(left, right, SgmConfig(max_disparity_px=79, pyramid_levels=2, paths=paths,
+                                       band_paths=paths))
     assert c2f.timings_s["pyramid_levels"] == 2
     for res in (full, c2f):
         err, density = _errors(res.disparity_px, d_true, margin_px=64)
@@ -152,3 +153,12 @@ def test_pyramid_levels_auto_keeps_small_images_at_full_search() -> None:
     cfg = SgmConfig()
     assert choose_pyramid_levels(375, 450, 64, cfg) == 0
     assert choose_pyramid_levels(1080, 1920, 256, cfg) >= 2
+
+
+def test_sgm_default_coarse_to_fine_with_four_band_paths() -> None:
+    rng = np.random.default_rng(0)
+    left, right, d_true = _slanted_pair(rng, h=160, w=320, d0=40.0, slope=0.05)
+    res = match(left, right, SgmConfig(max_disparity_px=79, pyramid_levels=1))
+    err, density = _errors(res.disparity_px, d_true, margin_px=64)
+    assert density > MIN_DENSITY
+    assert np.median(err) < SUBPIXEL_MEDIAN_ERR_PX

@@ -85,7 +85,8 @@ def _level_search(
     cost = K.band_costs(cl, cr, lo, n, offs)
     t2 = time.perf_counter()
     total = np.zeros(cost.shape[0], np.uint16)
-    dirs = _DIRECTIONS_8 if config.paths == 8 else _DIRECTIONS_16
+    paths = config.paths if coarse is None else config.band_paths
+    dirs = {4: _DIRECTIONS_8[:2], 8: _DIRECTIONS_8, 16: _DIRECTIONS_16}[paths]
     threads = numba.get_num_threads()
     guide = np.clip(gl + 0.5, 0, 255).astype(np.uint8)
     lut = K.p2_table(config.p1, config.p2, config.p2_edge_tau)

@@ -64,6 +64,11 @@ class SgmConfig:
     """Coarse-to-fine: extra disparities searched on each side of the coarse estimate."""
     band_max_px: int = 48
     """Coarse-to-fine: widest per-pixel search band, disparities."""
+    band_paths: Literal[4, 8, 16] = 4
+    """Coarse-to-fine: paths aggregated on the banded (finer) levels. The coarsest level
+    (and a full search) always uses ``paths``; within a narrow band around the coarse answer
+    4 paths (horizontal and vertical) measured as accurate as 8 on Middlebury and synthetic
+    1080p scenes, at half the cost."""
     band_radius_px: int = 1
     """Coarse-to-fine: half-size of the coarse window whose disparities span the band."""
     refine_iterations: int = 1
@@ -96,6 +101,8 @@ class SgmConfig:
             raise ConfigError(f"need 0 < p1 < p2 < 4000, got p1={self.p1}, p2={self.p2}")
         if self.paths not in (8, 16):
             raise ConfigError(f"paths must be 8 or 16, got {self.paths}")
+        if self.band_paths not in (4, 8, 16):
+            raise ConfigError(f"band_paths must be 4, 8 or 16, got {self.band_paths}")
         if self.subpixel not in ("none", "parabola", "equiangular"):
             raise ConfigError(f"unknown subpixel mode {self.subpixel!r}")
         if self.pyramid_levels is not None and not (0 <= self.pyramid_levels <= 6):
