@@ -220,19 +220,24 @@ def main() -> None:
     from sea3d.stereo.sgm import warm_up
 
     left, right, gt = synthetic_pair(args.width, args.height)
+    load = " ".join(f"{x:.2f}" for x in os.getloadavg())
     print(f"input: synthetic {args.width}x{args.height} RGB pair, disparities 0..255, "
           f"{os.cpu_count()} CPUs, numba threads {numba.get_num_threads()}, "
           f"OpenCV threads {cv2.getNumThreads()}")
     print(f"numba warm-up (compile or cache load): {warm_up():.2f} s (excluded below)")
     times: dict[str, list[float]] = {e: [] for e in ENGINES}
+    cpu: dict[str, list[float]] = {e: [] for e in ENGINES}
     last = {}
     for _ in range(args.repeats):
         for engine in ENGINES:  # interleaved, so load changes hit all engines alike
+            c0 = time.process_time()
             t0 = time.perf_counter()
             res = match(left, right, _config(engine))  # type: ignore[arg-type]
             times[engine].append(time.perf_counter() - t0)
+            cpu[engine].append(time.process_time() - c0)
             last[engine] = res
     med = {e: statistics.median(v) for e, v in times.items()}
+    med_cpu = {e: statistics.median(v) for e, v in cpu.items()}
 
     with tempfile.TemporaryDirectory() as tmp:
         inputs = Path(tmp) / "pair.npz"
@@ -245,13 +250,14 @@ def main() -> None:
             )
             mem[engine] = json.loads(out.stdout.strip().splitlines()[-1])
 
-    print(f"\n{'engine':14s} {'median s':>9s} {'min s':>7s} {'vs sea3d':>9s} {'peak RSS MB':>12s} "
-          f"{'bad-2 %':>8s} {'density %':>10s}")
+    print(f"\n{'engine':14s} {'median s':>9s} {'min s':>7s} {'time/sea3d':>11s} "
+          f"{'CPU s':>6s} {'peak RSS MB':>12s} {'bad-2 %':>8s} {'density %':>10s}")
     for engine in ENGINES:
         m = disparity_metrics(last[engine].disparity_px, gt)
         print(f"{engine:14s} {med[engine]:9.3f} {min(times[engine]):7.3f} "
-              f"{med[engine] / med['sea3d']:8.2f}x {mem[engine]['peak_rss_mb']:12.0f} "
-              f"{m.bad_2:8.2f} {m.density:10.1f}")
+              f"{med[engine] / med['sea3d']:10.2f}x {med_cpu[engine]:6.2f} "
+              f"{mem[engine]['peak_rss_mb']:12.0f} {m.bad_2:8.2f} {m.density:10.1f}")
+    print(f"load average before the runs: {load}")
     print(f"\nsea3d is {med['opencv-sgbm'] / med['sea3d']:.2f}x as fast as MODE_SGBM and "
           f"{med['opencv-3way'] / med['sea3d']:.2f}x as fast as MODE_SGBM_3WAY "
           f"(medians of {args.repeats}).")

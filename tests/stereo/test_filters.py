@@ -123,3 +123,16 @@ def test_confidence_threshold_and_chain_parser() -> None:
         parse_filter_chain("median:radius=2")
     with pytest.raises(StereoError, match="guide"):
         FilterChain([WlsFilter()]).apply(d)
+
+
+def test_median_matches_numpy_nanmedian_reference() -> None:
+    rng = np.random.default_rng(0)
+    d = rng.random((40, 50)).astype(np.float32) * 30
+    d[rng.random(d.shape) < 0.05] = np.nan
+    out = median_nan(d, 3)
+    ref = np.full_like(d, np.nan)
+    for y in range(d.shape[0]):
+        for x in range(d.shape[1]):
+            if np.isfinite(d[y, x]):
+                ref[y, x] = np.nanmedian(d[max(y - 1, 0) : y + 2, max(x - 1, 0) : x + 2])
+    np.testing.assert_array_equal(out, ref)

@@ -43,6 +43,33 @@ __all__ = [
 F32 = NDArray[np.float32]
 
 
+@njit(cache=True, inline="always")
+def _median9(
+    p0: float, p1: float, p2: float, p3: float, p4: float, p5: float, p6: float, p7: float,
+    p8: float,
+) -> float:
+    """Median of nine values by a branch-free exchange network (Paeth's, 19 exchanges)."""
+    p1, p2 = min(p1, p2), max(p1, p2)
+    p4, p5 = min(p4, p5), max(p4, p5)
+    p7, p8 = min(p7, p8), max(p7, p8)
+    p0, p1 = min(p0, p1), max(p0, p1)
+    p3, p4 = min(p3, p4), max(p3, p4)
+    p6, p7 = min(p6, p7), max(p6, p7)
+    p1, p2 = min(p1, p2), max(p1, p2)
+    p4, p5 = min(p4, p5), max(p4, p5)
+    p7, p8 = min(p7, p8), max(p7, p8)
+    p3 = max(p0, p3)
+    p5 = min(p5, p8)
+    p4, p7 = min(p4, p7), max(p4, p7)
+    p6 = max(p3, p6)
+    p4 = max(p1, p4)
+    p2 = min(p2, p5)
+    p4 = min(p4, p7)
+    p4, p2 = min(p4, p2), max(p4, p2)
+    p4 = max(p6, p4)
+    return min(p4, p2)
+
+
 @njit(parallel=True, cache=True)
 def _median_nan_kernel(d: np.ndarray, r: int) -> np.ndarray:
     h, w = d.shape
@@ -54,6 +81,19 @@ def _median_nan_kernel(d: np.ndarray, r: int) -> np.ndarray:
             if c != c:
                 out[y, x] = c
                 continue
+            if r == 1 and 0 < y < h - 1 and 0 < x < w - 1:
+                a0 = d[y - 1, x - 1]
+                a1 = d[y - 1, x]
+                a2 = d[y - 1, x + 1]
+                a3 = d[y, x - 1]
+                a5 = d[y, x + 1]
+                a6 = d[y + 1, x - 1]
+                a7 = d[y + 1, x]
+                a8 = d[y + 1, x + 1]
+                s = a0 + a1 + a2 + a3 + a5 + a6 + a7 + a8
+                if s == s:  # no NaN among the neighbours: the fast network
+                    out[y, x] = _median9(a0, a1, a2, a3, c, a5, a6, a7, a8)
+                    continue
             m = 0
             for yy in range(max(y - r, 0), min(y + r + 1, h)):
                 for xx in range(max(x - r, 0), min(x + r + 1, w)):
