@@ -496,7 +496,16 @@ class SessionReader(ABC):
     def _check_shape(self, stream: str, index: int, img: np.ndarray) -> None:
         ref = self._ref_shape.get(stream)
         if ref is None:
-            first = img if index == 0 else self._read_image(stream, 0)
+            first = img
+            if index != 0:
+                try:
+                    first = self._read_image(stream, 0)
+                except SessionError as err:  # a damaged first image must not condemn the rest
+                    _log.warning(
+                        "%s; using %s as the stream's reference size",
+                        err,
+                        self._record_name(stream, index),
+                    )
             ref = (first.shape, first.dtype)
             self._ref_shape[stream] = ref
         if img.shape != ref[0] or img.dtype != ref[1]:
