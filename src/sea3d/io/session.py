@@ -339,7 +339,7 @@ class SessionWriter:
             gyro_radps: (3,) angular rate in rad/s, IMU frame.
 
         Raises:
-            SessionError: wrong shapes or a stamp not increasing (NaN readings are stored as they are).
+            SessionError: wrong shapes or a stamp not increasing (NaN readings are kept).
         """
         t_ns = check_stamp(t_ns, "imu sample")
         acc = np.asarray(accel_mps2, dtype=np.float64).reshape(-1)

@@ -29,6 +29,7 @@ import io
 import logging
 import os
 import struct
+import threading
 import time
 import zlib
 from collections import OrderedDict
@@ -399,6 +400,7 @@ class McapSessionReader(SessionReader):
         self.metadata: dict[str, dict[str, str]] = {}
         self.complete = False
         self._cache: OrderedDict[int, bytes] = OrderedDict()
+        self._cache_lock = threading.Lock()  # pairs() decodes in worker threads
         try:
             self._scan()
         except Exception:
@@ -501,10 +503,11 @@ class McapSessionReader(SessionReader):
             self._channels[channel.id] = channel
 
     def _chunk_data(self, k: int) -> bytes:
-        """Decompressed records of chunk ``k`` (CRC checked), cached for the last two chunks."""
-        if k in self._cache:
-            self._cache.move_to_end(k)
-            return self._cache[k]
+        """Decompressed records of chunk ``k`` (CRC checked), cached for the last four chunks."""
+        with self._cache_lock:
+            if k in self._cache:
+                self._cache.move_to_end(k)
+                return self._cache[k]
         c = self._chunks[k]
         raw = self._pread(c.data_offset, c.data_length)
         try:
@@ -533,9 +536,10 @@ class McapSessionReader(SessionReader):
                 f"{self.path}: chunk at byte {c.file_offset} (t_ns {c.start_ns}.."
                 f"{c.end_ns}) is damaged (CRC mismatch)"
             )
-        self._cache[k] = data
-        while len(self._cache) > 2:
-            self._cache.popitem(last=False)
+        with self._cache_lock:
+            self._cache[k] = data
+            while len(self._cache) > 4:
+                self._cache.popitem(last=False)
         return data
 
     def _index_chunk(self, k: int, chunk: _Chunk) -> None:
