@@ -343,3 +343,30 @@ def test_convert_from_raw_mcap_to_png_folder_and_to_jpeg(tmp_path):
         data, fmt = s.image_bytes("left", 0)
         assert fmt == "jpeg" and data[:2] == b"\xff\xd8"
         assert s.image("left", 0).shape == left[0].shape
+
+
+def test_rosbags_anyreader_reads_the_mcap_file_as_a_ros2_bag(tmp_path):
+    from rosbags.highlevel import AnyReader
+
+    rng = np.random.default_rng(0)
+    path = tmp_path / "s.mcap"
+    *_, sonar = _write_all(path, "mcap", rng)
+    counts: dict[str, int] = {}
+    ranges = []
+    with AnyReader([path]) as reader:
+        for conn, t_ns, raw in reader.messages():
+            counts[conn.topic] = counts.get(conn.topic, 0) + 1
+            msg = reader.deserialize(raw, conn.msgtype)
+            if conn.topic == "/sonar":
+                assert t_ns in sonar[0].tolist()
+                ranges.append(msg.range)
+    assert counts == {
+        "/cam/left/image": 6,
+        "/cam/right/image": 6,
+        "/cam/left/camera_info": 6,
+        "/cam/right/camera_info": 6,
+        "/imu": 24,
+        "/sonar": 6,
+        "/sonar/confidence": 6,
+    }
+    np.testing.assert_array_equal(np.float32(ranges), sonar[1].astype(np.float32))
