@@ -15,7 +15,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["fbm", "value_noise"]
+__all__ = ["fbm", "rigid_transform", "value_noise"]
 
 _M1 = np.uint64(0x9E3779B97F4A7C15)
 _M2 = np.uint64(0xBF58476D1CE4E5B9)
@@ -152,3 +152,21 @@ def fbm(
     fp = np.broadcast_to(np.asarray(footprint_m, dtype=np.float64), (pts.shape[0],))
     return _fbm(pts, np.ascontiguousarray(fp), float(base_freq_per_m), int(octaves), float(gain),
                 np.uint64(seed & 0xFFFFFFFF))
+
+
+@numba.njit(cache=True, parallel=True)
+def _rigid(points: NDArray[np.float64], R: NDArray[np.float64], t: NDArray[np.float64]) -> NDArray[np.float64]:
+    n = points.shape[0]
+    out = np.empty((n, 3), dtype=np.float64)
+    for i in numba.prange(n):
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        for r in range(3):
+            out[i, r] = R[r, 0] * x + R[r, 1] * y + R[r, 2] * z + t[r]
+    return out
+
+
+def rigid_transform(R: NDArray[np.float64], t: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``points @ R.T + t`` for ``(N, 3)`` points (float64 result), parallel and fast for large N
+    (NumPy's small-matrix product is slow here)."""
+    return _rigid(np.ascontiguousarray(points, dtype=np.float64), np.ascontiguousarray(R, dtype=np.float64),
+                  np.ascontiguousarray(t, dtype=np.float64))

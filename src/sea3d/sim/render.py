@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 
 from sea3d.errors import SimulationError
 from sea3d.geometry.camera import CameraModel
+from sea3d.sim.noise import rigid_transform
 from sea3d.sim.optics import Imaging
 from sea3d.sim.scene import Scene
 
@@ -249,8 +250,8 @@ class Renderer:
             t0 = time.perf_counter()
             o_cam = cam_rays.origins[:, r0:r1].reshape(-1, 3).astype(np.float64)
             d_cam = cam_rays.dirs[:, r0:r1].reshape(-1, 3).astype(np.float64)
-            o_w = o_cam @ R.T + tvec
-            d_w = d_cam @ R.T
+            o_w = rigid_transform(R, tvec, o_cam)
+            d_w = rigid_transform(R, np.zeros(3), d_cam)
             t1 = time.perf_counter()
             hits = self.cast(o_w, d_w)
             t2 = time.perf_counter()
@@ -263,7 +264,7 @@ class Renderer:
             tc = hits.t_m[:n_chunk]
             p_cam = o_cam[:n_chunk] + np.where(hc, tc, 0.0)[:, None] * d_cam[:n_chunk]
             p_cam[~hc] = np.nan
-            n_cam = hits.normals_world[:n_chunk].astype(np.float64) @ R
+            n_cam = rigid_transform(R.T, np.zeros(3), hits.normals_world[:n_chunk])
             n_cam[~hc] = np.nan
             points[r0:r1] = p_cam.reshape(r1 - r0, w, 3)
             normals[r0:r1] = n_cam.reshape(r1 - r0, w, 3)
@@ -306,7 +307,7 @@ class Renderer:
             sel = ids == k
             obj = self.scene.objects[int(k)]
             Tw = obj.T_world_object
-            p_obj = (p_w[sel] - Tw[:3, 3]) @ Tw[:3, :3]
+            p_obj = rigid_transform(Tw[:3, :3].T, -Tw[:3, :3].T @ Tw[:3, 3], p_w[sel])
             albedo[sel] = obj.material.albedo(p_obj, footprint[sel])
         out[idx] = imaging.shade(
             albedo, p_w, hits.normals_world[idx], d_w[idx], t,
