@@ -72,12 +72,16 @@ class SandMaterial:
 
     def albedo(self, points_obj: FloatArray, footprint_m: FloatArray) -> AlbedoArray:
         """See :class:`Material`."""
-        # Large patches (decimetres) and fine grain (down to grain_m), band-limited by footprint.
-        patches = fbm(points_obj, base_freq_per_m=2.0, octaves=3, seed=self.seed)
-        octaves = max(1, int(np.ceil(np.log2(0.5 / (0.08 * self.grain_m)))))
-        grain = fbm(points_obj, base_freq_per_m=8.0, octaves=octaves, gain=0.62,
-                    footprint_m=footprint_m, seed=self.seed + 1)
-        shade = 1.0 + self.contrast * (grain - 0.5) * 2.0 + 0.6 * (patches - 0.5)
+        # Patches (decimetres), mid-scale mottling (centimetres) and grain (down to grain_m), the
+        # finer two band-limited by the pixel footprint.
+        patches = fbm(points_obj, base_freq_per_m=1.5, octaves=3, seed=self.seed)
+        mid = fbm(points_obj, base_freq_per_m=12.0, octaves=3, gain=0.6, footprint_m=footprint_m,
+                  seed=self.seed + 3)
+        f0 = 1.0 / (16.0 * self.grain_m)
+        grain = fbm(points_obj, base_freq_per_m=f0, octaves=4, gain=0.8, footprint_m=footprint_m,
+                    seed=self.seed + 1)
+        shade = (1.0 + 0.7 * (patches - 0.5) + 1.0 * (mid - 0.5)
+                 + self.contrast * 2.0 * (grain - 0.5))
         if self.ripple_wavelength_m > 0:
             warp = fbm(points_obj, base_freq_per_m=1.5, octaves=2, seed=self.seed + 2)
             phase = (points_obj[:, 0] * 0.8 + points_obj[:, 1] * 0.6) / self.ripple_wavelength_m
@@ -267,10 +271,10 @@ class ArucoCubeMaterial:
         if len(self.marker_ids) != 6:
             raise SimulationError(f"an ArUco cube needs 6 marker ids, got {self.marker_ids}")
         d = aruco_dictionary(self.dictionary)
-        side = 6 + int(d.markerSize)  # one pixel per marker bit incl. black border and 2 px white
+        side = (int(d.markerSize) + 2) * 16  # 16 texels per bit, black border bit included
         imgs = []
         for mid in self.marker_ids:
-            img = cv2.aruco.generateImageMarker(d, int(mid), side - 2, borderBits=1)
+            img = cv2.aruco.generateImageMarker(d, int(mid), side, borderBits=1)
             imgs.append(img.astype(np.float32) / 255.0)
         object.__setattr__(self, "_markers", np.stack(imgs))
 
