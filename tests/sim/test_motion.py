@@ -62,8 +62,11 @@ def _integrate(traj, t_ns: np.ndarray, accel: np.ndarray, gyro: np.ndarray) -> n
     return np.array(out)
 
 
-@pytest.mark.parametrize("traj", [Lawnmower(duration_s=10), Orbit(duration_s=10, period_s=20), HandHeld(duration_s=10)],
-                         ids=["lawnmower", "orbit", "handheld"])
+@pytest.mark.parametrize(
+    "traj",
+    [Lawnmower(duration_s=10), Orbit(duration_s=10, period_s=20), HandHeld(duration_s=10)],
+    ids=["lawnmower", "orbit", "handheld"],
+)
 def test_noiseless_imu_integrates_to_ground_truth_pose_within_1mm(traj) -> None:
     t_ns = sample_times_ns(INTEGRATION_DURATION_S, IMU_RATE_HZ)
     imu = imu_samples(traj, t_ns)

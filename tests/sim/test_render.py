@@ -8,10 +8,10 @@ import pytest
 
 from sea3d.geometry.pinhole import PinholeCamera
 from sea3d.refraction.presets import paper_rig
+from sea3d.sim.materials import SandMaterial
 from sea3d.sim.optics import WATER_PRESETS, Imaging
 from sea3d.sim.render import Renderer
 from sea3d.sim.scene import Scene, SceneObject, builtin_scene, parse_board_spec, plane_mesh
-from sea3d.sim.materials import SandMaterial
 from sea3d.sim.survey import render_calibration_set, simulate_pair
 
 SIZE_PX = (640, 360)
@@ -25,7 +25,9 @@ def _plane_scene(T_world_plane: np.ndarray) -> Scene:
     mesh = plane_mesh(-20, 20, -20, 20)
     mesh.transform(T_world_plane)
     mesh.compute_triangle_normals()
-    scene.add(SceneObject(name="plane", mesh=mesh, material=SandMaterial(), T_world_object=T_world_plane))
+    scene.add(
+        SceneObject(name="plane", mesh=mesh, material=SandMaterial(), T_world_object=T_world_plane)
+    )
     return scene
 
 
@@ -36,10 +38,12 @@ def test_rendered_depth_of_a_plane_matches_the_analytic_plane(port: str) -> None
     # A plane tilted 30 deg about x, 1.5 m in front of the camera (world = camera frame).
     th = np.deg2rad(30.0)
     T_plane = np.eye(4)
-    T_plane[:3, :3] = np.array([[1, 0, 0], [0, np.cos(th), -np.sin(th)], [0, np.sin(th), np.cos(th)]])
+    T_plane[:3, :3] = np.array(
+        [[1, 0, 0], [0, np.cos(th), -np.sin(th)], [0, np.sin(th), np.cos(th)]]
+    )
     T_plane[:3, 3] = (0.1, -0.05, 1.5)
     view = Renderer(_plane_scene(T_plane), supersample=1).render(cam, np.eye(4))
-    vv, uu = np.mgrid[0:cam.height, 0:cam.width].astype(np.float64)
+    vv, uu = np.mgrid[0 : cam.height, 0 : cam.width].astype(np.float64)
     rays = cam.unproject(np.stack([uu.ravel(), vv.ravel()], axis=1))
     n = T_plane[:3, 2]
     t = ((T_plane[:3, 3] - rays.origins) @ n) / (rays.directions @ n)
@@ -75,7 +79,9 @@ def _corner_errors(rig, port_cam, spec, cal) -> np.ndarray:
 def test_detected_checkerboard_corners_land_on_projected_board_corners(port: str) -> None:
     rig = paper_rig(port, size_px=SIZE_PX)
     spec = parse_board_spec("checkerboard:9x6:40mm")
-    cal = render_calibration_set(rig, spec, 3, "water", seed=1, distance_range_m=(0.5, 0.9), supersample=4)
+    cal = render_calibration_set(
+        rig, spec, 3, "water", seed=1, distance_range_m=(0.5, 0.9), supersample=4
+    )
     err = _corner_errors(rig, rig.left, spec, cal)
     rms = float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
     assert rms < CORNER_RMS_TOL_PX, rms
@@ -83,12 +89,15 @@ def test_detected_checkerboard_corners_land_on_projected_board_corners(port: str
 
 def test_calibration_boards_are_fully_inside_both_images_and_poses_are_rigid() -> None:
     rig = paper_rig("dome", size_px=(320, 180))
-    cal = render_calibration_set(rig, "checkerboard:9x6:40mm", 2, "air", seed=3, distance_range_m=(0.8, 1.5),
-                                 supersample=1)
+    cal = render_calibration_set(
+        rig, "checkerboard:9x6:40mm", 2, "air", seed=3, distance_range_m=(0.8, 1.5), supersample=1
+    )
     for T in cal.T_left_board:
         np.testing.assert_allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-12)
         assert 0.6 < np.linalg.norm(T[:3, 3]) < 1.8
-    assert all(img.shape == (180, 320, 3) and img.dtype == np.uint8 for img in cal.lefts + cal.rights)
+    assert all(
+        img.shape == (180, 320, 3) and img.dtype == np.uint8 for img in cal.lefts + cal.rights
+    )
 
 
 def test_same_seed_and_no_water_gives_identical_images() -> None:
@@ -112,9 +121,13 @@ def test_water_model_is_the_akkaynak_treibitz_equation() -> None:
     J = np.array([[0.5, 0.4, 0.3], [0.5, 0.4, 0.3], [0.2, 0.2, 0.2]])
     z = np.array([0.0, 2.0, np.inf])
     out = imaging.through_water(J, z)
-    bD, bB, Binf = (np.asarray(v) for v in (water.beta_D_per_m, water.beta_B_per_m, water.B_inf_rgb))
+    bD, bB, Binf = (
+        np.asarray(v) for v in (water.beta_D_per_m, water.beta_B_per_m, water.B_inf_rgb)
+    )
     np.testing.assert_allclose(out[0], J[0], atol=WATER_EXACT_TOL)
-    np.testing.assert_allclose(out[1], J[1] * np.exp(-bD * 2.0) + Binf * (1 - np.exp(-bB * 2.0)), atol=WATER_EXACT_TOL)
+    np.testing.assert_allclose(
+        out[1], J[1] * np.exp(-bD * 2.0) + Binf * (1 - np.exp(-bB * 2.0)), atol=WATER_EXACT_TOL
+    )
     np.testing.assert_allclose(out[2], Binf, atol=WATER_EXACT_TOL)
 
 

@@ -32,7 +32,8 @@ def test_scene_yaml_file_loads(tmp_path: Path) -> None:
         "name: mine\nseafloor: {size_m: [2, 2], resolution_m: 0.05, slope_deg: 5}\n"
         "objects:\n  - {type: aruco_cube, size_m: 0.1, position_m: [0, 0, 0]}\n"
         "  - {type: rock, radius_m: 0.1, position_m: [0.5, 0.5, 0]}\n"
-        "  - {type: board, board: 'charuco:5x7:40mm:30mm', position_m: [0, 0, 0.5], rotation_deg: [180, 0, 0]}\n"
+        "  - {type: board, board: 'charuco:5x7:40mm:30mm', position_m: [0, 0, 0.5],"
+        " rotation_deg: [180, 0, 0]}\n"
     )
     scene = load_scene(path)
     assert [o.name for o in scene.objects] == ["seafloor", "aruco_cube", "rock", "board_charuco"]

@@ -45,7 +45,9 @@ def test_simulated_session_reads_back_with_all_streams(tmp_path: Path, fmt: str)
 
 def test_echosounder_measures_the_distance_to_the_floor_below() -> None:
     scene = builtin_scene("lake")
-    traj = Orbit(target_m=(0.0, 0.0, 0.0), radius_m=1.5, height_m=1.0, duration_s=1.0, camera_tilt_deg=30.0)
+    traj = Orbit(
+        target_m=(0.0, 0.0, 0.0), radius_m=1.5, height_m=1.0, duration_s=1.0, camera_tilt_deg=30.0
+    )
     mount = Mount.default()
     rig = paper_rig("none", size_px=(32, 18))
 
@@ -65,7 +67,7 @@ def test_echosounder_measures_the_distance_to_the_floor_below() -> None:
     sink = Sink()
     config = SurveyConfig(frames=1, water="none", supersample=1, imu_noise=False)
     simulate_survey(scene, rig, config, sink, None, trajectory=traj, mount=mount)
-    t_ns, r, conf = sink.sonar[0]
+    _t_ns, r, conf = sink.sonar[0]
     from sea3d.sim.motion import poses
 
     T = poses(traj, np.array([0.0]))[0] @ mount.T_body_sonar
@@ -93,16 +95,39 @@ def test_scale_rig_keeps_pixel_centres_and_ports() -> None:
 
 def test_cli_calibration_writes_images_and_true_board_poses(tmp_path: Path) -> None:
     out = tmp_path / "cal"
-    status = sea3d_main(["sim", "calibration", "--board", "checkerboard:9x6:40mm", "--views", "2",
-                         "--size", "320x180", "--distance", "0.8", "1.4", "--medium", "air", "--out", str(out)])
+    status = sea3d_main(
+        [
+            "sim",
+            "calibration",
+            "--board",
+            "checkerboard:9x6:40mm",
+            "--views",
+            "2",
+            "--size",
+            "320x180",
+            "--distance",
+            "0.8",
+            "1.4",
+            "--medium",
+            "air",
+            "--out",
+            str(out),
+        ]
+    )
     assert status == 0
     import json
 
     boards = json.loads((out / "gt" / "boards.json").read_text())
     assert len(boards) == 2 and np.asarray(boards[0]["T_left_board"]).shape == (4, 4)
-    assert len(list((out / "left").glob("*.png"))) == 2 and len(list((out / "right").glob("*.png"))) == 2
+    assert (
+        len(list((out / "left").glob("*.png"))) == 2
+        and len(list((out / "right").glob("*.png"))) == 2
+    )
 
 
 def test_cli_rejects_a_missing_output_and_unknown_scene(tmp_path: Path) -> None:
     assert sea3d_main(["sim", "--scene", "lake", "--frames", "1"]) == 2
-    assert sea3d_main(["sim", "--scene", "atlantis", "--frames", "1", "--out", str(tmp_path / "x")]) == 2
+    assert (
+        sea3d_main(["sim", "--scene", "atlantis", "--frames", "1", "--out", str(tmp_path / "x")])
+        == 2
+    )

@@ -74,16 +74,29 @@ class SandMaterial:
         """See :class:`Material`."""
         # Patches (decimetres), mid-scale mottling (centimetres) and grain (down to grain_m), the
         # finer two band-limited by the pixel footprint.
-        patches = fbm(points_obj, base_freq_per_m=1.5, octaves=3, seed=self.seed)
-        mid = fbm(points_obj, base_freq_per_m=12.0, octaves=3, gain=0.6, footprint_m=footprint_m,
-                  seed=self.seed + 3)
+        patches = fbm(points_obj, base_freq_per_m=1.5, octaves=2, seed=self.seed)
+        mid = fbm(
+            points_obj,
+            base_freq_per_m=12.0,
+            octaves=3,
+            gain=0.6,
+            footprint_m=footprint_m,
+            seed=self.seed + 3,
+        )
         f0 = 1.0 / (16.0 * self.grain_m)
-        grain = fbm(points_obj, base_freq_per_m=f0, octaves=4, gain=0.8, footprint_m=footprint_m,
-                    seed=self.seed + 1)
-        shade = (1.0 + 0.7 * (patches - 0.5) + 1.0 * (mid - 0.5)
-                 + self.contrast * 2.0 * (grain - 0.5))
+        grain = fbm(
+            points_obj,
+            base_freq_per_m=f0,
+            octaves=4,
+            gain=0.8,
+            footprint_m=footprint_m,
+            seed=self.seed + 1,
+        )
+        shade = (
+            1.0 + 0.7 * (patches - 0.5) + 1.0 * (mid - 0.5) + self.contrast * 2.0 * (grain - 0.5)
+        )
         if self.ripple_wavelength_m > 0:
-            warp = fbm(points_obj, base_freq_per_m=1.5, octaves=2, seed=self.seed + 2)
+            warp = fbm(points_obj, base_freq_per_m=1.5, octaves=1, seed=self.seed + 2)
             phase = (points_obj[:, 0] * 0.8 + points_obj[:, 1] * 0.6) / self.ripple_wavelength_m
             ripple = np.sin(2 * np.pi * (phase + 3.0 * warp)).astype(np.float32)
             shade = shade + 0.12 * ripple
@@ -106,11 +119,19 @@ class RockMaterial:
     def albedo(self, points_obj: FloatArray, footprint_m: FloatArray) -> AlbedoArray:
         """See :class:`Material`."""
         blotch = fbm(points_obj, base_freq_per_m=6.0, octaves=4, seed=self.seed)
-        speckle = fbm(points_obj, base_freq_per_m=80.0, octaves=5, gain=0.6,
-                      footprint_m=footprint_m, seed=self.seed + 1)
+        speckle = fbm(
+            points_obj,
+            base_freq_per_m=80.0,
+            octaves=5,
+            gain=0.6,
+            footprint_m=footprint_m,
+            seed=self.seed + 1,
+        )
         crevice = np.abs(fbm(points_obj, base_freq_per_m=12.0, octaves=3, seed=self.seed + 2) - 0.5)
         shade = 0.6 + 1.2 * (blotch - 0.5) + 1.4 * (speckle - 0.5) + np.minimum(crevice * 8, 0.4)
-        tint = np.stack([1.0 + 0.3 * (blotch - 0.5), np.ones_like(blotch), 1.0 - 0.3 * (blotch - 0.5)], 1)
+        tint = np.stack(
+            [1.0 + 0.3 * (blotch - 0.5), np.ones_like(blotch), 1.0 - 0.3 * (blotch - 0.5)], 1
+        )
         out = _rgb(self.colour_rgb) * shade[:, None] * tint
         return np.clip(out, 0.0, 1.0).astype(np.float32)
 
@@ -135,8 +156,13 @@ class SolidMaterial:
         """See :class:`Material`."""
         out = np.repeat(_rgb(self.colour_rgb), points_obj.shape[0], axis=0)
         if self.noise > 0:
-            n = fbm(points_obj, base_freq_per_m=self.noise_freq_per_m, octaves=6,
-                    footprint_m=footprint_m, seed=self.seed)
+            n = fbm(
+                points_obj,
+                base_freq_per_m=self.noise_freq_per_m,
+                octaves=6,
+                footprint_m=footprint_m,
+                seed=self.seed,
+            )
             out = out * (1.0 + 2.0 * self.noise * (n - 0.5))[:, None]
         return np.clip(out, 0.0, 1.0).astype(np.float32)
 
@@ -197,8 +223,9 @@ class CheckerboardMaterial:
     def corners_board(self) -> FloatArray:
         """``(cols*rows, 3)`` inner corners in the board frame, x fastest, metres."""
         jj, ii = np.mgrid[0 : self.rows, 0 : self.cols]
-        pts = np.stack([ii.ravel() * self.square_m, jj.ravel() * self.square_m,
-                        np.zeros(ii.size)], axis=1)
+        pts = np.stack(
+            [ii.ravel() * self.square_m, jj.ravel() * self.square_m, np.zeros(ii.size)], axis=1
+        )
         return pts.astype(np.float64)
 
 

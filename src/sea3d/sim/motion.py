@@ -69,7 +69,10 @@ def _rot_zyx(yaw: FloatArray, pitch: FloatArray, roll: FloatArray) -> FloatArray
 class Trajectory(Protocol):
     """A smooth body trajectory."""
 
-    duration_s: float
+    @property
+    def duration_s(self) -> float:
+        """Length of the trajectory, seconds."""
+        ...
 
     def position_m(self, t_s: FloatArray) -> FloatArray:
         """``(N, 3)`` body origin in the world frame, metres, at times ``t_s`` ``(N,)``."""
@@ -171,8 +174,14 @@ class Orbit:
         t = np.asarray(t_s, dtype=np.float64)
         th = 2 * np.pi * t / self.period_s
         tx, ty, tz = self.target_m
-        return np.stack([tx + self.radius_m * np.cos(th), ty + self.radius_m * np.sin(th),
-                         np.full_like(t, tz + self.height_m)], axis=1)
+        return np.stack(
+            [
+                tx + self.radius_m * np.cos(th),
+                ty + self.radius_m * np.sin(th),
+                np.full_like(t, tz + self.height_m),
+            ],
+            axis=1,
+        )
 
     def rotation(self, t_s: FloatArray) -> FloatArray:
         """See :class:`Trajectory`."""
@@ -225,8 +234,11 @@ class HandHeld:
         """See :class:`Trajectory`."""
         t = np.asarray(t_s, dtype=np.float64)
         w = self._wobble(t)
-        return (np.asarray(self.start_m)[None] + t[:, None] * np.asarray(self.velocity_mps)[None]
-                + self.shake_m * w[:, :3])
+        return (
+            np.asarray(self.start_m)[None]
+            + t[:, None] * np.asarray(self.velocity_mps)[None]
+            + self.shake_m * w[:, :3]
+        )
 
     def rotation(self, t_s: FloatArray) -> FloatArray:
         """See :class:`Trajectory`."""
@@ -235,9 +247,16 @@ class HandHeld:
         return _rot_zyx(self.yaw_deg * _DEG + w[:, 3], self.pitch_deg * _DEG + w[:, 4], w[:, 5])
 
 
-def make_trajectory(kind: str, *, duration_s: float, scene_center_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
-                    floor_z_m: float = 0.0, camera_tilt_deg: float = 30.0, seed: int = 0,
-                    scale_m: float = 1.0) -> Trajectory:
+def make_trajectory(
+    kind: str,
+    *,
+    duration_s: float,
+    scene_center_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    floor_z_m: float = 0.0,
+    camera_tilt_deg: float = 30.0,
+    seed: int = 0,
+    scale_m: float = 1.0,
+) -> Trajectory:
     """A default trajectory of a kind (``lawnmower``, ``orbit``, ``handheld``) for a scene.
 
     Args:
@@ -256,16 +275,32 @@ def make_trajectory(kind: str, *, duration_s: float, scene_center_m: tuple[float
         raise SimulationError(f"trajectory duration must be positive, got {duration_s} s")
     cx, cy, cz = scene_center_m
     if kind == "lawnmower":
-        return Lawnmower(center_m=(cx, cy - 1.0 * scale_m), z_m=floor_z_m + 1.5 * scale_m,
-                         width_m=3.0 * scale_m, lane_spacing_m=0.5 * scale_m,
-                         speed_mps=0.3 * scale_m, duration_s=duration_s)
+        return Lawnmower(
+            center_m=(cx, cy - 1.0 * scale_m),
+            z_m=floor_z_m + 1.5 * scale_m,
+            width_m=3.0 * scale_m,
+            lane_spacing_m=0.5 * scale_m,
+            speed_mps=0.3 * scale_m,
+            duration_s=duration_s,
+        )
     if kind == "orbit":
-        return Orbit(target_m=(cx, cy, cz), radius_m=1.2 * scale_m, height_m=0.8 * scale_m,
-                     period_s=max(duration_s, 20.0), duration_s=duration_s, camera_tilt_deg=camera_tilt_deg)
+        return Orbit(
+            target_m=(cx, cy, cz),
+            radius_m=1.2 * scale_m,
+            height_m=0.8 * scale_m,
+            period_s=max(duration_s, 20.0),
+            duration_s=duration_s,
+            camera_tilt_deg=camera_tilt_deg,
+        )
     if kind in ("handheld", "hand-held"):
-        return HandHeld(start_m=(cx - 0.9 * scale_m, cy - 0.9 * scale_m, floor_z_m + 1.0 * scale_m),
-                        velocity_mps=(0.04 * scale_m, 0.04 * scale_m, 0.0), yaw_deg=45.0,
-                        pitch_deg=25.0, duration_s=duration_s, seed=seed)
+        return HandHeld(
+            start_m=(cx - 0.9 * scale_m, cy - 0.9 * scale_m, floor_z_m + 1.0 * scale_m),
+            velocity_mps=(0.04 * scale_m, 0.04 * scale_m, 0.0),
+            yaw_deg=45.0,
+            pitch_deg=25.0,
+            duration_s=duration_s,
+            seed=seed,
+        )
     raise SimulationError(f"unknown trajectory {kind!r}; choose lawnmower, orbit or handheld")
 
 
@@ -286,7 +321,9 @@ class Mount:
         """Cameras looking forward along body x, tilted down by ``camera_tilt_deg``, 15 cm ahead of
         the IMU with the stereo pair centred on the body's x axis; the echosounder 10 cm below the
         IMU, looking straight down the body's -z."""
-        base = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # columns: cam x, y, z in body
+        base = np.array(
+            [[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]
+        )  # columns: cam x, y, z in body
         th = camera_tilt_deg * _DEG
         Ry = np.array([[np.cos(th), 0, np.sin(th)], [0, 1, 0], [-np.sin(th), 0, np.cos(th)]])
         T = np.eye(4)
@@ -345,7 +382,9 @@ def sample_times_ns(duration_s: float, rate_hz: float, start_ns: int = 0) -> NDA
     return start_ns + np.round(np.arange(n) * (1e9 / rate_hz)).astype(np.int64)
 
 
-def kinematics(traj: Trajectory, t_s: FloatArray, h_s: float = 1e-3) -> tuple[FloatArray, FloatArray, FloatArray]:
+def kinematics(
+    traj: Trajectory, t_s: FloatArray, h_s: float = 1e-3
+) -> tuple[FloatArray, FloatArray, FloatArray]:
     """World velocity, world acceleration and body angular rate by 4th-order central differences.
 
     Returns:
@@ -359,7 +398,9 @@ def kinematics(traj: Trajectory, t_s: FloatArray, h_s: float = 1e-3) -> tuple[Fl
     R = [traj.rotation(t + k * h_s) for k in (-2, -1, 0, 1, 2)]
     Rdot = (R[0] - 8 * R[1] + 8 * R[3] - R[4]) / (12 * h_s)
     W = np.einsum("nji,njk->nik", R[2], Rdot)  # R^T Rdot = [omega]x
-    omega = 0.5 * np.stack([W[:, 2, 1] - W[:, 1, 2], W[:, 0, 2] - W[:, 2, 0], W[:, 1, 0] - W[:, 0, 1]], axis=1)
+    omega = 0.5 * np.stack(
+        [W[:, 2, 1] - W[:, 1, 2], W[:, 0, 2] - W[:, 2, 0], W[:, 1, 0] - W[:, 0, 1]], axis=1
+    )
     return v, a, omega
 
 
@@ -390,8 +431,13 @@ def imu_samples(
     f_body = np.einsum("nji,nj->ni", R, a_world - GRAVITY_WORLD[None, :])
     zeros = np.zeros_like(f_body)
     if noise is None:
-        return ImuSamples(t_ns=np.asarray(t_ns, dtype=np.int64), accel_mps2=f_body, gyro_radps=omega,
-                          accel_bias_mps2=zeros, gyro_bias_radps=zeros.copy())
+        return ImuSamples(
+            t_ns=np.asarray(t_ns, dtype=np.int64),
+            accel_mps2=f_body,
+            gyro_radps=omega,
+            accel_bias_mps2=zeros,
+            gyro_bias_radps=zeros.copy(),
+        )
     if rng is None:
         raise SimulationError("IMU noise is on but no random generator was given")
     if t.shape[0] < 2:
@@ -402,5 +448,10 @@ def imu_samples(
     ba = np.cumsum(rng.normal(0, noise.accel_bias_rw_mps2_sqrts * np.sqrt(dt), (n, 3)), axis=0)
     wg = rng.normal(0, noise.gyro_noise_density_radps_sqrthz / np.sqrt(dt), (n, 3))
     wa = rng.normal(0, noise.accel_noise_density_mps2_sqrthz / np.sqrt(dt), (n, 3))
-    return ImuSamples(t_ns=np.asarray(t_ns, dtype=np.int64), accel_mps2=f_body + ba + wa,
-                      gyro_radps=omega + bg + wg, accel_bias_mps2=ba, gyro_bias_radps=bg)
+    return ImuSamples(
+        t_ns=np.asarray(t_ns, dtype=np.int64),
+        accel_mps2=f_body + ba + wa,
+        gyro_radps=omega + bg + wg,
+        accel_bias_mps2=ba,
+        gyro_bias_radps=bg,
+    )

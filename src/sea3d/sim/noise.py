@@ -11,11 +11,19 @@ The kernels are numba-compiled and run in parallel over points.
 
 from __future__ import annotations
 
+import warnings
+
 import numba
 import numpy as np
 from numpy.typing import NDArray
 
 __all__ = ["fbm", "rigid_transform", "value_noise"]
+
+# numba falls back from TBB to OpenMP by itself when the installed TBB is too old; its warning
+# about that says nothing actionable to a sea3d user.
+warnings.filterwarnings(
+    "ignore", message="The TBB threading layer requires", category=numba.NumbaWarning
+)
 
 _M1 = np.uint64(0x9E3779B97F4A7C15)
 _M2 = np.uint64(0xBF58476D1CE4E5B9)
@@ -110,7 +118,9 @@ def _fbm(
     return out
 
 
-def value_noise(points: NDArray[np.float64], *, freq_per_m: float, seed: int = 0) -> NDArray[np.float32]:
+def value_noise(
+    points: NDArray[np.float64], *, freq_per_m: float, seed: int = 0
+) -> NDArray[np.float32]:
     """One octave of value noise.
 
     Args:
@@ -150,12 +160,20 @@ def fbm(
     """
     pts = np.ascontiguousarray(points, dtype=np.float64)
     fp = np.broadcast_to(np.asarray(footprint_m, dtype=np.float64), (pts.shape[0],))
-    return _fbm(pts, np.ascontiguousarray(fp), float(base_freq_per_m), int(octaves), float(gain),
-                np.uint64(seed & 0xFFFFFFFF))
+    return _fbm(
+        pts,
+        np.ascontiguousarray(fp),
+        float(base_freq_per_m),
+        int(octaves),
+        float(gain),
+        np.uint64(seed & 0xFFFFFFFF),
+    )
 
 
 @numba.njit(cache=True, parallel=True)
-def _rigid(points: NDArray[np.float64], R: NDArray[np.float64], t: NDArray[np.float64]) -> NDArray[np.float64]:
+def _rigid(
+    points: NDArray[np.float64], R: NDArray[np.float64], t: NDArray[np.float64]
+) -> NDArray[np.float64]:
     n = points.shape[0]
     out = np.empty((n, 3), dtype=np.float64)
     for i in numba.prange(n):
@@ -165,8 +183,13 @@ def _rigid(points: NDArray[np.float64], R: NDArray[np.float64], t: NDArray[np.fl
     return out
 
 
-def rigid_transform(R: NDArray[np.float64], t: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray[np.float64]:
+def rigid_transform(
+    R: NDArray[np.float64], t: NDArray[np.float64], points: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """``points @ R.T + t`` for ``(N, 3)`` points (float64 result), parallel and fast for large N
     (NumPy's small-matrix product is slow here)."""
-    return _rigid(np.ascontiguousarray(points, dtype=np.float64), np.ascontiguousarray(R, dtype=np.float64),
-                  np.ascontiguousarray(t, dtype=np.float64))
+    return _rigid(
+        np.ascontiguousarray(points, dtype=np.float64),
+        np.ascontiguousarray(R, dtype=np.float64),
+        np.ascontiguousarray(t, dtype=np.float64),
+    )

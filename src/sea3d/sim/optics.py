@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.errors import SimulationError
+from sea3d.sim._kernels import light_and_water
 from sea3d.sim.noise import fbm
 
 __all__ = ["WATER_PRESETS", "Imaging", "Water", "encode_srgb", "water_preset"]
@@ -59,16 +60,30 @@ class Water:
         for key in ("beta_D_per_m", "beta_B_per_m", "B_inf_rgb"):
             v = np.asarray(getattr(self, key), dtype=np.float64)
             if v.shape != (3,) or not np.all(np.isfinite(v)) or np.any(v < 0):
-                raise SimulationError(f"water {self.name!r}: {key} must be 3 non-negative numbers, got {v}")
+                raise SimulationError(
+                    f"water {self.name!r}: {key} must be 3 non-negative numbers, got {v}"
+                )
 
 
 WATER_PRESETS: dict[str, Water] = {
-    "clear": Water(name="clear", beta_D_per_m=(0.40, 0.08, 0.05), beta_B_per_m=(0.30, 0.06, 0.05),
-                   B_inf_rgb=(0.01, 0.10, 0.22)),
-    "coastal": Water(name="coastal", beta_D_per_m=(0.60, 0.22, 0.32), beta_B_per_m=(0.45, 0.25, 0.30),
-                     B_inf_rgb=(0.04, 0.20, 0.17)),
-    "turbid": Water(name="turbid", beta_D_per_m=(1.10, 0.75, 1.30), beta_B_per_m=(1.00, 0.90, 1.10),
-                    B_inf_rgb=(0.13, 0.22, 0.11)),
+    "clear": Water(
+        name="clear",
+        beta_D_per_m=(0.40, 0.08, 0.05),
+        beta_B_per_m=(0.30, 0.06, 0.05),
+        B_inf_rgb=(0.01, 0.10, 0.22),
+    ),
+    "coastal": Water(
+        name="coastal",
+        beta_D_per_m=(0.60, 0.22, 0.32),
+        beta_B_per_m=(0.45, 0.25, 0.30),
+        B_inf_rgb=(0.04, 0.20, 0.17),
+    ),
+    "turbid": Water(
+        name="turbid",
+        beta_D_per_m=(1.10, 0.75, 1.30),
+        beta_B_per_m=(1.00, 0.90, 1.10),
+        B_inf_rgb=(0.13, 0.22, 0.11),
+    ),
 }
 
 
@@ -81,7 +96,9 @@ def water_preset(name: str) -> Water | None:
     if name in ("none", "off", "air"):
         return None
     if name not in WATER_PRESETS:
-        raise SimulationError(f"unknown water {name!r}; choose one of none, {', '.join(WATER_PRESETS)}")
+        raise SimulationError(
+            f"unknown water {name!r}; choose one of none, {', '.join(WATER_PRESETS)}"
+        )
     return WATER_PRESETS[name]
 
 
@@ -127,9 +144,19 @@ class Imaging:
     exposure: float = 1.0
 
     def __post_init__(self) -> None:
-        for key in ("sun_irradiance", "ambient", "vehicle_light", "caustics", "vignetting",
-                    "blur_sigma_px", "full_well_e", "read_noise", "exposure", "caustic_scale_m",
-                    "caustic_fade_depth_m"):
+        for key in (
+            "sun_irradiance",
+            "ambient",
+            "vehicle_light",
+            "caustics",
+            "vignetting",
+            "blur_sigma_px",
+            "full_well_e",
+            "read_noise",
+            "exposure",
+            "caustic_scale_m",
+            "caustic_fade_depth_m",
+        ):
             v = float(getattr(self, key))
             if not np.isfinite(v) or v < 0:
                 raise SimulationError(f"Imaging.{key} must be a finite number >= 0, got {v}")
@@ -151,8 +178,17 @@ class Imaging:
         w = water_preset(water) if isinstance(water, str) else water
         if w is None:
             return cls.clean()
-        return cls(water=w, sun_irradiance=1.4, vehicle_light=0.8, caustics=0.6, vignetting=0.35,
-                   blur_sigma_px=0.6, full_well_e=6000.0, read_noise=0.004, exposure=1.6)
+        return cls(
+            water=w,
+            sun_irradiance=1.4,
+            vehicle_light=0.8,
+            caustics=0.6,
+            vignetting=0.35,
+            blur_sigma_px=0.6,
+            full_well_e=6000.0,
+            read_noise=0.004,
+            exposure=1.6,
+        )
 
     def without_sensor_noise(self) -> Imaging:
         """The same imaging without shot and read noise."""
@@ -165,7 +201,6 @@ class Imaging:
         albedo: F32,
         points_world: FloatArray,
         normals_world: F32,
-        dirs_world: FloatArray,
         path_m: FloatArray,
         *,
         surface_z_m: float,
@@ -179,7 +214,6 @@ class Imaging:
             albedo: ``(N, 3)`` float32 linear albedo.
             points_world: ``(N, 3)`` float64 hit points, world frame, metres.
             normals_world: ``(N, 3)`` float32 unit normals facing the ray.
-            dirs_world: ``(N, 3)`` float64 unit ray directions.
             path_m: ``(N,)`` float64 water path length from the camera (port surface) to the hit.
             surface_z_m: world z of the water surface.
             light_pos_world: ``(3,)`` lamp position, world.
@@ -189,39 +223,43 @@ class Imaging:
         Returns:
             ``(N, 3)`` float32 radiance.
         """
-        n = normals_world.astype(np.float64)
+        m = albedo.shape[0]
         sun_dir = -np.asarray(self.sun_direction_world, dtype=np.float64)
         sun_dir /= np.linalg.norm(sun_dir)
-        lambert = np.clip(n @ sun_dir, 0.0, None)
-        direct = (1.0 - self.ambient) * lambert
-        depth_below = np.clip(surface_z_m - points_world[:, 2], 0.0, None)
         if self.caustics > 0:
-            c = caustic_pattern(points_world, time_s, self.caustic_scale_m, self.caustic_speed_per_s)
+            # Caustics only where direct sunlight falls and the water is shallow enough.
+            depth_below = np.clip(surface_z_m - points_world[:, 2], 0.0, None)
             fade = np.exp(-depth_below / self.caustic_fade_depth_m)
-            direct = direct * (1.0 + self.caustics * fade * (c - 1.0))
-        sun = self.sun_irradiance * (self.ambient + direct)  # (N,)
-        sun_rgb = np.repeat(sun[:, None], 3, axis=1)
-        if self.water is not None:
-            beta_D = np.asarray(self.water.beta_D_per_m)
-            sun_rgb = sun_rgb * np.exp(-depth_below[:, None] * beta_D[None, :])
-        irradiance = sun_rgb
-        if self.vehicle_light > 0:
-            to_light = np.asarray(light_pos_world, dtype=np.float64)[None, :] - points_world
-            d = np.linalg.norm(to_light, axis=1)
-            ldir = to_light / np.maximum(d, 1e-9)[:, None]
-            cos_surf = np.clip(np.einsum("ij,ij->i", n, ldir), 0.0, None)
-            cos_axis = np.clip(-ldir @ np.asarray(light_axis_world, dtype=np.float64), -1.0, 1.0)
-            ang = np.arccos(cos_axis)
-            spot = np.exp(-((ang / np.deg2rad(self.vehicle_light_cone_deg)) ** 2))
-            e = self.vehicle_light * spot * cos_surf / np.maximum(d, 0.05) ** 2
-            e_rgb = np.repeat(e[:, None], 3, axis=1)
-            if self.water is not None:
-                e_rgb = e_rgb * np.exp(-d[:, None] * np.asarray(self.water.beta_D_per_m)[None, :])
-            irradiance = irradiance + e_rgb
-        J = albedo.astype(np.float64) * irradiance
-        if self.water is None:
-            return J.astype(np.float32)
-        return self.through_water(J, path_m)
+            lit = np.flatnonzero((normals_world @ sun_dir.astype(np.float32) > 0) & (fade > 0.02))
+            mod = np.ones(m, dtype=np.float32)
+            if lit.size:
+                c = caustic_pattern(
+                    points_world[lit], time_s, self.caustic_scale_m, self.caustic_speed_per_s
+                )
+                mod[lit] = 1.0 + self.caustics * fade[lit] * (c - 1.0)
+        else:
+            mod = np.ones(m, dtype=np.float32)
+        w = self.water
+        zeros = np.zeros(3)
+        return light_and_water(
+            np.ascontiguousarray(albedo, dtype=np.float32),
+            np.ascontiguousarray(points_world, dtype=np.float64),
+            np.ascontiguousarray(normals_world, dtype=np.float32),
+            np.ascontiguousarray(path_m, dtype=np.float64),
+            mod,
+            sun_dir,
+            float(self.sun_irradiance),
+            float(self.ambient),
+            float(surface_z_m),
+            np.asarray(w.beta_D_per_m, dtype=np.float64) if w else zeros,
+            np.asarray(w.beta_B_per_m, dtype=np.float64) if w else zeros,
+            np.asarray(w.B_inf_rgb, dtype=np.float64) if w else zeros,
+            w is not None,
+            np.asarray(light_pos_world, dtype=np.float64),
+            np.asarray(light_axis_world, dtype=np.float64),
+            float(self.vehicle_light),
+            float(np.deg2rad(self.vehicle_light_cone_deg)),
+        )
 
     def through_water(self, J: FloatArray, path_m: FloatArray) -> F32:
         """Akkaynak-Treibitz: ``J exp(-beta_D z) + B_inf (1 - exp(-beta_B z))`` per channel.
@@ -235,7 +273,9 @@ class Imaging:
         bB = np.asarray(self.water.beta_B_per_m)[None, :]
         Binf = np.asarray(self.water.B_inf_rgb)[None, :]
         with np.errstate(invalid="ignore"):
-            direct = np.where(np.isfinite(z), J * np.exp(-bD * np.where(np.isfinite(z), z, 0.0)), 0.0)
+            direct = np.where(
+                np.isfinite(z), J * np.exp(-bD * np.where(np.isfinite(z), z, 0.0)), 0.0
+            )
         back = Binf * (1.0 - np.exp(-bB * z))
         return (direct + back).astype(np.float32)
 
@@ -255,27 +295,49 @@ class Imaging:
         img = radiance.astype(np.float32) * np.float32(self.exposure)
         h, w = img.shape[:2]
         if self.vignetting > 0:
-            yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-            r2 = ((xx - (w - 1) / 2) ** 2 + (yy - (h - 1) / 2) ** 2) / (((w - 1) / 2) ** 2 + ((h - 1) / 2) ** 2)
-            img *= (1.0 - self.vignetting * r2)[:, :, None]
+            img = img * _vignette(h, w, float(self.vignetting))[:, :, None]
         if self.blur_sigma_px > 0:
-            img = cv2.GaussianBlur(img, (0, 0), self.blur_sigma_px, borderType=cv2.BORDER_REFLECT)
+            img = np.asarray(
+                cv2.GaussianBlur(img, (0, 0), self.blur_sigma_px, borderType=cv2.BORDER_REFLECT),
+                dtype=np.float32,
+            )
         if self.full_well_e > 0 or self.read_noise > 0:
             if rng is None:
                 raise SimulationError("sensor noise is on but no random generator was given")
-            if self.full_well_e > 0:
-                electrons = rng.poisson(np.clip(img, 0, 1.5) * self.full_well_e)
-                img = (electrons / self.full_well_e).astype(np.float32)
-            if self.read_noise > 0:
-                img = img + rng.normal(0.0, self.read_noise, img.shape).astype(np.float32)
+            # Shot noise (Gaussian approximation of Poisson, thousands of electrons), read noise.
+            sigma = (
+                np.sqrt(np.clip(img, 0.0, 1.5) / self.full_well_e)
+                if self.full_well_e > 0
+                else np.float32(0.0)
+            )
+            sigma = np.sqrt(sigma * sigma + np.float32(self.read_noise) ** 2)
+            img = img + sigma * rng.standard_normal(img.shape, dtype=np.float32)
         return encode_srgb(img)
 
 
-def encode_srgb(linear: F32) -> NDArray[np.uint8]:
-    """Linear ``[0, 1]`` to 8-bit sRGB (IEC 61966-2-1 transfer curve), clipping outside."""
-    x = np.clip(linear, 0.0, 1.0)
+@lru_cache(maxsize=8)
+def _vignette(h: int, w: int, strength: float) -> F32:
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    r2 = ((xx - (w - 1) / 2) ** 2 + (yy - (h - 1) / 2) ** 2) / (
+        ((w - 1) / 2) ** 2 + ((h - 1) / 2) ** 2
+    )
+    out = (1.0 - strength * r2).astype(np.float32)
+    out.setflags(write=False)
+    return out
+
+
+@lru_cache(maxsize=1)
+def _srgb_lut() -> NDArray[np.uint8]:
+    x = np.arange(65536, dtype=np.float64) / 65535.0
     enc = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
     return np.round(enc * 255.0).astype(np.uint8)
+
+
+def encode_srgb(linear: F32) -> NDArray[np.uint8]:
+    """Linear ``[0, 1]`` to 8-bit sRGB (IEC 61966-2-1 transfer curve), clipping outside; through a
+    16-bit lookup table (linear input quantised to 1/65535)."""
+    idx = (np.clip(linear, 0.0, 1.0) * np.float32(65535.0) + np.float32(0.5)).astype(np.uint16)
+    return _srgb_lut()[idx]
 
 
 @lru_cache(maxsize=1)
@@ -292,7 +354,9 @@ def _caustic_raw(p: FloatArray) -> F32:
     return (ra**10 + rb**10).astype(np.float32)
 
 
-def caustic_pattern(points_world: FloatArray, time_s: float, scale_m: float, speed_per_s: float) -> FloatArray:
+def caustic_pattern(
+    points_world: FloatArray, time_s: float, scale_m: float, speed_per_s: float
+) -> FloatArray:
     """Animated caustic brightness on the floor, mean about 1: bright thin ridges of two
     interfering noise fields of ``(x, y) / scale_m`` and time.
 
@@ -305,6 +369,12 @@ def caustic_pattern(points_world: FloatArray, time_s: float, scale_m: float, spe
     Returns:
         ``(N,)`` float64, non-negative.
     """
-    p = np.stack([points_world[:, 0] / scale_m, points_world[:, 1] / scale_m,
-                  np.full(points_world.shape[0], time_s * speed_per_s)], axis=1)
+    p = np.stack(
+        [
+            points_world[:, 0] / scale_m,
+            points_world[:, 1] / scale_m,
+            np.full(points_world.shape[0], time_s * speed_per_s),
+        ],
+        axis=1,
+    )
     return _caustic_raw(p).astype(np.float64) / _caustic_mean()

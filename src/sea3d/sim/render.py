@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 
 from sea3d.errors import SimulationError
 from sea3d.geometry.camera import CameraModel
+from sea3d.sim._kernels import camera_ground_truth, hit_points, postprocess_hits
 from sea3d.sim.noise import rigid_transform
 from sea3d.sim.optics import Imaging
 from sea3d.sim.scene import Scene
@@ -125,7 +126,9 @@ class Renderer:
         SimulationError: for an empty scene or ``supersample < 1``.
     """
 
-    def __init__(self, scene: Scene, *, supersample: int = 2, chunk_rows: int = 128, nthreads: int = 0) -> None:
+    def __init__(
+        self, scene: Scene, *, supersample: int = 2, chunk_rows: int = 128, nthreads: int = 0
+    ) -> None:
         if supersample < 1:
             raise SimulationError(f"supersample must be >= 1, got {supersample}")
         if not scene.objects:
@@ -163,20 +166,19 @@ class Renderer:
         rays = np.empty((n, 6), dtype=np.float32)
         rays[:, :3] = origins_world
         rays[:, 3:] = dirs_world
-        bad = ~np.isfinite(rays).all(axis=1)
+        bad = ~np.isfinite(rays.sum(axis=1))
         if bad.any():
             rays[bad] = np.array([0, 0, 0, 0, 0, 1], dtype=np.float32)
-        ans = self._rc.cast_rays(o3d.core.Tensor(rays), nthreads=self.nthreads)
-        t = ans["t_hit"].numpy().astype(np.float64)
-        gid = ans["geometry_ids"].numpy().astype(np.int64)
-        hit = np.isfinite(t) & (gid != o3d.t.geometry.RaycastingScene.INVALID_ID) & ~bad
-        obj = np.full(n, -1, dtype=np.int32)
-        obj[hit] = self._geom_lut[np.minimum(gid[hit], len(self._geom_lut) - 1)]
-        t = np.where(hit, t, np.inf)
-        normals = ans["primitive_normals"].numpy()
-        facing = np.einsum("ij,ij->i", normals, rays[:, 3:]) > 0
-        normals = np.where(facing[:, None], -normals, normals)
-        return Hits(t_m=t, object_id=obj, normals_world=normals.astype(np.float32))
+        ans = self._rc.cast_rays(o3d.core.Tensor(rays), nthreads=self.nthreads)  # type: ignore[call-overload]
+        t, obj, normals = postprocess_hits(
+            ans["t_hit"].numpy(),
+            ans["geometry_ids"].numpy(),
+            ans["primitive_normals"].numpy(),
+            rays[:, 3:],
+            self._geom_lut,
+            bad,
+        )
+        return Hits(t_m=t, object_id=obj, normals_world=normals)
 
     def camera_rays(self, camera: CameraModel) -> _CameraRays:
         """Every sample ray of ``camera`` in its own frame, computed once per camera object."""
@@ -200,7 +202,9 @@ class Renderer:
         r = camera.unproject(c).directions
         cosang = float(np.dot(r[0], r[1]) / (np.linalg.norm(r[0]) * np.linalg.norm(r[1])))
         ang = float(np.arccos(np.clip(cosang, -1.0, 1.0)))
-        cam_rays = _CameraRays(origins=origins, dirs=dirs, pixel_angle_rad=ang, colour_samples=colour)
+        cam_rays = _CameraRays(
+            origins=origins, dirs=dirs, pixel_angle_rad=ang, colour_samples=colour
+        )
         self._ray_cache[key] = (camera, cam_rays)
         self.timings_s["ray_generation"] += time.perf_counter() - t0
         return cam_rays
@@ -256,20 +260,23 @@ class Renderer:
             hits = self.cast(o_w, d_w)
             t2 = time.perf_counter()
             n_chunk = (r1 - r0) * w
-            rad = self._shade(hits, o_w, d_w, cam_rays.pixel_angle_rad, imaging, light_pos, light_axis, time_s)
+            rad = self._shade(
+                hits, o_w, d_w, cam_rays.pixel_angle_rad, imaging, light_pos, light_axis, time_s
+            )
             rad = rad.reshape(S, r1 - r0, w, 3)
             radiance[r0:r1] = rad[colour_idx].mean(axis=0)
             # Ground truth from the centre sample (index 0).
-            hc = hits.object_id[:n_chunk] >= 0
-            tc = hits.t_m[:n_chunk]
-            p_cam = o_cam[:n_chunk] + np.where(hc, tc, 0.0)[:, None] * d_cam[:n_chunk]
-            p_cam[~hc] = np.nan
-            n_cam = rigid_transform(R.T, np.zeros(3), hits.normals_world[:n_chunk])
-            n_cam[~hc] = np.nan
+            p_cam, z_cam, r_cam, n_cam = camera_ground_truth(
+                o_cam[:n_chunk],
+                d_cam[:n_chunk],
+                hits.t_m[:n_chunk],
+                hits.normals_world[:n_chunk],
+                R,
+            )
             points[r0:r1] = p_cam.reshape(r1 - r0, w, 3)
             normals[r0:r1] = n_cam.reshape(r1 - r0, w, 3)
-            depth[r0:r1] = p_cam[:, 2].reshape(r1 - r0, w)
-            rng_m[r0:r1] = np.linalg.norm(p_cam, axis=1).reshape(r1 - r0, w)
+            depth[r0:r1] = z_cam.reshape(r1 - r0, w)
+            rng_m[r0:r1] = r_cam.reshape(r1 - r0, w)
             obj_id[r0:r1] = hits.object_id[:n_chunk].reshape(r1 - r0, w)
             t3 = time.perf_counter()
             self.timings_s["transform"] += t1 - t0
@@ -278,7 +285,9 @@ class Renderer:
         t4 = time.perf_counter()
         image = imaging.sensor(radiance, rng)
         self.timings_s["sensor"] += time.perf_counter() - t4
-        gt = GroundTruth(depth_m=depth, range_m=rng_m, points_cam=points, normals_cam=normals, object_id=obj_id)
+        gt = GroundTruth(
+            depth_m=depth, range_m=rng_m, points_cam=points, normals_cam=normals, object_id=obj_id
+        )
         return RenderedView(image=image, radiance=radiance, gt=gt)
 
     def _shade(
@@ -299,7 +308,7 @@ class Renderer:
             return out
         idx = np.flatnonzero(hit)
         t = hits.t_m[idx]
-        p_w = o_w[idx] + t[:, None] * d_w[idx]
+        p_w = hit_points(o_w, d_w, hits.t_m, idx)
         footprint = t * pixel_angle_rad
         albedo = np.empty((idx.size, 3), dtype=np.float32)
         ids = hits.object_id[idx]
@@ -310,8 +319,13 @@ class Renderer:
             p_obj = rigid_transform(Tw[:3, :3].T, -Tw[:3, :3].T @ Tw[:3, 3], p_w[sel])
             albedo[sel] = obj.material.albedo(p_obj, footprint[sel])
         out[idx] = imaging.shade(
-            albedo, p_w, hits.normals_world[idx], d_w[idx], t,
-            surface_z_m=self.scene.surface_z_m, light_pos_world=light_pos,
-            light_axis_world=light_axis, time_s=time_s,
+            albedo,
+            p_w,
+            hits.normals_world[idx],
+            t,
+            surface_z_m=self.scene.surface_z_m,
+            light_pos_world=light_pos,
+            light_axis_world=light_axis,
+            time_s=time_s,
         )
         return out

@@ -104,7 +104,9 @@ class Scene:
             verts = np.asarray(m.vertices)
             pts_obj = _to_object(obj.T_world_object, verts)
             col = obj.material.albedo(pts_obj, np.full(len(verts), 0.01))
-            m.vertex_colors = o3d.utility.Vector3dVector(np.clip(col, 0, 1).astype(np.float64) ** (1 / 2.2))
+            m.vertex_colors = o3d.utility.Vector3dVector(
+                np.clip(col, 0, 1).astype(np.float64) ** (1 / 2.2)
+            )
             out += m
         return out
 
@@ -183,14 +185,21 @@ def height_field_mesh(
     a, b = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel()
     c, d = idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
     tris = np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)])
-    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(verts), o3d.utility.Vector3iVector(tris))
+    mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(verts), o3d.utility.Vector3iVector(tris)
+    )
     mesh.compute_triangle_normals()
     return mesh
 
 
 def seafloor_height(
-    *, slope_deg: float = 0.0, slope_azimuth_deg: float = 0.0, roughness_m: float = 0.03,
-    base_z_m: float = 0.0, feature_m: float = 0.8, seed: int = 3,
+    *,
+    slope_deg: float = 0.0,
+    slope_azimuth_deg: float = 0.0,
+    roughness_m: float = 0.03,
+    base_z_m: float = 0.0,
+    feature_m: float = 0.8,
+    seed: int = 3,
 ) -> Any:
     """A smooth seafloor height function ``f(x, y) -> z``: a plane with a slope plus fBm bumps.
 
@@ -228,7 +237,9 @@ def rock_mesh(radius_m: float, *, seed: int = 0, squash: float = 0.6) -> o3d.geo
     return m
 
 
-def bottle_meshes(height_m: float = 0.25, radius_m: float = 0.035) -> tuple[o3d.geometry.TriangleMesh, o3d.geometry.TriangleMesh]:
+def bottle_meshes(
+    height_m: float = 0.25, radius_m: float = 0.035
+) -> tuple[o3d.geometry.TriangleMesh, o3d.geometry.TriangleMesh]:
     """A bottle lying along the object's x axis, resting on z = 0: ``(body, cap)`` meshes.
 
     The body is a cylinder with a waist (the indentation a third of the way down, as the paper's
@@ -238,9 +249,16 @@ def bottle_meshes(height_m: float = 0.25, radius_m: float = 0.035) -> tuple[o3d.
     # Profile along the bottle axis: (position along axis, radius).
     L = height_m
     prof = [
-        (0.0, 0.0), (0.0, radius_m * 0.95), (0.01 * L, radius_m), (0.30 * L, radius_m),
-        (0.34 * L, radius_m * 0.88), (0.38 * L, radius_m), (0.68 * L, radius_m),
-        (0.82 * L, radius_m * 0.42), (0.88 * L, radius_m * 0.38), (0.88 * L, 0.0),
+        (0.0, 0.0),
+        (0.0, radius_m * 0.95),
+        (0.01 * L, radius_m),
+        (0.30 * L, radius_m),
+        (0.34 * L, radius_m * 0.88),
+        (0.38 * L, radius_m),
+        (0.68 * L, radius_m),
+        (0.82 * L, radius_m * 0.42),
+        (0.88 * L, radius_m * 0.38),
+        (0.88 * L, 0.0),
     ]
     body = _lathe(prof, n_around)
     cap_prof = [(0.87 * L, 0.0), (0.87 * L, radius_m * 0.45), (L, radius_m * 0.45), (L, 0.0)]
@@ -265,8 +283,9 @@ def _lathe(profile: list[tuple[float, float]], n_around: int) -> o3d.geometry.Tr
         c, d = a + n_around, b + n_around
         tris.append(np.stack([a, b, d], 1))
         tris.append(np.stack([a, d, c], 1))
-    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v),
-                                     o3d.utility.Vector3iVector(np.concatenate(tris)))
+    mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(np.concatenate(tris))
+    )
     mesh.remove_degenerate_triangles()
     mesh.compute_triangle_normals()
     return mesh
@@ -282,14 +301,18 @@ def box_mesh(size_m: float) -> o3d.geometry.TriangleMesh:
 
 def plane_mesh(x_min: float, x_max: float, y_min: float, y_max: float) -> o3d.geometry.TriangleMesh:
     """A rectangle in the plane z = 0 (two triangles)."""
-    v = np.array([[x_min, y_min, 0], [x_max, y_min, 0], [x_max, y_max, 0], [x_min, y_max, 0]], float)
+    v = np.array(
+        [[x_min, y_min, 0], [x_max, y_min, 0], [x_max, y_max, 0], [x_min, y_max, 0]], float
+    )
     t = np.array([[0, 1, 2], [0, 2, 3]])
     m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(t))
     m.compute_triangle_normals()
     return m
 
 
-def tank_wall_mesh(radius_m: float, depth_m: float, n_around: int = 128) -> o3d.geometry.TriangleMesh:
+def tank_wall_mesh(
+    radius_m: float, depth_m: float, n_around: int = 128
+) -> o3d.geometry.TriangleMesh:
     """The open cylindrical wall of a tank, floor at z = 0, rim at z = depth_m."""
     return _lathe([(0.0, radius_m), (depth_m, radius_m)], n_around)
 
@@ -322,8 +345,9 @@ class BoardSpec:
     def corners_board(self) -> FloatArray:
         """``(cols*rows, 3)`` inner corners in the board frame (x fastest), metres."""
         jj, ii = np.mgrid[0 : self.rows, 0 : self.cols]
-        return np.stack([ii.ravel() * self.square_m, jj.ravel() * self.square_m,
-                         np.zeros(ii.size)], axis=1).astype(np.float64)
+        return np.stack(
+            [ii.ravel() * self.square_m, jj.ravel() * self.square_m, np.zeros(ii.size)], axis=1
+        ).astype(np.float64)
 
 
 def parse_board_spec(text: str) -> BoardSpec:
@@ -351,8 +375,12 @@ def parse_board_spec(text: str) -> BoardSpec:
             spec = BoardSpec(kind=kind, cols=nx, rows=ny, square_m=_length_m(parts[2]))
         elif kind == "charuco" and len(parts) in (4, 5):
             spec = BoardSpec(
-                kind=kind, cols=nx - 1, rows=ny - 1, square_m=_length_m(parts[2]),
-                marker_m=_length_m(parts[3]), dictionary=parts[4] if len(parts) == 5 else "DICT_6X6_250",
+                kind=kind,
+                cols=nx - 1,
+                rows=ny - 1,
+                square_m=_length_m(parts[2]),
+                marker_m=_length_m(parts[3]),
+                dictionary=parts[4] if len(parts) == 5 else "DICT_6X6_250",
             )
         else:
             raise ValueError(text)
@@ -362,40 +390,58 @@ def parse_board_spec(text: str) -> BoardSpec:
             f"'charuco:5x7:40mm:30mm[:DICT_6X6_250]' (squares, square, marker)"
         ) from err
     if spec.cols < 2 or spec.rows < 2 or spec.square_m <= 0:
-        raise SimulationError(f"bad board spec {text!r}: need at least 2x2 inner corners and a positive square")
+        raise SimulationError(
+            f"bad board spec {text!r}: need at least 2x2 inner corners and a positive square"
+        )
     return spec
 
 
-def make_board(spec: BoardSpec, T_world_board: FloatArray, margin_m: float | None = None) -> SceneObject:
+def make_board(
+    spec: BoardSpec, T_world_board: FloatArray, margin_m: float | None = None
+) -> SceneObject:
     """A calibration board as a textured plane at ``T_world_board`` (board frame: origin at the
     first inner corner, x along ``cols``, y along ``rows``, z into the board)."""
     margin = spec.square_m * 0.75 if margin_m is None else margin_m
     material: Any
     if spec.kind == "checkerboard":
-        material = CheckerboardMaterial(cols=spec.cols, rows=spec.rows, square_m=spec.square_m, margin_m=margin)
+        material = CheckerboardMaterial(
+            cols=spec.cols, rows=spec.rows, square_m=spec.square_m, margin_m=margin
+        )
         x0, x1, y0, y1 = material.extent_m()
     else:
         board = cv2_charuco(spec)
         px_per_square = 40
         nsx, nsy = spec.cols + 1, spec.rows + 1
-        img = board.generateImage((nsx * px_per_square, nsy * px_per_square), marginSize=0, borderBits=1)
+        img = board.generateImage(
+            (nsx * px_per_square, nsy * px_per_square), marginSize=0, borderBits=1
+        )
         rgb = np.repeat((img.astype(np.float32) / 255.0)[:, :, None], 3, axis=2)
-        rgb = 0.03 + (0.85 - 0.03) * rgb
+        rgb = (0.03 + (0.85 - 0.03) * rgb).astype(np.float32)
         texel = spec.square_m / px_per_square
-        material = ImageMaterial(image_rgb=rgb, texel_m=texel, x0_m=-spec.square_m, y0_m=-spec.square_m)
+        material = ImageMaterial(
+            image_rgb=rgb, texel_m=texel, x0_m=-spec.square_m, y0_m=-spec.square_m
+        )
         x0, x1, y0, y1 = material.extent_m()
         x0, x1, y0, y1 = x0 - margin, x1 + margin, y0 - margin, y1 + margin
     mesh = _transformed(plane_mesh(x0, x1, y0, y1), T_world_board)
-    return SceneObject(name=f"board_{spec.kind}", mesh=mesh, material=material,
-                       T_world_object=np.asarray(T_world_board, dtype=np.float64))
+    return SceneObject(
+        name=f"board_{spec.kind}",
+        mesh=mesh,
+        material=material,
+        T_world_object=np.asarray(T_world_board, dtype=np.float64),
+    )
 
 
 def cv2_charuco(spec: BoardSpec) -> Any:
     """The OpenCV ``CharucoBoard`` matching a ChArUco :class:`BoardSpec`."""
     import cv2
 
-    return cv2.aruco.CharucoBoard((spec.cols + 1, spec.rows + 1), spec.square_m, spec.marker_m,
-                                  aruco_dictionary(spec.dictionary))
+    return cv2.aruco.CharucoBoard(
+        (spec.cols + 1, spec.rows + 1),
+        spec.square_m,
+        spec.marker_m,
+        aruco_dictionary(spec.dictionary),
+    )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -412,7 +458,7 @@ def _material(cfg: Any, where: str) -> Material:
         raise SimulationError(f"{where}: material must be one of {sorted(_MATERIALS)}, got {cfg!r}")
     kwargs = {k: (tuple(v) if isinstance(v, list) else v) for k, v in cfg.items() if k != "type"}
     try:
-        return _MATERIALS[cfg["type"]](**kwargs)  # type: ignore[no-any-return]
+        return _MATERIALS[cfg["type"]](**kwargs)
     except TypeError as err:
         raise SimulationError(f"{where}: bad material options {kwargs}: {err}") from err
 
@@ -432,17 +478,30 @@ def scene_from_dict(cfg: dict[str, Any], *, source: str = "<dict>") -> Scene:
     """
     if not isinstance(cfg, dict):
         raise SimulationError(f"{source}: a scene must be a mapping, got {type(cfg).__name__}")
-    scene = Scene(name=str(cfg.get("name", Path(source).stem)),
-                  surface_z_m=float(cfg.get("surface_z_m", 3.0)))
+    scene = Scene(
+        name=str(cfg.get("name", Path(source).stem)), surface_z_m=float(cfg.get("surface_z_m", 3.0))
+    )
     floor = cfg.get("seafloor")
     if floor is not None:
         if not isinstance(floor, dict):
             raise SimulationError(f"{source}: seafloor must be a mapping, got {floor!r}")
-        allowed = {"size_m", "center_m", "resolution_m", "slope_deg", "slope_azimuth_deg",
-                   "roughness_m", "feature_m", "z_m", "seed", "material"}
+        allowed = {
+            "size_m",
+            "center_m",
+            "resolution_m",
+            "slope_deg",
+            "slope_azimuth_deg",
+            "roughness_m",
+            "feature_m",
+            "z_m",
+            "seed",
+            "material",
+        }
         unknown = set(floor) - allowed
         if unknown:
-            raise SimulationError(f"{source}: unknown seafloor keys {sorted(unknown)} (allowed {sorted(allowed)})")
+            raise SimulationError(
+                f"{source}: unknown seafloor keys {sorted(unknown)} (allowed {sorted(allowed)})"
+            )
         h = seafloor_height(
             slope_deg=float(floor.get("slope_deg", 0.0)),
             slope_azimuth_deg=float(floor.get("slope_azimuth_deg", 0.0)),
@@ -453,11 +512,20 @@ def scene_from_dict(cfg: dict[str, Any], *, source: str = "<dict>") -> Scene:
         )
         sx, sy = (float(v) for v in floor.get("size_m", [8.0, 8.0]))
         cx, cy = (float(v) for v in floor.get("center_m", [0.0, 0.0]))
-        mesh = height_field_mesh((cx - sx / 2, cx + sx / 2), (cy - sy / 2, cy + sy / 2),
-                                 float(floor.get("resolution_m", 0.04)), h)
+        mesh = height_field_mesh(
+            (cx - sx / 2, cx + sx / 2),
+            (cy - sy / 2, cy + sy / 2),
+            float(floor.get("resolution_m", 0.04)),
+            h,
+        )
         scene.floor_height = h
-        scene.add(SceneObject(name="seafloor", mesh=mesh,
-                              material=_material(floor.get("material", "sand"), f"{source}: seafloor")))
+        scene.add(
+            SceneObject(
+                name="seafloor",
+                mesh=mesh,
+                material=_material(floor.get("material", "sand"), f"{source}: seafloor"),
+            )
+        )
     for k, obj in enumerate(cfg.get("objects", []) or []):
         _add_object(scene, obj, f"{source}: objects[{k}]")
     unknown = set(cfg) - {"name", "surface_z_m", "seafloor", "objects"}
@@ -478,30 +546,64 @@ def _add_object(scene: Scene, obj: Any, where: str) -> None:
         if on_floor:
             pos = _on_floor(scene, pos, size / 2 - 0.01)
         T = _pose(pos, rot)
-        mat = ArucoCubeMaterial(size_m=size, marker_ids=tuple(obj.get("marker_ids", (0, 1, 2, 3, 4, 5))),  # type: ignore[arg-type]
-                                dictionary=str(obj.get("dictionary", "DICT_4X4_50")))
-        scene.add(SceneObject(name="aruco_cube", mesh=_transformed(box_mesh(size), T), material=mat, T_world_object=T))
+        mat = ArucoCubeMaterial(
+            size_m=size,
+            marker_ids=tuple(obj.get("marker_ids", (0, 1, 2, 3, 4, 5))),
+            dictionary=str(obj.get("dictionary", "DICT_4X4_50")),
+        )
+        scene.add(
+            SceneObject(
+                name="aruco_cube",
+                mesh=_transformed(box_mesh(size), T),
+                material=mat,
+                T_world_object=T,
+            )
+        )
     elif kind == "bottle":
         if on_floor:
             pos = _on_floor(scene, pos, -0.005)
         T = _pose(pos, rot)
-        body, cap = bottle_meshes(float(obj.get("length_m", 0.25)), float(obj.get("radius_m", 0.035)))
+        body, cap = bottle_meshes(
+            float(obj.get("length_m", 0.25)), float(obj.get("radius_m", 0.035))
+        )
         colour = tuple(obj.get("colour_rgb", (0.08, 0.30, 0.10)))
-        scene.add(SceneObject(name="bottle", mesh=_transformed(body, T), T_world_object=T,
-                              material=SolidMaterial(colour_rgb=colour, noise=0.15, noise_freq_per_m=40.0)))  # type: ignore[arg-type]
-        scene.add(SceneObject(name="bottle_cap", mesh=_transformed(cap, T), T_world_object=T,
-                              material=SolidMaterial(colour_rgb=(0.02, 0.15, 0.04), noise=0.1)))
+        scene.add(
+            SceneObject(
+                name="bottle",
+                mesh=_transformed(body, T),
+                T_world_object=T,
+                material=SolidMaterial(colour_rgb=colour, noise=0.15, noise_freq_per_m=40.0),
+            )
+        )
+        scene.add(
+            SceneObject(
+                name="bottle_cap",
+                mesh=_transformed(cap, T),
+                T_world_object=T,
+                material=SolidMaterial(colour_rgb=(0.02, 0.15, 0.04), noise=0.1),
+            )
+        )
     elif kind == "rock":
         r = float(obj.get("radius_m", 0.15))
         if on_floor:
             pos = _on_floor(scene, pos, 0.2 * r)
         T = _pose(pos, rot)
         mesh = rock_mesh(r, seed=int(obj.get("seed", 0)), squash=float(obj.get("squash", 0.6)))
-        scene.add(SceneObject(name="rock", mesh=_transformed(mesh, T), T_world_object=T,
-                              material=_material(obj.get("material", "rock"), where)))
+        scene.add(
+            SceneObject(
+                name="rock",
+                mesh=_transformed(mesh, T),
+                T_world_object=T,
+                material=_material(obj.get("material", "rock"), where),
+            )
+        )
     elif kind == "board":
         spec = parse_board_spec(str(obj.get("board", "checkerboard:9x6:40mm")))
-        T = np.asarray(obj["T_world_board"], dtype=np.float64) if "T_world_board" in obj else _pose(pos, rot)
+        T = (
+            np.asarray(obj["T_world_board"], dtype=np.float64)
+            if "T_world_board" in obj
+            else _pose(pos, rot)
+        )
         if T.shape != (4, 4):
             raise SimulationError(f"{where}: T_world_board must be 4x4, got shape {T.shape}")
         scene.add(make_board(spec, T))
@@ -509,30 +611,64 @@ def _add_object(scene: Scene, obj: Any, where: str) -> None:
         radius = float(obj.get("diameter_m", 1.23)) / 2
         depth = float(obj.get("depth_m", 1.25))
         T = _pose(pos, rot)
-        scene.add(SceneObject(name="tank_wall", mesh=_transformed(tank_wall_mesh(radius, depth), T), T_world_object=T,
-                              material=SolidMaterial(colour_rgb=(0.35, 0.40, 0.42), noise=0.35, noise_freq_per_m=30.0)))
+        scene.add(
+            SceneObject(
+                name="tank_wall",
+                mesh=_transformed(tank_wall_mesh(radius, depth), T),
+                T_world_object=T,
+                material=SolidMaterial(
+                    colour_rgb=(0.35, 0.40, 0.42), noise=0.35, noise_freq_per_m=30.0
+                ),
+            )
+        )
     else:
-        raise SimulationError(f"{where}: unknown object type {kind!r} (aruco_cube, bottle, rock, board, tank)")
+        raise SimulationError(
+            f"{where}: unknown object type {kind!r} (aruco_cube, bottle, rock, board, tank)"
+        )
 
 
 _BUILTINS: dict[str, dict[str, Any]] = {
     "tank": {
         "name": "tank",
         "surface_z_m": 1.25,
-        "seafloor": {"size_m": [1.3, 1.3], "resolution_m": 0.02, "roughness_m": 0.01, "feature_m": 0.3,
-                     "material": {"type": "sand", "colour_rgb": [0.50, 0.47, 0.40], "ripple_wavelength_m": 0.0}},
+        "seafloor": {
+            "size_m": [1.3, 1.3],
+            "resolution_m": 0.02,
+            "roughness_m": 0.01,
+            "feature_m": 0.3,
+            "material": {
+                "type": "sand",
+                "colour_rgb": [0.50, 0.47, 0.40],
+                "ripple_wavelength_m": 0.0,
+            },
+        },
         "objects": [
             {"type": "tank", "diameter_m": 1.23, "depth_m": 1.25},
-            {"type": "aruco_cube", "size_m": 0.15, "position_m": [0.12, 0.05, 0.0], "rotation_deg": [0, 0, 25]},
+            {
+                "type": "aruco_cube",
+                "size_m": 0.15,
+                "position_m": [0.12, 0.05, 0.0],
+                "rotation_deg": [0, 0, 25],
+            },
             {"type": "bottle", "position_m": [-0.15, -0.08, 0.0], "rotation_deg": [0, 0, -30]},
         ],
     },
     "lake": {
         "name": "lake",
         "surface_z_m": 3.0,
-        "seafloor": {"size_m": [10.0, 10.0], "resolution_m": 0.04, "slope_deg": 8.0, "roughness_m": 0.04},
+        "seafloor": {
+            "size_m": [10.0, 10.0],
+            "resolution_m": 0.04,
+            "slope_deg": 8.0,
+            "roughness_m": 0.04,
+        },
         "objects": [
-            {"type": "aruco_cube", "size_m": 0.2, "position_m": [0.0, 0.0, 0.0], "rotation_deg": [0, 0, 20]},
+            {
+                "type": "aruco_cube",
+                "size_m": 0.2,
+                "position_m": [0.0, 0.0, 0.0],
+                "rotation_deg": [0, 0, 20],
+            },
             {"type": "bottle", "position_m": [0.45, -0.25, 0.0], "rotation_deg": [0, 0, 60]},
             {"type": "rock", "radius_m": 0.18, "position_m": [-0.8, 0.6, 0.0], "seed": 1},
             {"type": "rock", "radius_m": 0.10, "position_m": [0.9, 0.8, 0.0], "seed": 2},
@@ -542,14 +678,34 @@ _BUILTINS: dict[str, dict[str, Any]] = {
     "reef": {
         "name": "reef",
         "surface_z_m": 4.0,
-        "seafloor": {"size_m": [12.0, 12.0], "resolution_m": 0.04, "roughness_m": 0.15, "feature_m": 1.5,
-                     "material": {"type": "rock", "colour_rgb": [0.35, 0.30, 0.26]}},
+        "seafloor": {
+            "size_m": [12.0, 12.0],
+            "resolution_m": 0.04,
+            "roughness_m": 0.15,
+            "feature_m": 1.5,
+            "material": {"type": "rock", "colour_rgb": [0.35, 0.30, 0.26]},
+        },
         "objects": [
-            {"type": "rock", "radius_m": float(r), "position_m": [float(x), float(y), 0.0], "seed": int(s),
-             "material": {"type": "rock", "colour_rgb": [0.30 + 0.1 * (s % 3), 0.28, 0.24]}}
+            {
+                "type": "rock",
+                "radius_m": float(r),
+                "position_m": [float(x), float(y), 0.0],
+                "seed": int(s),
+                "material": {"type": "rock", "colour_rgb": [0.30 + 0.1 * (s % 3), 0.28, 0.24]},
+            }
             for s, (x, y, r) in enumerate(
-                [(0.0, 0.0, 0.35), (1.2, 0.4, 0.25), (-1.0, 0.9, 0.3), (0.6, -1.3, 0.2), (-1.5, -0.8, 0.4),
-                 (2.0, -0.6, 0.3), (-0.3, 1.8, 0.22), (1.6, 1.7, 0.28), (-2.2, 0.2, 0.3), (0.2, -2.2, 0.35)]
+                [
+                    (0.0, 0.0, 0.35),
+                    (1.2, 0.4, 0.25),
+                    (-1.0, 0.9, 0.3),
+                    (0.6, -1.3, 0.2),
+                    (-1.5, -0.8, 0.4),
+                    (2.0, -0.6, 0.3),
+                    (-0.3, 1.8, 0.22),
+                    (1.6, 1.7, 0.28),
+                    (-2.2, 0.2, 0.3),
+                    (0.2, -2.2, 0.35),
+                ]
             )
         ],
     },
@@ -563,8 +719,10 @@ def builtin_scene(name: str) -> Scene:
         SimulationError: for an unknown name.
     """
     if name not in _BUILTINS:
-        raise SimulationError(f"unknown scene {name!r}; built-in scenes are {', '.join(BUILTIN_SCENES)} "
-                              f"(or give a path to a scene YAML file)")
+        raise SimulationError(
+            f"unknown scene {name!r}; built-in scenes are {', '.join(BUILTIN_SCENES)} "
+            f"(or give a path to a scene YAML file)"
+        )
     return scene_from_dict(_BUILTINS[name], source=f"builtin:{name}")
 
 
@@ -579,7 +737,9 @@ def load_scene(name_or_path: str | Path) -> Scene:
         return builtin_scene(text)
     path = Path(text)
     if not path.is_file():
-        raise SimulationError(f"scene {text!r} is neither a built-in scene ({', '.join(BUILTIN_SCENES)}) nor a file")
+        raise SimulationError(
+            f"scene {text!r} is neither a built-in scene ({', '.join(BUILTIN_SCENES)}) nor a file"
+        )
     try:
         cfg = yaml.safe_load(path.read_text())
     except (OSError, yaml.YAMLError) as err:

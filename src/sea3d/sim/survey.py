@@ -36,7 +36,15 @@ from sea3d.geometry.camera import CameraModel
 from sea3d.geometry.pinhole import PinholeCamera
 from sea3d.geometry.rig import StereoRig
 from sea3d.geometry.se3 import R_to_quat_wxyz, invert_T
-from sea3d.sim.motion import ImuNoise, Mount, Trajectory, imu_samples, make_trajectory, poses, sample_times_ns
+from sea3d.sim.motion import (
+    ImuNoise,
+    Mount,
+    Trajectory,
+    imu_samples,
+    make_trajectory,
+    poses,
+    sample_times_ns,
+)
 from sea3d.sim.optics import Imaging
 from sea3d.sim.render import GroundTruth, Renderer
 from sea3d.sim.scene import BoardSpec, Scene, load_scene, make_board, parse_board_spec
@@ -60,11 +68,11 @@ Image = NDArray[np.uint8]
 class SessionSink(Protocol):
     """What :func:`simulate_survey` writes to (:class:`sea3d.io.session.SessionWriter`)."""
 
-    def write_stereo(self, t_ns: int, left: Image, right: Image) -> None: ...  # noqa: D102
+    def write_stereo(self, t_ns: int, left: Image, right: Image) -> None: ...
 
-    def write_imu(self, t_ns: int, accel_mps2: Any, gyro_radps: Any) -> None: ...  # noqa: D102
+    def write_imu(self, t_ns: int, accel_mps2: Any, gyro_radps: Any) -> None: ...
 
-    def write_sonar(self, t_ns: int, range_m: float, confidence: float = ...) -> None: ...  # noqa: D102
+    def write_sonar(self, t_ns: int, range_m: float, confidence: float = ...) -> None: ...
 
 
 def _pinhole_of(cam: CameraModel) -> PinholeCamera:
@@ -76,8 +84,15 @@ def _pinhole_of(cam: CameraModel) -> PinholeCamera:
 
 def _scaled_pinhole(pin: PinholeCamera, width: int, height: int) -> PinholeCamera:
     sx, sy = width / pin.width, height / pin.height
-    return PinholeCamera(fx=pin.fx * sx, fy=pin.fy * sy, cx=(pin.cx + 0.5) * sx - 0.5,
-                         cy=(pin.cy + 0.5) * sy - 0.5, width=width, height=height, dist=pin.dist)
+    return PinholeCamera(
+        fx=pin.fx * sx,
+        fy=pin.fy * sy,
+        cx=(pin.cx + 0.5) * sx - 0.5,
+        cy=(pin.cy + 0.5) * sy - 0.5,
+        width=width,
+        height=height,
+        dist=pin.dist,
+    )
 
 
 def scale_rig(rig: StereoRig, size_px: tuple[int, int]) -> StereoRig:
@@ -96,13 +111,15 @@ def scale_rig(rig: StereoRig, size_px: tuple[int, int]) -> StereoRig:
     for cam in (rig.left, rig.right):
         pin = _scaled_pinhole(_pinhole_of(cam), w, h)
         port = getattr(cam, "port", None)
-        cams.append(type(cam)(pin, port) if port is not None else pin)
+        cams.append(type(cam)(pin, port) if port is not None else pin)  # type: ignore[call-arg]
     return StereoRig(left=cams[0], right=cams[1], T_left_right=rig.T_left_right)
 
 
 def in_air(rig: StereoRig) -> StereoRig:
     """The rig's bare pinhole cameras (ports removed): the rig as it sees in air."""
-    return StereoRig(left=_pinhole_of(rig.left), right=_pinhole_of(rig.right), T_left_right=rig.T_left_right)
+    return StereoRig(
+        left=_pinhole_of(rig.left), right=_pinhole_of(rig.right), T_left_right=rig.T_left_right
+    )
 
 
 def _imaging(water: str | Imaging | None) -> Imaging:
@@ -183,19 +200,28 @@ def _board_outline(spec: BoardSpec) -> FloatArray:
     return np.array([[x0, y0, 0], [x1, y0, 0], [x1, y1, 0], [x0, y1, 0]], dtype=np.float64)
 
 
-def _visible(cam: CameraModel, T_cam_board: FloatArray, pts_board: FloatArray, margin_px: float) -> bool:
+def _visible(
+    cam: CameraModel, T_cam_board: FloatArray, pts_board: FloatArray, margin_px: float
+) -> bool:
     p = pts_board @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
     if np.any(p[:, 2] <= 0.05):
         return False
     uv, ok = cam.project(p)
     if not np.all(ok):
         return False
-    return bool(np.all((uv[:, 0] >= margin_px) & (uv[:, 0] <= cam.width - 1 - margin_px)
-                       & (uv[:, 1] >= margin_px) & (uv[:, 1] <= cam.height - 1 - margin_px)))
+    return bool(
+        np.all(
+            (uv[:, 0] >= margin_px)
+            & (uv[:, 0] <= cam.width - 1 - margin_px)
+            & (uv[:, 1] >= margin_px)
+            & (uv[:, 1] <= cam.height - 1 - margin_px)
+        )
+    )
 
 
-def _random_rotation_towards(z_axis: FloatArray, tilt_max_rad: float, roll_max_rad: float,
-                             g: np.random.Generator) -> FloatArray:
+def _random_rotation_towards(
+    z_axis: FloatArray, tilt_max_rad: float, roll_max_rad: float, g: np.random.Generator
+) -> FloatArray:
     """A rotation whose third column is ``z_axis`` tilted by up to ``tilt_max_rad`` and rolled."""
     z = z_axis / np.linalg.norm(z_axis)
     x = np.array([1.0, 0.0, 0.0]) - z[0] * z  # board x roughly along the camera's x
@@ -208,7 +234,7 @@ def _random_rotation_towards(z_axis: FloatArray, tilt_max_rad: float, roll_max_r
     Rt = cv2.Rodrigues(axis * tilt)[0]
     roll = g.uniform(-roll_max_rad, roll_max_rad)
     Rr = cv2.Rodrigues(np.array([0.0, 0.0, roll]))[0]
-    return R0 @ Rt @ Rr
+    return np.asarray(R0 @ Rt @ Rr, dtype=np.float64)
 
 
 def render_calibration_set(
@@ -266,7 +292,9 @@ def render_calibration_set(
     # Clean calibration images are lit evenly (a diffuse light box), so corners have full contrast.
     imaging = Imaging(ambient=1.0) if water is None or water == "none" else _imaging(water)
     outline = _board_outline(spec)
-    centre_board = np.array([(spec.cols - 1) * spec.square_m / 2, (spec.rows - 1) * spec.square_m / 2, 0.0])
+    centre_board = np.array(
+        [(spec.cols - 1) * spec.square_m / 2, (spec.rows - 1) * spec.square_m / 2, 0.0]
+    )
     T_right_left = invert_T(rig.T_left_right)
     grid = [(i, j) for j in range(4) for i in range(4)]
     lefts, rights, poses_lb, stamps = [], [], [], []
@@ -281,11 +309,15 @@ def render_calibration_set(
             if not ray.valid[0]:
                 continue
             target = ray.at(np.array([d]))[0]
-            R = _random_rotation_towards(ray.directions[0], np.deg2rad(tilt_max_deg), np.deg2rad(30.0), g)
+            R = _random_rotation_towards(
+                ray.directions[0], np.deg2rad(tilt_max_deg), np.deg2rad(30.0), g
+            )
             T = np.eye(4)
             T[:3, :3] = R
             T[:3, 3] = target - R @ centre_board
-            if _visible(cams.left, T, outline, margin_px) and _visible(cams.right, T_right_left @ T, outline, margin_px):
+            if _visible(cams.left, T, outline, margin_px) and _visible(
+                cams.right, T_right_left @ T, outline, margin_px
+            ):
                 T_lb = T
                 break
         if T_lb is None:
@@ -304,7 +336,9 @@ def render_calibration_set(
         stamps.append(int(k * 1_000_000_000))
         if progress is not None:
             progress(1)
-    return CalibrationSet(lefts=lefts, rights=rights, T_left_board=poses_lb, t_ns=stamps, board=spec)
+    return CalibrationSet(
+        lefts=lefts, rights=rights, T_left_board=poses_lb, t_ns=stamps, board=spec
+    )
 
 
 def write_calibration_set(cal: CalibrationSet, out: Path) -> None:
@@ -320,9 +354,20 @@ def write_calibration_set(cal: CalibrationSet, out: Path) -> None:
             cv2.imwrite(str(out / "left" / f"{t}.png"), li[:, :, ::-1])
             cv2.imwrite(str(out / "right" / f"{t}.png"), ri[:, :, ::-1])
         spec = cal.board
-        boards = [{"t_ns": t, "T_left_board": T.tolist()} for t, T in zip(cal.t_ns, cal.T_left_board, strict=True)]
-        meta = {"board": {"kind": spec.kind, "cols": spec.cols, "rows": spec.rows, "square_m": spec.square_m,
-                          "marker_m": spec.marker_m, "dictionary": spec.dictionary}}
+        boards = [
+            {"t_ns": t, "T_left_board": T.tolist()}
+            for t, T in zip(cal.t_ns, cal.T_left_board, strict=True)
+        ]
+        meta = {
+            "board": {
+                "kind": spec.kind,
+                "cols": spec.cols,
+                "rows": spec.rows,
+                "square_m": spec.square_m,
+                "marker_m": spec.marker_m,
+                "dictionary": spec.dictionary,
+            }
+        }
         (out / "gt" / "boards.json").write_text(json.dumps(boards, indent=1))
         (out / "gt" / "board.json").write_text(json.dumps(meta, indent=1))
     except OSError as err:
@@ -367,7 +412,8 @@ class SurveyConfig:
     def __post_init__(self) -> None:
         if self.frames < 1 or self.fps <= 0 or self.imu_rate_hz <= 0 or self.sonar_rate_hz <= 0:
             raise SimulationError(
-                f"survey needs frames >= 1 and positive rates; got frames={self.frames}, fps={self.fps}, "
+                f"survey needs frames >= 1 and positive rates; got frames={self.frames}, "
+                f"fps={self.fps}, "
                 f"imu_rate_hz={self.imu_rate_hz}, sonar_rate_hz={self.sonar_rate_hz}"
             )
 
@@ -395,11 +441,19 @@ def _scene_focus(scene: Scene) -> tuple[tuple[float, float, float], float]:
     for obj in scene.objects:
         if obj.name == "aruco_cube":
             c = obj.T_world_object[:3, 3]
-            floor = float(np.asarray(scene.floor_height(np.array([c[0]]), np.array([c[1]])))[0]) if scene.floor_height else c[2]
+            floor = (
+                float(np.asarray(scene.floor_height(np.array([c[0]]), np.array([c[1]])))[0])
+                if scene.floor_height
+                else c[2]
+            )
             return (float(c[0]), float(c[1]), float(c[2])), floor
     lo, hi = scene.bounds_m()
     c = (lo + hi) / 2
-    floor = float(np.asarray(scene.floor_height(np.array([c[0]]), np.array([c[1]])))[0]) if scene.floor_height else float(lo[2])
+    floor = (
+        float(np.asarray(scene.floor_height(np.array([c[0]]), np.array([c[1]])))[0])
+        if scene.floor_height
+        else float(lo[2])
+    )
     return (float(c[0]), float(c[1]), floor), floor
 
 
@@ -409,19 +463,30 @@ def default_trajectory(scene: Scene, config: SurveyConfig) -> Trajectory:
     lo, hi = scene.bounds_m()
     scale = float(np.clip(min(hi[0] - lo[0], hi[1] - lo[1]) / 6.0, 0.3, 1.0))
     duration = (config.frames - 1) / config.fps + 1e-9
-    return make_trajectory(config.trajectory, duration_s=max(duration, 1.0 / config.fps), scene_center_m=focus,
-                           floor_z_m=floor, camera_tilt_deg=config.camera_tilt_deg, seed=config.seed, scale_m=scale)
+    return make_trajectory(
+        config.trajectory,
+        duration_s=max(duration, 1.0 / config.fps),
+        scene_center_m=focus,
+        floor_z_m=floor,
+        camera_tilt_deg=config.camera_tilt_deg,
+        seed=config.seed,
+        scale_m=scale,
+    )
 
 
 def _tum_line(t_ns: int, T: FloatArray) -> str:
     q = R_to_quat_wxyz(T[:3, :3])
     x, y, z = T[:3, 3]
-    return f"{t_ns * 1e-9:.9f} {x:.9f} {y:.9f} {z:.9f} {q[1]:.12f} {q[2]:.12f} {q[3]:.12f} {q[0]:.12f}"
+    return (
+        f"{t_ns * 1e-9:.9f} {x:.9f} {y:.9f} {z:.9f} {q[1]:.12f} {q[2]:.12f} {q[3]:.12f} {q[0]:.12f}"
+    )
 
 
 def write_tum(path: Path, t_ns: Sequence[int], T: FloatArray) -> None:
     """Poses as a TUM trajectory file: ``t x y z qx qy qz qw`` per line, t in seconds."""
-    lines = ["# t x y z qx qy qz qw"] + [_tum_line(int(t), Ti) for t, Ti in zip(t_ns, T, strict=True)]
+    lines = ["# t x y z qx qy qz qw"] + [
+        _tum_line(int(t), Ti) for t, Ti in zip(t_ns, T, strict=True)
+    ]
     path.write_text("\n".join(lines) + "\n")
 
 
@@ -458,38 +523,58 @@ def simulate_survey(
         SimulationError: bad configuration or an unwritable ``gt_dir``.
     """
     traj = trajectory or default_trajectory(scene, config)
-    mount = mount or Mount.default(baseline_m=rig.baseline_m, camera_tilt_deg=config.camera_tilt_deg)
+    mount = mount or Mount.default(
+        baseline_m=rig.baseline_m, camera_tilt_deg=config.camera_tilt_deg
+    )
     imaging = _imaging(config.water if config.water != "none" else None)
     rng = np.random.default_rng(config.seed)
     renderer = Renderer(scene, supersample=config.supersample)
     frame_t = sample_times_ns((config.frames - 1) / config.fps, config.fps)[: config.frames]
     end_ns = int(frame_t[-1])
     imu_t = sample_times_ns(end_ns * 1e-9, config.imu_rate_hz)
-    imu = imu_samples(traj, imu_t, noise=ImuNoise.mti300() if config.imu_noise else None,
-                      rng=np.random.default_rng(config.seed + 1))
+    imu = imu_samples(
+        traj,
+        imu_t,
+        noise=ImuNoise.mti300() if config.imu_noise else None,
+        rng=np.random.default_rng(config.seed + 1),
+    )
     sonar_t = sample_times_ns(end_ns * 1e-9, config.sonar_rate_hz)
-    T_wb_sonar = poses(traj, sonar_t * 1e-9) @ mount.T_body_sonar
+    T_wb_sonar = poses(traj, sonar_t.astype(np.float64) * 1e-9) @ mount.T_body_sonar
     hits = renderer.cast(T_wb_sonar[:, :3, 3], -T_wb_sonar[:, :3, 2])
     srng = np.random.default_rng(config.seed + 2)
-    sonar_range = hits.t_m * (1.0 + config.sonar_noise_fraction * srng.standard_normal(hits.t_m.shape))
-    T_wb = poses(traj, frame_t * 1e-9)
+    sonar_range = hits.t_m * (
+        1.0 + config.sonar_noise_fraction * srng.standard_normal(hits.t_m.shape)
+    )
+    T_wb = poses(traj, frame_t.astype(np.float64) * 1e-9)
     T_wl = T_wb @ mount.T_body_left
     if gt_dir is not None:
         try:
             (gt_dir / "depth").mkdir(parents=True, exist_ok=True)
             (gt_dir / "object_id").mkdir(parents=True, exist_ok=True)
-            write_tum(gt_dir / "poses_left.tum", frame_t, T_wl)
-            write_tum(gt_dir / "poses_body.tum", frame_t, T_wb)
-            o3d.io.write_triangle_mesh(str(gt_dir / "scene.ply"), scene.combined_mesh())
-            np.savetxt(gt_dir / "imu_bias.csv", np.column_stack([imu.t_ns, imu.accel_bias_mps2, imu.gyro_bias_radps]),
-                       delimiter=",", header="t_ns,ba_x,ba_y,ba_z,bg_x,bg_y,bg_z", comments="",
-                       fmt=["%d"] + ["%.9e"] * 6)
+            write_tum(gt_dir / "poses_left.tum", frame_t.tolist(), T_wl)
+            write_tum(gt_dir / "poses_body.tum", frame_t.tolist(), T_wb)
+            o3d.io.write_triangle_mesh(str(gt_dir / "scene.ply"), scene.combined_mesh())  # type: ignore[arg-type]
+            np.savetxt(
+                gt_dir / "imu_bias.csv",
+                np.column_stack([imu.t_ns, imu.accel_bias_mps2, imu.gyro_bias_radps]),
+                delimiter=",",
+                header="t_ns,ba_x,ba_y,ba_z,bg_x,bg_y,bg_z",
+                comments="",
+                fmt=["%d"] + ["%.9e"] * 6,
+            )
             meta = {
-                "scene": scene.name, "water": config.water, "seed": config.seed, "frames": config.frames,
-                "fps": config.fps, "imu_rate_hz": config.imu_rate_hz, "sonar_rate_hz": config.sonar_rate_hz,
-                "trajectory": config.trajectory, "T_body_left": mount.T_body_left.tolist(),
-                "T_body_sonar": mount.T_body_sonar.tolist(), "imu_noise": config.imu_noise,
-                "depth": "depth/<t_ns>.npy float32 metres along the left camera z axis, NaN = no hit",
+                "scene": scene.name,
+                "water": config.water,
+                "seed": config.seed,
+                "frames": config.frames,
+                "fps": config.fps,
+                "imu_rate_hz": config.imu_rate_hz,
+                "sonar_rate_hz": config.sonar_rate_hz,
+                "trajectory": config.trajectory,
+                "T_body_left": mount.T_body_left.tolist(),
+                "T_body_sonar": mount.T_body_sonar.tolist(),
+                "imu_noise": config.imu_noise,
+                "depth": "depth/<t_ns>.npy float32 m along the left camera z axis, NaN = no hit",
                 "object_id": "object_id/<t_ns>.png uint16, object index + 1, 0 = no hit",
                 "objects": [o.name for o in scene.objects],
             }
@@ -504,8 +589,11 @@ def simulate_survey(
             i_imu += 1
         while i_sonar < len(sonar_t) and sonar_t[i_sonar] <= t_ns:
             hit = bool(np.isfinite(sonar_range[i_sonar]))
-            writer.write_sonar(int(sonar_t[i_sonar]), float(sonar_range[i_sonar]) if hit else float("nan"),
-                               1.0 if hit else 0.0)
+            writer.write_sonar(
+                int(sonar_t[i_sonar]),
+                float(sonar_range[i_sonar]) if hit else float("nan"),
+                1.0 if hit else 0.0,
+            )
             i_sonar += 1
         time_s = float(t_ns) * 1e-9
         lv = renderer.render(rig.left, T_wl[k], imaging, time_s=time_s, rng=rng)
@@ -513,12 +601,19 @@ def simulate_survey(
         writer.write_stereo(int(t_ns), lv.image, rv.image)
         if gt_dir is not None:
             np.save(gt_dir / "depth" / f"{int(t_ns)}.npy", lv.gt.depth_m)
-            cv2.imwrite(str(gt_dir / "object_id" / f"{int(t_ns)}.png"), (lv.gt.object_id + 1).astype(np.uint16))
+            cv2.imwrite(
+                str(gt_dir / "object_id" / f"{int(t_ns)}.png"),
+                (lv.gt.object_id + 1).astype(np.uint16),
+            )
         if progress is not None:
             progress(1)
-    return SurveyResult(frame_t_ns=frame_t, T_world_left=T_wl, T_world_body=T_wb, imu_count=i_imu,
-                        sonar_count=i_sonar)
+    return SurveyResult(
+        frame_t_ns=frame_t,
+        T_world_left=T_wl,
+        T_world_body=T_wb,
+        imu_count=i_imu,
+        sonar_count=i_sonar,
+    )
 
 
 __all__ += ["default_trajectory", "in_air", "write_calibration_set", "write_tum"]
-
