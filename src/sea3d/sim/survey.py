@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -192,6 +192,10 @@ class CalibrationSet:
     T_left_board: list[FloatArray]
     t_ns: list[int]
     board: BoardSpec
+
+    def __iter__(self) -> Iterator[Any]:
+        """Unpack as ``lefts, rights, T_left_board = render_calibration_set(...)``."""
+        return iter((self.lefts, self.rights, self.T_left_board))
 
 
 def _board_outline(spec: BoardSpec) -> FloatArray:
