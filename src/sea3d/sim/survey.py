@@ -37,8 +37,11 @@ from sea3d.geometry.pinhole import PinholeCamera
 from sea3d.geometry.rig import StereoRig
 from sea3d.geometry.se3 import R_to_quat_wxyz, invert_T
 from sea3d.sim.motion import (
+    HandHeld,
     ImuNoise,
+    Lawnmower,
     Mount,
+    Orbit,
     Trajectory,
     imu_samples,
     make_trajectory,
@@ -396,7 +399,8 @@ class SurveyConfig:
         water: ``none``, ``clear``, ``coastal`` or ``turbid``.
         seed: noise and hand-held wobble seed.
         supersample: rays per pixel along each axis.
-        camera_tilt_deg: the cameras' downward tilt on the body.
+        camera_tilt_deg: the cameras' downward tilt on the body; None = 60 degrees for the
+            lawnmower survey (looking at the floor), 30 for the others.
         imu_noise: add MTi-300-like IMU noise.
         sonar_noise_fraction: echosounder range noise, fraction of range (standard deviation).
     """
@@ -409,9 +413,15 @@ class SurveyConfig:
     water: str = "coastal"
     seed: int = 0
     supersample: int = 2
-    camera_tilt_deg: float = 30.0
+    camera_tilt_deg: float | None = None
     imu_noise: bool = True
     sonar_noise_fraction: float = 0.005
+
+    def tilt_deg(self) -> float:
+        """The camera tilt in effect (see ``camera_tilt_deg``)."""
+        if self.camera_tilt_deg is not None:
+            return float(self.camera_tilt_deg)
+        return 60.0 if self.trajectory == "lawnmower" else 30.0
 
     def __post_init__(self) -> None:
         if self.frames < 1 or self.fps <= 0 or self.imu_rate_hz <= 0 or self.sonar_rate_hz <= 0:
@@ -462,20 +472,47 @@ def _scene_focus(scene: Scene) -> tuple[tuple[float, float, float], float]:
 
 
 def default_trajectory(scene: Scene, config: SurveyConfig) -> Trajectory:
-    """The configured trajectory kind, sized for the scene (the tank gets a 0.35 scale)."""
+    """The configured trajectory kind, sized to the scene: it stays inside the scene's footprint
+    and under its water surface, and keeps the paper rig's 0.6 m minimum stereo range in mind
+    where the scene allows (the tank does not quite)."""
     focus, floor = _scene_focus(scene)
     lo, hi = scene.bounds_m()
-    scale = float(np.clip(min(hi[0] - lo[0], hi[1] - lo[1]) / 6.0, 0.3, 1.0))
-    duration = (config.frames - 1) / config.fps + 1e-9
-    return make_trajectory(
-        config.trajectory,
-        duration_s=max(duration, 1.0 / config.fps),
-        scene_center_m=focus,
-        floor_z_m=floor,
-        camera_tilt_deg=config.camera_tilt_deg,
-        seed=config.seed,
-        scale_m=scale,
-    )
+    extent = float(min(hi[0] - lo[0], hi[1] - lo[1]))
+    water_m = float(scene.surface_z_m - floor)
+    duration = max((config.frames - 1) / config.fps, 1.0 / config.fps)
+    fx, fy, fz = focus
+    kind = config.trajectory
+    if kind == "lawnmower":
+        width = min(3.0, 0.5 * extent)
+        return Lawnmower(
+            center_m=(fx, fy - width / 3),
+            z_m=floor + min(1.5, 0.7 * water_m),
+            width_m=width,
+            lane_spacing_m=width / 6,
+            speed_mps=0.1 * width,
+            duration_s=duration,
+        )
+    if kind == "orbit":
+        return Orbit(
+            target_m=(fx, fy, fz),
+            radius_m=min(1.2, 0.3 * extent),
+            height_m=min(0.8, 0.55 * water_m),
+            period_s=max(duration, 20.0),
+            duration_s=duration,
+            camera_tilt_deg=config.tilt_deg(),
+        )
+    if kind in ("handheld", "hand-held"):
+        off = min(0.9, 0.3 * extent)
+        return HandHeld(
+            start_m=(fx - off, fy - off, floor + min(1.0, 0.6 * water_m)),
+            velocity_mps=(0.05 * off, 0.05 * off, 0.0),
+            yaw_deg=45.0,
+            pitch_deg=20.0,
+            shake_m=0.04 * min(1.0, off / 0.9),
+            duration_s=duration,
+            seed=config.seed,
+        )
+    return make_trajectory(kind, duration_s=duration)  # raises for an unknown kind
 
 
 def _tum_line(t_ns: int, T: FloatArray) -> str:
@@ -527,9 +564,7 @@ def simulate_survey(
         SimulationError: bad configuration or an unwritable ``gt_dir``.
     """
     traj = trajectory or default_trajectory(scene, config)
-    mount = mount or Mount.default(
-        baseline_m=rig.baseline_m, camera_tilt_deg=config.camera_tilt_deg
-    )
+    mount = mount or Mount.default(baseline_m=rig.baseline_m, camera_tilt_deg=config.tilt_deg())
     imaging = _imaging(config.water if config.water != "none" else None)
     rng = np.random.default_rng(config.seed)
     renderer = Renderer(scene, supersample=config.supersample)
