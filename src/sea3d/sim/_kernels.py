@@ -6,6 +6,8 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d.sim.noise import fbm1
+
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
 
@@ -106,15 +108,17 @@ def light_and_water(
             cs = nx * lx + ny * ly + nz * lz
             if cs > 0.0:
                 ca = -(lx * light_axis[0] + ly * light_axis[1] + lz * light_axis[2])
-                ca = min(1.0, max(-1.0, ca))
-                ang = np.arccos(ca) / cone_rad
-                e_lamp = light_intensity * np.exp(-ang * ang) * cs / max(dl, 0.05) ** 2
+                # exp(-(angle / cone)^2) with angle^2 ~ 2 (1 - cos angle): no arccos needed.
+                spot = np.exp(-2.0 * (1.0 - ca) / (cone_rad * cone_rad))
+                e_lamp = light_intensity * spot * cs / max(dl, 0.05) ** 2
         z = path[i]
         for c in range(3):
             if water:
-                irr = sun * np.exp(-beta_d[c] * depth_below) + e_lamp * np.exp(-beta_d[c] * dl)
-                j = albedo[i, c] * irr
-                out[i, c] = j * np.exp(-beta_d[c] * z) + b_inf[c] * (1.0 - np.exp(-beta_b[c] * z))
+                # Sun over depth_below then the view path z; lamp over dl then z.
+                irr = sun * np.exp(-beta_d[c] * (depth_below + z)) + e_lamp * np.exp(
+                    -beta_d[c] * (dl + z)
+                )
+                out[i, c] = albedo[i, c] * irr + b_inf[c] * (1.0 - np.exp(-beta_b[c] * z))
             else:
                 out[i, c] = albedo[i, c] * (sun + e_lamp)
     return out
@@ -147,3 +151,57 @@ def camera_ground_truth(o: F64, d: F64, t: F64, n_world: F32, R: F64) -> tuple[F
         for c in range(3):  # R^T n: world normal into the camera frame
             nrm[i, c] = R[0, c] * n_world[i, 0] + R[1, c] * n_world[i, 1] + R[2, c] * n_world[i, 2]
     return pts, depth, rng, nrm
+
+
+@numba.njit(cache=True, parallel=True)
+def sand_albedo(
+    p: F64,
+    fp: F64,
+    colour: F64,
+    grain_freq: float,
+    contrast: float,
+    ripple_wavelength: float,
+    seed: int,
+) -> F32:
+    """:class:`~sea3d.sim.materials.SandMaterial` in one pass (same noise fields and weights)."""
+    n = p.shape[0]
+    out = np.empty((n, 3), dtype=np.float32)
+    s0 = np.uint64(seed & 0xFFFFFFFF)
+    s1 = np.uint64((seed + 1) & 0xFFFFFFFF)
+    s2 = np.uint64((seed + 2) & 0xFFFFFFFF)
+    s3 = np.uint64((seed + 3) & 0xFFFFFFFF)
+    for i in numba.prange(n):
+        x, y, z, f = p[i, 0], p[i, 1], p[i, 2], fp[i]
+        patches = fbm1(x, y, z, 0.0, 1.5, 2, 0.5, s0)
+        mid = fbm1(x, y, z, f, 12.0, 3, 0.6, s3)
+        grain = fbm1(x, y, z, f, grain_freq, 4, 0.8, s1)
+        shade = 1.0 + 0.7 * (patches - 0.5) + 1.0 * (mid - 0.5) + contrast * 2.0 * (grain - 0.5)
+        if ripple_wavelength > 0.0:
+            warp = fbm1(x, y, z, 0.0, 1.5, 1, 0.5, s2)
+            phase = (x * 0.8 + y * 0.6) / ripple_wavelength
+            shade += 0.12 * np.sin(2.0 * np.pi * (phase + 3.0 * warp))
+        for c in range(3):
+            out[i, c] = min(1.0, max(0.0, colour[c] * shade))
+    return out
+
+
+@numba.njit(cache=True, parallel=True)
+def caustic_raw(p: F64, scale_m: float, t_lattice: float) -> F32:
+    """Unnormalised caustic brightness: ridges of two noise fields of (x, y) / scale and time."""
+    n = p.shape[0]
+    out = np.empty(n, dtype=np.float32)
+    s77 = np.uint64(77)
+    s78 = np.uint64(78)
+    for i in numba.prange(n):
+        x = p[i, 0] / scale_m
+        y = p[i, 1] / scale_m
+        a = fbm1(x, y, t_lattice, 0.0, 1.0, 2, 0.4, s77)
+        b = fbm1(x * 1.37 + 11.0, y * 1.37 + 11.0, t_lattice * 1.37 + 11.0, 0.0, 1.0, 2, 0.4, s78)
+        ra = 1.0 - abs(2.0 * a - 1.0)
+        rb = 1.0 - abs(2.0 * b - 1.0)
+        ra2 = ra * ra
+        rb2 = rb * rb
+        ra8 = ra2 * ra2 * ra2 * ra2
+        rb8 = rb2 * rb2 * rb2 * rb2
+        out[i] = ra8 * ra2 + rb8 * rb2
+    return out

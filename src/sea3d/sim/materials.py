@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.errors import SimulationError
+from sea3d.sim._kernels import sand_albedo
 from sea3d.sim.noise import fbm
 
 __all__ = [
@@ -73,35 +74,18 @@ class SandMaterial:
     def albedo(self, points_obj: FloatArray, footprint_m: FloatArray) -> AlbedoArray:
         """See :class:`Material`."""
         # Patches (decimetres), mid-scale mottling (centimetres) and grain (down to grain_m), the
-        # finer two band-limited by the pixel footprint.
-        patches = fbm(points_obj, base_freq_per_m=1.5, octaves=2, seed=self.seed)
-        mid = fbm(
-            points_obj,
-            base_freq_per_m=12.0,
-            octaves=3,
-            gain=0.6,
-            footprint_m=footprint_m,
-            seed=self.seed + 3,
+        # finer two band-limited by the pixel footprint; soft ripples warped by noise.
+        return sand_albedo(
+            np.ascontiguousarray(points_obj, dtype=np.float64),
+            np.ascontiguousarray(
+                np.broadcast_to(footprint_m, (points_obj.shape[0],)), dtype=np.float64
+            ),
+            np.asarray(self.colour_rgb, dtype=np.float64),
+            1.0 / (16.0 * self.grain_m),
+            float(self.contrast),
+            float(self.ripple_wavelength_m),
+            int(self.seed),
         )
-        f0 = 1.0 / (16.0 * self.grain_m)
-        grain = fbm(
-            points_obj,
-            base_freq_per_m=f0,
-            octaves=4,
-            gain=0.8,
-            footprint_m=footprint_m,
-            seed=self.seed + 1,
-        )
-        shade = (
-            1.0 + 0.7 * (patches - 0.5) + 1.0 * (mid - 0.5) + self.contrast * 2.0 * (grain - 0.5)
-        )
-        if self.ripple_wavelength_m > 0:
-            warp = fbm(points_obj, base_freq_per_m=1.5, octaves=1, seed=self.seed + 2)
-            phase = (points_obj[:, 0] * 0.8 + points_obj[:, 1] * 0.6) / self.ripple_wavelength_m
-            ripple = np.sin(2 * np.pi * (phase + 3.0 * warp)).astype(np.float32)
-            shade = shade + 0.12 * ripple
-        out = _rgb(self.colour_rgb) * shade[:, None]
-        return np.clip(out, 0.0, 1.0).astype(np.float32)
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -84,6 +84,38 @@ def _value_noise(points: NDArray[np.float64], freq: float, seed: np.uint64) -> N
     return out
 
 
+@numba.njit(cache=True)
+def fbm1(
+    x: float,
+    y: float,
+    z: float,
+    fp: float,
+    base_freq: float,
+    octaves: int,
+    gain: float,
+    seed: np.uint64,
+) -> float:
+    """fBm at one point (see :func:`fbm`); callable from other numba kernels."""
+    total = 0.0
+    norm = 0.0
+    amp = 1.0
+    freq = base_freq
+    for o in range(octaves):
+        # Fade an octave out as its wavelength approaches two pixel footprints (Nyquist).
+        ratio = freq * fp
+        weight = 1.0
+        if ratio > 0.25:
+            weight = max(0.0, 1.0 - (ratio - 0.25) / 0.25)
+        if weight > 0.0:
+            s = seed + np.uint64(o) * np.uint64(1013904223)
+            val = _noise1(x * freq, y * freq, z * freq, s)
+            total += amp * weight * (val - 0.5)
+        norm += amp
+        amp *= gain
+        freq *= 2.0
+    return 0.5 + total / norm
+
+
 @numba.njit(cache=True, parallel=True)
 def _fbm(
     points: NDArray[np.float64],
@@ -96,25 +128,9 @@ def _fbm(
     n = points.shape[0]
     out = np.empty(n, dtype=np.float32)
     for i in numba.prange(n):
-        total = 0.0
-        norm = 0.0
-        amp = 1.0
-        freq = base_freq
-        fp = footprint_m[i]
-        for o in range(octaves):
-            # Fade an octave out as its wavelength approaches two pixel footprints (Nyquist).
-            ratio = freq * fp
-            weight = 1.0
-            if ratio > 0.25:
-                weight = max(0.0, 1.0 - (ratio - 0.25) / 0.25)
-            if weight > 0.0:
-                s = seed + np.uint64(o) * np.uint64(1013904223)
-                val = _noise1(points[i, 0] * freq, points[i, 1] * freq, points[i, 2] * freq, s)
-                total += amp * weight * (val - 0.5)
-            norm += amp
-            amp *= gain
-            freq *= 2.0
-        out[i] = 0.5 + total / norm
+        out[i] = fbm1(
+            points[i, 0], points[i, 1], points[i, 2], footprint_m[i], base_freq, octaves, gain, seed
+        )
     return out
 
 

@@ -31,8 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.errors import SimulationError
-from sea3d.sim._kernels import light_and_water
-from sea3d.sim.noise import fbm
+from sea3d.sim._kernels import caustic_raw, light_and_water
 
 __all__ = ["WATER_PRESETS", "Imaging", "Water", "encode_srgb", "water_preset"]
 
@@ -343,15 +342,7 @@ def encode_srgb(linear: F32) -> NDArray[np.uint8]:
 @lru_cache(maxsize=1)
 def _caustic_mean() -> float:
     p = np.random.default_rng(0).random((200_000, 3)) * 50.0
-    return float(np.mean(_caustic_raw(p)))
-
-
-def _caustic_raw(p: FloatArray) -> F32:
-    a = fbm(p, base_freq_per_m=1.0, octaves=2, gain=0.4, seed=77)
-    b = fbm(p * 1.37 + 11.0, base_freq_per_m=1.0, octaves=2, gain=0.4, seed=78)
-    ra = 1.0 - np.abs(2.0 * a - 1.0)
-    rb = 1.0 - np.abs(2.0 * b - 1.0)
-    return (ra**10 + rb**10).astype(np.float32)
+    return float(np.mean(caustic_raw(p, 1.0, 0.0)))
 
 
 def caustic_pattern(
@@ -369,12 +360,9 @@ def caustic_pattern(
     Returns:
         ``(N,)`` float64, non-negative.
     """
-    p = np.stack(
-        [
-            points_world[:, 0] / scale_m,
-            points_world[:, 1] / scale_m,
-            np.full(points_world.shape[0], time_s * speed_per_s),
-        ],
-        axis=1,
+    raw = caustic_raw(
+        np.ascontiguousarray(points_world, dtype=np.float64),
+        float(scale_m),
+        float(time_s * speed_per_s),
     )
-    return _caustic_raw(p).astype(np.float64) / _caustic_mean()
+    return raw.astype(np.float64) / _caustic_mean()

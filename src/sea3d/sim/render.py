@@ -312,12 +312,21 @@ class Renderer:
         footprint = t * pixel_angle_rad
         albedo = np.empty((idx.size, 3), dtype=np.float32)
         ids = hits.object_id[idx]
-        for k in np.unique(ids):
-            sel = ids == k
+        present = np.flatnonzero(np.bincount(ids, minlength=len(self.scene.objects)))
+        for k in present:
             obj = self.scene.objects[int(k)]
             Tw = obj.T_world_object
-            p_obj = rigid_transform(Tw[:3, :3].T, -Tw[:3, :3].T @ Tw[:3, 3], p_w[sel])
-            albedo[sel] = obj.material.albedo(p_obj, footprint[sel])
+            if len(present) == 1:
+                p_k, fp_k = p_w, footprint
+            else:
+                sel = ids == k
+                p_k, fp_k = p_w[sel], footprint[sel]
+            if not np.array_equal(Tw, np.eye(4)):
+                p_k = rigid_transform(Tw[:3, :3].T, -Tw[:3, :3].T @ Tw[:3, 3], p_k)
+            if len(present) == 1:
+                albedo[:] = obj.material.albedo(p_k, fp_k)
+            else:
+                albedo[sel] = obj.material.albedo(p_k, fp_k)
         out[idx] = imaging.shade(
             albedo,
             p_w,
