@@ -80,7 +80,7 @@ def test_detected_checkerboard_corners_land_on_projected_board_corners(port: str
     rig = paper_rig(port, size_px=SIZE_PX)
     spec = parse_board_spec("checkerboard:9x6:40mm")
     cal = render_calibration_set(
-        rig, spec, 3, "water", seed=1, distance_range_m=(0.5, 0.9), supersample=4
+        rig, spec, 3, "water", seed=1, distance_range_m=(0.5, 0.9), supersample=6
     )
     err = _corner_errors(rig, rig.left, spec, cal)
     rms = float(np.sqrt(np.mean(np.sum(err**2, axis=1))))

@@ -9,7 +9,7 @@ light, and the image is gamma-encoded only at the end.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import ClassVar, Protocol
 
 import cv2
 import numpy as np
@@ -185,6 +185,8 @@ class CheckerboardMaterial:
         margin_m: white border outside the outer squares, metres.
     """
 
+    hard_edges: ClassVar[bool] = True  # sharp texture edges: the renderer supersamples them
+
     cols: int
     rows: int
     square_m: float
@@ -227,6 +229,8 @@ class ImageMaterial:
         y0_m: object y of the image's top edge.
         outside_rgb: albedo outside the image.
     """
+
+    hard_edges: ClassVar[bool] = True  # sharp texture edges: the renderer supersamples them
 
     image_rgb: NDArray[np.float32]
     texel_m: float
@@ -271,6 +275,8 @@ class ArucoCubeMaterial:
         dictionary: OpenCV dictionary name.
         marker_fraction: marker side over face side.
     """
+
+    hard_edges: ClassVar[bool] = True  # sharp texture edges: the renderer supersamples them
 
     size_m: float
     marker_ids: tuple[int, int, int, int, int, int] = (0, 1, 2, 3, 4, 5)

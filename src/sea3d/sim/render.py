@@ -4,9 +4,10 @@ Each pixel's rays come from the camera model's own ``unproject`` (pinhole, dome 
 port), so refraction at the port is exact rather than approximated: a port camera's rays start on
 the outer port surface and point into the water, and Open3D's
 :class:`open3d.t.geometry.RaycastingScene` casts them from there. Colour is the mean of
-``supersample x supersample`` stratified rays per pixel (anti-aliasing); ground truth comes from
-one extra ray through the exact pixel centre, so it is sharp and matches the camera model's
-``project`` to float precision.
+``supersample x supersample`` stratified rays per pixel (anti-aliasing), by default only where
+the centre rays show an edge (adaptive supersampling); ground truth comes from the ray through
+the exact pixel centre, so it is sharp and matches the camera model's ``project`` to float
+precision.
 
 Ground truth per pixel (camera frame, OpenCV axes):
 
@@ -119,6 +120,9 @@ class Renderer:
     Args:
         scene: the :class:`~sea3d.sim.scene.Scene`.
         supersample: rays per pixel along each axis for colour (1 = one ray per pixel).
+        adaptive: supersample only pixels at object boundaries, depth steps and edges of
+            hard-edged textures (boards, markers); elsewhere the band-limited procedural textures
+            need no more than the centre ray. False supersamples every pixel.
         chunk_rows: image rows processed at once (bounds memory).
         nthreads: Open3D ray-casting threads (0 = all cores).
 
@@ -127,7 +131,13 @@ class Renderer:
     """
 
     def __init__(
-        self, scene: Scene, *, supersample: int = 2, chunk_rows: int = 128, nthreads: int = 0
+        self,
+        scene: Scene,
+        *,
+        supersample: int = 2,
+        adaptive: bool = True,
+        chunk_rows: int = 128,
+        nthreads: int = 0,
     ) -> None:
         if supersample < 1:
             raise SimulationError(f"supersample must be >= 1, got {supersample}")
@@ -135,6 +145,8 @@ class Renderer:
             raise SimulationError(f"scene {scene.name!r} has no objects to render")
         self.scene = scene
         self.supersample = int(supersample)
+        self.adaptive = bool(adaptive)
+        self.last_supersampled_fraction = 0.0
         self.chunk_rows = int(chunk_rows)
         self.nthreads = int(nthreads)
         self._rc = o3d.t.geometry.RaycastingScene(nthreads=self.nthreads)
@@ -147,6 +159,10 @@ class Renderer:
         for gid, k in geom_to_obj.items():
             lut[gid] = k
         self._geom_lut = lut
+        # Index object_id + 1 (so -1, nothing hit, is index 0): does the material have hard edges?
+        self._hard_lut = np.array(
+            [False] + [bool(getattr(o.material, "hard_edges", False)) for o in scene.objects]
+        )
         self._ray_cache: dict[tuple[int, int], tuple[Any, _CameraRays]] = {}
         self.timings_s: dict[str, float] = defaultdict(float)
 
@@ -249,39 +265,69 @@ class Renderer:
         normals = np.full((h, w, 3), np.nan, dtype=np.float32)
         obj_id = np.full((h, w), -1, dtype=np.int32)
         colour_idx = np.asarray(cam_rays.colour_samples)
+        # Pass 1: every pixel's centre ray (index 0): ground truth, and the colour of pixels that
+        # need no more samples.
         for r0 in range(0, h, self.chunk_rows):
             r1 = min(h, r0 + self.chunk_rows)
             t0 = time.perf_counter()
-            o_cam = cam_rays.origins[:, r0:r1].reshape(-1, 3).astype(np.float64)
-            d_cam = cam_rays.dirs[:, r0:r1].reshape(-1, 3).astype(np.float64)
+            o_cam = cam_rays.origins[0, r0:r1].reshape(-1, 3).astype(np.float64)
+            d_cam = cam_rays.dirs[0, r0:r1].reshape(-1, 3).astype(np.float64)
             o_w = rigid_transform(R, tvec, o_cam)
             d_w = rigid_transform(R, np.zeros(3), d_cam)
             t1 = time.perf_counter()
             hits = self.cast(o_w, d_w)
             t2 = time.perf_counter()
-            n_chunk = (r1 - r0) * w
             rad = self._shade(
                 hits, o_w, d_w, cam_rays.pixel_angle_rad, imaging, light_pos, light_axis, time_s
             )
-            rad = rad.reshape(S, r1 - r0, w, 3)
-            radiance[r0:r1] = rad[colour_idx].mean(axis=0)
-            # Ground truth from the centre sample (index 0).
+            radiance[r0:r1] = rad.reshape(r1 - r0, w, 3)
             p_cam, z_cam, r_cam, n_cam = camera_ground_truth(
-                o_cam[:n_chunk],
-                d_cam[:n_chunk],
-                hits.t_m[:n_chunk],
-                hits.normals_world[:n_chunk],
-                R,
+                o_cam, d_cam, hits.t_m, hits.normals_world, R
             )
             points[r0:r1] = p_cam.reshape(r1 - r0, w, 3)
             normals[r0:r1] = n_cam.reshape(r1 - r0, w, 3)
             depth[r0:r1] = z_cam.reshape(r1 - r0, w)
             rng_m[r0:r1] = r_cam.reshape(r1 - r0, w)
-            obj_id[r0:r1] = hits.object_id[:n_chunk].reshape(r1 - r0, w)
+            obj_id[r0:r1] = hits.object_id.reshape(r1 - r0, w)
             t3 = time.perf_counter()
             self.timings_s["transform"] += t1 - t0
             self.timings_s["casting"] += t2 - t1
             self.timings_s["shading"] += t3 - t2
+        # Pass 2: the stratified colour samples, for every pixel or (adaptive) only where the
+        # centre rays show an edge the band-limited textures cannot smooth.
+        if S > 1:
+            if self.adaptive:
+                vv, uu = np.nonzero(self._edge_pixels(obj_id, depth, radiance))
+            else:
+                vv, uu = np.nonzero(np.ones((h, w), dtype=bool))
+            n_sub = len(colour_idx)
+            batch = max(1, (self.chunk_rows * w) // n_sub)
+            for b0 in range(0, vv.size, batch):
+                bv, bu = vv[b0 : b0 + batch], uu[b0 : b0 + batch]
+                t0 = time.perf_counter()
+                o_cam = cam_rays.origins[colour_idx[:, None], bv[None, :], bu[None, :]]
+                d_cam = cam_rays.dirs[colour_idx[:, None], bv[None, :], bu[None, :]]
+                o_w = rigid_transform(R, tvec, o_cam.reshape(-1, 3))
+                d_w = rigid_transform(R, np.zeros(3), d_cam.reshape(-1, 3))
+                t1 = time.perf_counter()
+                hits = self.cast(o_w, d_w)
+                t2 = time.perf_counter()
+                rad = self._shade(
+                    hits,
+                    o_w,
+                    d_w,
+                    cam_rays.pixel_angle_rad,
+                    imaging,
+                    light_pos,
+                    light_axis,
+                    time_s,
+                )
+                radiance[bv, bu] = rad.reshape(n_sub, bv.size, 3).mean(axis=0)
+                t3 = time.perf_counter()
+                self.timings_s["transform"] += t1 - t0
+                self.timings_s["casting"] += t2 - t1
+                self.timings_s["shading"] += t3 - t2
+            self.last_supersampled_fraction = float(vv.size) / float(h * w)
         t4 = time.perf_counter()
         image = imaging.sensor(radiance, rng)
         self.timings_s["sensor"] += time.perf_counter() - t4
@@ -289,6 +335,31 @@ class Renderer:
             depth_m=depth, range_m=rng_m, points_cam=points, normals_cam=normals, object_id=obj_id
         )
         return RenderedView(image=image, radiance=radiance, gt=gt)
+
+    def _edge_pixels(
+        self, obj_id: NDArray[np.int32], depth: F32, radiance: F32
+    ) -> NDArray[np.bool_]:
+        """Pixels whose 3x3 neighbourhood crosses an object boundary, a depth step of more than
+        2 %, or (on hard-edged textures: boards, markers) a luminance step of more than 0.02."""
+        h, w = obj_id.shape
+        pad_id = np.pad(obj_id, 1, mode="edge")
+        z = np.where(np.isfinite(depth), depth, np.float32(1e6))
+        pad_z = np.pad(z, 1, mode="edge")
+        lum = radiance @ np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+        pad_l = np.pad(lum, 1, mode="edge")
+        hard = self._hard_lut[obj_id + 1]
+        edge = np.zeros((h, w), dtype=bool)
+        for dv in (0, 1, 2):
+            for du in (0, 1, 2):
+                if dv == 1 and du == 1:
+                    continue
+                nid = pad_id[dv : dv + h, du : du + w]
+                nz = pad_z[dv : dv + h, du : du + w]
+                nl = pad_l[dv : dv + h, du : du + w]
+                edge |= nid != obj_id
+                edge |= np.abs(nz - z) > 0.02 * np.minimum(nz, z)
+                edge |= hard & (np.abs(nl - lum) > 0.02)
+        return edge
 
     def _shade(
         self,

@@ -254,7 +254,7 @@ def render_calibration_set(
     distance_range_m: tuple[float, float] = (0.5, 2.5),
     tilt_max_deg: float = 40.0,
     water: str | Imaging | None = None,
-    supersample: int = 4,
+    supersample: int = 6,
     margin_px: float = 8.0,
     progress: Callable[[int], None] | None = None,
 ) -> CalibrationSet:
