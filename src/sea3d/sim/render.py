@@ -97,10 +97,11 @@ class Hits:
 
 @dataclass(frozen=True, eq=False)
 class _CameraRays:
-    origins: F32  # (S, H, W, 3) camera frame
+    origins: F32  # (S, H, W, 3) camera frame; S = 1 (centre only) when supersampling adaptively
     dirs: F32  # (S, H, W, 3)
     pixel_angle_rad: float
-    colour_samples: tuple[int, ...]  # which of the S samples are averaged for colour
+    colour_samples: tuple[int, ...]  # which of the offsets are averaged for colour
+    offsets: tuple[tuple[float, float], ...]  # (du, dv) of every sample, centre first
 
 
 def _sample_offsets(supersample: int) -> tuple[list[tuple[float, float]], tuple[int, ...]]:
@@ -205,10 +206,12 @@ class Renderer:
         t0 = time.perf_counter()
         w, h = int(camera.width), int(camera.height)
         offsets, colour = _sample_offsets(self.supersample)
+        # Adaptive supersampling needs the extra rays for a few pixels only: made on demand.
+        n_cached = 1 if self.adaptive else len(offsets)
         vv, uu = np.mgrid[0:h, 0:w].astype(np.float64)
-        origins = np.empty((len(offsets), h, w, 3), dtype=np.float32)
-        dirs = np.empty((len(offsets), h, w, 3), dtype=np.float32)
-        for s, (du, dv) in enumerate(offsets):
+        origins = np.empty((n_cached, h, w, 3), dtype=np.float32)
+        dirs = np.empty((n_cached, h, w, 3), dtype=np.float32)
+        for s, (du, dv) in enumerate(offsets[:n_cached]):
             uv = np.stack([(uu + du).ravel(), (vv + dv).ravel()], axis=1)
             rays = camera.unproject(uv)
             d = rays.directions / np.linalg.norm(rays.directions, axis=1, keepdims=True)
@@ -219,7 +222,11 @@ class Renderer:
         cosang = float(np.dot(r[0], r[1]) / (np.linalg.norm(r[0]) * np.linalg.norm(r[1])))
         ang = float(np.arccos(np.clip(cosang, -1.0, 1.0)))
         cam_rays = _CameraRays(
-            origins=origins, dirs=dirs, pixel_angle_rad=ang, colour_samples=colour
+            origins=origins,
+            dirs=dirs,
+            pixel_angle_rad=ang,
+            colour_samples=colour,
+            offsets=tuple(offsets),
         )
         self._ray_cache[key] = (camera, cam_rays)
         self.timings_s["ray_generation"] += time.perf_counter() - t0
@@ -254,7 +261,8 @@ class Renderer:
             raise SimulationError(f"T_world_cam must be a finite 4x4 matrix, got shape {T.shape}")
         imaging = imaging or Imaging.clean()
         cam_rays = self.camera_rays(camera)
-        S, h, w, _ = cam_rays.origins.shape
+        _, h, w, _ = cam_rays.origins.shape
+        S = len(cam_rays.offsets)
         R, tvec = T[:3, :3], T[:3, 3]
         light_pos = R @ np.asarray(imaging.vehicle_light_offset_m, dtype=np.float64) + tvec
         light_axis = R[:, 2]
@@ -305,10 +313,15 @@ class Renderer:
             for b0 in range(0, vv.size, batch):
                 bv, bu = vv[b0 : b0 + batch], uu[b0 : b0 + batch]
                 t0 = time.perf_counter()
-                o_cam = cam_rays.origins[colour_idx[:, None], bv[None, :], bu[None, :]]
-                d_cam = cam_rays.dirs[colour_idx[:, None], bv[None, :], bu[None, :]]
-                o_w = rigid_transform(R, tvec, o_cam.reshape(-1, 3))
-                d_w = rigid_transform(R, np.zeros(3), d_cam.reshape(-1, 3))
+                if cam_rays.origins.shape[0] > 1:
+                    o_sub = cam_rays.origins[colour_idx[:, None], bv[None, :], bu[None, :]]
+                    d_sub = cam_rays.dirs[colour_idx[:, None], bv[None, :], bu[None, :]]
+                else:
+                    o_sub, d_sub = self._sample_rays(camera, cam_rays, colour_idx, bu, bv)
+                    self.timings_s["ray_generation"] += time.perf_counter() - t0
+                    t0 = time.perf_counter()
+                o_w = rigid_transform(R, tvec, o_sub.reshape(-1, 3))
+                d_w = rigid_transform(R, np.zeros(3), d_sub.reshape(-1, 3))
                 t1 = time.perf_counter()
                 hits = self.cast(o_w, d_w)
                 t2 = time.perf_counter()
@@ -335,6 +348,24 @@ class Renderer:
             depth_m=depth, range_m=rng_m, points_cam=points, normals_cam=normals, object_id=obj_id
         )
         return RenderedView(image=image, radiance=radiance, gt=gt)
+
+    @staticmethod
+    def _sample_rays(
+        camera: CameraModel,
+        cam_rays: _CameraRays,
+        colour_idx: NDArray[np.int64],
+        bu: NDArray[np.int64],
+        bv: NDArray[np.int64],
+    ) -> tuple[FloatArray, FloatArray]:
+        """Camera-frame rays of the colour samples of pixels ``(bu, bv)``: ``(K, N, 3)`` each."""
+        offs = np.asarray([cam_rays.offsets[k] for k in colour_idx])  # (K, 2)
+        uv = np.stack([bu[None, :] + offs[:, 0:1], bv[None, :] + offs[:, 1:2]], axis=-1).reshape(
+            -1, 2
+        )
+        rays = camera.unproject(uv.astype(np.float64))
+        d = rays.directions / np.linalg.norm(rays.directions, axis=1, keepdims=True)
+        k = len(colour_idx)
+        return rays.origins.reshape(k, -1, 3), d.reshape(k, -1, 3)
 
     def _edge_pixels(
         self, obj_id: NDArray[np.int32], depth: F32, radiance: F32
