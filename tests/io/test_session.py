@@ -285,3 +285,30 @@ def test_image_lookup_by_index_stamp_and_nearest(tmp_path):
             s.image("left", 5)
         with pytest.raises(SessionError, match="no left record within 2 ns"):
             s.index_of("left", 1015, tolerance_ns=2)
+
+
+def test_camera_info_carries_the_rig_intrinsics(tmp_path):
+    from mcap.reader import make_reader
+    from rosbags.typesys import Stores, get_typestore
+
+    from sea3d.io.rig_file import rig_to_yaml
+    from sea3d.refraction.presets import paper_rig
+
+    rig = paper_rig(port="dome")
+    path = tmp_path / "s.mcap"
+    img = np.zeros((1080 // 40, 1920 // 40), np.uint8)
+    with SessionWriter(path, rig_yaml=rig_to_yaml(rig)) as w:
+        w.write_stereo(5, img, img)
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    with open(path, "rb") as f:
+        infos = {
+            ch.topic: store.deserialize_cdr(m.data, sc.name)
+            for sc, ch, m in make_reader(f).iter_messages(
+                topics=["/cam/left/camera_info", "/cam/right/camera_info"]
+            )
+        }
+    for side, cam in (("left", rig.left), ("right", rig.right)):
+        k = infos[f"/cam/{side}/camera_info"].k.reshape(3, 3)
+        np.testing.assert_array_equal(k, cam.pinhole.K)  # paper: fx 1082.4, cx 949.5
+    with open_session(path) as s:
+        assert s.rig_yaml == rig_to_yaml(rig)

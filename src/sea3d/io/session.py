@@ -216,9 +216,13 @@ class SessionWriter:
     def _enter(self) -> None:
         if self._closed:
             raise SessionError(f"{self.path}: session writer is closed")
-        self._busy += 1
+        # Signal handlers run in the main thread: only its writes defer a signal.
+        if threading.current_thread() is threading.main_thread():
+            self._busy += 1
 
     def _leave(self) -> None:
+        if threading.current_thread() is not threading.main_thread():
+            return
         self._busy -= 1
         if self._pending_signal is not None and not self._busy:
             signum, self._pending_signal = self._pending_signal, None

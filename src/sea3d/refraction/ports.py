@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 from sea3d.errors import RefractionError
 from sea3d.geometry.camera import Rays, as_pixels, as_points
 from sea3d.geometry.pinhole import PinholeCamera
+from sea3d.refraction import _kernels
 
 __all__ = [
     "N_ACRYLIC",
@@ -45,10 +46,6 @@ BoolArray = NDArray[np.bool_]
 N_AIR = 1.000292
 N_WATER = 1.333
 N_ACRYLIC = 1.492
-
-_NEWTON_MAX_ITER = 40
-_ANGLE_TOL_RAD = 1e-14
-_FD_STEP_RAD = 1e-7
 
 
 def _check_indices(where: str, n_air: float, n_glass: float, n_water: float) -> None:
@@ -155,22 +152,6 @@ class FlatPort:
         return self.n_air == self.n_glass == self.n_water
 
 
-def _refract2(
-    dx: FloatArray, dy: FloatArray, nx: FloatArray, ny: FloatArray, eta: float
-) -> tuple[FloatArray, FloatArray]:
-    """2D Snell's law (eq. 2.11); ``n`` faces the incident side. NaN on total reflection."""
-    cos_i = -(nx * dx + ny * dy)
-    sin2_t = eta * eta * (1.0 - cos_i * cos_i)
-    with np.errstate(invalid="ignore"):
-        coef = eta * cos_i - np.sqrt(1.0 - sin2_t)
-    bad = (sin2_t > 1.0) | (cos_i < 0.0)
-    rx = eta * dx + coef * nx
-    ry = eta * dy + coef * ny
-    rx = np.where(bad, np.nan, rx)
-    ry = np.where(bad, np.nan, ry)
-    return rx, ry
-
-
 class _AxialPortCamera:
     """Shared machinery of dome and flat ports: a pinhole plus an axial refracting port."""
 
@@ -185,16 +166,9 @@ class _AxialPortCamera:
     def _axis(self) -> FloatArray:
         raise NotImplementedError
 
-    def _trace_plane(
-        self, theta: FloatArray
-    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        """In-air ray at angle ``theta`` from the axis -> water ray origin and direction (2D)."""
-        raise NotImplementedError
-
-    def _initial_angle(self, px: FloatArray, py: FloatArray) -> FloatArray:
-        raise NotImplementedError
-
-    def _outside_port(self, px: FloatArray, py: FloatArray) -> BoolArray:
+    @property
+    def _params(self) -> FloatArray:
+        """Parameter vector of :mod:`sea3d.refraction._kernels` for this port."""
         raise NotImplementedError
 
     @property
@@ -212,95 +186,42 @@ class _AxialPortCamera:
         """Image height in pixels."""
         return self.pinhole.height
 
-    def _plane_basis(self, vectors: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Coordinates along the axis, across it, and the unit 'across' vector per row."""
-        a = self._axis()
-        along = vectors @ a
-        perp = vectors - along[:, None] * a
-        across = np.linalg.norm(perp, axis=1)
-        b = np.empty_like(perp)
-        ok = across > 1e-300
-        b[ok] = perp[ok] / across[ok, None]
-        if np.any(~ok):
-            # Any direction perpendicular to the axis will do for rays on the axis.
-            helper = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-            fallback = np.cross(a, helper)
-            b[~ok] = fallback / np.linalg.norm(fallback)
-        return along, across, b
-
     def unproject(self, uv: object) -> Rays:
         """Water rays of ``(N, 2)`` pixels: origins on the outer port surface, unit directions
         into the water, in the camera frame (metres). NaN rows where there is no ray (distortion
         not invertible, total internal reflection)."""
-        pix = as_pixels(uv)
-        air = self.pinhole.unproject(pix).directions
-        along, across, b = self._plane_basis(air)
-        theta = np.arctan2(across, along)
-        ox, oy, dx, dy = self._trace_plane(theta)
-        a = self._axis()
-        origins = ox[:, None] * a + oy[:, None] * b
-        directions = dx[:, None] * a + dy[:, None] * b
+        pix = np.ascontiguousarray(as_pixels(uv))
+        pin = self.pinhole
+        k, tilt_inv = pin.distortion_kernel_args()
+        rays = _kernels.unproject_port(
+            pix,
+            np.array([pin.fx, pin.fy, pin.cx, pin.cy]),
+            k,
+            tilt_inv,
+            pin.has_distortion,
+            self._axis(),
+            self._params,
+        )
+        origins, directions = rays[:, :3], rays[:, 3:]
         if self._identity:
-            directions = air.copy()
-        norms = np.linalg.norm(directions, axis=1, keepdims=True)
-        directions = directions / norms
-        bad = ~np.isfinite(origins).all(axis=1) | ~np.isfinite(directions).all(axis=1)
-        origins[bad] = np.nan
-        directions[bad] = np.nan
-        return Rays(origins=origins, directions=directions)
+            # Exactly the pinhole's directions (the traced ones differ by rounding only).
+            directions = pin.unproject(pix).directions
+        return Rays(
+            origins=np.ascontiguousarray(origins), directions=np.ascontiguousarray(directions)
+        )
 
     def project(self, points_cam: object) -> tuple[FloatArray, BoolArray]:
         """Pixels of ``(N, 3)`` water points in the camera frame (metres).
 
-        Solves for the in-air ray whose refracted water ray passes through each point (a
-        safeguarded Newton iteration on one angle per point, converged to 1e-14 rad). Invalid
-        (NaN) where the point is inside the port, behind the camera, or has no refracted path.
+        Solves for the in-air ray whose refracted water ray passes through each point (Newton
+        and secant steps on one angle per point, converged to 1e-14 rad). Invalid (NaN) where the
+        point is inside the port, behind the camera, or has no refracted path.
         """
         pts = as_points(points_cam, "points_cam")
         if self._identity:
             return self.pinhole.project(pts)
-        px, py, b = self._plane_basis(pts)
-        theta = self._initial_angle(px, py)
-
-        def residual(th: FloatArray, qx: FloatArray, qy: FloatArray) -> FloatArray:
-            ox, oy, dx, dy = self._trace_plane(th)
-            return dx * (qy - oy) - dy * (qx - ox)
-
-        active = np.isfinite(theta)
-        for _ in range(_NEWTON_MAX_ITER):
-            if not np.any(active):
-                break
-            th, qx, qy = theta[active], px[active], py[active]
-            f = residual(th, qx, qy)
-            fp = (residual(th + _FD_STEP_RAD, qx, qy) - residual(th - _FD_STEP_RAD, qx, qy)) / (
-                2 * _FD_STEP_RAD
-            )
-            with np.errstate(divide="ignore", invalid="ignore"):
-                step = f / fp
-            # Damp steps larger than 0.2 rad so that a poor start cannot jump past the domain.
-            step = np.clip(step, -0.2, 0.2)
-            new = th - step
-            theta[active] = new
-            done = ~(np.abs(step) > _ANGLE_TOL_RAD)
-            idx = np.flatnonzero(active)
-            active[idx[done]] = False
-        ox, oy, dx, dy = self._trace_plane(theta)
-        f = dx * (py - oy) - dy * (px - ox)
-        ahead = dx * (px - ox) + dy * (py - oy)
-        dist = np.hypot(px - ox, py - oy)
-        valid = (
-            np.isfinite(f)
-            & (np.abs(f) <= 1e-9 * np.maximum(dist, 1.0))
-            & (ahead > 0)
-            & self._outside_port(px, py)
-        )
-        a = self._axis()
-        air = np.cos(theta)[:, None] * a + np.sin(theta)[:, None] * b
-        air[~valid] = np.nan
-        uv, ok = self.pinhole.project(air)
-        valid &= ok
-        uv[~valid] = np.nan
-        return uv, valid
+        air = _kernels.project_port(np.ascontiguousarray(pts), self._axis(), self._params)
+        return self.pinhole.project(air)
 
 
 class DomePortCamera(_AxialPortCamera):
@@ -329,33 +250,19 @@ class DomePortCamera(_AxialPortCamera):
     def _axis(self) -> FloatArray:
         return self._a
 
-    def _trace_plane(
-        self, theta: FloatArray
-    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        port, c = self.port, self._c
-        r1, r2 = port.inner_radius_m, port.outer_radius_m
-        dx, dy = np.cos(theta), np.sin(theta)
-        # Inner sphere, centred at (c, 0): the far root, since the camera is inside (eq. 2.15).
-        dc = c * dx
-        lam1 = dc + np.sqrt(dc * dc - c * c + r1 * r1)
-        p1x, p1y = lam1 * dx, lam1 * dy
-        q1x, q1y = (p1x - c) / r1, p1y / r1
-        gx, gy = _refract2(dx, dy, -q1x, -q1y, port.n_air / port.n_glass)
-        # Outer sphere from p1 (eq. 2.16).
-        dq = gx * (p1x - c) + gy * p1y
-        with np.errstate(invalid="ignore"):
-            lam2 = -dq + np.sqrt(dq * dq - r1 * r1 + r2 * r2)
-        p2x, p2y = p1x + lam2 * gx, p1y + lam2 * gy
-        q2x, q2y = (p2x - c) / r2, p2y / r2
-        wx, wy = _refract2(gx, gy, -q2x, -q2y, port.n_glass / port.n_water)
-        return p2x, p2y, wx, wy
-
-    def _initial_angle(self, px: FloatArray, py: FloatArray) -> FloatArray:
-        # The pinhole direction to the point; the offset is millimetres against metres of range.
-        return np.arctan2(py, px)
-
-    def _outside_port(self, px: FloatArray, py: FloatArray) -> BoolArray:
-        return np.hypot(px - self._c, py) > self.port.outer_radius_m
+    @property
+    def _params(self) -> FloatArray:
+        p = self.port
+        return np.array(
+            [
+                _kernels.KIND_DOME,
+                self._c,
+                p.inner_radius_m,
+                p.outer_radius_m,
+                p.n_air / p.n_glass,
+                p.n_glass / p.n_water,
+            ]
+        )
 
 
 class FlatPortCamera(_AxialPortCamera):
@@ -380,31 +287,16 @@ class FlatPortCamera(_AxialPortCamera):
     def _axis(self) -> FloatArray:
         return self.port.normal
 
-    def _trace_plane(
-        self, theta: FloatArray
-    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        port = self.port
-        dx, dy = np.cos(theta), np.sin(theta)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            forward = dx > 1e-12
-            lam1 = np.where(forward, port.distance_m / dx, np.nan)
-            p1x, p1y = lam1 * dx, lam1 * dy
-            gx, gy = _refract2(
-                dx, dy, -np.ones_like(dx), np.zeros_like(dx), port.n_air / port.n_glass
-            )
-            lam2 = port.thickness_m / gx
-            p2x, p2y = p1x + lam2 * gx, p1y + lam2 * gy
-            wx, wy = _refract2(
-                gx, gy, -np.ones_like(gx), np.zeros_like(gx), port.n_glass / port.n_water
-            )
-        return p2x, p2y, wx, wy
-
-    def _initial_angle(self, px: FloatArray, py: FloatArray) -> FloatArray:
-        # Treat the port as infinitely close: Snell's law between water and air angles.
-        port = self.port
-        phi = np.arctan2(py, px - port.distance_m - port.thickness_m)
-        s = np.clip(port.n_water / port.n_air * np.sin(phi), -0.999, 0.999)
-        return np.arcsin(s)
-
-    def _outside_port(self, px: FloatArray, py: FloatArray) -> BoolArray:
-        return px > self.port.distance_m + self.port.thickness_m
+    @property
+    def _params(self) -> FloatArray:
+        p = self.port
+        return np.array(
+            [
+                _kernels.KIND_FLAT,
+                p.distance_m,
+                p.thickness_m,
+                p.n_air / p.n_glass,
+                p.n_glass / p.n_water,
+                0.0,
+            ]
+        )

@@ -43,9 +43,14 @@ def refract(
         GeometryError: shapes that do not match, or non-positive indices.
     """
     i = np.asarray(incident, dtype=np.float64)
-    n = np.broadcast_to(np.asarray(normal, dtype=np.float64), i.shape)
     if i.ndim != 2 or i.shape[1] not in (2, 3):
         raise GeometryError(f"incident directions must be (N, 2) or (N, 3), got {i.shape}")
+    try:
+        n = np.broadcast_to(np.asarray(normal, dtype=np.float64), i.shape)
+    except ValueError as err:
+        raise GeometryError(
+            f"normals of shape {np.asarray(normal).shape} do not match directions {i.shape}"
+        ) from err
     if n_incident <= 0 or n_refracted <= 0:
         raise GeometryError(f"refractive indices must be > 0, got {n_incident}, {n_refracted}")
     eta = n_incident / n_refracted
