@@ -223,3 +223,32 @@ def test_adaptive_supersampling_matches_full_supersampling() -> None:
     f = full.render(rig.left, T).image.astype(float)
     assert 0.0 < adaptive.last_supersampled_fraction < 0.2
     assert np.abs(a - f).mean() < ADAPTIVE_MEAN_DIFF_DN
+
+
+STEREO_CONSISTENCY_TOL_M = 2e-4  # bilinear interpolation of a tilted plane's depth, 160x90
+
+
+@pytest.mark.parametrize("port", ["none", "dome"])
+def test_right_view_ground_truth_agrees_with_the_left_through_the_rig(port: str) -> None:
+    rig = paper_rig(port, size_px=(160, 90))
+    th = np.deg2rad(20.0)
+    T_plane = np.eye(4)
+    T_plane[:3, :3] = np.array(
+        [[np.cos(th), 0, np.sin(th)], [0, 1, 0], [-np.sin(th), 0, np.cos(th)]]
+    )
+    T_plane[:3, 3] = (0.0, 0.0, 1.2)
+    renderer = Renderer(_plane_scene(T_plane), supersample=1)
+    left = renderer.render(rig.left, np.eye(4)).gt
+    right = renderer.render(rig.right, rig.T_left_right).gt
+    p_right = right.points_cam.reshape(-1, 3).astype(np.float64)[::7]
+    p_left = p_right @ rig.T_left_right[:3, :3].T + rig.T_left_right[:3, 3]
+    uv, ok = rig.left.project(p_left)
+    inside = ok & (uv[:, 0] > 1) & (uv[:, 0] < 158) & (uv[:, 1] > 1) & (uv[:, 1] < 88)
+    z = cv2.remap(
+        left.depth_m,
+        uv[inside, 0].astype(np.float32).reshape(-1, 1),
+        uv[inside, 1].astype(np.float32).reshape(-1, 1),
+        cv2.INTER_LINEAR,
+    ).ravel()
+    assert inside.sum() > 500
+    np.testing.assert_allclose(z, p_left[inside, 2], atol=STEREO_CONSISTENCY_TOL_M)

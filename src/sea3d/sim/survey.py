@@ -7,7 +7,7 @@
   200 Hz, echosounder at 10 Hz, written through any writer with ``write_stereo``, ``write_imu``
   and ``write_sonar`` (:class:`sea3d.io.session.SessionWriter`), plus ground truth in ``gt/``.
 
-Ground truth on disk (``gt/``; written by :func:`write_ground_truth_frame` and friends):
+Ground truth on disk (``gt/``, written by :func:`simulate_survey`):
 
 - ``depth/<t_ns>.npy``: left depth, float32 metres along the left camera's z axis, NaN where
   nothing is hit; ``object_id/<t_ns>.png``: 16-bit object id + 1 (0 = nothing);
