@@ -131,3 +131,36 @@ def test_cli_rejects_a_missing_output_and_unknown_scene(tmp_path: Path) -> None:
         sea3d_main(["sim", "--scene", "atlantis", "--frames", "1", "--out", str(tmp_path / "x")])
         == 2
     )
+
+
+def test_cli_survey_with_a_rig_file_writes_a_folder_session(tmp_path: Path) -> None:
+    from sea3d.io.rig_file import load_rig, save_rig
+
+    rig_path = save_rig(paper_rig("flat", size_px=(1920, 1080)), tmp_path / "rig.yaml")
+    out = tmp_path / "run"
+    argv = [
+        "sim",
+        "--scene",
+        "tank",
+        "--rig",
+        str(rig_path),
+        "--frames",
+        "2",
+        "--size",
+        "96x54",
+        "--water",
+        "turbid",
+        "--trajectory",
+        "handheld",
+        "--out",
+        str(out),
+        "--format",
+        "folder",
+    ]
+    assert sea3d_main(argv) == 0
+    with open_session(out) as s:
+        assert len(list(s.pairs())) == 2
+        stored = s.rig_yaml
+    assert stored is not None and "96" in stored
+    assert load_rig(rig_path).width == 1920  # the input file is untouched
+    assert len(list((out / "gt" / "depth").glob("*.npy"))) == 2
