@@ -11,9 +11,10 @@ from the trajectory by 4th-order central differences (errors ~1e-9), so integrat
 IMU reproduces the trajectory.
 
 Noise (:class:`ImuNoise`): white noise plus a bias random walk per axis. The default figures are
-those of an Xsens MTi-300 (MTi 100-series datasheet, as we recall it; check the current sheet):
-gyroscope noise density 0.01 deg/s/sqrt(Hz), in-run bias stability 10 deg/h; accelerometer noise
-density 60 ug/sqrt(Hz), in-run bias stability 15 ug. A bias random walk has no single datasheet
+the typical values of the Movella (Xsens) MTi-300 datasheet (May 2023,
+https://cdn.shopify.com/s/files/1/0716/3048/7831/files/MTi-300.pdf): gyroscope noise density
+0.01 deg/s/sqrt(Hz), in-run bias stability 10 deg/h; accelerometer noise density 60 ug/sqrt(Hz),
+in-run bias stability 15 ug. A bias random walk has no single datasheet
 figure; we choose its density so the bias wanders by about the in-run stability in 100 s
 (``sigma_rw = stability / sqrt(100 s)``).
 """
