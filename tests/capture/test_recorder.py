@@ -181,3 +181,47 @@ def test_bad_configurations_are_rejected(tmp_path):
     img = np.zeros((2, 2), np.uint8)
     with pytest.raises(ConfigError, match="stream imu needs imu records"):
         Recorder(RecorderConfig(out_path=tmp_path / "x.mcap"), {"imu": ArraySource([img])})
+
+
+@pytest.mark.parametrize("fmt", ["mcap", "folder"])
+def test_a_full_disk_mid_recording_stops_with_a_summary_and_a_readable_session(
+    tmp_path, monkeypatch, fmt
+):
+    import errno
+
+    from sea3d.io import session_folder, session_mcap
+
+    budget = {"bytes": 0}
+
+    def failing(real):
+        def wrapper(self_or_path, data, *args):
+            budget["bytes"] += len(data)
+            if budget["bytes"] > 6_000_000:  # the disk is full after about 6 MB
+                raise OSError(errno.ENOSPC, "No space left on device")
+            return real(self_or_path, data, *args)
+
+        return wrapper
+
+    if fmt == "mcap":
+        monkeypatch.setattr(session_mcap._FdWriter, "write", failing(session_mcap._FdWriter.write))
+    else:
+        monkeypatch.setattr(session_folder, "_atomic_write", failing(session_folder._atomic_write))
+    rng = np.random.default_rng(0)
+    imgs = _imgs(rng, 3, shape=(120, 160, 3))  # about 58 kB per PNG
+    out = tmp_path / ("f.mcap" if fmt == "mcap" else "f_dir")
+    config = RecorderConfig(out_path=out, block_when_full=True, min_free_bytes=NO_RESERVE)
+    summary = Recorder(
+        config,
+        {
+            "left": ArraySource(imgs, count=200, speed=0),
+            "right": ArraySource(imgs, count=200, speed=0),
+        },
+    ).run()
+    assert "No space left on device" in summary.stop_reason
+    assert any("No space left" in e for e in summary.errors)
+    monkeypatch.undo()
+    with open_session(out) as s:
+        n = s.stamps("left").size
+        assert 0 < n <= summary.frames["left"]
+        for k in range(n):
+            np.testing.assert_array_equal(s.image("left", k), imgs[k % 3])

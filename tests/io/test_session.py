@@ -312,3 +312,61 @@ def test_camera_info_carries_the_rig_intrinsics(tmp_path):
         np.testing.assert_array_equal(k, cam.pinhole.K)  # paper: fx 1082.4, cx 949.5
     with open_session(path) as s:
         assert s.rig_yaml == rig_to_yaml(rig)
+
+
+def test_paper_folders_named_in_microseconds_open_with_name_unit_us(tmp_path):
+    rng = np.random.default_rng(0)
+    imgs = _images(rng, 3, (6, 8, 3), np.uint8)
+    for side in ("left", "right"):
+        (tmp_path / side).mkdir()
+        for k, img in enumerate(imgs):
+            t_us = 1_650_000_000_000_000 + k * 33_333
+            cv2.imwrite(str(tmp_path / side / f"{t_us}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    with open_session(tmp_path, name_unit="us") as s:
+        assert s.stamps("left").tolist() == [
+            (1_650_000_000_000_000 + k * 33_333) * 1000 for k in range(3)
+        ]
+        assert len(list(s.pairs())) == 3
+        np.testing.assert_array_equal(s.image("right", 2), imgs[2])
+
+
+def test_convert_from_raw_mcap_to_png_folder_and_to_jpeg(tmp_path):
+    rng = np.random.default_rng(0)
+    src = tmp_path / "raw.mcap"
+    left, _, _, _ = _write_all(src, "mcap", rng, encoding="raw")
+    convert_session(src, tmp_path / "png_dir")  # raw cannot go in a folder: PNG, lossless
+    with open_session(tmp_path / "png_dir") as s:
+        assert (tmp_path / "png_dir" / "left" / f"{T0_NS}.png").is_file()
+        np.testing.assert_array_equal(s.image("left", 0), left[0])
+    convert_session(tmp_path / "png_dir", tmp_path / "j.mcap", image_encoding="jpeg")
+    with open_session(tmp_path / "j.mcap") as s:
+        data, fmt = s.image_bytes("left", 0)
+        assert fmt == "jpeg" and data[:2] == b"\xff\xd8"
+        assert s.image("left", 0).shape == left[0].shape
+
+
+def test_rosbags_anyreader_reads_the_mcap_file_as_a_ros2_bag(tmp_path):
+    from rosbags.highlevel import AnyReader
+
+    rng = np.random.default_rng(0)
+    path = tmp_path / "s.mcap"
+    *_, sonar = _write_all(path, "mcap", rng)
+    counts: dict[str, int] = {}
+    ranges = []
+    with AnyReader([path]) as reader:
+        for conn, t_ns, raw in reader.messages():
+            counts[conn.topic] = counts.get(conn.topic, 0) + 1
+            msg = reader.deserialize(raw, conn.msgtype)
+            if conn.topic == "/sonar":
+                assert t_ns in sonar[0].tolist()
+                ranges.append(msg.range)
+    assert counts == {
+        "/cam/left/image": 6,
+        "/cam/right/image": 6,
+        "/cam/left/camera_info": 6,
+        "/cam/right/camera_info": 6,
+        "/imu": 24,
+        "/sonar": 6,
+        "/sonar/confidence": 6,
+    }
+    np.testing.assert_array_equal(np.float32(ranges), sonar[1].astype(np.float32))

@@ -69,3 +69,20 @@ def test_session_convert_round_trip_through_the_cli(tmp_path, capsys):
         assert s.imu().t_ns.size == 20
     assert main(["session", "convert", str(src), str(back)]) == 2  # refuses to overwrite
     assert "refusing to overwrite" in capsys.readouterr().err
+
+
+def test_session_verify_lists_damage_with_file_and_stamp(tmp_path, capsys):
+    path = tmp_path / "s"
+    _make(path)
+    assert main(["session", "verify", str(path)]) == 0
+    assert "0 problems" in capsys.readouterr().out
+    (path / "left" / f"{2 * FRAME_NS}.png").write_bytes(b"not a png")
+    with open(path / "imu.csv", "a") as f:
+        f.write("12,1,2\n")
+    assert main(["session", "verify", str(path), "--json"]) == 1
+    report = json.loads(capsys.readouterr().out)
+    assert report["ok"] is False
+    assert report["records"]["left"] == 9 and report["records"]["imu"] == 20
+    text = "\n".join(report["problems"])
+    assert f"{2 * FRAME_NS}.png (t_ns={2 * FRAME_NS}): cannot decode" in text
+    assert "imu.csv line 22" in text

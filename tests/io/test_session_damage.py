@@ -275,3 +275,33 @@ def test_mcap_with_out_of_order_and_duplicate_messages_is_sorted_with_warnings(t
     text = "\n".join(r.message for r in caplog.records)
     assert "topic /sonar: stamps out of order, going back 1 times" in text
     assert "1 duplicate stamps (first t_ns=20)" in text
+
+
+def test_a_damaged_first_image_does_not_condemn_the_rest_of_the_stream(tmp_path, caplog):
+    path = tmp_path / "s"
+    with SessionWriter(path, format="folder") as w:
+        for i in range(4):
+            w.write_stereo(i * FRAME_NS, _frame(i), _frame(i))
+    (path / "left" / "0.png").write_bytes(b"\x89PNG\r\n\x1a\n broken")
+    with caplog.at_level(logging.WARNING), open_session(path) as s:
+        np.testing.assert_array_equal(s.image("left", 2), _frame(2))
+        assert [p.t_ns for p in s.pairs()] == [FRAME_NS, 2 * FRAME_NS, 3 * FRAME_NS]
+    assert any("0.png (t_ns=0): cannot decode" in r.message for r in caplog.records)
+
+
+def test_a_damaged_record_length_midway_loses_only_that_chunk(tmp_path, caplog):
+    path = tmp_path / "s.mcap"
+    with SessionWriter(path, chunk_size=1) as w:  # one chunk per message
+        for i in range(8):
+            w.write_image("left", i * FRAME_NS, _frame(i))
+    with open_session(path) as s:
+        k = int(s._loc["left"][3][0])
+        chunk_at = s._chunks[k].file_offset
+    data = bytearray(path.read_bytes())
+    data[chunk_at + 1 : chunk_at + 9] = (2**62).to_bytes(8, "little")  # absurd record length
+    path.write_bytes(bytes(data))
+    with caplog.at_level(logging.WARNING), open_session(path) as s:
+        assert s.stamps("left").tolist() == [i * FRAME_NS for i in (0, 1, 2, 4, 5, 6, 7)]
+        for i, frame in enumerate((0, 1, 2, 4, 5, 6, 7)):
+            np.testing.assert_array_equal(s.image("left", i), _frame(frame))
+    assert any("through the summary" in r.message for r in caplog.records)

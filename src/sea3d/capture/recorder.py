@@ -426,6 +426,8 @@ class Recorder:
             self.running = False
             try:
                 writer.close()
+            except OSError as err:  # e.g. the disk filled: what is on disk stays readable
+                self._fail(f"closing {self.config.out_path} failed: {err}", stop=False)
             finally:
                 for src in opened:
                     try:

@@ -11,7 +11,7 @@ __all__ = ["register"]
 
 
 def register(sub: Any) -> None:
-    """Add ``session info`` and ``session convert`` to the top-level subparsers."""
+    """Add ``session info``, ``session verify`` and ``session convert`` to the subparsers."""
     parser = sub.add_parser(
         "session",
         help="inspect and convert recorded sessions",
@@ -37,6 +37,14 @@ def register(sub: Any) -> None:
         help="unit of the stamps in image file names of a folder (the paper used us)",
     )
     info.set_defaults(handler=_info)
+
+    ver = ssub.add_parser(
+        "verify", help="read every record; list damaged ones (exit status 1 if any)"
+    )
+    ver.add_argument("path", help="session: .mcap file or folder")
+    ver.add_argument("--json", action="store_true", help="print JSON")
+    ver.add_argument("--name-unit", choices=("ns", "us"), default="ns")
+    ver.set_defaults(handler=_verify)
 
     conv = ssub.add_parser(
         "convert",
@@ -98,3 +106,18 @@ def _convert(args: argparse.Namespace) -> int:
         f"wrote {args.output}: {parts}" + (f"; skipped {skipped} damaged images" if skipped else "")
     )
     return 0
+
+
+def _verify(args: argparse.Namespace) -> int:
+    from sea3d.io.session import verify_session
+
+    report = verify_session(args.path, name_unit=args.name_unit)
+    if args.json:
+        json.dump(report, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        counts = ", ".join(f"{v} {k}" for k, v in report["records"].items())
+        print(f"{args.path}: {counts} readable; {len(report['problems'])} problems")
+        for msg in report["problems"]:
+            print(f"  {msg}")
+    return 0 if report["ok"] else 1

@@ -64,6 +64,7 @@ __all__ = [
     "convert_session",
     "layout_of",
     "open_session",
+    "verify_session",
 ]
 
 _log = logging.getLogger(__name__)
@@ -216,9 +217,13 @@ class SessionWriter:
     def _enter(self) -> None:
         if self._closed:
             raise SessionError(f"{self.path}: session writer is closed")
-        self._busy += 1
+        # Signal handlers run in the main thread: only its writes defer a signal.
+        if threading.current_thread() is threading.main_thread():
+            self._busy += 1
 
     def _leave(self) -> None:
+        if threading.current_thread() is not threading.main_thread():
+            return
         self._busy -= 1
         if self._pending_signal is not None and not self._busy:
             signum, self._pending_signal = self._pending_signal, None
@@ -335,7 +340,7 @@ class SessionWriter:
             gyro_radps: (3,) angular rate in rad/s, IMU frame.
 
         Raises:
-            SessionError: wrong shapes, non-finite values, or a stamp not increasing.
+            SessionError: wrong shapes or a stamp not increasing (NaN readings are kept).
         """
         t_ns = check_stamp(t_ns, "imu sample")
         acc = np.asarray(accel_mps2, dtype=np.float64).reshape(-1)
@@ -458,3 +463,47 @@ def convert_session(
             counts = dict(writer.counts)
     counts["skipped"] = skipped
     return counts
+
+
+class _WarningCollector(logging.Handler):
+    def __init__(self) -> None:
+        super().__init__(level=logging.WARNING)
+        self.messages: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.messages.append(record.getMessage())
+
+
+def verify_session(path: str | os.PathLike[str], *, name_unit: str = "ns") -> dict[str, Any]:
+    """Read and decode every record of a session and collect every problem found.
+
+    Returns:
+        ``{"path", "ok", "records": {stream: readable count}, "problems": [message, ...]}``;
+        each problem names the file or topic and the stamp (truncation, damaged chunks,
+        undecodable images, size changes, bad CSV lines, duplicate or disordered stamps).
+
+    Raises:
+        SessionError: if the path is not a session at all.
+    """
+    collector = _WarningCollector()
+    io_logger = logging.getLogger("sea3d.io")
+    io_logger.addHandler(collector)
+    problems: list[str] = []
+    records: dict[str, int] = {}
+    try:
+        with open_session(path, name_unit=name_unit) as reader:
+            for stream in IMAGE_STREAMS:
+                ok = 0
+                for i in range(reader.stamps(stream).size):
+                    try:
+                        reader.image(stream, i, by="index")
+                        ok += 1
+                    except SessionError as err:
+                        problems.append(str(err))
+                records[stream] = ok
+            records["imu"] = len(reader.imu())
+            records["sonar"] = len(reader.sonar())
+    finally:
+        io_logger.removeHandler(collector)
+    problems = collector.messages + problems
+    return {"path": os.fspath(path), "ok": not problems, "records": records, "problems": problems}

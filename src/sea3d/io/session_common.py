@@ -13,6 +13,8 @@ index their files and fetch single records.
 
 from __future__ import annotations
 
+import collections
+import itertools
 import logging
 import os
 from abc import ABC, abstractmethod
@@ -496,7 +498,16 @@ class SessionReader(ABC):
     def _check_shape(self, stream: str, index: int, img: np.ndarray) -> None:
         ref = self._ref_shape.get(stream)
         if ref is None:
-            first = img if index == 0 else self._read_image(stream, 0)
+            first = img
+            if index != 0:
+                try:
+                    first = self._read_image(stream, 0)
+                except SessionError as err:  # a damaged first image must not condemn the rest
+                    _log.warning(
+                        "%s; using %s as the stream's reference size",
+                        err,
+                        self._record_name(stream, index),
+                    )
             ref = (first.shape, first.dtype)
             self._ref_shape[stream] = ref
         if img.shape != ref[0] or img.dtype != ref[1]:
@@ -532,10 +543,12 @@ class SessionReader(ABC):
             tolerance_ns=tol,
         )
 
-    def pairs(self, tolerance_ns: int | None = None) -> Iterator[StereoPair]:
-        """Iterate over stereo pairs (decoded lazily), skipping damaged ones with a warning.
+    def pairs(self, tolerance_ns: int | None = None, *, workers: int = 2) -> Iterator[StereoPair]:
+        """Iterate over stereo pairs in stamp order, skipping damaged ones with a warning.
 
-        Unpaired frames are counted and logged (see :meth:`match_pairs`).
+        Images are decoded ahead in ``workers`` threads (OpenCV releases the GIL while
+        decoding), at most ``2 * workers`` pairs ahead; ``workers=0`` decodes in the caller's
+        thread. Unpaired frames are counted and logged (see :meth:`match_pairs`).
         """
         match = self.match_pairs(tolerance_ns)
         if match.unpaired_left or match.unpaired_right:
@@ -547,15 +560,38 @@ class SessionReader(ABC):
                 match.tolerance_ns,
             )
         ls, rs = self.stamps("left"), self.stamps("right")
-        for i, j in zip(match.left_index.tolist(), match.right_index.tolist(), strict=True):
+        todo = list(zip(match.left_index.tolist(), match.right_index.tolist(), strict=True))
+
+        def load(i: int, j: int) -> StereoPair | None:
             try:
                 left = self.image("left", i, by="index")
                 right = self.image("right", j, by="index")
             except SessionError as err:
                 _log.warning("skipping pair at t_ns=%d: %s", int(ls[i]), err)
-                continue
+                return None
             rt = int(rs[j])
-            yield StereoPair(int(ls[i]), left, right, None if rt == int(ls[i]) else rt)
+            return StereoPair(int(ls[i]), left, right, None if rt == int(ls[i]) else rt)
+
+        if workers <= 0 or len(todo) < 2:
+            for i, j in todo:
+                pair = load(i, j)
+                if pair is not None:
+                    yield pair
+            return
+        from concurrent.futures import Future, ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="sea3d-read") as pool:
+            ahead: collections.deque[Future[StereoPair | None]] = collections.deque()
+            it = iter(todo)
+            for i, j in itertools.islice(it, 2 * workers):
+                ahead.append(pool.submit(load, i, j))
+            while ahead:
+                pair = ahead.popleft().result()
+                nxt = next(it, None)
+                if nxt is not None:
+                    ahead.append(pool.submit(load, *nxt))
+                if pair is not None:
+                    yield pair
 
     def info(self) -> dict[str, dict[str, Any]]:
         """Per-stream statistics: ``count``, ``rate_hz``, ``first_t_ns``, ``last_t_ns``, ``gaps``

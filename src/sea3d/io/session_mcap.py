@@ -29,6 +29,7 @@ import io
 import logging
 import os
 import struct
+import threading
 import time
 import zlib
 from collections import OrderedDict
@@ -39,7 +40,7 @@ from typing import Any
 
 import numpy as np
 from mcap.data_stream import ReadDataStream
-from mcap.records import Attachment, Channel, Metadata, Schema
+from mcap.records import Attachment, Channel, ChunkIndex, Metadata, Schema
 from mcap.writer import CompressionType, Writer
 
 from sea3d.errors import SessionError
@@ -57,13 +58,8 @@ _log = logging.getLogger(__name__)
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 _OP_HEADER, _OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE = 0x01, 0x02, 0x03, 0x04, 0x05
-_OP_CHUNK, _OP_MESSAGE_INDEX, _OP_ATTACHMENT, _OP_METADATA, _OP_DATA_END = (
-    0x06,
-    0x07,
-    0x09,
-    0x0C,
-    0x0F,
-)
+_OP_CHUNK, _OP_MESSAGE_INDEX, _OP_CHUNK_INDEX = 0x06, 0x07, 0x08
+_OP_ATTACHMENT, _OP_METADATA, _OP_DATA_END = 0x09, 0x0C, 0x0F
 
 TOPICS = {
     "left": "/cam/left/image",
@@ -399,6 +395,7 @@ class McapSessionReader(SessionReader):
         self.metadata: dict[str, dict[str, str]] = {}
         self.complete = False
         self._cache: OrderedDict[int, bytes] = OrderedDict()
+        self._cache_lock = threading.Lock()  # pairs() decodes in worker threads
         try:
             self._scan()
         except Exception:
@@ -452,10 +449,61 @@ class McapSessionReader(SessionReader):
                 self.complete = True
                 break
             pos = end
+        if not self.complete:
+            self._recover_from_summary(pos)
         for k, chunk in enumerate(self._chunks):
             unknown = any(cid not in self._channels for cid in chunk.index)
             if not chunk.indexed or unknown:
                 self._index_chunk(k, chunk)
+
+    def _recover_from_summary(self, stopped_at: int) -> None:
+        """After the walk stopped early (a damaged record length, say), find the chunks
+        behind the damage through the summary's chunk indexes, when the file has one."""
+        footer_at = self._size - 8 - 29
+        if footer_at <= stopped_at or self._pread(self._size - 8, 8) != MCAP_MAGIC:
+            return
+        opcode, length = struct.unpack("<BQ", self._pread(footer_at, 9))
+        if opcode != _OP_FOOTER or length != 20:
+            return
+        (summary_start,) = struct.unpack("<Q", self._pread(footer_at + 9, 8))
+        if not 8 <= summary_start < footer_at:
+            return
+        known = {c.file_offset for c in self._chunks}
+        recovered = 0
+        pos = summary_start
+        while pos + 9 <= footer_at:
+            opcode, length = struct.unpack("<BQ", self._pread(pos, 9))
+            if pos + 9 + length > footer_at:
+                break
+            content = self._pread(pos + 9, length)
+            pos += 9 + length
+            try:
+                if opcode in (_OP_SCHEMA, _OP_CHANNEL):
+                    self._add_def(opcode, content)
+                elif opcode == _OP_CHUNK_INDEX:
+                    ci = ChunkIndex.read(ReadDataStream(io.BytesIO(content)))
+                    if ci.chunk_start_offset in known or ci.chunk_start_offset < stopped_at:
+                        continue
+                    op, clen = struct.unpack("<BQ", self._pread(ci.chunk_start_offset, 9))
+                    if op != _OP_CHUNK or ci.chunk_start_offset + 9 + clen > self._size:
+                        continue
+                    self._scan_record(_OP_CHUNK, ci.chunk_start_offset + 9, clen)
+                    for mi_offset in ci.message_index_offsets.values():
+                        op, mlen = struct.unpack("<BQ", self._pread(mi_offset, 9))
+                        if op == _OP_MESSAGE_INDEX and mi_offset + 9 + mlen <= self._size:
+                            self._scan_record(_OP_MESSAGE_INDEX, mi_offset + 9, mlen)
+                    recovered += 1
+            except (struct.error, ValueError, UnicodeDecodeError, EOFError) as err:
+                _log.warning(
+                    "%s: damaged summary record 0x%02x (%s); skipped", self.path, opcode, err
+                )
+        if recovered:
+            _log.warning(
+                "%s: found %d more chunks after the damage at byte %d through the summary",
+                self.path,
+                recovered,
+                stopped_at,
+            )
 
     def _scan_record(self, opcode: int, start: int, length: int) -> None:
         if opcode == _OP_CHUNK:
@@ -501,10 +549,11 @@ class McapSessionReader(SessionReader):
             self._channels[channel.id] = channel
 
     def _chunk_data(self, k: int) -> bytes:
-        """Decompressed records of chunk ``k`` (CRC checked), cached for the last two chunks."""
-        if k in self._cache:
-            self._cache.move_to_end(k)
-            return self._cache[k]
+        """Decompressed records of chunk ``k`` (CRC checked), cached for the last four chunks."""
+        with self._cache_lock:
+            if k in self._cache:
+                self._cache.move_to_end(k)
+                return self._cache[k]
         c = self._chunks[k]
         raw = self._pread(c.data_offset, c.data_length)
         try:
@@ -533,9 +582,10 @@ class McapSessionReader(SessionReader):
                 f"{self.path}: chunk at byte {c.file_offset} (t_ns {c.start_ns}.."
                 f"{c.end_ns}) is damaged (CRC mismatch)"
             )
-        self._cache[k] = data
-        while len(self._cache) > 2:
-            self._cache.popitem(last=False)
+        with self._cache_lock:
+            self._cache[k] = data
+            while len(self._cache) > 4:
+                self._cache.popitem(last=False)
         return data
 
     def _index_chunk(self, k: int, chunk: _Chunk) -> None:
