@@ -9,8 +9,8 @@ measured in a fresh subprocess (``VmHWM`` from /proc/self/status; tracemalloc ca
 or OpenCV's buffers).
 
 Run: ``PYTHONPATH=src python benchmarks/bench_stereo.py [--repeats 5]``;
-``--middlebury ../shared/data/stereo_gt`` prints the accuracy table of docs/depth.md and
-``--refraction`` the refraction-correction table.
+``--middlebury ../shared/data/stereo_gt``, ``--refraction`` and ``--underwater`` print the
+accuracy tables of docs/depth.md instead.
 """
 
 from __future__ import annotations
@@ -190,12 +190,79 @@ def refraction_table(width: int, height: int) -> None:
                   f"{rep.rms_px:.3f} / {rep.max_px:.3f} |")
 
 
+def _look_down(height_m: float, tilt_deg: float) -> np.ndarray:
+    """T_world_left of a camera at (0.3, -0.5, height) looking down, pitched forward."""
+    t = np.radians(tilt_deg)
+    rx = np.array([[1, 0, 0], [0, np.cos(t), -np.sin(t)], [0, np.sin(t), np.cos(t)]])
+    T = np.eye(4)
+    T[:3, :3] = np.diag([1.0, -1.0, -1.0]) @ rx
+    T[:3, 3] = (0.3, -0.5, height_m)
+    return T
+
+
+def underwater_table(width: int, height: int) -> None:
+    """sea3d against OpenCV HH on simulated coastal-water pairs of the lake scene (sea3d.sim),
+    and refraction-corrected depth through the paper's dome ports against the pinhole-in-water
+    baseline, both against the simulator's ground truth."""
+    from sea3d.eval import disparity_metrics
+    from sea3d.geometry.rig import StereoRig
+    from sea3d.rectify import rectify_rig
+    from sea3d.refraction.presets import paper_rig
+    from sea3d.sim import simulate_pair
+    from sea3d.stereo import OpenCVSgbmConfig, SgmConfig, match
+    from sea3d.stereo.depth import compute_depth, max_disparity_for_depth
+
+    print(f"lake scene, coastal water, {width}x{height}")
+    print("| view | engine | bad-1 % | bad-2 % | EPE px | density % |")
+    print("|---|---|---|---|---|---|")
+    depth_rows = []
+    for h_m, tilt in ((1.5, 30.0), (2.5, 45.0)):
+        T = _look_down(h_m, tilt)
+        rig = paper_rig(port="none", size_px=(width, height))
+        left, right, gt = simulate_pair(rig, "lake", T, "coastal", seed=0)
+        d_gt = (rig.left.fx * rig.baseline_m / gt.depth_m).astype(np.float32)  # type: ignore[attr-defined]
+        md = int(np.ceil((np.nanmax(d_gt) + 1) / 16) * 16) - 1
+        engines = {
+            "sea3d": SgmConfig(max_disparity_px=md),
+            "OpenCV HH w3": OpenCVSgbmConfig(max_disparity_px=md, mode="hh", block_size_px=3),
+            "OpenCV HH w5": OpenCVSgbmConfig(max_disparity_px=md, mode="hh"),
+        }
+        for name, cfg in engines.items():
+            m = disparity_metrics(match(left, right, cfg).disparity_px, d_gt)
+            print(f"| {h_m} m, {tilt:.0f} deg | {name} | {m.bad_1:.2f} | {m.bad_2:.2f} | "
+                  f"{m.epe_px:.3f} | {m.density:.1f} |")
+        rigd = paper_rig(port="dome", size_px=(width, height))
+        left, right, gt = simulate_pair(rigd, "lake", T, "coastal", seed=0)
+        maps = rectify_rig(rigd, depth_range_m=(0.8, 6.0))
+        naive = rectify_rig(StereoRig(left=rigd.left.pinhole, right=rigd.right.pinhole,  # type: ignore[attr-defined]
+                                      T_left_right=rigd.T_left_right))
+        errs = []
+        for mp in (maps, naive):
+            res = compute_depth(mp, left, right,
+                                SgmConfig(max_disparity_px=max_disparity_for_depth(mp, 0.8)))
+            v, u = np.nonzero(np.isfinite(res.depth_m))
+            ry = np.clip(np.round(mp.map_left_y[v, u]).astype(int), 0, height - 1)
+            rx = np.clip(np.round(mp.map_left_x[v, u]).astype(int), 0, width - 1)
+            z_gt = gt.depth_m[ry, rx]
+            ok = np.isfinite(z_gt)
+            errs.append(100 * float(np.median(np.abs(res.points_left[ok, 2] - z_gt[ok])
+                                              / z_gt[ok])))
+        depth_rows.append((h_m, tilt, float(np.nanmin(gt.depth_m)), float(np.nanmax(gt.depth_m)),
+                           *errs))
+    print("\n| view | depth range m | refraction-corrected median err % | pinhole-in-water % |")
+    print("|---|---|---|---|")
+    for h_m, tilt, z0, z1, e_c, e_n in depth_rows:
+        print(f"| {h_m} m, {tilt:.0f} deg | {z0:.2f}-{z1:.2f} | {e_c:.2f} | {e_n:.2f} |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--middlebury", type=Path, help="print the accuracy table for this folder "
                     "(e.g. ../shared/data/stereo_gt) instead of timing")
     ap.add_argument("--refraction", action="store_true",
                     help="print the refraction-correction depth table instead of timing")
+    ap.add_argument("--underwater", action="store_true",
+                    help="print the simulated coastal-water accuracy tables instead of timing")
     ap.add_argument("--width", type=int, default=1920)
     ap.add_argument("--height", type=int, default=1080)
     ap.add_argument("--repeats", type=int, default=5)
@@ -207,6 +274,10 @@ def main() -> None:
         return
     if args.middlebury:
         middlebury_table(args.middlebury)
+        return
+    if args.underwater:
+        underwater_table(args.width if args.width != 1920 else 640,
+                         args.height if args.height != 1080 else 360)
         return
     if args.refraction:
         refraction_table(args.width if args.width != 1920 else 960,

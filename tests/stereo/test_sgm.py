@@ -162,3 +162,14 @@ def test_sgm_default_coarse_to_fine_with_four_band_paths() -> None:
     err, density = _errors(res.disparity_px, d_true, margin_px=64)
     assert density > MIN_DENSITY
     assert np.median(err) < SUBPIXEL_MEDIAN_ERR_PX
+
+
+def test_left_border_pixels_whose_match_is_off_the_image_are_invalid_not_wrong() -> None:
+    rng = np.random.default_rng(0)
+    left, right, _ = _slanted_pair(rng, h=96, w=200, d0=20.0, slope=0.0)
+    res = match(left, right, SgmConfig(max_disparity_px=47))
+    d = res.disparity_px
+    border = d[:, :18]  # x < d_true: the right image does not see these points
+    finite = np.isfinite(border)
+    assert np.all(np.abs(border[finite] - 20.0) < 2.0)
+    assert finite.mean() < 0.1

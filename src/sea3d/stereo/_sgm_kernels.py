@@ -231,7 +231,9 @@ def select_disparity(
     ``subpixel``: 0 none, 1 parabola, 2 equiangular. ``uniqueness`` is the minimum relative
     margin ``(second - best) / best`` of the best cost over the best cost outside ``best +- 1``.
     ``lr_max_diff < 0`` disables the left-right check. The right view's disparity is the
-    winner-take-all along the same aggregated volume's diagonals.
+    winner-take-all along the same aggregated volume's diagonals. Pixels without candidates
+    (``n = 0``) and winners within a pixel of the right image's left edge where the band was
+    cut there are invalid: their true match may lie outside the right image.
 
     Returns disparity (H, W) float32 (NaN invalid) and confidence (H, W) float32 in [0, 1]:
     ``1 - best / second`` (0 where invalid).
@@ -266,6 +268,12 @@ def select_disparity(
                     if s < second:
                         second = s
             dint[x] = lo_p + kb
+            # no candidate, or a winner against the right image's left edge with the band cut
+            # there: the true match may lie outside the right image
+            if np_ == 0 or (lo_p + np_ - 1 == x and lo_p + kb >= x - 1):
+                disp[y, x] = nan
+                dint[x] = -1
+                continue
             if second < _INF and (second - best) < uniqueness * best:
                 disp[y, x] = nan
                 dint[x] = -1
@@ -320,7 +328,8 @@ def band_from_coarse(
     row (occlusions lie between a foreground and a background disparity). Each fine pixel
     searches ``[2 * min - margin, 2 * max + margin]`` over a ``(2*radius+1)^2`` coarse window,
     capped at ``band_max`` disparities around the coarse value at its own position, and never
-    past the right image's left edge. Returns ``lo``, ``n`` (h, w) int32.
+    past the right image's left edge; pixels whose whole band lies beyond that edge get
+    ``n = 0`` (no candidate: invalid). Returns ``lo``, ``n`` (h, w) int32.
     """
     hc, wc = coarse.shape
     cmin = np.empty((hc, wc), np.float32)
@@ -376,8 +385,10 @@ def band_from_coarse(
             a = max(a, 0)
             b = min(b, top)
             if a > b:
-                a = max(min(a, top), 0)
-                b = a
+                # the coarse level puts this pixel's match left of the right image: no search
+                lo[y, x] = max(min(a, top), 0)
+                nn[y, x] = 0
+                continue
             lo[y, x] = a
             nn[y, x] = b - a + 1
     return lo, nn
@@ -399,6 +410,8 @@ def refine_subpixel(
     left: np.ndarray,
     right: np.ndarray,
     disp: np.ndarray,
+    grad_x: np.ndarray,
+    grad_y: np.ndarray,
     half_h: int,
     half_w: int,
     iterations: int,
@@ -407,14 +420,16 @@ def refine_subpixel(
     """Refine disparities by direct image alignment, removing the cost-curve fit's bias.
 
     For each valid pixel, the window ``(2*half_h+1) x (2*half_w+1)`` of the left image is
-    modelled as ``L = a * R(x - d) + b`` (gain ``a`` and offset ``b`` absorb brightness
-    changes between the views, ``R`` interpolated linearly along the row); starting from
-    ``a = 1, b = 0``, ``a``, ``b`` and ``d`` are updated by ``iterations`` Gauss-Newton steps.
-    Updates that move ``d`` by more than ``max_step`` pixels, windows leaving the image, or
-    degenerate (texture-less) windows keep the input value.
+    modelled as ``L(x, y) = a * R(x - d - gx (x - x0) - gy (y - y0)) + b``: gain ``a`` and
+    offset ``b`` absorb brightness changes between the views, the disparity gradient
+    ``(gx, gy)`` (from the current map, ``grad_x``/``grad_y``) lets the window follow slanted
+    surfaces, and ``R`` is interpolated linearly along the row. Starting from ``a = 1, b = 0``,
+    ``a``, ``b`` and ``d`` are updated by ``iterations`` Gauss-Newton steps. Updates that move
+    ``d`` by more than ``max_step`` pixels, windows leaving the image, or texture-less windows
+    keep the input value.
 
-    ``left``, ``right`` (H, W) float32 images; ``disp`` (H, W) float32, NaN invalid.
-    Returns a new (H, W) float32 map.
+    ``left``, ``right`` (H, W) float32 images; ``disp`` (H, W) float32, NaN invalid;
+    ``grad_x``, ``grad_y`` (H, W) float32 px/px (NaN treated as 0). Returns a new map.
     """
     h, w = left.shape
     out = disp.copy()
@@ -425,29 +440,35 @@ def refine_subpixel(
             d0 = disp[y, x]
             if d0 != d0:
                 continue
+            gx = grad_x[y, x]
+            gy = grad_y[y, x]
+            if gx != gx or abs(gx) > 0.5:
+                gx = np.float32(0.0)
+            if gy != gy or abs(gy) > 0.5:
+                gy = np.float32(0.0)
             d = np.float32(d0)
             a = np.float32(1.0)
             b = np.float32(0.0)
             ok = True
             for _ in range(iterations):
-                lo_x = x - half_w - d
-                if lo_x < 0.0 or x + half_w - d > w - 1.001:
+                reach = half_w + 1.0 + abs(gx) * half_w + abs(gy) * half_h
+                if x - d - reach < 0.0 or x - d + reach > w - 1.001:
                     ok = False
                     break
-                h00 = h01 = h02 = h11 = h12 = h22 = np.float32(0.0)
+                h00 = h01 = h02 = h12 = h22 = np.float32(0.0)
                 g0 = g1 = g2 = np.float32(0.0)
-                i0 = int(lo_x)
-                f = np.float32(lo_x - i0)
-                for yy in range(y - half_h, y + half_h + 1):
-                    rrow = right[yy]
-                    lrow = left[yy]
-                    for k in range(2 * half_w + 1):
-                        r0 = rrow[i0 + k]
-                        r1 = rrow[i0 + k + 1]
-                        grad = r1 - r0
+                for j in range(-half_h, half_h + 1):
+                    rrow = right[y + j]
+                    lrow = left[y + j]
+                    for i in range(-half_w, half_w + 1):
+                        xr = x + i - d - gx * i - gy * j
+                        i0 = int(xr)
+                        f = xr - i0
+                        r0 = rrow[i0]
+                        grad = rrow[i0 + 1] - r0
                         rv = r0 + f * grad
                         jd = a * grad
-                        res = lrow[x - half_w + k] - a * rv - b
+                        res = lrow[x + i] - a * rv - b
                         h00 += rv * rv
                         h01 += rv
                         h02 -= rv * jd
@@ -476,3 +497,47 @@ def refine_subpixel(
             if ok:
                 out[y, x] = d
     return out
+
+
+@njit(parallel=True, cache=True)
+def disparity_gradients(disp: np.ndarray, r: int) -> tuple[np.ndarray, np.ndarray]:
+    """Disparity slope per pixel (px/px) by central differences over ``r`` pixels, NaN where
+    either neighbour is invalid. Returns ``(grad_x, grad_y)`` (H, W) float32."""
+    h, w = disp.shape
+    gx = np.full((h, w), np.nan, np.float32)
+    gy = np.full((h, w), np.nan, np.float32)
+    for y in prange(h):
+        for x in range(w):
+            if r <= x < w - r:
+                gx[y, x] = (disp[y, x + r] - disp[y, x - r]) / (2 * r)
+            if r <= y < h - r:
+                gy[y, x] = (disp[y + r, x] - disp[y - r, x]) / (2 * r)
+    return gx, gy
+
+
+@njit(parallel=True, cache=True)
+def invalidate_left_border(disp: np.ndarray, reach: int, tolerance: float) -> None:
+    """Invalidate left-border pixels whose neighbourhood says their match is off the image.
+
+    A left pixel ``x`` can only be matched if its disparity is at most ``x``. Near the left
+    border the true disparity may exceed ``x``; the search then returns some wrong smaller
+    value. Where the smallest valid disparity among the next ``reach`` pixels to the right
+    exceeds ``x + tolerance``, pixel ``x`` is set invalid (in place; NaN).
+    """
+    h, w = disp.shape
+    nan = np.float32(np.nan)
+    for y in prange(h):
+        for x in range(w):
+            if x >= 4 * w // 5:
+                break
+            dmin = np.float32(np.inf)
+            for xx in range(x + 1, min(x + reach + 1, w)):
+                v = disp[y, xx]
+                if v == v and v < dmin:
+                    dmin = v
+            if dmin == np.inf:
+                continue
+            if dmin > x + tolerance:
+                disp[y, x] = nan
+            elif dmin < x - reach:
+                break  # far enough from the border in this row

@@ -98,6 +98,7 @@ def _level_search(
     disp, conf = K.select_disparity(
         total, lo, n, offs, config.uniqueness, config.lr_max_diff_px, _SUBPIXEL[config.subpixel]
     )
+    K.invalidate_left_border(disp, 16, 1.0)
     t4 = time.perf_counter()
     for key, val in (("band_s", t1 - t0), ("cost_s", t2 - t1), ("aggregate_s", t3 - t2),
                      ("select_s", t4 - t3)):
@@ -153,7 +154,8 @@ def _match_sgm(left: np.ndarray, right: np.ndarray, config: SgmConfig) -> Dispar
         t0 = time.perf_counter()
         if lev == 0 and config.refine_iterations > 0:
             r = config.refine_window_px // 2
-            disp = K.refine_subpixel(a, b, disp, r, r, config.refine_iterations, 0.5)
+            gx, gy = K.disparity_gradients(median_nan(disp, 3), 2)
+            disp = K.refine_subpixel(a, b, disp, gx, gy, r, r, config.refine_iterations, 0.5)
             timings["refine_s"] = time.perf_counter() - t0
             t0 = time.perf_counter()
         if config.median_px > 1:
