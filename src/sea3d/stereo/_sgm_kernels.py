@@ -460,15 +460,18 @@ def refine_subpixel(
                 for j in range(-half_h, half_h + 1):
                     rrow = right[y + j]
                     lrow = left[y + j]
-                    for i in range(-half_w, half_w + 1):
-                        xr = x + i - d - gx * i - gy * j
-                        i0 = int(xr)
-                        f = xr - i0
-                        r0 = rrow[i0]
-                        grad = rrow[i0 + 1] - r0
+                    # the row's shift; the horizontal slant only stretches the window slightly,
+                    # so the fractional part is shared by the row (cheap, vectorisable)
+                    x0 = x - half_w - d - gy * j
+                    i0 = int(x0)
+                    f = x0 - i0
+                    for i in range(2 * half_w + 1):
+                        k = i0 + i + int(round(-gx * (i - half_w)))
+                        r0 = rrow[k]
+                        grad = rrow[k + 1] - r0
                         rv = r0 + f * grad
                         jd = a * grad
-                        res = lrow[x + i] - a * rv - b
+                        res = lrow[x - half_w + i] - a * rv - b
                         h00 += rv * rv
                         h01 += rv
                         h02 -= rv * jd
