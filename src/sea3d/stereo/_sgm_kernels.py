@@ -466,7 +466,7 @@ def refine_subpixel(
                     i0 = int(x0)
                     f = x0 - i0
                     for i in range(2 * half_w + 1):
-                        k = i0 + i + int(round(-gx * (i - half_w)))
+                        k = i0 + i + int(np.floor(0.5 - gx * (i - half_w)))
                         r0 = rrow[k]
                         grad = rrow[k + 1] - r0
                         rv = r0 + f * grad
