@@ -1,15 +1,247 @@
-"""``sea3d depth`` subcommands (not yet implemented)."""
+"""``sea3d stereo``, ``sea3d eval disparity`` and ``sea3d depth``.
+
+``stereo`` matches an already rectified pair; ``eval disparity`` scores a disparity map against
+Middlebury-style ground truth; ``depth`` rectifies a raw pair with a rig file and writes metric
+depth (and optionally a point cloud).
+"""
 
 from __future__ import annotations
 
 import argparse
+import json
+import sys
+import time
+from pathlib import Path
 from typing import Any
+
+__all__ = ["register"]
+
+_ENGINES = ("sea3d", "opencv", "opencv-hh", "opencv-3way")
+
+
+def _read_image(path: str) -> Any:
+    import cv2
+
+    from sea3d.errors import StereoError
+
+    p = Path(path)
+    if not p.is_file():
+        raise StereoError(f"image not found: {p}")
+    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise StereoError(f"cannot read image {p}")
+    if img.ndim == 3 and img.shape[2] == 4:
+        img = img[..., :3]
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    return img
+
+
+def _engine_config(args: argparse.Namespace) -> Any:
+    from sea3d.stereo import make_config
+
+    overrides: dict[str, Any] = {}
+    if args.engine == "sea3d" and getattr(args, "paths", None):
+        overrides["paths"] = args.paths
+    return make_config(args.engine, args.max_disparity, **overrides)
+
+
+def _warm_up(engine: str) -> float:
+    if engine == "sea3d":
+        from sea3d.stereo.sgm import warm_up
+
+        return warm_up()
+    return 0.0
+
+
+def _cmd_stereo(args: argparse.Namespace) -> int:
+    from sea3d.stereo import match
+    from sea3d.stereo.files import write_disparity
+    from sea3d.stereo.filters import FilterChain, parse_filter_chain
+
+    config = _engine_config(args)
+    chain = FilterChain(parse_filter_chain(args.filters)) if args.filters else None
+    left = _read_image(args.left)
+    right = _read_image(args.right)
+    compile_s = _warm_up(args.engine)
+    result = match(left, right, config)
+    disp = result.disparity_px
+    filter_s = 0.0
+    if chain is not None:
+        t0 = time.perf_counter()
+        disp = chain.apply(disp, image=left, confidence=result.confidence)
+        filter_s = time.perf_counter() - t0
+    write_disparity(args.output, disp)
+    import numpy as np
+
+    valid_fraction = float(np.isfinite(disp).mean())
+    if args.json:
+        out = {
+            "engine": result.engine,
+            "match_s": result.timings_s["match_s"],
+            "filter_s": filter_s,
+            "compile_s": compile_s,
+            "valid_fraction": valid_fraction,
+            "width": int(disp.shape[1]),
+            "height": int(disp.shape[0]),
+            "max_disparity_px": args.max_disparity,
+            "timings_s": result.timings_s,
+            "output": str(args.output),
+        }
+        print(json.dumps(out, indent=2))
+    else:
+        print(
+            f"{args.output}: {disp.shape[1]}x{disp.shape[0]}, {100 * valid_fraction:.1f} % valid, "
+            f"matched in {result.timings_s['match_s']:.3f} s ({result.engine})"
+        )
+    return 0
+
+
+def _cmd_eval_disparity(args: argparse.Namespace) -> int:
+    from sea3d.errors import StereoError
+    from sea3d.eval import disparity_metrics
+    from sea3d.stereo.files import read_disparity
+
+    est = read_disparity(args.estimate, scale=args.est_scale)
+    gt = read_disparity(args.ground_truth, scale=args.scale)
+    if est.shape != gt.shape:
+        raise StereoError(
+            f"{args.estimate} is {est.shape[1]}x{est.shape[0]} but {args.ground_truth} is "
+            f"{gt.shape[1]}x{gt.shape[0]}"
+        )
+    m = disparity_metrics(est, gt)
+    if args.json:
+        print(json.dumps(m.as_dict(), indent=2))
+    else:
+        print(
+            f"bad-0.5 {m.bad_0_5:6.2f} %  bad-1 {m.bad_1:6.2f} %  bad-2 {m.bad_2:6.2f} %  "
+            f"bad-4 {m.bad_4:6.2f} %  EPE {m.epe_px:.3f} px  density {m.density:6.2f} %"
+        )
+    return 0
+
+
+def _cmd_depth(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from sea3d.errors import StereoError
+    from sea3d.io.rig_file import load_rig
+    from sea3d.rectify import rectify_rig
+    from sea3d.stereo import make_config
+    from sea3d.stereo.depth import compute_depth, max_disparity_for_depth
+    from sea3d.stereo.files import write_depth, write_ply
+
+    if not (0 < args.min_depth < args.max_depth):
+        raise StereoError(
+            f"need 0 < --min-depth < --max-depth, got {args.min_depth} and {args.max_depth}"
+        )
+    rig = load_rig(args.rig)
+    left = _read_image(args.left)
+    right = _read_image(args.right)
+    for name, img, path in (("left", left, args.left), ("right", right, args.right)):
+        if img.shape[:2] != (rig.height, rig.width):
+            raise StereoError(
+                f"{name} image {path} is {img.shape[1]}x{img.shape[0]} but the rig "
+                f"{args.rig} is {rig.width}x{rig.height}"
+            )
+    t0 = time.perf_counter()
+    maps = rectify_rig(rig, depth_range_m=(args.min_depth, args.max_depth))
+    rectify_maps_s = time.perf_counter() - t0
+    max_d = args.max_disparity or max_disparity_for_depth(maps, args.min_depth)
+    config = make_config(args.engine, max_d)
+    compile_s = _warm_up(args.engine)
+    res = compute_depth(maps, left, right, config, max_depth_m=args.max_depth)
+    write_depth(args.output, res.depth_m)
+    if args.points:
+        write_ply(args.points, res.points_left, res.colors_rgb)
+    valid_fraction = float(np.isfinite(res.depth_m).mean())
+    summary = {
+        "output": str(args.output),
+        "points": str(args.points) if args.points else None,
+        "n_points": len(res.points_left),
+        "valid_fraction": valid_fraction,
+        "median_depth_m": float(np.nanmedian(res.depth_m)) if valid_fraction > 0 else None,
+        "refractive": maps.refractive,
+        "focal_px": maps.focal_px,
+        "baseline_m": maps.baseline_m,
+        "max_disparity_px": max_d,
+        "engine": args.engine,
+        "match_s": res.timings_s["match_s"],
+        "rectify_s": res.timings_s["rectify_s"],
+        "depth_s": res.timings_s["depth_s"],
+        "rectify_maps_s": rectify_maps_s,
+        "compile_s": compile_s,
+    }
+    for side, rep in (("left", maps.report_left), ("right", maps.report_right)):
+        if rep is not None:
+            summary[f"virtual_pinhole_{side}_rms_px"] = rep.rms_px
+            summary[f"virtual_pinhole_{side}_max_px"] = rep.max_px
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        print(
+            f"{args.output}: {100 * valid_fraction:.1f} % valid, median depth "
+            f"{summary['median_depth_m'] or float('nan'):.3f} m"
+            + (f", {len(res.points_left)} points -> {args.points}" if args.points else "")
+            + (" (refraction-corrected)" if maps.refractive else "")
+        )
+    return 0
 
 
 def register(sub: Any) -> None:
-    """Add this area's subcommands to the top-level parser's subparsers."""
-    del sub
+    """Add ``stereo``, ``eval`` (``eval disparity``) and ``depth`` to the top-level parser."""
+    p = sub.add_parser(
+        "stereo",
+        help="match a rectified stereo pair into a disparity map",
+        description="Match a rectified pair (u_right = u_left - d) into float32 disparity "
+        "in pixels, NaN invalid.",
+    )
+    p.add_argument("left", help="left image (rectified)")
+    p.add_argument("right", help="right image (rectified)")
+    p.add_argument("--max-disparity", type=int, required=True, metavar="N",
+                   help="largest disparity searched, pixels (range 0..N)")
+    p.add_argument("-o", "--output", required=True, help="output disparity: .pfm, .npy or .tiff")
+    p.add_argument("--engine", choices=_ENGINES, default="sea3d", help="matching engine")
+    p.add_argument("--paths", type=int, choices=(8, 16), help="sea3d engine: aggregation paths")
+    p.add_argument("--filters", default="",
+                   help='post-filter chain, e.g. "median:size_px=3,speckle,wls"')
+    p.add_argument("--json", action="store_true", help="print timings and figures as JSON")
+    p.set_defaults(handler=_cmd_stereo)
 
+    e = sub.add_parser("eval", help="evaluate results against ground truth")
+    esub = e.add_subparsers(dest="eval_command", metavar="WHAT")
+    ed = esub.add_parser(
+        "disparity",
+        help="bad-pixel rates, EPE and density against ground-truth disparity",
+        description="Compare EST with GT (PFM, NPY, TIFF, or scaled PNG/PGM; 0 or NaN unknown).",
+    )
+    ed.add_argument("estimate", metavar="EST", help="estimated disparity (.pfm .npy .tiff .png)")
+    ed.add_argument("ground_truth", metavar="GT", help="ground-truth disparity")
+    ed.add_argument("--scale", type=float, default=None,
+                    help="GT integer images store d * scale (Middlebury: 16, 8 or 4)")
+    ed.add_argument("--est-scale", type=float, default=None,
+                    help="the same for an integer estimate image")
+    ed.add_argument("--json", action="store_true", help="print the figures as JSON")
+    ed.set_defaults(handler=_cmd_eval_disparity)
+    e.set_defaults(handler=lambda a: (e.print_help(sys.stderr), 2)[1])
 
-def _unused(_: argparse.Namespace) -> int:  # pragma: no cover - placeholder
-    return 0
+    d = sub.add_parser(
+        "depth",
+        help="metric depth (and a point cloud) from a raw pair and a rig file",
+        description="Rectify a raw pair with rig.yaml, match, and write float32 depth in metres "
+        "(.tiff/.npy/.pfm) or a 16-bit millimetre PNG (0 invalid).",
+    )
+    d.add_argument("--rig", required=True, help="rig.yaml")
+    d.add_argument("--left", required=True, help="raw left image")
+    d.add_argument("--right", required=True, help="raw right image")
+    d.add_argument("-o", "--output", required=True,
+                   help="depth output: .png (uint16 mm, 0 invalid), .tiff, .npy or .pfm (m)")
+    d.add_argument("--points", help="also write a coloured point cloud (.ply), left camera frame")
+    d.add_argument("--engine", choices=_ENGINES, default="sea3d", help="matching engine")
+    d.add_argument("--max-disparity", type=int, default=None, metavar="N",
+                   help="largest disparity searched (default: from --min-depth)")
+    d.add_argument("--min-depth", type=float, default=0.5, metavar="M",
+                   help="nearest depth to resolve, metres (sets the disparity range)")
+    d.add_argument("--max-depth", type=float, default=10.0, metavar="M",
+                   help="farthest depth kept, metres (refractive rectification range too)")
+    d.add_argument("--json", action="store_true", help="print timings and figures as JSON")
+    d.set_defaults(handler=_cmd_depth)

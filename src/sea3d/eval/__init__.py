@@ -1,1 +1,5 @@
-"""sea3d.eval."""
+"""Metrics: disparity (Middlebury-style bad-pixel rates, EPE, density) and depth."""
+
+from sea3d.eval.disparity import DisparityMetrics, disparity_metrics
+
+__all__ = ["DisparityMetrics", "disparity_metrics"]

@@ -1,0 +1,262 @@
+"""Disparity map files: PFM (read/write), NPY, float32 TIFF, and Middlebury scaled PNG/PGM.
+
+PFM ("Portable Float Map", as used by the Middlebury benchmark): a text header
+``Pf`` (one channel) or ``PF`` (three), then ``"<width> <height>"``, then a scale whose sign
+gives the byte order (negative: little-endian), each on its own line, followed by float32
+rows stored **bottom to top**. Middlebury marks unknown disparities with ``inf``; they are read
+as NaN here. Scaled PNG/PGM ground truth stores ``round(d * scale)`` in uint8/uint16 with 0 as
+unknown.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from sea3d.errors import StereoError
+
+__all__ = [
+    "read_depth_png_mm",
+    "read_disparity",
+    "read_pfm",
+    "write_depth",
+    "write_depth_png_mm",
+    "write_disparity",
+    "write_pfm",
+    "write_ply",
+]
+
+
+def write_pfm(path: str | Path, image: np.ndarray) -> None:
+    """Write ``(H, W)`` or ``(H, W, 3)`` float32 to a little-endian PFM (NaN kept as NaN).
+
+    Raises:
+        StereoError: wrong shape, or the file cannot be written.
+    """
+    arr = np.asarray(image, dtype=np.float32)
+    if arr.ndim == 3 and arr.shape[2] == 3:
+        kind = b"PF"
+    elif arr.ndim == 2:
+        kind = b"Pf"
+    else:
+        raise StereoError(f"PFM needs (H, W) or (H, W, 3) data, got shape {arr.shape}")
+    h, w = arr.shape[:2]
+    data = np.ascontiguousarray(arr[::-1]).astype("<f4")
+    try:
+        with open(path, "wb") as fh:
+            fh.write(kind + b"\n" + f"{w} {h}\n".encode() + b"-1.0\n")
+            fh.write(data.tobytes())
+    except OSError as err:
+        raise StereoError(f"cannot write PFM file {path}: {err}") from err
+
+
+def _read_line(fh: object, path: str | Path) -> bytes:
+    line = fh.readline()  # type: ignore[attr-defined]
+    while line.startswith(b"#"):
+        line = fh.readline()  # type: ignore[attr-defined]
+    if not line:
+        raise StereoError(f"{path}: truncated PFM header")
+    return bytes(line.strip())
+
+
+def read_pfm(path: str | Path) -> NDArray[np.float32]:
+    """Read a PFM file into ``(H, W)`` or ``(H, W, 3)`` float32, top row first; ``inf`` -> NaN.
+
+    Raises:
+        StereoError: missing file, bad header, or too little data.
+    """
+    try:
+        with open(path, "rb") as fh:
+            kind = _read_line(fh, path)
+            if kind not in (b"Pf", b"PF"):
+                raise StereoError(f"{path}: not a PFM file (header {kind[:10]!r})")
+            dims = _read_line(fh, path).split()
+            if len(dims) != 2:
+                raise StereoError(f"{path}: bad PFM size line {b' '.join(dims)!r}")
+            w, h = int(dims[0]), int(dims[1])
+            scale = float(_read_line(fh, path))
+            raw = fh.read()
+    except OSError as err:
+        raise StereoError(f"cannot read PFM file {path}: {err}") from err
+    except ValueError as err:
+        raise StereoError(f"{path}: bad PFM header: {err}") from err
+    channels = 3 if kind == b"PF" else 1
+    count = w * h * channels
+    endian = "<" if scale < 0 else ">"
+    if len(raw) < 4 * count:
+        raise StereoError(f"{path}: PFM holds {len(raw)} bytes of data, {4 * count} needed")
+    data = np.frombuffer(raw[: 4 * count], dtype=endian + "f4").astype(np.float32)
+    shape = (h, w, 3) if channels == 3 else (h, w)
+    out = np.ascontiguousarray(data.reshape(shape)[::-1])
+    out[~np.isfinite(out)] = np.nan
+    return out
+
+
+def read_disparity(path: str | Path, scale: float | None = None) -> NDArray[np.float32]:
+    """Read a disparity map in pixels, NaN where unknown.
+
+    Formats: ``.pfm`` (``inf``/NaN unknown), ``.npy``, ``.tif``/``.tiff`` (float), and integer
+    ``.png``/``.pgm`` holding ``d * scale`` with 0 unknown (Middlebury: tsukuba 16, venus 8,
+    cones/teddy 4). For float formats, non-positive or non-finite values are unknown; ``scale``
+    divides the stored values if given (default 1 for float formats, required for PNG/PGM).
+
+    Returns:
+        (H, W) float32 pixels.
+
+    Raises:
+        StereoError: unreadable file, unknown suffix, multi-channel data, missing ``scale`` for
+            integer images.
+    """
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if not p.is_file():
+        raise StereoError(f"disparity file not found: {p}")
+    if suffix == ".pfm":
+        d = read_pfm(p)
+    elif suffix == ".npy":
+        try:
+            d = np.load(p, allow_pickle=False)
+        except (OSError, ValueError) as err:
+            raise StereoError(f"cannot read {p}: {err}") from err
+    elif suffix in (".png", ".pgm", ".ppm", ".tif", ".tiff"):
+        img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise StereoError(f"cannot read image {p}")
+        if img.dtype.kind in "ui":
+            if scale is None:
+                raise StereoError(
+                    f"{p} stores integers ({img.dtype}); give the disparity scale "
+                    "(e.g. --scale 16 for tsukuba, 8 venus, 4 cones/teddy)"
+                )
+            d = img.astype(np.float32)
+            d[img == 0] = np.nan
+            d /= np.float32(scale)
+            scale = None
+        else:
+            d = np.asarray(img, dtype=np.float32)
+    else:
+        raise StereoError(f"unknown disparity file type {suffix!r} ({p}); use .pfm .npy .png .tiff")
+    d = np.asarray(d, dtype=np.float32)
+    if d.ndim == 3:
+        if d.shape[2] >= 1 and np.allclose(d[..., 0], d[..., -1], equal_nan=True):
+            d = d[..., 0]
+        else:
+            raise StereoError(f"{p}: expected a one-channel disparity map, got shape {d.shape}")
+    if d.ndim != 2:
+        raise StereoError(f"{p}: expected a 2-D disparity map, got shape {d.shape}")
+    d = d.copy()
+    if scale is not None:
+        d /= np.float32(scale)
+    with np.errstate(invalid="ignore"):
+        d[~np.isfinite(d) | (d <= 0)] = np.nan
+    return d
+
+
+def write_disparity(path: str | Path, disparity: np.ndarray) -> None:
+    """Write float32 disparity (pixels, NaN invalid) as ``.pfm``, ``.npy`` or ``.tif(f)``.
+
+    PFM and NPY keep NaN; TIFF is float32 with NaN too (read back by :func:`read_disparity`).
+
+    Raises:
+        StereoError: unknown suffix or the file cannot be written.
+    """
+    p = Path(path)
+    d = np.asarray(disparity, dtype=np.float32)
+    suffix = p.suffix.lower()
+    if suffix == ".pfm":
+        write_pfm(p, d)
+        return
+    try:
+        if suffix == ".npy":
+            np.save(p, d)
+        elif suffix in (".tif", ".tiff"):
+            if not cv2.imwrite(str(p), d):
+                raise StereoError(f"OpenCV could not write {p}")
+        else:
+            raise StereoError(
+                f"unknown disparity output type {suffix!r} ({p}); use .pfm, .npy or .tiff"
+            )
+    except OSError as err:
+        raise StereoError(f"cannot write {p}: {err}") from err
+
+
+
+def write_depth_png_mm(path: str | Path, depth_m: np.ndarray) -> None:
+    """Write depth as a 16-bit PNG of **millimetres**, 0 = invalid (NaN, <= 0 or > 65.535 m).
+
+    Raises:
+        StereoError: the file cannot be written.
+    """
+    z = np.asarray(depth_m, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        mm = np.round(z * 1000.0)
+        ok = np.isfinite(mm) & (mm > 0) & (mm <= 65535)
+    out = np.where(ok, mm, 0).astype(np.uint16)
+    if not cv2.imwrite(str(path), out):
+        raise StereoError(f"cannot write 16-bit PNG {path}")
+
+
+def read_depth_png_mm(path: str | Path) -> NDArray[np.float32]:
+    """Read a 16-bit millimetre depth PNG into float32 metres, NaN where 0.
+
+    Raises:
+        StereoError: unreadable, or not a 16-bit one-channel image.
+    """
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None or img.dtype != np.uint16 or img.ndim != 2:
+        raise StereoError(f"{path}: expected a 16-bit one-channel PNG of millimetres")
+    z = img.astype(np.float32) / np.float32(1000.0)
+    z[img == 0] = np.nan
+    return z
+
+
+def write_depth(path: str | Path, depth_m: np.ndarray) -> None:
+    """Write depth in metres: ``.png`` as 16-bit millimetres (0 invalid), ``.pfm``/``.npy``/
+    ``.tif(f)`` as float32 metres with NaN invalid.
+
+    Raises:
+        StereoError: unknown suffix or unwritable file.
+    """
+    if Path(path).suffix.lower() == ".png":
+        write_depth_png_mm(path, depth_m)
+    else:
+        write_disparity(path, depth_m)
+
+
+def write_ply(path: str | Path, points: np.ndarray, colors_rgb: np.ndarray | None = None) -> None:
+    """Write a binary little-endian PLY point cloud: float32 x y z (metres) and, if given,
+    uchar red green blue.
+
+    Args:
+        points: (N, 3) metres.
+        colors_rgb: (N, 3) uint8 or None.
+
+    Raises:
+        StereoError: mismatched shapes or unwritable file.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise StereoError(f"points must be (N, 3), got {pts.shape}")
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    if colors_rgb is not None:
+        cols = np.asarray(colors_rgb)
+        if cols.shape != pts.shape:
+            raise StereoError(f"colours {cols.shape} do not match points {pts.shape}")
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    rec = np.empty(len(pts), dtype=fields)
+    rec["x"], rec["y"], rec["z"] = pts[:, 0], pts[:, 1], pts[:, 2]
+    header = ["ply", "format binary_little_endian 1.0", f"element vertex {len(pts)}",
+              "property float x", "property float y", "property float z"]
+    if colors_rgb is not None:
+        rec["red"], rec["green"], rec["blue"] = cols[:, 0], cols[:, 1], cols[:, 2]
+        header += ["property uchar red", "property uchar green", "property uchar blue"]
+    header.append("end_header")
+    try:
+        with open(path, "wb") as fh:
+            fh.write(("\n".join(header) + "\n").encode("ascii"))
+            fh.write(rec.tobytes())
+    except OSError as err:
+        raise StereoError(f"cannot write PLY {path}: {err}") from err

@@ -1,0 +1,154 @@
+"""sea3d's SGM and the OpenCV reference on synthetic pairs with known disparity."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from sea3d.errors import ConfigError, StereoError
+from sea3d.stereo import OpenCVSgbmConfig, SgmConfig, make_config, match
+from sea3d.stereo.sgm import choose_pyramid_levels
+
+# Tolerances (units in names). The synthetic scenes are textured planes, so nearly every
+# non-occluded pixel must be found to well under a pixel.
+SUBPIXEL_MEDIAN_ERR_PX = 0.15
+BAD_1PX_MAX_PERCENT = 3.0
+MIN_DENSITY = 0.85
+
+
+def _texture(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
+    """Band-limited random texture, float32 0-255."""
+    base = rng.random((h, w)).astype(np.float32) * 255
+    fine = cv2.GaussianBlur(base, (0, 0), 1.2)
+    coarse = cv2.resize(rng.random((h // 8, w // 8)).astype(np.float32) * 255, (w, h))
+    return (0.7 * fine + 0.3 * coarse).astype(np.float32)
+
+
+def _slanted_pair(
+    rng: np.random.Generator, h: int = 120, w: int = 200, d0: float = 12.0, slope: float = 0.04
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Left/right views of a slanted textured plane, with a brightness and contrast change in
+    the right view (haze/caustics); returns uint8 left, uint8 right and the true disparity.
+
+    The right image is sampled from the texture at ``u - d(u)`` with ``d = d0 + slope * u``.
+    """
+    tex = _texture(rng, h, w + 64)
+    u = np.arange(w, dtype=np.float32)
+    d_true = np.tile(d0 + slope * u, (h, 1)).astype(np.float32)
+    # left(u) = tex(u + 32); right(u_r) = left(u_r + d) -> sample tex at u_r + d + 32
+    left = tex[:, 32 : 32 + w]
+    # invert u_l - d(u_l) = u_r for the right view: u_l = (u_r + d0) / (1 - slope)
+    u_r = np.arange(w, dtype=np.float32)
+    u_l = (u_r + d0) / (1.0 - slope)
+    map_x = np.tile(u_l + 32, (h, 1)).astype(np.float32)
+    map_y = np.tile(np.arange(h, dtype=np.float32)[:, None], (1, w))
+    right = cv2.remap(tex, map_x, map_y, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    right = 0.75 * right + 30.0  # illumination change between the views
+    return (
+        np.clip(left, 0, 255).astype(np.uint8),
+        np.clip(right, 0, 255).astype(np.uint8),
+        d_true,
+    )
+
+
+def _errors(d: np.ndarray, d_true: np.ndarray, margin_px: int) -> tuple[np.ndarray, float]:
+    inner = np.zeros_like(d_true, dtype=bool)
+    inner[4:-4, margin_px:-4] = True
+    valid = np.isfinite(d) & inner
+    return np.abs(d[valid] - d_true[valid]), float(valid.sum() / inner.sum())
+
+
+def test_sgm_recovers_slanted_plane_with_brightness_change_to_subpixel() -> None:
+    rng = np.random.default_rng(0)
+    left, right, d_true = _slanted_pair(rng)
+    res = match(left, right, SgmConfig(max_disparity_px=31))
+    assert res.disparity_px.dtype == np.float32
+    assert res.disparity_px.shape == left.shape
+    err, density = _errors(res.disparity_px, d_true, margin_px=24)
+    assert density > MIN_DENSITY
+    assert np.median(err) < SUBPIXEL_MEDIAN_ERR_PX
+    assert 100 * np.mean(err > 1.0) < BAD_1PX_MAX_PERCENT
+    assert res.timings_s["match_s"] > 0
+    conf = res.confidence
+    assert conf.shape == left.shape and np.all((conf >= 0) & (conf <= 1))
+    assert np.all(conf[~res.valid] == 0)
+
+
+@pytest.mark.parametrize("paths", [8, 16])
+def test_sgm_coarse_to_fine_matches_full_search(paths: int) -> None:
+    rng = np.random.default_rng(0)
+    left, right, d_true = _slanted_pair(rng, h=160, w=320, d0=40.0, slope=0.05)
+    full = match(left, right, SgmConfig(max_disparity_px=79, pyramid_levels=0, paths=paths))
+    c2f = match(left, right, SgmConfig(max_disparity_px=79, pyramid_levels=2, paths=paths))
+    assert c2f.timings_s["pyramid_levels"] == 2
+    for res in (full, c2f):
+        err, density = _errors(res.disparity_px, d_true, margin_px=64)
+        assert density > MIN_DENSITY
+        assert np.median(err) < SUBPIXEL_MEDIAN_ERR_PX
+        assert 100 * np.mean(err > 1.0) < BAD_1PX_MAX_PERCENT
+
+
+def test_sgm_accepts_rgb_uint16_and_float_inputs_alike() -> None:
+    rng = np.random.default_rng(0)
+    left, right, _ = _slanted_pair(rng, h=64, w=128)
+    cfg = SgmConfig(max_disparity_px=31)
+    ref = match(left, right, cfg).disparity_px
+    rgb = match(np.dstack([left] * 3), np.dstack([right] * 3), cfg).disparity_px
+    u16 = match(left.astype(np.uint16) * 257, right.astype(np.uint16) * 257, cfg).disparity_px
+    np.testing.assert_array_equal(np.isfinite(ref), np.isfinite(rgb))
+    np.testing.assert_allclose(ref, rgb, atol=1e-5, equal_nan=True)
+    assert np.nanmedian(np.abs(ref - u16)) < 1e-3
+
+
+def test_opencv_engine_is_descaled_and_range_rounded_to_16() -> None:
+    rng = np.random.default_rng(0)
+    left, right, d_true = _slanted_pair(rng)
+    cfg = OpenCVSgbmConfig(max_disparity_px=20, mode="hh")
+    assert cfg.num_disparities == 32
+    res = match(left, right, cfg)
+    # Reference: raw OpenCV output / 16 on the same input
+    w = cfg.block_size_px
+    raw = cv2.StereoSGBM_create(0, 32, w, P1=8 * w * w, P2=32 * w * w, disp12MaxDiff=1,
+                                preFilterCap=63, uniquenessRatio=10, speckleWindowSize=100,
+                                speckleRange=2, mode=cv2.StereoSGBM_MODE_HH).compute(left, right)
+    expected = np.where(raw >= 0, raw / 16.0, np.nan)
+    np.testing.assert_allclose(res.disparity_px, expected, equal_nan=True)
+    err, _ = _errors(res.disparity_px, d_true, margin_px=36)
+    assert np.median(err) < 0.5  # descaled: a missed /16 would be ~190 px off
+
+
+@pytest.mark.parametrize("mode", ["sgbm", "hh", "sgbm_3way", "hh4"])
+def test_opencv_modes_all_run(mode: str) -> None:
+    rng = np.random.default_rng(0)
+    left, right, _ = _slanted_pair(rng, h=64, w=128)
+    res = match(left, right, OpenCVSgbmConfig(max_disparity_px=31, mode=mode))  # type: ignore[arg-type]
+    assert 0.5 < res.valid_fraction <= 1.0
+
+
+def test_bad_input_raises_clear_errors() -> None:
+    rng = np.random.default_rng(0)
+    img = (rng.random((40, 60)) * 255).astype(np.uint8)
+    cfg = SgmConfig(max_disparity_px=15)
+    with pytest.raises(StereoError, match="differ in size"):
+        match(img, img[:, :50], cfg)
+    with pytest.raises(StereoError, match="as wide as the image"):
+        match(img, img, SgmConfig(max_disparity_px=60))
+    bad = img.astype(np.float32)
+    bad[3, 4] = np.nan
+    with pytest.raises(StereoError, match="non-finite"):
+        match(bad, bad, cfg)
+    with pytest.raises(StereoError, match="shape"):
+        match(img[None], img[None], cfg)
+    with pytest.raises(ConfigError):
+        SgmConfig(max_disparity_px=0)
+    with pytest.raises(ConfigError):
+        SgmConfig(p1=50, p2=10)
+    with pytest.raises(ConfigError):
+        make_config("vpi", 15)
+
+
+def test_pyramid_levels_auto_keeps_small_images_at_full_search() -> None:
+    cfg = SgmConfig()
+    assert choose_pyramid_levels(375, 450, 64, cfg) == 0
+    assert choose_pyramid_levels(1080, 1920, 256, cfg) >= 2
