@@ -141,7 +141,7 @@ def look_at(eye_m: object, target_m: object, up: object = (0.0, 0.0, 1.0)) -> Fl
     if np.linalg.norm(z) < 1e-12:
         raise GeometryError("look_at: eye and target coincide")
     z /= np.linalg.norm(z)
-    x = np.cross(z, -np.asarray(up, dtype=np.float64).reshape(3))
+    x = np.cross(z, np.asarray(up, dtype=np.float64).reshape(3))
     if np.linalg.norm(x) < 1e-9:
         raise GeometryError("look_at: view direction is parallel to up")
     x /= np.linalg.norm(x)
