@@ -73,7 +73,7 @@ def _colorize(values: NDArray[np.floating], lo: float, hi: float) -> NDArray[np.
     v = np.asarray(values, dtype=np.float64)
     scaled = np.clip((v - lo) / (hi - lo), 0.0, 1.0)
     idx = np.nan_to_num(scaled * 255.0, nan=0.0).astype(np.uint8)
-    rgb = cv2.applyColorMap(idx, cv2.COLORMAP_TURBO)[..., ::-1].copy()
+    rgb = np.ascontiguousarray(cv2.applyColorMap(idx, cv2.COLORMAP_TURBO)[..., ::-1], np.uint8)
     rgb[~np.isfinite(v)] = 0
     return rgb
 

@@ -17,10 +17,10 @@ def image_tag(rgb: NDArray[np.uint8], alt: str, *, max_width_px: int = 960) -> s
     """An ``<img>`` with the picture embedded as JPEG, downscaled to ``max_width_px``."""
     import cv2
 
-    img = rgb
+    img = np.asarray(rgb)
     if img.shape[1] > max_width_px:
         scale = max_width_px / img.shape[1]
-        img = cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        img = np.asarray(cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA))
     ok, buf = cv2.imencode(
         ".jpg", np.ascontiguousarray(img[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, 88]
     )
