@@ -74,7 +74,7 @@ def speed(repeats: int) -> None:
     rng = np.random.default_rng(0)
     for w, h in ((1920, 1080), (3840, 2160)):
         base = cv2.GaussianBlur(rng.integers(0, 256, (h, w + 64)).astype(np.uint8), (3, 3), 0)
-        _speed_one(base[:, 64:].copy(), base[:, :w].copy(), repeats)
+        _speed_one(base[:, :w].copy(), base[:, 64:].copy(), repeats)  # disparity 64
 
 
 def _speed_one(left: np.ndarray, right: np.ndarray, repeats: int) -> None:

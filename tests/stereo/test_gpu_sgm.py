@@ -21,8 +21,9 @@ def _textured_pair(rng, h=120, w=200, shift=7):
     base = rng.integers(0, 256, (h, w + shift)).astype(np.float32)
     # Smooth a little so that census windows see structure, not single-pixel noise only.
     base = (base + np.roll(base, 1, 1) + np.roll(base, 1, 0)) / 3.0
-    left = base[:, shift:]
-    right = base[:, :w] * 0.8 + 20.0  # brightness change between views (caustics, haze)
+    # A texture point at column X is seen at u_left = X and u_right = X - shift: d = shift.
+    left = base[:, :w]
+    right = base[:, shift:] * 0.8 + 20.0  # brightness change between views (caustics, haze)
     return left.astype(np.uint8), np.clip(right, 0, 255).astype(np.uint8)
 
 
