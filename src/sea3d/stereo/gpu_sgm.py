@@ -241,17 +241,27 @@ def _kernels() -> Any:
     return _module
 
 
-def _to_gray(img: NDArray[Any], name: str) -> NDArray[np.uint8]:
+def _check_image(img: NDArray[Any], name: str) -> NDArray[Any]:
     arr = np.asarray(img)
-    if arr.ndim == 3 and arr.shape[2] == 3:
-        arr = arr.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
-    elif arr.ndim != 2:
+    if not (arr.ndim == 2 or (arr.ndim == 3 and arr.shape[2] == 3)):
         raise StereoError(f"{name} image must be (H, W) or (H, W, 3), got shape {arr.shape}")
-    if arr.dtype == np.uint16:
-        arr = arr / 257.0
-    if not np.all(np.isfinite(arr)):
+    if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
         raise StereoError(f"{name} image has non-finite values")
-    return np.clip(np.rint(arr), 0, 255).astype(np.uint8)
+    return arr
+
+
+def _gray_on_device(arr: NDArray[Any]) -> Any:
+    """Upload as stored (uint8 RGB is 3 bytes a pixel) and convert to uint8 grey on the GPU."""
+    import cupy as cp
+
+    dev = cp.asarray(arr)
+    if dev.ndim == 3:
+        dev = dev.astype(cp.float32) @ cp.asarray([0.299, 0.587, 0.114], cp.float32)
+    if arr.dtype == np.uint16:
+        dev = dev / 257.0
+    if dev.dtype != cp.uint8:
+        dev = cp.clip(cp.rint(dev), 0, 255).astype(cp.uint8)
+    return cp.ascontiguousarray(dev)
 
 
 def match_gpu_sgm(
@@ -265,7 +275,8 @@ def match_gpu_sgm(
 
     Returns:
         ``(disparity, timings_s)``: ``(H, W)`` float32 disparity of the left view (NaN invalid)
-        and seconds per stage (``upload_s``, ``match_s`` on the device, ``download_s``).
+        and seconds per stage (``upload_s`` with the grey conversion, ``match_s`` on the device,
+        ``download_s``).
 
     Raises:
         StereoError: no usable GPU, images of different shapes, a range wider than the image.
@@ -275,16 +286,16 @@ def match_gpu_sgm(
     import cupy as cp
     from cupyx.scipy import ndimage as cnd
 
-    gl, gr = _to_gray(left, "left"), _to_gray(right, "right")
-    if gl.shape != gr.shape:
-        raise StereoError(f"left and right images differ in size: {gl.shape} and {gr.shape}")
-    h, w = gl.shape
+    al, ar = _check_image(left, "left"), _check_image(right, "right")
+    if al.shape != ar.shape:
+        raise StereoError(f"left and right images differ in size: {al.shape} and {ar.shape}")
+    h, w = al.shape[:2]
     nd = config.max_disparity_px + 1
     if nd >= w:
         raise StereoError(f"disparity range 0..{nd - 1} is as wide as the image ({w} px)")
     mod = _kernels()
     t0 = time.perf_counter()
-    il, ir = cp.asarray(gl), cp.asarray(gr)
+    il, ir = _gray_on_device(al), _gray_on_device(ar)
     cp.cuda.Device().synchronize()
     t1 = time.perf_counter()
     rh, rw = config.census_height_px // 2, config.census_width_px // 2
