@@ -73,3 +73,11 @@ def test_bad_input(rng):
         match_gpu_sgm(a, np.zeros((20, 41), np.uint8), GpuSgmConfig(max_disparity_px=8))
     with pytest.raises(StereoError, match="as wide as the image"):
         match_gpu_sgm(a, a, GpuSgmConfig(max_disparity_px=60))
+
+
+def test_engine_name_selects_the_gpu_config():
+    from sea3d.stereo import make_config
+
+    config = make_config("sea3d-gpu", 64)
+    assert isinstance(config, GpuSgmConfig)
+    assert config.max_disparity_px == 64

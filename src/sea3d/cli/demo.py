@@ -27,7 +27,7 @@ def register(sub: Any) -> None:
     p.add_argument("--scene", default="lake", help="lake, tank, reef or a scene YAML")
     p.add_argument("--water", default="coastal", choices=["none", "clear", "coastal", "turbid"])
     p.add_argument("--port", default="dome", choices=["dome", "flat", "none"])
-    p.add_argument("--engine", default="sea3d", choices=["sea3d", "opencv"])
+    p.add_argument("--engine", default="sea3d", choices=["sea3d", "sea3d-gpu", "opencv"])
     p.add_argument("--size", type=_size, default=(1920, 1080), metavar="WxH")
     p.add_argument("--max-disparity", type=int, default=256, help="at 1920 px width")
     p.add_argument("--seed", type=int, default=0)

@@ -16,7 +16,7 @@ from typing import Any
 
 __all__ = ["register"]
 
-_ENGINES = ("sea3d", "opencv", "opencv-hh", "opencv-3way")
+_ENGINES = ("sea3d", "sea3d-gpu", "opencv", "opencv-hh", "opencv-3way")
 
 
 def _read_image(path: str) -> Any:

@@ -38,7 +38,7 @@ class DemoConfig:
     port: str = "dome"
     """Ports on the paper's rig: ``dome``, ``flat`` or ``none``."""
     engine: str = "sea3d"
-    """Matching engine: ``sea3d`` (our SGM) or ``opencv`` (StereoSGBM)."""
+    """Matching engine: ``sea3d`` (our SGM), ``sea3d-gpu`` (CuPy) or ``opencv`` (StereoSGBM)."""
     size_px: tuple[int, int] = (1920, 1080)
     """Image size; the paper computed depth at 1920x1080."""
     max_disparity_px: int = 256

@@ -5,11 +5,12 @@ from __future__ import annotations
 import numpy as np
 
 from sea3d.errors import ConfigError
+from sea3d.stereo.gpu_sgm import GpuSgmConfig
 from sea3d.stereo.types import DisparityResult, OpenCVSgbmConfig, SgmConfig
 
 __all__ = ["EngineConfig", "make_config", "match"]
 
-EngineConfig = SgmConfig | OpenCVSgbmConfig
+EngineConfig = SgmConfig | OpenCVSgbmConfig | GpuSgmConfig
 
 
 def match(left: np.ndarray, right: np.ndarray, config: EngineConfig) -> DisparityResult:
@@ -34,21 +35,39 @@ def match(left: np.ndarray, right: np.ndarray, config: EngineConfig) -> Disparit
         from sea3d.stereo.opencv_sgbm import match_opencv
 
         return match_opencv(left, right, config)
+    if isinstance(config, GpuSgmConfig):
+        from sea3d.stereo.gpu_sgm import match_gpu_sgm
+
+        disparity, timings = match_gpu_sgm(left, right, config)
+        confidence = np.isfinite(disparity).astype(np.float32)
+        return DisparityResult(
+            disparity_px=disparity, confidence=confidence, timings_s=timings, engine="sea3d-gpu"
+        )
     raise ConfigError(f"unknown stereo engine config {type(config).__name__}")
 
 
 def make_config(engine: str, max_disparity_px: int, **overrides: object) -> EngineConfig:
-    """Build the default config of engine ``"sea3d"`` or ``"opencv"`` (``opencv-hh``,
-    ``opencv-3way`` select OpenCV modes) for a search range ``0..max_disparity_px``.
+    """Build the default config of engine ``"sea3d"``, ``"sea3d-gpu"`` (CuPy, NVIDIA GPUs) or
+    ``"opencv"`` (``opencv-hh``, ``opencv-3way`` select OpenCV modes) for a search range
+    ``0..max_disparity_px``.
 
     Raises:
         ConfigError: unknown engine name or invalid values.
     """
     if engine == "sea3d":
         return SgmConfig(max_disparity_px=max_disparity_px, **overrides)  # type: ignore[arg-type]
-    modes = {"opencv": "sgbm", "opencv-sgbm": "sgbm", "opencv-hh": "hh", "opencv-3way": "sgbm_3way",
-             "opencv-hh4": "hh4"}
+    if engine == "sea3d-gpu":
+        return GpuSgmConfig(max_disparity_px=max_disparity_px, **overrides)  # type: ignore[arg-type]
+    modes = {
+        "opencv": "sgbm",
+        "opencv-sgbm": "sgbm",
+        "opencv-hh": "hh",
+        "opencv-3way": "sgbm_3way",
+        "opencv-hh4": "hh4",
+    }
     if engine in modes:
         kw = {"mode": modes[engine], **overrides}
         return OpenCVSgbmConfig(max_disparity_px=max_disparity_px, **kw)  # type: ignore[arg-type]
-    raise ConfigError(f"unknown engine {engine!r}; choose sea3d, opencv, opencv-hh, opencv-3way")
+    raise ConfigError(
+        f"unknown engine {engine!r}; choose sea3d, sea3d-gpu, opencv, opencv-hh, opencv-3way"
+    )
