@@ -8,13 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-
-def _size(text: str) -> tuple[int, int]:
-    try:
-        w, h = text.lower().split("x")
-        return int(w), int(h)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from None
+from sea3d.cli._args import image_size
 
 
 def register(sub: Any) -> None:
@@ -28,7 +22,7 @@ def register(sub: Any) -> None:
     p.add_argument("--water", default="coastal", choices=["none", "clear", "coastal", "turbid"])
     p.add_argument("--port", default="dome", choices=["dome", "flat", "none"])
     p.add_argument("--engine", default="sea3d", choices=["sea3d", "sea3d-gpu", "opencv"])
-    p.add_argument("--size", type=_size, default=(1920, 1080), metavar="WxH")
+    p.add_argument("--size", type=image_size, default=(1920, 1080), metavar="WxH")
     p.add_argument("--max-disparity", type=int, default=256, help="at 1920 px width")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true", help="print the summary as JSON")

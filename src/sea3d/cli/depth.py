@@ -197,13 +197,19 @@ def register(sub: Any) -> None:
     )
     p.add_argument("left", help="left image (rectified)")
     p.add_argument("right", help="right image (rectified)")
-    p.add_argument("--max-disparity", type=int, required=True, metavar="N",
-                   help="largest disparity searched, pixels (range 0..N)")
+    p.add_argument(
+        "--max-disparity",
+        type=int,
+        required=True,
+        metavar="N",
+        help="largest disparity searched, pixels (range 0..N)",
+    )
     p.add_argument("-o", "--output", required=True, help="output disparity: .pfm, .npy or .tiff")
     p.add_argument("--engine", choices=_ENGINES, default="sea3d", help="matching engine")
     p.add_argument("--paths", type=int, choices=(8, 16), help="sea3d engine: aggregation paths")
-    p.add_argument("--filters", default="",
-                   help='post-filter chain, e.g. "median:size_px=3,speckle,wls"')
+    p.add_argument(
+        "--filters", default="", help='post-filter chain, e.g. "median:size_px=3,speckle,wls"'
+    )
     p.add_argument("--json", action="store_true", help="print timings and figures as JSON")
     p.set_defaults(handler=_cmd_stereo)
 
@@ -216,10 +222,15 @@ def register(sub: Any) -> None:
     )
     ed.add_argument("estimate", metavar="EST", help="estimated disparity (.pfm .npy .tiff .png)")
     ed.add_argument("ground_truth", metavar="GT", help="ground-truth disparity")
-    ed.add_argument("--scale", type=float, default=None,
-                    help="GT integer images store d * scale (Middlebury: 16, 8 or 4)")
-    ed.add_argument("--est-scale", type=float, default=None,
-                    help="the same for an integer estimate image")
+    ed.add_argument(
+        "--scale",
+        type=float,
+        default=None,
+        help="GT integer images store d * scale (Middlebury: 16, 8 or 4)",
+    )
+    ed.add_argument(
+        "--est-scale", type=float, default=None, help="the same for an integer estimate image"
+    )
     ed.add_argument("--json", action="store_true", help="print the figures as JSON")
     ed.set_defaults(handler=_cmd_eval_disparity)
     e.set_defaults(handler=lambda a: (e.print_help(sys.stderr), 2)[1])
@@ -233,15 +244,34 @@ def register(sub: Any) -> None:
     d.add_argument("--rig", required=True, help="rig.yaml")
     d.add_argument("--left", required=True, help="raw left image")
     d.add_argument("--right", required=True, help="raw right image")
-    d.add_argument("-o", "--output", required=True,
-                   help="depth output: .png (uint16 mm, 0 invalid), .tiff, .npy or .pfm (m)")
+    d.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        help="depth output: .png (uint16 mm, 0 invalid), .tiff, .npy or .pfm (m)",
+    )
     d.add_argument("--points", help="also write a coloured point cloud (.ply), left camera frame")
     d.add_argument("--engine", choices=_ENGINES, default="sea3d", help="matching engine")
-    d.add_argument("--max-disparity", type=int, default=None, metavar="N",
-                   help="largest disparity searched (default: from --min-depth)")
-    d.add_argument("--min-depth", type=float, default=0.5, metavar="M",
-                   help="nearest depth to resolve, metres (sets the disparity range)")
-    d.add_argument("--max-depth", type=float, default=10.0, metavar="M",
-                   help="farthest depth kept, metres (refractive rectification range too)")
+    d.add_argument(
+        "--max-disparity",
+        type=int,
+        default=None,
+        metavar="N",
+        help="largest disparity searched (default: from --min-depth)",
+    )
+    d.add_argument(
+        "--min-depth",
+        type=float,
+        default=0.5,
+        metavar="M",
+        help="nearest depth to resolve, metres (sets the disparity range)",
+    )
+    d.add_argument(
+        "--max-depth",
+        type=float,
+        default=10.0,
+        metavar="M",
+        help="farthest depth kept, metres (refractive rectification range too)",
+    )
     d.add_argument("--json", action="store_true", help="print timings and figures as JSON")
     d.set_defaults(handler=_cmd_depth)

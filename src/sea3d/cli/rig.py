@@ -8,17 +8,8 @@ import json
 import sys
 from typing import Any
 
+from sea3d.cli._args import image_size
 from sea3d.errors import ConfigError
-
-
-def _size(text: str) -> tuple[int, int]:
-    try:
-        w, h = text.lower().split("x")
-        return int(w), int(h)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected WIDTHxHEIGHT such as 1920x1080, got {text!r}"
-        ) from None
 
 
 def register(sub: Any) -> None:
@@ -55,7 +46,7 @@ def register(sub: Any) -> None:
         default=10.0,
         help="flat port: camera centre to inner glass surface",
     )
-    create.add_argument("--size", type=_size, metavar="WxH", help="image size in pixels")
+    create.add_argument("--size", type=image_size, metavar="WxH", help="image size in pixels")
     create.add_argument("--fx", type=float, metavar="PX", help="focal length (fy keeps the ratio)")
     create.add_argument("--baseline-mm", type=float, metavar="MM", help="stereo baseline")
     create.add_argument(
@@ -102,7 +93,7 @@ def register(sub: Any) -> None:
         help="output format (default from the extension: .yaml sea3d, .json, .txt colmap)",
     )
     conv.add_argument("--extrinsics", metavar="FILE", help="OpenCV stereo_calib extrinsics.yml")
-    conv.add_argument("--size", type=_size, metavar="WxH", help="image size if IN lacks it")
+    conv.add_argument("--size", type=image_size, metavar="WxH", help="image size if IN lacks it")
     conv.set_defaults(handler=_convert)
 
 

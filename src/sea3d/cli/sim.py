@@ -13,19 +13,10 @@ import logging
 from pathlib import Path
 from typing import Any
 
+from sea3d.cli._args import image_size
 from sea3d.errors import SimulationError
 
 _log = logging.getLogger(__name__)
-
-
-def _size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError as err:
-        raise argparse.ArgumentTypeError(f"expected WxH such as 960x540, got {text!r}") from err
-    if w <= 0 or h <= 0:
-        raise argparse.ArgumentTypeError(f"image size must be positive, got {text!r}")
-    return w, h
 
 
 def register(sub: Any) -> None:
@@ -60,7 +51,9 @@ def register(sub: Any) -> None:
     )
     p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
     p.add_argument(
-        "--size", type=_size, help="render at WxH instead of the rig's size (intrinsics scaled)"
+        "--size",
+        type=image_size,
+        help="render at WxH instead of the rig's size (intrinsics scaled)",
     )
     p.add_argument(
         "--supersample", type=int, default=2, help="rays per pixel along each axis (default 2)"
@@ -114,7 +107,9 @@ def register(sub: Any) -> None:
         choices=["none", "clear", "coastal", "turbid"],
         help="water effects on the images (default none)",
     )
-    c.add_argument("--size", dest="cal_size", type=_size, help="render at WxH (intrinsics scaled)")
+    c.add_argument(
+        "--size", dest="cal_size", type=image_size, help="render at WxH (intrinsics scaled)"
+    )
     c.add_argument("--seed", dest="cal_seed", type=int, default=0, help="pose seed (default 0)")
     c.add_argument("--out", dest="cal_out", type=Path, required=True, help="output folder")
     c.set_defaults(handler=_run_calibration)
