@@ -120,8 +120,102 @@ def _cmd_eval_disparity(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_depth_session(args: argparse.Namespace) -> int:
+    """Depth for every stereo pair of a session, with a progress bar."""
+    from pathlib import Path
+
+    import numpy as np
+    from tqdm import tqdm
+
+    from sea3d.errors import StereoError
+    from sea3d.io.rig_file import load_rig, rig_from_yaml
+    from sea3d.io.session import open_session
+    from sea3d.rectify import rectify_rig
+    from sea3d.stereo import make_config
+    from sea3d.stereo.depth import compute_depth, max_disparity_for_depth
+    from sea3d.stereo.files import write_depth_png_mm, write_ply
+
+    if not (0 < args.min_depth < args.max_depth):
+        raise StereoError(
+            f"need 0 < --min-depth < --max-depth, got {args.min_depth} and {args.max_depth}"
+        )
+    out = Path(args.output)
+    with open_session(args.session) as session:
+        if args.rig:
+            rig = load_rig(args.rig)
+        elif session.rig_yaml:
+            rig = rig_from_yaml(session.rig_yaml, f"{args.session} (stored rig.yaml)")
+        else:
+            raise StereoError(f"{args.session} stores no rig; pass --rig rig.yaml")
+        match = session.match_pairs()
+        n_pairs = len(match.left_index)
+        if n_pairs == 0:
+            raise StereoError(f"{args.session}: no stereo pairs to process")
+        maps = rectify_rig(rig, depth_range_m=(args.min_depth, args.max_depth))
+        max_d = args.max_disparity or max_disparity_for_depth(maps, args.min_depth)
+        config = make_config(args.engine, max_d)
+        _warm_up(args.engine)
+        (out / "depth").mkdir(parents=True, exist_ok=True)
+        if args.points:
+            (out / "cloud").mkdir(parents=True, exist_ok=True)
+        done = 0
+        valid = []
+        bar = tqdm(total=n_pairs, unit="pair", desc="depth", disable=args.json or None)
+        try:
+            for pair in session.pairs():
+                if pair.left.shape[:2] != (rig.height, rig.width):
+                    raise StereoError(
+                        f"{args.session}: frame {pair.t_ns} is {pair.left.shape[1]}x"
+                        f"{pair.left.shape[0]} but the rig is {rig.width}x{rig.height}"
+                    )
+                res = compute_depth(maps, pair.left, pair.right, config, max_depth_m=args.max_depth)
+                write_depth_png_mm(out / "depth" / f"{pair.t_ns}.png", res.depth_m)
+                if args.points:
+                    write_ply(out / "cloud" / f"{pair.t_ns}.ply", res.points_left, res.colors_rgb)
+                valid.append(float(np.isfinite(res.depth_m).mean()))
+                done += 1
+                bar.update(1)
+        finally:
+            bar.close()
+    summary = {
+        "session": str(args.session),
+        "output": str(out),
+        "pairs": done,
+        "unpaired_left": match.unpaired_left,
+        "unpaired_right": match.unpaired_right,
+        "mean_valid_fraction": float(np.mean(valid)) if valid else 0.0,
+        "refractive": maps.refractive,
+        "max_disparity_px": max_d,
+        "engine": args.engine,
+    }
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        print(
+            f"{done} pairs -> {out}/depth/<t_ns>.png (uint16 mm, 0 invalid)"
+            + (f" and {out}/cloud/<t_ns>.ply" if args.points else "")
+            + f"; {match.unpaired_left} left and {match.unpaired_right} right frames unpaired"
+        )
+    return 0
+
+
 def _cmd_depth(args: argparse.Namespace) -> int:
     import numpy as np
+
+    if args.session is not None:
+        if args.left or args.right:
+            from sea3d.errors import StereoError
+
+            raise StereoError("give either --session or --left/--right, not both")
+        return _cmd_depth_session(args)
+    if not (args.left and args.right and args.rig):
+        from sea3d.errors import StereoError
+
+        raise StereoError("sea3d depth needs --rig with --left and --right, or --session")
+    if args.points is True:
+        from sea3d.errors import StereoError
+
+        raise StereoError("--points needs a file name (cloud.ply) for a single pair")
 
     from sea3d.errors import StereoError
     from sea3d.io.rig_file import load_rig
@@ -241,16 +335,28 @@ def register(sub: Any) -> None:
         description="Rectify a raw pair with rig.yaml, match, and write float32 depth in metres "
         "(.tiff/.npy/.pfm) or a 16-bit millimetre PNG (0 invalid).",
     )
-    d.add_argument("--rig", required=True, help="rig.yaml")
-    d.add_argument("--left", required=True, help="raw left image")
-    d.add_argument("--right", required=True, help="raw right image")
+    d.add_argument("--rig", help="rig.yaml (with --session: default the session's stored rig)")
+    d.add_argument("--left", help="raw left image")
+    d.add_argument("--right", help="raw right image")
+    d.add_argument(
+        "--session",
+        help="a recorded session (MCAP or folder): depth for every pair into -o FOLDER/depth/, "
+        "with --points also FOLDER/cloud/",
+    )
     d.add_argument(
         "-o",
         "--output",
         required=True,
-        help="depth output: .png (uint16 mm, 0 invalid), .tiff, .npy or .pfm (m)",
+        help="depth output: .png (uint16 mm, 0 invalid), .tiff, .npy or .pfm (m); with "
+        "--session an output folder",
     )
-    d.add_argument("--points", help="also write a coloured point cloud (.ply), left camera frame")
+    d.add_argument(
+        "--points",
+        nargs="?",
+        const=True,
+        help="also write a coloured point cloud (.ply), left camera frame (with --session: a "
+        "flag, one PLY per pair)",
+    )
     d.add_argument("--engine", choices=_ENGINES, default="sea3d", help="matching engine")
     d.add_argument(
         "--max-disparity",
