@@ -1,15 +1,285 @@
-"""``sea3d rig`` subcommands (not yet implemented)."""
+"""``sea3d rig``: create, show, convert rigs, and project / unproject through their cameras."""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
+import sys
 from typing import Any
+
+from sea3d.errors import ConfigError
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = text.lower().split("x")
+        return int(w), int(h)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected WIDTHxHEIGHT such as 1920x1080, got {text!r}"
+        ) from None
 
 
 def register(sub: Any) -> None:
-    """Add this area's subcommands to the top-level parser's subparsers."""
-    del sub
+    """Add ``sea3d rig ...``."""
+    rig = sub.add_parser("rig", help="create, inspect and convert stereo rig files")
+    rsub = rig.add_subparsers(dest="rig_command", metavar="ACTION", required=True)
+
+    create = rsub.add_parser(
+        "create", help="write a rig.yaml from a preset or an existing calibration"
+    )
+    src = create.add_mutually_exclusive_group(required=True)
+    src.add_argument("--preset", choices=["sea3d-paper"], help="a built-in rig")
+    src.add_argument(
+        "--from",
+        dest="from_file",
+        metavar="FILE",
+        help="an existing calibration: rig.yaml, or OpenCV/MATLAB FileStorage stereo YAML",
+    )
+    create.add_argument("--extrinsics", metavar="FILE", help="OpenCV stereo_calib extrinsics.yml")
+    create.add_argument("-o", "--output", required=True, metavar="RIG", help="file to write")
+    create.add_argument(
+        "--port",
+        choices=["dome", "flat", "none"],
+        help="ports to put on both cameras (preset default: dome; --from default: keep)",
+    )
+    create.add_argument("--inner-radius-mm", type=float, default=31.25, help="dome inner radius")
+    create.add_argument("--thickness-mm", type=float, help="glass thickness (dome 3.1, flat 10)")
+    create.add_argument("--n-glass", type=float, default=1.492, help="glass index (acrylic 1.492)")
+    create.add_argument("--n-water", type=float, default=1.333, help="water index")
+    create.add_argument("--n-air", type=float, default=1.000292, help="index inside the housing")
+    create.add_argument(
+        "--flat-distance-mm",
+        type=float,
+        default=10.0,
+        help="flat port: camera centre to inner glass surface",
+    )
+    create.add_argument("--size", type=_size, metavar="WxH", help="image size in pixels")
+    create.add_argument("--fx", type=float, metavar="PX", help="focal length (fy keeps the ratio)")
+    create.add_argument("--baseline-mm", type=float, metavar="MM", help="stereo baseline")
+    create.add_argument(
+        "--dome-center-left-mm",
+        type=float,
+        nargs=3,
+        metavar=("X", "Y", "Z"),
+        help="dome centre in the left camera frame (default: the paper's -0.54 0.58 2.10)",
+    )
+    create.add_argument(
+        "--dome-center-right-mm",
+        type=float,
+        nargs=3,
+        metavar=("X", "Y", "Z"),
+        help="dome centre in the right camera frame (default: as the left)",
+    )
+    create.set_defaults(handler=_create)
+
+    show = rsub.add_parser("show", help="print a readable summary of a rig")
+    show.add_argument("rig", metavar="RIG")
+    show.add_argument("--json", action="store_true", help="machine-readable JSON")
+    show.set_defaults(handler=_show)
+
+    for name, helptext in (
+        ("unproject", "pixels (u,v CSV) to water rays (u,v,ox,oy,oz,dx,dy,dz CSV)"),
+        ("project", "points (x,y,z CSV) to pixels (x,y,z,u,v,valid CSV)"),
+    ):
+        p = rsub.add_parser(name, help=helptext)
+        p.add_argument("rig", metavar="RIG")
+        p.add_argument("--camera", choices=["left", "right"], default="left")
+        if name == "unproject":
+            p.add_argument("--pixels", required=True, metavar="IN.csv", help="columns u,v")
+        else:
+            p.add_argument("--points", required=True, metavar="IN.csv", help="columns x,y,z (m)")
+        p.add_argument("-o", "--output", required=True, metavar="OUT.csv")
+        p.set_defaults(handler=_unproject if name == "unproject" else _project)
+
+    conv = rsub.add_parser("convert", help="convert between rig formats")
+    conv.add_argument("input", metavar="IN")
+    conv.add_argument("output", metavar="OUT")
+    conv.add_argument(
+        "--format",
+        choices=["sea3d", "opencv", "colmap", "json"],
+        help="output format (default from the extension: .yaml sea3d, .json, .txt colmap)",
+    )
+    conv.add_argument("--extrinsics", metavar="FILE", help="OpenCV stereo_calib extrinsics.yml")
+    conv.add_argument("--size", type=_size, metavar="WxH", help="image size if IN lacks it")
+    conv.set_defaults(handler=_convert)
 
 
-def _unused(_: argparse.Namespace) -> int:  # pragma: no cover - placeholder
+def _mm(values: list[float] | None) -> tuple[float, float, float] | None:
+    return None if values is None else (values[0] * 1e-3, values[1] * 1e-3, values[2] * 1e-3)
+
+
+def _create(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from sea3d.geometry.pinhole import PinholeCamera
+    from sea3d.geometry.rig import StereoRig
+    from sea3d.io.rig_file import load_rig, save_rig
+    from sea3d.refraction.presets import PAPER_DOME_CENTER_M, paper_rig, with_ports
+
+    port_opts: dict[str, Any] = {
+        "inner_radius_m": args.inner_radius_mm * 1e-3,
+        "n_glass": args.n_glass,
+        "n_water": args.n_water,
+        "n_air": args.n_air,
+        "flat_distance_m": args.flat_distance_mm * 1e-3,
+    }
+    if args.thickness_mm is not None:
+        port_opts["thickness_m"] = args.thickness_mm * 1e-3
+    left_c = _mm(args.dome_center_left_mm) or PAPER_DOME_CENTER_M
+    right_c = _mm(args.dome_center_right_mm) or left_c
+    port_opts["dome_center_left_m"] = left_c
+    port_opts["dome_center_right_m"] = right_c
+
+    if args.preset:
+        rig = paper_rig(
+            args.port or "dome",
+            size_px=args.size or (1920, 1080),
+            fx_px=args.fx,
+            baseline_m=(args.baseline_mm * 1e-3) if args.baseline_mm else 0.107,
+            **port_opts,
+        )
+    else:
+        rig = load_rig(args.from_file, extrinsics=args.extrinsics, image_size=args.size)
+        if args.fx is not None or args.baseline_mm is not None:
+            if args.fx is not None and args.fx <= 0:
+                raise ConfigError(f"--fx must be > 0, got {args.fx}")
+            cams = []
+            for cam in (rig.left, rig.right):
+                pin = getattr(cam, "pinhole", cam)
+                assert isinstance(pin, PinholeCamera)
+                if args.fx is not None:
+                    pin = dataclasses.replace(pin, fx=args.fx, fy=args.fx * pin.fy / pin.fx)
+                cams.append(pin)
+            T = rig.T_left_right.copy()
+            if args.baseline_mm is not None:
+                if args.baseline_mm <= 0:
+                    raise ConfigError(f"--baseline-mm must be > 0, got {args.baseline_mm}")
+                T[:3, 3] *= args.baseline_mm * 1e-3 / np.linalg.norm(T[:3, 3])
+            base = StereoRig(left=cams[0], right=cams[1], T_left_right=T)
+            old_port = getattr(rig.left, "port", None)
+            rig = base if old_port is None and args.port is None else rig
+            if args.port is None and old_port is not None:
+                raise ConfigError(
+                    "with --fx or --baseline-mm on a rig that has ports, also give --port"
+                )
+            if args.port is not None:
+                rig = base
+        if args.port is not None:
+            rig = with_ports(rig, args.port, **port_opts)
+    out = save_rig(rig, args.output)
+    print(f"wrote {out}")
+    return 0
+
+
+def _rig_summary(rig: Any) -> dict[str, Any]:
+    from sea3d.io.rig_file import rig_to_dict
+
+    data = rig_to_dict(rig)
+    cams = {}
+    for name in ("left", "right"):
+        cam = getattr(rig, name)
+        pin = getattr(cam, "pinhole", cam)
+        port = data[name]["port"]
+        cams[name] = {
+            "model": {"none": "pinhole", "dome": "dome-port", "flat": "flat-port"}[port["type"]],
+            "K": pin.K.tolist(),
+            "distortion": [float(v) for v in pin.dist],
+            "image_size_px": [rig.width, rig.height],
+            "port": port,
+        }
+    return {
+        "left": cams["left"],
+        "right": cams["right"],
+        "T_left_right": rig.T_left_right.tolist(),
+        "baseline_m": rig.baseline_m,
+    }
+
+
+def _show(args: argparse.Namespace) -> int:
+    from sea3d.io.rig_file import load_rig
+
+    rig = load_rig(args.rig)
+    summary = _rig_summary(rig)
+    if args.json:
+        json.dump(summary, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+        return 0
+    lines = [f"rig {args.rig}: {rig.width}x{rig.height} px, baseline {rig.baseline_m * 1e3:.2f} mm"]
+    for name in ("left", "right"):
+        cam = summary[name]
+        K = cam["K"]
+        line = (
+            f"  {name:5s} {cam['model']:9s} fx {K[0][0]:.2f} fy {K[1][1]:.2f} "
+            f"cx {K[0][2]:.2f} cy {K[1][2]:.2f} px, {len(cam['distortion'])} distortion coeffs"
+        )
+        lines.append(line)
+        port = cam["port"]
+        if port["type"] == "dome":
+            c = [v * 1e3 for v in port["center_m"]]
+            lines.append(
+                f"        dome: centre ({c[0]:.3f}, {c[1]:.3f}, {c[2]:.3f}) mm, inner radius "
+                f"{port['inner_radius_m'] * 1e3:.2f} mm, thickness {port['thickness_m'] * 1e3:.2f} "
+                f"mm, n air/glass/water {port['n_air']}/{port['n_glass']}/{port['n_water']}"
+            )
+        elif port["type"] == "flat":
+            n = port["normal"]
+            lines.append(
+                f"        flat: normal ({n[0]:.4f}, {n[1]:.4f}, {n[2]:.4f}), distance "
+                f"{port['distance_m'] * 1e3:.2f} mm, thickness {port['thickness_m'] * 1e3:.2f} mm, "
+                f"n air/glass/water {port['n_air']}/{port['n_glass']}/{port['n_water']}"
+            )
+    t = rig.T_left_right[:3, 3] * 1e3
+    lines.append(
+        f"  right camera centre in the left frame: ({t[0]:.2f}, {t[1]:.2f}, {t[2]:.2f}) mm"
+    )
+    print("\n".join(lines))
+    return 0
+
+
+def _unproject(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from sea3d.io.csv_points import read_columns, write_columns
+    from sea3d.io.rig_file import load_rig
+
+    rig = load_rig(args.rig)
+    cam = getattr(rig, args.camera)
+    uv = read_columns(args.pixels, ["u", "v"])
+    rays = cam.unproject(uv)
+    write_columns(
+        args.output,
+        ["u", "v", "ox", "oy", "oz", "dx", "dy", "dz"],
+        np.concatenate([uv, rays.origins, rays.directions], axis=1),
+    )
+    bad = int((~rays.valid).sum())
+    print(
+        f"wrote {len(uv)} rays to {args.output}" + (f" ({bad} without a ray: NaN)" if bad else "")
+    )
+    return 0
+
+
+def _project(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from sea3d.io.csv_points import read_columns, write_columns
+    from sea3d.io.rig_file import load_rig
+
+    rig = load_rig(args.rig)
+    cam = getattr(rig, args.camera)
+    pts = read_columns(args.points, ["x", "y", "z"])
+    uv, valid = cam.project(pts)
+    table = np.concatenate([pts, uv, valid[:, None].astype(np.float64)], axis=1)
+    write_columns(args.output, ["x", "y", "z", "u", "v", "valid"], table)
+    print(f"wrote {len(pts)} pixels to {args.output} ({int(valid.sum())} valid)")
+    return 0
+
+
+def _convert(args: argparse.Namespace) -> int:
+    from sea3d.io.rig_file import load_rig, save_rig
+
+    rig = load_rig(args.input, extrinsics=args.extrinsics, image_size=args.size)
+    out = save_rig(rig, args.output, format=args.format)
+    print(f"wrote {out}")
     return 0

@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 from sea3d.errors import GeometryError
 
-__all__ = ["CameraModel", "Rays", "as_points", "as_pixels"]
+__all__ = ["CameraModel", "Rays", "as_pixels", "as_points"]
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -36,8 +36,10 @@ class Rays:
     directions: FloatArray
 
     def __post_init__(self) -> None:
-        if self.origins.shape != self.directions.shape or self.origins.ndim != 2 or (
-            self.origins.shape[1] != 3
+        if (
+            self.origins.shape != self.directions.shape
+            or self.origins.ndim != 2
+            or (self.origins.shape[1] != 3)
         ):
             raise GeometryError(
                 f"Rays need origins and directions of equal shape (N, 3); got "
@@ -50,7 +52,8 @@ class Rays:
     @property
     def valid(self) -> BoolArray:
         """``(N,)`` bool: rows whose origin and direction are finite."""
-        return np.isfinite(self.origins).all(axis=1) & np.isfinite(self.directions).all(axis=1)
+        ok = np.isfinite(self.origins).all(axis=1) & np.isfinite(self.directions).all(axis=1)
+        return np.asarray(ok, dtype=np.bool_)
 
     def at(self, distance_m: FloatArray | float) -> FloatArray:
         """Points ``origins + distance_m * directions``, ``(N, 3)`` metres."""

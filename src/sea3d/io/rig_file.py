@@ -1,0 +1,580 @@
+"""Rig files: sea3d's ``rig.yaml``, OpenCV FileStorage imports, refractive COLMAP export.
+
+``rig.yaml`` (format ``sea3d-rig``, version 1) holds both camera models with their ports,
+``T_left_right`` and the image size, with units in the key names::
+
+    format: sea3d-rig
+    version: 1
+    image_width_px: 1920
+    image_height_px: 1080
+    left:
+      fx_px: 1082.4
+      fy_px: 1074.4
+      cx_px: 949.5
+      cy_px: 535.7
+      distortion: []          # OpenCV order: k1 k2 p1 p2 [k3 [k4 k5 k6 [s1..s4 [tx ty]]]]
+      port:
+        type: dome            # none | dome | flat
+        center_m: [-0.00054, 0.00058, 0.0021]
+        inner_radius_m: 0.03125
+        thickness_m: 0.0031
+        n_air: 1.000292
+        n_glass: 1.492
+        n_water: 1.333
+    right: {...}
+    T_left_right: [[1, 0, 0, 0.107], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]   # metres
+
+A flat port has ``normal``, ``distance_m``, ``thickness_m`` and the indices instead.
+
+Importers read OpenCV FileStorage stereo YAML as MATLAB's stereoCameraCalibrator exports it
+(``cameraMatrixLeft``, ``distCoeffsLeft``, ..., ``R``, ``T`` in millimetres; OpenCV's convention
+``p_right = R p_left + T``) and OpenCV's ``stereo_calib`` sample files (``M1 D1 M2 D2`` in
+``intrinsics.yml`` plus ``R T`` in ``extrinsics.yml``, in the units of the board's square size).
+Loading is all-or-nothing: any problem raises :class:`~sea3d.errors.RigFileError` naming the
+file, the key and the value, and no partial rig is returned.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import tempfile
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import yaml
+
+from sea3d.errors import RigFileError, Sea3dError
+from sea3d.geometry.camera import CameraModel
+from sea3d.geometry.pinhole import DISTORTION_LENGTHS, PinholeCamera
+from sea3d.geometry.rig import StereoRig
+from sea3d.geometry.se3 import invert_T, make_T
+from sea3d.refraction.ports import DomePort, DomePortCamera, FlatPort, FlatPortCamera
+
+__all__ = [
+    "RigFormat",
+    "load_rig",
+    "rig_from_dict",
+    "rig_from_yaml",
+    "rig_to_colmap",
+    "rig_to_dict",
+    "rig_to_opencv_yaml",
+    "rig_to_yaml",
+    "save_rig",
+]
+
+log = logging.getLogger(__name__)
+
+RigFormat = Literal["sea3d", "opencv", "colmap", "json"]
+
+FORMAT_NAME = "sea3d-rig"
+FORMAT_VERSION = 1
+
+# Common sensor sizes used to guess a missing image size from the principal point.
+_COMMON_SIZES = (
+    (640, 480),
+    (752, 480),
+    (800, 600),
+    (1024, 768),
+    (1280, 720),
+    (1280, 960),
+    (1280, 1024),
+    (1440, 1080),
+    (1920, 1080),
+    (1920, 1200),
+    (2048, 1536),
+    (2560, 1440),
+    (3840, 2160),
+    (3856, 2180),
+    (4096, 2160),
+)
+
+
+# --------------------------------------------------------------------------- to dict / YAML
+def _port_to_dict(cam: CameraModel) -> dict[str, Any]:
+    if isinstance(cam, DomePortCamera):
+        p = cam.port
+        return {
+            "type": "dome",
+            "center_m": [float(v) for v in p.center_m],
+            "inner_radius_m": p.inner_radius_m,
+            "thickness_m": p.thickness_m,
+            "n_air": p.n_air,
+            "n_glass": p.n_glass,
+            "n_water": p.n_water,
+        }
+    if isinstance(cam, FlatPortCamera):
+        f = cam.port
+        return {
+            "type": "flat",
+            "normal": [float(v) for v in f.normal],
+            "distance_m": f.distance_m,
+            "thickness_m": f.thickness_m,
+            "n_air": f.n_air,
+            "n_glass": f.n_glass,
+            "n_water": f.n_water,
+        }
+    return {"type": "none"}
+
+
+def _pinhole_of(cam: CameraModel) -> PinholeCamera:
+    pin = getattr(cam, "pinhole", cam)
+    if not isinstance(pin, PinholeCamera):
+        raise RigFileError(f"cannot store a camera of type {type(cam).__name__} in a rig file")
+    return pin
+
+
+def _camera_to_dict(cam: CameraModel) -> dict[str, Any]:
+    pin = _pinhole_of(cam)
+    return {
+        "fx_px": pin.fx,
+        "fy_px": pin.fy,
+        "cx_px": pin.cx,
+        "cy_px": pin.cy,
+        "distortion": [float(v) for v in pin.dist],
+        "port": _port_to_dict(cam),
+    }
+
+
+def rig_to_dict(rig: StereoRig) -> dict[str, Any]:
+    """The rig as plain Python values (the ``rig.yaml`` schema)."""
+    return {
+        "format": FORMAT_NAME,
+        "version": FORMAT_VERSION,
+        "image_width_px": rig.width,
+        "image_height_px": rig.height,
+        "left": _camera_to_dict(rig.left),
+        "right": _camera_to_dict(rig.right),
+        "T_left_right": [[float(v) for v in row] for row in rig.T_left_right],
+    }
+
+
+def rig_to_yaml(rig: StereoRig) -> str:
+    """The rig as ``rig.yaml`` text."""
+    header = "# sea3d stereo rig; units in key names; conventions: docs/conventions.md\n"
+    return header + yaml.safe_dump(rig_to_dict(rig), sort_keys=False, default_flow_style=None)
+
+
+# --------------------------------------------------------------------------- from dict / YAML
+class _Reader:
+    """Typed access to a nested mapping that names file and key in every error."""
+
+    def __init__(self, source: str) -> None:
+        self.source = source
+
+    def fail(self, key: str, message: str) -> RigFileError:
+        return RigFileError(f"{self.source}: key '{key}': {message}")
+
+    def get(self, data: Mapping[str, Any], key: str, prefix: str) -> Any:
+        full = f"{prefix}{key}"
+        if not isinstance(data, Mapping):
+            raise self.fail(prefix.rstrip("."), f"expected a mapping, got {type(data).__name__}")
+        if key not in data:
+            raise self.fail(full, "missing")
+        return data[key]
+
+    def number(self, data: Mapping[str, Any], key: str, prefix: str = "") -> float:
+        value = self.get(data, key, prefix)
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise self.fail(f"{prefix}{key}", f"expected a number, got {value!r}")
+        if not np.isfinite(value):
+            raise self.fail(f"{prefix}{key}", f"expected a finite number, got {value!r}")
+        return float(value)
+
+    def array(
+        self, data: Mapping[str, Any], key: str, shape: tuple[int, ...] | None, prefix: str = ""
+    ) -> np.ndarray:
+        value = self.get(data, key, prefix)
+        try:
+            arr = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError) as err:
+            raise self.fail(f"{prefix}{key}", f"expected numbers, got {value!r}") from err
+        if shape is not None and arr.shape != shape:
+            raise self.fail(f"{prefix}{key}", f"expected shape {shape}, got {arr.shape}: {value!r}")
+        if not np.all(np.isfinite(arr)):
+            raise self.fail(f"{prefix}{key}", f"non-finite values: {value!r}")
+        return arr
+
+
+def _camera_from_dict(r: _Reader, data: Any, name: str, width: int, height: int) -> CameraModel:
+    prefix = f"{name}."
+    if not isinstance(data, Mapping):
+        raise r.fail(name, f"expected a mapping, got {data!r}")
+    dist = r.array(data, "distortion", None, prefix) if "distortion" in data else np.zeros(0)
+    if dist.ndim != 1 or dist.size not in DISTORTION_LENGTHS:
+        raise r.fail(
+            f"{prefix}distortion",
+            f"expected one of {DISTORTION_LENGTHS} coefficients, got {dist.size}: {dist.tolist()}",
+        )
+    try:
+        pin = PinholeCamera(
+            fx=r.number(data, "fx_px", prefix),
+            fy=r.number(data, "fy_px", prefix),
+            cx=r.number(data, "cx_px", prefix),
+            cy=r.number(data, "cy_px", prefix),
+            width=width,
+            height=height,
+            dist=dist,
+        )
+    except RigFileError:
+        raise
+    except Sea3dError as err:
+        raise r.fail(name, str(err)) from err
+    port = data.get("port", {"type": "none"})
+    if port is None:
+        port = {"type": "none"}
+    pp = f"{prefix}port."
+    kind = r.get(port, "type", pp)
+    try:
+        if kind == "none":
+            return pin
+        indices = {
+            "n_air": r.number(port, "n_air", pp),
+            "n_glass": r.number(port, "n_glass", pp),
+            "n_water": r.number(port, "n_water", pp),
+        }
+        if kind == "dome":
+            radius = r.number(port, "inner_radius_m", pp)
+            if radius <= 0:
+                raise r.fail(f"{pp}inner_radius_m", f"must be > 0, got {radius}")
+            return DomePortCamera(
+                pin,
+                DomePort(
+                    center_m=r.array(port, "center_m", (3,), pp),
+                    inner_radius_m=radius,
+                    thickness_m=r.number(port, "thickness_m", pp),
+                    **indices,
+                ),
+            )
+        if kind == "flat":
+            return FlatPortCamera(
+                pin,
+                FlatPort(
+                    normal=r.array(port, "normal", (3,), pp),
+                    distance_m=r.number(port, "distance_m", pp),
+                    thickness_m=r.number(port, "thickness_m", pp),
+                    **indices,
+                ),
+            )
+    except RigFileError:
+        raise
+    except Sea3dError as err:
+        raise r.fail(f"{pp}", str(err)) from err
+    raise r.fail(f"{pp}type", f"expected none, dome or flat, got {kind!r}")
+
+
+def rig_from_dict(data: Any, source: str = "<dict>") -> StereoRig:
+    """Build a rig from the ``rig.yaml`` schema.
+
+    Raises:
+        RigFileError: a missing key, a wrong shape or type, or an invalid value, naming
+            ``source``, the key and the value.
+    """
+    r = _Reader(source)
+    if not isinstance(data, Mapping):
+        raise RigFileError(
+            f"{source}: expected a mapping at the top level, got {type(data).__name__}"
+        )
+    fmt = data.get("format")
+    if fmt != FORMAT_NAME:
+        raise r.fail("format", f"expected {FORMAT_NAME!r}, got {fmt!r}")
+    version = data.get("version")
+    if version != FORMAT_VERSION:
+        raise r.fail(
+            "version", f"unsupported version {version!r} (this sea3d reads {FORMAT_VERSION})"
+        )
+    width = r.number(data, "image_width_px")
+    height = r.number(data, "image_height_px")
+    if width <= 0 or height <= 0 or width != int(width) or height != int(height):
+        raise r.fail("image_width_px", f"expected positive whole pixels, got {width}x{height}")
+    left = _camera_from_dict(r, r.get(data, "left", ""), "left", int(width), int(height))
+    right = _camera_from_dict(r, r.get(data, "right", ""), "right", int(width), int(height))
+    T = r.array(data, "T_left_right", (4, 4))
+    try:
+        return StereoRig(left=left, right=right, T_left_right=T)
+    except Sea3dError as err:
+        raise r.fail("T_left_right", str(err)) from err
+
+
+def rig_from_yaml(text: str, source: str = "<string>") -> StereoRig:
+    """Parse ``rig.yaml`` text.
+
+    Raises:
+        RigFileError: invalid YAML or an invalid rig, naming ``source``.
+    """
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise RigFileError(f"{source}: not valid YAML: {err}") from err
+    return rig_from_dict(data, source)
+
+
+# --------------------------------------------------------------------------- OpenCV files
+def _read_opencv_nodes(path: Path) -> dict[str, Any]:
+    import cv2
+
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except cv2.error as err:
+        raise RigFileError(f"{path}: not a readable OpenCV FileStorage file: {err}") from err
+    if not fs.isOpened():
+        raise RigFileError(f"{path}: not a readable OpenCV FileStorage file")
+    out: dict[str, Any] = {}
+    try:
+        root = fs.root()
+        for key in root.keys():
+            node = fs.getNode(key)
+            if node.isMap() and not node.empty():
+                mat = node.mat()
+                out[key] = mat if mat is not None else None
+            elif node.isSeq():
+                out[key] = np.array([node.at(i).real() for i in range(node.size())])
+            elif node.isReal() or node.isInt():
+                out[key] = node.real()
+            elif node.isString():
+                out[key] = node.string()
+    finally:
+        fs.release()
+    return out
+
+
+def _guess_size(cx: float, cy: float) -> tuple[int, int]:
+    w_est, h_est = 2 * cx + 1, 2 * cy + 1
+    best = min(_COMMON_SIZES, key=lambda s: abs(s[0] - w_est) / s[0] + abs(s[1] - h_est) / s[1])
+    if abs(best[0] - w_est) / best[0] < 0.1 and abs(best[1] - h_est) / best[1] < 0.1:
+        return best
+    return round(w_est), round(h_est)
+
+
+def _mat(nodes: Mapping[str, Any], key: str, shape: tuple[int, ...], path: Path) -> np.ndarray:
+    if key not in nodes or nodes[key] is None:
+        raise RigFileError(f"{path}: key '{key}': missing")
+    arr = np.asarray(nodes[key], dtype=np.float64)
+    if arr.size != int(np.prod(shape)):
+        raise RigFileError(f"{path}: key '{key}': expected {shape}, got shape {arr.shape}")
+    arr = arr.reshape(shape)
+    if not np.all(np.isfinite(arr)):
+        raise RigFileError(f"{path}: key '{key}': non-finite values")
+    return arr
+
+
+def _dist(nodes: Mapping[str, Any], key: str, path: Path) -> np.ndarray:
+    if key not in nodes or nodes[key] is None:
+        return np.zeros(0)
+    arr = np.asarray(nodes[key], dtype=np.float64).reshape(-1)
+    if arr.size not in DISTORTION_LENGTHS:
+        raise RigFileError(
+            f"{path}: key '{key}': expected one of {DISTORTION_LENGTHS} coefficients, got "
+            f"{arr.size}: {arr.tolist()}"
+        )
+    return arr
+
+
+def _load_opencv(
+    path: Path,
+    nodes: Mapping[str, Any],
+    extrinsics: Path | None,
+    image_size: tuple[int, int] | None,
+    translation_scale: float | None,
+) -> StereoRig:
+    if "cameraMatrixLeft" in nodes:  # MATLAB stereoCameraCalibrator export, T in millimetres
+        names = ("cameraMatrixLeft", "distCoeffsLeft", "cameraMatrixRight", "distCoeffsRight")
+        scale = 1e-3 if translation_scale is None else translation_scale
+        ext_nodes, ext_path = nodes, path
+    else:  # OpenCV stereo_calib sample: M1 D1 M2 D2 (+ R T in extrinsics.yml)
+        names = ("M1", "D1", "M2", "D2")
+        scale = 1.0 if translation_scale is None else translation_scale
+        if "R" in nodes and "T" in nodes:
+            ext_nodes, ext_path = nodes, path
+        elif extrinsics is not None:
+            ext_path = Path(extrinsics)
+            if not ext_path.is_file():
+                raise RigFileError(f"{ext_path}: extrinsics file not found")
+            ext_nodes = _read_opencv_nodes(ext_path)
+        else:
+            raise RigFileError(
+                f"{path}: has intrinsics (M1, D1, M2, D2) but no extrinsics (R, T); pass the "
+                "matching extrinsics.yml"
+            )
+    K1 = _mat(nodes, names[0], (3, 3), path)
+    K2 = _mat(nodes, names[2], (3, 3), path)
+    D1 = _dist(nodes, names[1], path)
+    D2 = _dist(nodes, names[3], path)
+    R = _mat(ext_nodes, "R", (3, 3), ext_path)
+    T = _mat(ext_nodes, "T", (3,), ext_path) * scale
+    if image_size is None:
+        if "image_width" in nodes and "image_height" in nodes:
+            image_size = (int(nodes["image_width"]), int(nodes["image_height"]))
+        elif "imageSize" in nodes and nodes["imageSize"] is not None:
+            size = np.asarray(nodes["imageSize"]).reshape(-1)
+            image_size = (int(size[0]), int(size[1]))
+        else:
+            image_size = _guess_size(K1[0, 2], K1[1, 2])
+            log.warning(
+                "%s holds no image size; assuming %dx%d from the principal point (pass "
+                "image_size / --size to set it)",
+                path,
+                *image_size,
+            )
+    # Orthonormalise R: exported files round to 6 digits, which breaks a strict rigidity check.
+    u, _, vt = np.linalg.svd(R)
+    R_ortho = u @ vt
+    if np.abs(R_ortho - R).max() > 1e-3:
+        raise RigFileError(f"{ext_path}: key 'R': not a rotation matrix: {R.tolist()}")
+    try:
+        left = PinholeCamera.from_K(K1, *image_size, dist=D1)
+        right = PinholeCamera.from_K(K2, *image_size, dist=D2)
+        T_right_left = make_T(R_ortho, T)
+        return StereoRig(left=left, right=right, T_left_right=invert_T(T_right_left))
+    except Sea3dError as err:
+        raise RigFileError(f"{path}: {err}") from err
+
+
+def rig_to_opencv_yaml(rig: StereoRig) -> str:
+    """OpenCV FileStorage YAML in the MATLAB-export layout (``T`` in millimetres).
+
+    Port parameters cannot be expressed there and are dropped (a warning is logged).
+    """
+    import cv2
+
+    if any(hasattr(c, "port") for c in (rig.left, rig.right)):
+        log.warning("OpenCV stereo YAML has no place for port parameters; they are dropped")
+    left, right = _pinhole_of(rig.left), _pinhole_of(rig.right)
+    T_rl = rig.T_right_left
+    fd, tmp = tempfile.mkstemp(suffix=".yml")
+    os.close(fd)
+    try:
+        fs = cv2.FileStorage(tmp, cv2.FILE_STORAGE_WRITE)
+        fs.write("imageSize", np.array([[rig.width, rig.height]], dtype=np.float64))
+        fs.write("cameraMatrixLeft", left.K)
+        fs.write("distCoeffsLeft", np.asarray(left.dist, dtype=np.float64).reshape(1, -1))
+        fs.write("cameraMatrixRight", right.K)
+        fs.write("distCoeffsRight", np.asarray(right.dist, dtype=np.float64).reshape(1, -1))
+        fs.write("R", T_rl[:3, :3])
+        fs.write("T", (T_rl[:3, 3] * 1e3).reshape(3, 1))
+        fs.release()
+        return Path(tmp).read_text()
+    finally:
+        os.unlink(tmp)
+
+
+def rig_to_colmap(rig: StereoRig) -> str:
+    """Refractive COLMAP camera parameters, one camera per line.
+
+    Each camera gets a ``cameras.txt``-style line ``CAMERA_ID OPENCV|FULL_OPENCV W H params`` and,
+    if it has a port, a line ``CAMERA_ID DOMEPORT Cx Cy Cz int_radius int_thick na ng nw`` or
+    ``CAMERA_ID FLATPORT Nx Ny Nz int_dist int_thick na ng nw`` (lengths in metres).
+    """
+    lines = [
+        "# sea3d rig exported for refractive COLMAP; lengths in metres",
+        "# CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]",
+        "# CAMERA_ID DOMEPORT Cx Cy Cz int_radius int_thick na ng nw",
+        "# CAMERA_ID FLATPORT Nx Ny Nz int_dist int_thick na ng nw",
+    ]
+    for cam_id, cam in ((1, rig.left), (2, rig.right)):
+        pin = _pinhole_of(cam)
+        coeffs = np.zeros(8)
+        n = min(pin.dist.size, 8)
+        coeffs[:n] = pin.dist[:n]
+        if pin.dist.size > 8 and np.any(pin.dist[8:] != 0):
+            raise RigFileError(
+                "COLMAP's camera models hold at most 8 OpenCV distortion coefficients; this rig "
+                f"has {pin.dist.size} with thin-prism or tilt terms"
+            )
+        if np.any(coeffs[4:] != 0):
+            model, params = "FULL_OPENCV", [pin.fx, pin.fy, pin.cx, pin.cy, *coeffs]
+        else:
+            model, params = "OPENCV", [pin.fx, pin.fy, pin.cx, pin.cy, *coeffs[:4]]
+        lines.append(
+            f"{cam_id} {model} {rig.width} {rig.height} " + " ".join(f"{v:.12g}" for v in params)
+        )
+        if isinstance(cam, DomePortCamera):
+            p = cam.port
+            vals = [*p.center_m, p.inner_radius_m, p.thickness_m, p.n_air, p.n_glass, p.n_water]
+            lines.append(f"{cam_id} DOMEPORT " + " ".join(f"{v:.12g}" for v in vals))
+        elif isinstance(cam, FlatPortCamera):
+            f = cam.port
+            vals = [*f.normal, f.distance_m, f.thickness_m, f.n_air, f.n_glass, f.n_water]
+            lines.append(f"{cam_id} FLATPORT " + " ".join(f"{v:.12g}" for v in vals))
+    return "\n".join(lines) + "\n"
+
+
+# --------------------------------------------------------------------------- files
+def load_rig(
+    path: str | os.PathLike[str],
+    *,
+    extrinsics: str | os.PathLike[str] | None = None,
+    image_size: tuple[int, int] | None = None,
+    translation_scale: float | None = None,
+) -> StereoRig:
+    """Load a rig from ``rig.yaml``, a sea3d JSON rig, or an OpenCV FileStorage stereo file.
+
+    Args:
+        path: the file. OpenCV files are recognised by their ``%YAML`` header or XML.
+        extrinsics: for OpenCV ``stereo_calib`` intrinsics files, the matching extrinsics file.
+        image_size: ``(width, height)`` for OpenCV files that do not store it.
+        translation_scale: metres per unit of ``T`` in OpenCV files (default: 1e-3 for MATLAB
+            exports, which are in millimetres; 1 for stereo_calib files).
+
+    Raises:
+        RigFileError: the file is missing, unreadable or invalid (naming file, key and value).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise RigFileError(f"{p}: rig file not found")
+    try:
+        text = p.read_text()
+    except (OSError, UnicodeDecodeError) as err:
+        raise RigFileError(f"{p}: cannot read: {err}") from err
+    head = text.lstrip()[:200]
+    if head.startswith("%YAML") or head.startswith("<?xml") or head.startswith("<opencv_storage"):
+        nodes = _read_opencv_nodes(p)
+        return _load_opencv(
+            p, nodes, Path(extrinsics) if extrinsics else None, image_size, translation_scale
+        )
+    return rig_from_yaml(text, str(p))  # JSON is valid YAML
+
+
+def _atomic_write(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def save_rig(
+    rig: StereoRig, path: str | os.PathLike[str], *, format: RigFormat | None = None
+) -> Path:
+    """Write a rig; the format follows the extension unless given.
+
+    ``.yaml``/``.yml`` -> sea3d ``rig.yaml``; ``.json`` -> the same schema as JSON; ``.txt`` ->
+    refractive COLMAP parameters; ``format="opencv"`` -> OpenCV FileStorage (MATLAB layout).
+    The file is written to a temporary name first and renamed, so a failure never leaves a
+    half-written rig.
+    """
+    import json
+
+    p = Path(path)
+    if format is None:
+        ext = p.suffix.lower()
+        format = {".json": "json", ".txt": "colmap"}.get(ext, "sea3d")  # type: ignore[assignment]
+    if format == "sea3d":
+        text = rig_to_yaml(rig)
+    elif format == "json":
+        text = json.dumps(rig_to_dict(rig), indent=2) + "\n"
+    elif format == "colmap":
+        text = rig_to_colmap(rig)
+    elif format == "opencv":
+        text = rig_to_opencv_yaml(rig)
+    else:
+        raise RigFileError(f"{p}: unknown rig format {format!r}")
+    _atomic_write(p, text)
+    return p
