@@ -32,6 +32,8 @@ from scipy.optimize import least_squares
 from sea3d.calib._lm import levenberg_marquardt
 from sea3d.calib.targets import Detection
 from sea3d.errors import CalibrationError, ConfigError
+from sea3d.geometry.pinhole import PinholeCamera
+from sea3d.geometry.rig import StereoRig
 
 __all__ = [
     "CalibrationStatus",
@@ -233,6 +235,19 @@ class StereoCalibration:
     def baseline_m(self) -> float:
         """Distance between the camera centres, metres."""
         return float(np.linalg.norm(self.T_left_right[:3, 3]))
+
+    def to_rig(self) -> StereoRig:
+        """The calibrated rig (pinhole cameras).
+
+        Raises:
+            CalibrationError: the calibration failed (there is no rig to give).
+        """
+        if not self.ok or self.left is None or self.right is None:
+            raise CalibrationError(f"no rig: calibration failed ({self.message})")
+        w, h = self.left.image_size
+        return StereoRig(left=PinholeCamera.from_K(self.left.K, w, h, self.left.dist),
+                         right=PinholeCamera.from_K(self.right.K, w, h, self.right.dist),
+                         T_left_right=self.T_left_right)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary (the ``--json`` output)."""

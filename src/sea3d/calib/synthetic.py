@@ -1,0 +1,148 @@
+"""Synthetic board detections: board corners projected through any camera model with known
+poses and pixel noise. Used by tests and benchmarks, and to plan a capture (how many views, at
+which ranges) before going into the water.
+
+For rendered images with blur, haze and caustics use the simulator (``sea3d sim calibration``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from sea3d.calib.targets import BoardSpec, Detection, DetectionStatus
+from sea3d.errors import ConfigError
+from sea3d.geometry.camera import CameraModel
+
+__all__ = ["SyntheticView", "board_poses", "synthetic_detections"]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class SyntheticView:
+    """One synthetic view: the true pose and what each camera detected.
+
+    Attributes:
+        T_left_board: ``(4, 4)`` true board pose in the left (or only) camera, metres.
+        detections: one :class:`Detection` per camera (left first).
+    """
+
+    T_left_board: FloatArray
+    detections: tuple[Detection, ...]
+
+
+def board_poses(camera: CameraModel, board: BoardSpec, n_views: int, rng: np.random.Generator,
+                *, distance_range_m: tuple[float, float] = (0.5, 2.5),
+                max_tilt_deg: float = 45.0) -> list[FloatArray]:
+    """Board poses ``T_cam_board`` (4x4) that spread over the image and the range.
+
+    The board centre is put on the viewing ray of a pixel drawn on a jittered grid over the
+    image (so the views cover it), at a distance spread evenly over ``distance_range_m``, and
+    tilted about both in-plane axes by up to ``max_tilt_deg``, with a small roll.
+
+    Raises:
+        ConfigError: ``n_views < 1`` or a bad range.
+    """
+    if n_views < 1:
+        raise ConfigError(f"n_views must be >= 1; got {n_views}")
+    d0, d1 = distance_range_m
+    if not 0 < d0 <= d1:
+        raise ConfigError(f"distance_range_m must be 0 < near <= far; got {distance_range_m}")
+    _, pts = board.object_points()
+    centre_board = pts.mean(axis=0)
+    w, h = camera.width, camera.height
+    cols = int(np.ceil(np.sqrt(n_views * w / h)))
+    rows = int(np.ceil(n_views / cols))
+    cells = [(c, r) for r in range(rows) for c in range(cols)]
+    order = rng.permutation(len(cells))[:n_views]
+    distances = np.linspace(d0, d1, n_views)[rng.permutation(n_views)]
+    poses = []
+    for k, idx in enumerate(order):
+        c, r = cells[idx]
+        u = (c + rng.uniform(0.2, 0.8)) / cols * w
+        v = (r + rng.uniform(0.2, 0.8)) / rows * h
+        ray = camera.unproject(np.array([[u, v]]))
+        direction = ray.directions[0]
+        if not np.all(np.isfinite(direction)):
+            direction = np.array([0.0, 0.0, 1.0])
+        centre = ray.origins[0] + distances[k] * direction if np.all(
+            np.isfinite(ray.origins[0])) else distances[k] * direction
+        tilt = np.deg2rad(rng.uniform(-max_tilt_deg, max_tilt_deg, size=2))
+        roll = np.deg2rad(rng.uniform(-15.0, 15.0))
+        R = cv2.Rodrigues(np.array([tilt[0], tilt[1], roll]).reshape(3, 1))[0]
+        T = np.eye(4)
+        T[:3, :3] = R
+        T[:3, 3] = centre - R @ centre_board
+        poses.append(T)
+    return poses
+
+
+def _detect(camera: CameraModel, board: BoardSpec, T_cam_board: FloatArray, noise_px: float,
+            rng: np.random.Generator, name: str, min_corners: int,
+            allow_partial: bool) -> Detection:
+    ids, pts = board.object_points()
+    p_cam = pts @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
+    uv, valid = camera.project(p_cam)
+    w, h = camera.width, camera.height
+    inside = valid & (uv[:, 0] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] >= 0) & (
+        uv[:, 1] <= h - 1) & (p_cam[:, 2] > 0)
+    uv = uv[inside] + rng.normal(0.0, noise_px, size=(int(inside.sum()), 2))
+    full = bool(inside.all())
+    if not allow_partial and not full:
+        status = DetectionStatus.NOT_FOUND
+        return Detection(status=status, corners_px=np.zeros((0, 2)),
+                         ids=np.zeros(0, np.int64), points_board_m=np.zeros((0, 3)),
+                         image_size=(w, h), message="board partly outside the image",
+                         name=name)
+    status = DetectionStatus.DETECTED if int(inside.sum()) >= min_corners else (
+        DetectionStatus.PARTIAL if inside.any() else DetectionStatus.NOT_FOUND)
+    return Detection(status=status, corners_px=uv, ids=ids[inside], points_board_m=pts[inside],
+                     image_size=(w, h), message=f"{int(inside.sum())} synthetic corners",
+                     name=name)
+
+
+def synthetic_detections(cameras: Sequence[CameraModel], board: BoardSpec,
+                         poses_left: Sequence[FloatArray], rng: np.random.Generator, *,
+                         T_cam_left: Sequence[FloatArray] | None = None, noise_px: float = 0.15,
+                         min_corners: int = 6, partial_ok: bool = True) -> list[SyntheticView]:
+    """Project the board through each camera for every pose and add Gaussian pixel noise.
+
+    Args:
+        cameras: camera models (left first); any :class:`CameraModel`.
+        board: the board.
+        poses_left: ``T_left_board`` per view.
+        rng: the noise generator.
+        T_cam_left: per camera, the transform from the left camera frame into that camera's
+            frame (``T_right_left`` for the right camera); default identity for the first and
+            required for the others.
+        noise_px: standard deviation of the noise per coordinate, pixels.
+        min_corners: fewer visible corners make the detection ``PARTIAL``.
+        partial_ok: checkerboards: if False (as OpenCV detectors behave), a board partly
+            outside the image is ``NOT_FOUND``; ChArUco and tag grids always allow subsets.
+            If True, checkerboards keep their visible corners.
+
+    Returns:
+        One :class:`SyntheticView` per pose; names ``cam{i}_{k:03d}``.
+    """
+    if T_cam_left is None:
+        if len(cameras) != 1:
+            raise ConfigError("T_cam_left is needed for more than one camera")
+        T_cam_left = [np.eye(4)]
+    if len(T_cam_left) != len(cameras):
+        raise ConfigError("give one T_cam_left per camera")
+    allow_partial = partial_ok or board.kind != "checkerboard"
+    out = []
+    for k, T in enumerate(poses_left):
+        dets = []
+        for i, (cam, T_cl) in enumerate(zip(cameras, T_cam_left, strict=True)):
+            dets.append(_detect(cam, board, T_cl @ T, noise_px, rng, f"cam{i}_{k:03d}",
+                                min_corners, allow_partial))
+        out.append(SyntheticView(T_left_board=np.asarray(T, dtype=np.float64),
+                                 detections=tuple(dets)))
+    return out
+
