@@ -52,6 +52,7 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 _KINDS = ("checkerboard", "charuco", "apriltag", "aruco")
+_ARUCO_TO_CENTRE_PX = 0.5
 _LENGTH_RE = re.compile(r"^\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(mm|cm|m|in)\s*$")
 _UNIT_M = {"mm": 1e-3, "cm": 1e-2, "m": 1.0, "in": 0.0254}
 
@@ -565,6 +566,10 @@ def detect_board(image: NDArray[Any], board: BoardSpec, *, min_corners: int = 0,
         ids = np.asarray(id_list, dtype=np.int64)
         uv = np.asarray(uv_list, dtype=np.float64)
         n_markers = len(marker_ids)
+    # OpenCV's ArUco and ChArUco corners use the pixel-edge convention (the top-left corner of
+    # the top-left pixel is 0, 0); ours puts pixel centres on integers. Measured on rendered
+    # boards: +0.50 px in both axes against findChessboardCorners on the same renderer.
+    uv = uv - _ARUCO_TO_CENTRE_PX
     order = np.argsort(ids, kind="stable")
     ids, uv = ids[order], uv[order]
     # Tags can be seen twice if ids repeat; keep the first of each id.
