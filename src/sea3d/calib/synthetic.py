@@ -38,12 +38,16 @@ class SyntheticView:
 
 def board_poses(camera: CameraModel, board: BoardSpec, n_views: int, rng: np.random.Generator,
                 *, distance_range_m: tuple[float, float] = (0.5, 2.5),
-                max_tilt_deg: float = 45.0) -> list[FloatArray]:
+                max_tilt_deg: float = 45.0, require_inside: bool = True,
+                also_inside: Sequence[tuple[CameraModel, FloatArray]] = ()) -> list[FloatArray]:
     """Board poses ``T_cam_board`` (4x4) that spread over the image and the range.
 
     The board centre is put on the viewing ray of a pixel drawn on a jittered grid over the
     image (so the views cover it), at a distance spread evenly over ``distance_range_m``, and
-    tilted about both in-plane axes by up to ``max_tilt_deg``, with a small roll.
+    tilted about both in-plane axes by up to ``max_tilt_deg``, with a small roll. With
+    ``require_inside``, each pose is redrawn (moving towards the image centre) until every
+    corner is in the image, if that happens within 60 tries; ``also_inside`` lists other
+    cameras ``(camera, T_camera_left)`` that must see the whole board too (a stereo rig).
 
     Raises:
         ConfigError: ``n_views < 1`` or a bad range.
@@ -66,20 +70,45 @@ def board_poses(camera: CameraModel, board: BoardSpec, n_views: int, rng: np.ran
         c, r = cells[idx]
         u = (c + rng.uniform(0.2, 0.8)) / cols * w
         v = (r + rng.uniform(0.2, 0.8)) / rows * h
-        ray = camera.unproject(np.array([[u, v]]))
-        direction = ray.directions[0]
-        if not np.all(np.isfinite(direction)):
-            direction = np.array([0.0, 0.0, 1.0])
-        centre = ray.origins[0] + distances[k] * direction if np.all(
-            np.isfinite(ray.origins[0])) else distances[k] * direction
-        tilt = np.deg2rad(rng.uniform(-max_tilt_deg, max_tilt_deg, size=2))
-        roll = np.deg2rad(rng.uniform(-15.0, 15.0))
-        R = cv2.Rodrigues(np.array([tilt[0], tilt[1], roll]).reshape(3, 1))[0]
         T = np.eye(4)
-        T[:3, :3] = R
-        T[:3, 3] = centre - R @ centre_board
+        for attempt in range(60):
+            # Pull the target towards the image centre until the whole board is in view.
+            pull = min(1.0, attempt / 30.0)
+            uu = u + pull * (w / 2 - u)
+            vv = v + pull * (h / 2 - v)
+            T = _pose_at(camera, centre_board, uu, vv, float(distances[k]), max_tilt_deg, rng)
+            if not require_inside or (_inside(camera, pts, T, margin_px=2.0) and all(
+                    _inside(cam, pts, T_cl @ T, margin_px=2.0) for cam, T_cl in also_inside)):
+                break
         poses.append(T)
     return poses
+
+
+def _pose_at(camera: CameraModel, centre_board: FloatArray, u: float, v: float, distance: float,
+             max_tilt_deg: float, rng: np.random.Generator) -> FloatArray:
+    ray = camera.unproject(np.array([[u, v]]))
+    direction = ray.directions[0]
+    origin = ray.origins[0]
+    if not (np.all(np.isfinite(direction)) and np.all(np.isfinite(origin))):
+        direction, origin = np.array([0.0, 0.0, 1.0]), np.zeros(3)
+    centre = origin + distance * direction
+    tilt = np.deg2rad(rng.uniform(-max_tilt_deg, max_tilt_deg, size=2))
+    roll = np.deg2rad(rng.uniform(-15.0, 15.0))
+    R = cv2.Rodrigues(np.array([tilt[0], tilt[1], roll]).reshape(3, 1))[0]
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = centre - R @ centre_board
+    return T
+
+
+def _inside(camera: CameraModel, pts: FloatArray, T: FloatArray, margin_px: float) -> bool:
+    p = pts @ T[:3, :3].T + T[:3, 3]
+    if np.any(p[:, 2] <= 0):
+        return False
+    uv, valid = camera.project(p)
+    return bool(valid.all() and np.all(uv >= margin_px) and np.all(
+        uv[:, 0] <= camera.width - 1 - margin_px) and np.all(
+        uv[:, 1] <= camera.height - 1 - margin_px))
 
 
 def _detect(camera: CameraModel, board: BoardSpec, T_cam_board: FloatArray, noise_px: float,
