@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.calib._lm import levenberg_marquardt
+from sea3d.calib.stereo import orient_consistently
 from sea3d.calib.targets import Detection
 from sea3d.errors import CalibrationError, ConfigError, RefractionError
 from sea3d.geometry.camera import CameraModel
@@ -72,6 +73,9 @@ class PortCalibConfig:
         point_step_m: central-difference step on 3D points for the projection's derivative.
         port_step_m: central-difference step on port parameters (metres; unitless for the
             flat-port normal components and the focal scale).
+        reject_outliers: leave out views (and, for the extrinsics, pairs) whose RMS is above
+            ``max(median + mad_k * 1.4826 * MAD, min_ratio * median)``, one at a time,
+            refitting after each, at most ``max_rejected_fraction`` of them.
     """
 
     refine_focal: bool = False
@@ -81,6 +85,10 @@ class PortCalibConfig:
     min_corners: int = 6
     point_step_m: float = 1e-6
     port_step_m: float = 1e-6
+    reject_outliers: bool = True
+    mad_k: float = 3.0
+    min_ratio: float = 2.0
+    max_rejected_fraction: float = 0.3
 
     def __post_init__(self) -> None:
         if self.max_iter < 1:
@@ -178,6 +186,7 @@ class PortRigCalibration:
         T_left_right_std: ``(6,)`` standard deviations of the extrinsics (rotation vector, rad;
             translation, m).
         views: names ``(left, right)`` of the pairs used for the extrinsics.
+        views_rejected: ``(left, right, reason)`` of the pairs left out of the extrinsics.
     """
 
     status: PortStatus
@@ -188,6 +197,7 @@ class PortRigCalibration:
     rms_px: float = math.nan
     T_left_right_std: FloatArray = field(default_factory=lambda: np.full(6, np.nan))
     views: tuple[tuple[str, str], ...] = ()
+    views_rejected: tuple[tuple[str, str, str], ...] = ()
 
     @property
     def ok(self) -> bool:
@@ -213,6 +223,8 @@ class PortRigCalibration:
                 "T_left_right": self.T_left_right.tolist(),
                 "T_left_right_std": [float(v) for v in self.T_left_right_std],
                 "views_used": len(self.views),
+                "views_rejected": [{"left": a, "right": b, "reason": r}
+                                   for a, b, r in self.views_rejected],
                 "left": self.left.to_dict(), "right": self.right.to_dict()}
 
 
@@ -327,55 +339,33 @@ def _fail(message: str, rejected: Sequence[tuple[str, str]] = (), **kw: Any) -> 
                            views_rejected=tuple(rejected), **kw)
 
 
-def calibrate_port(detections: Sequence[Detection], pinhole: PinholeCamera,
-                   port: DomePort | FlatPort, config: PortCalibConfig | None = None
-                   ) -> PortCalibration:
-    """Estimate one camera's port parameters and every board pose from in-water detections.
+def _per_view_rms(residuals: FloatArray, offs: NDArray[Any]) -> FloatArray:
+    r = residuals.reshape(-1, 2)
+    return np.array([float(np.sqrt(np.mean(r[offs[v]:offs[v + 1]] ** 2) * 2))
+                     for v in range(len(offs) - 1)])
 
-    Args:
-        detections: board detections in in-water images of this camera.
-        pinhole: the camera's in-air intrinsics (kept fixed unless ``refine_focal``).
-        port: the port's geometry and indices; its centre (dome) or normal and distance (flat)
-            are the starting values (zero centre: a centred camera).
-        config: settings.
+
+def _robust_limit(errors: FloatArray, mad_k: float, min_ratio: float) -> tuple[float, float, float]:
+    med = float(np.median(errors))
+    mad = 1.4826 * float(np.median(np.abs(errors - med)))
+    return max(med + mad_k * mad, min_ratio * med), med, mad
+
+
+def _solve_port(views: Sequence[_View], make: Callable[[FloatArray], PortCamera], x0: FloatArray,
+                n_theta: int, steps: FloatArray, cfg: PortCalibConfig
+                ) -> tuple[Any, NDArray[Any], float] | None:
+    """One LM fit of the port parameters and the board poses of ``views``.
 
     Returns:
-        A :class:`PortCalibration`; ``FAILED`` with the reason when the fit does not converge,
-        gives an RMS above ``config.max_rms_px``, or leaves the port's valid range.
-
-    Raises:
-        CalibrationError: fewer than ``config.min_views`` usable views (names the images),
-            or detections of mixed image sizes or of another size than ``pinhole``.
+        ``(LMResult, offsets of each view's corners, starting RMS px)``, or None when the
+        start cannot image every corner.
     """
-    cfg = config or PortCalibConfig()
-    views, rejected = _usable_views(detections, cfg, "image")
-    for d in detections:
-        if d.image_size not in ((0, 0), (pinhole.width, pinhole.height)):
-            raise CalibrationError(
-                f"{d.name or 'an image'} is {d.image_size[0]}x{d.image_size[1]} but the camera "
-                f"is {pinhole.width}x{pinhole.height}")
-    if len(views) < cfg.min_views:
-        raise CalibrationError(
-            f"port calibration needs at least {cfg.min_views} views with the board; got "
-            f"{len(views)} of {len(detections)} (" + ", ".join(
-                f"{n}: {r}" for n, r in rejected[:4]) + ")")
-    make = _camera_factory(pinhole, port, cfg.refine_focal)
-    theta0 = _port_params(port)
-    if cfg.refine_focal:
-        theta0 = np.append(theta0, 1.0)
-    n_theta = theta0.size
-    poses0 = [_initial_pose(v, pinhole) for v in views]
     counts = [len(v.obj) for v in views]
     offs = np.concatenate([[0], np.cumsum(counts)]).astype(int)
     n_pts = int(offs[-1])
     obj_all = np.concatenate([v.obj for v in views])
     uv_all = np.concatenate([v.uv for v in views])
     n_par = n_theta + 6 * len(views)
-    steps = np.full(n_theta, cfg.port_step_m)
-    if isinstance(port, FlatPort):
-        steps[:2] = 1e-6  # normal components are unitless
-    if cfg.refine_focal:
-        steps[3] = 1e-7
 
     def points_cam(x: FloatArray) -> tuple[FloatArray, list[tuple[FloatArray, FloatArray]]]:
         pts = np.empty((n_pts, 3))
@@ -427,18 +417,90 @@ def calibrate_port(detections: Sequence[Detection], pinhole: PinholeCamera,
             J[:, k] = ((up - um) / (2 * steps[k])).ravel()
         return (uv - uv_all).ravel(), J
 
-    x0 = np.concatenate([theta0, *poses0])
     r0, _ = evaluate(x0, False)
     if not np.all(np.isfinite(r0)):
-        return _fail("the starting port parameters cannot image every corner (a corner lies "
-                     "inside the port or behind the camera)", rejected)
+        return None
     initial_rms = float(np.sqrt(np.mean(r0.reshape(-1, 2) ** 2) * 2))
     sol = levenberg_marquardt(evaluate, x0, max_iter=cfg.max_iter, ftol=1e-10, xtol=1e-10)
+    return sol, offs, initial_rms
+
+
+def calibrate_port(detections: Sequence[Detection], pinhole: PinholeCamera,
+                   port: DomePort | FlatPort, config: PortCalibConfig | None = None
+                   ) -> PortCalibration:
+    """Estimate one camera's port parameters and every board pose from in-water detections.
+
+    Args:
+        detections: board detections in in-water images of this camera.
+        pinhole: the camera's in-air intrinsics (kept fixed unless ``refine_focal``).
+        port: the port's geometry and indices; its centre (dome) or normal and distance (flat)
+            are the starting values (zero centre: a centred camera).
+        config: settings.
+
+    Returns:
+        A :class:`PortCalibration`; ``FAILED`` with the reason when the fit does not converge,
+        gives an RMS above ``config.max_rms_px``, or leaves the port's valid range.
+
+    Raises:
+        CalibrationError: fewer than ``config.min_views`` usable views (names the images),
+            or detections of mixed image sizes or of another size than ``pinhole``.
+    """
+    cfg = config or PortCalibConfig()
+    views, rejected = _usable_views(detections, cfg, "image")
+    for d in detections:
+        if d.image_size not in ((0, 0), (pinhole.width, pinhole.height)):
+            raise CalibrationError(
+                f"{d.name or 'an image'} is {d.image_size[0]}x{d.image_size[1]} but the camera "
+                f"is {pinhole.width}x{pinhole.height}")
+    if len(views) < cfg.min_views:
+        raise CalibrationError(
+            f"port calibration needs at least {cfg.min_views} views with the board; got "
+            f"{len(views)} of {len(detections)} (" + ", ".join(
+                f"{n}: {r}" for n, r in rejected[:4]) + ")")
+    make = _camera_factory(pinhole, port, cfg.refine_focal)
+    theta0 = _port_params(port)
+    if cfg.refine_focal:
+        theta0 = np.append(theta0, 1.0)
+    n_theta = theta0.size
+    poses0 = [_initial_pose(v, pinhole) for v in views]
+    steps = np.full(n_theta, cfg.port_step_m)
+    if isinstance(port, FlatPort):
+        steps[:2] = 1e-6  # normal components are unitless
+    if cfg.refine_focal:
+        steps[3] = 1e-7
+    x0 = np.concatenate([theta0, *poses0])
+    solved = _solve_port(views, make, x0, n_theta, steps, cfg)
+    if solved is None:
+        return _fail("the starting port parameters cannot image every corner (a corner lies "
+                     "inside the port or behind the camera)", rejected)
+    sol, offs, initial_rms = solved
+    n_outliers, max_reject = 0, math.floor(cfg.max_rejected_fraction * len(views))
+    while cfg.reject_outliers:
+        per_view = _per_view_rms(sol.residuals, offs)
+        thr, med, mad = _robust_limit(per_view, cfg.mad_k, cfg.min_ratio)
+        worst = int(np.argmax(per_view))
+        if per_view[worst] <= thr or n_outliers >= max_reject or len(views) - 1 < (
+                cfg.min_views):
+            break
+        reason = (f"reprojection RMS {per_view[worst]:.2f} px through the port is above the "
+                  f"outlier limit {thr:.2f} px (median {med:.2f} px + {cfg.mad_k:g} x robust "
+                  f"spread {mad:.2f} px); a misdetected board (cut at the image edge?), blur "
+                  f"or a bent board")
+        log.info("port calibration: rejecting %s: %s", views[worst].name, reason)
+        rejected.append((views[worst].name, reason))
+        keep = [k for k in range(len(views)) if k != worst]
+        x_keep = np.concatenate([sol.x[:n_theta], *[
+            sol.x[n_theta + 6 * k:n_theta + 6 * k + 6] for k in keep]])
+        views = [views[k] for k in keep]
+        n_outliers += 1
+        solved = _solve_port(views, make, x_keep, n_theta, steps, cfg)
+        if solved is None:
+            return _fail("the port fit failed after rejecting outliers", rejected)
+        sol, offs, _ = solved
     res = sol.residuals
     rms = float(np.sqrt(np.mean(res.reshape(-1, 2) ** 2) * 2))
     theta = sol.x[:n_theta]
-    per_view = np.array([float(np.sqrt(np.mean(
-        res.reshape(-1, 2)[offs[v]:offs[v + 1]] ** 2) * 2)) for v in range(len(views))])
+    per_view = _per_view_rms(res, offs)
     poses = np.stack([_T(sol.x[n_theta + 6 * v:n_theta + 6 * v + 6])
                       for v in range(len(views))])
     cov = _covariance(sol.jac, res)
@@ -483,8 +545,14 @@ def calibrate_port(detections: Sequence[Detection], pinhole: PinholeCamera,
 
 def _stereo_in_water(left_cam: PortCamera, right_cam: PortCamera, pairs: list[tuple[_View, _View]],
                      poses_left: list[FloatArray], T_right_left0: FloatArray, cfg: PortCalibConfig
-                     ) -> tuple[FloatArray, float, FloatArray, bool, str]:
-    """Joint fit of ``T_right_left`` and the board poses with both port cameras fixed."""
+                     ) -> tuple[FloatArray, float, FloatArray, bool, str, FloatArray,
+                                list[FloatArray]]:
+    """Joint fit of ``T_right_left`` and the board poses with both port cameras fixed.
+
+    Returns:
+        ``T_right_left``, RMS px, std of the 6 rig parameters, converged, message, per-pair RMS
+        px, and the fitted board poses (rotation vector + translation) in the left camera.
+    """
     V = len(pairs)
     n_par = 6 + 6 * V
     rig0 = np.concatenate([cv2.Rodrigues(T_right_left0[:3, :3])[0].ravel(), T_right_left0[:3, 3]])
@@ -547,7 +615,12 @@ def _stereo_in_water(left_cam: PortCamera, right_cam: PortCamera, pairs: list[tu
     sol = levenberg_marquardt(evaluate, x0, max_iter=cfg.max_iter, ftol=1e-10, xtol=1e-10)
     rms = float(np.sqrt(np.mean(sol.residuals.reshape(-1, 2) ** 2) * 2))
     std = np.sqrt(np.clip(np.diag(_covariance(sol.jac, sol.residuals))[:6], 0, None))
-    return _T(sol.x[:6]), rms, std, sol.converged, sol.message
+    r = sol.residuals.reshape(-1, 2)
+    r_l, r_r = r[:n_left], r[n_left:]
+    per_pair = np.array([float(np.sqrt(np.mean(np.concatenate(
+        [r_l[off_l[v]:off_l[v + 1]], r_r[off_r[v]:off_r[v + 1]]]) ** 2) * 2)) for v in range(V)])
+    poses = [sol.x[6 + 6 * v:12 + 6 * v].copy() for v in range(V)]
+    return _T(sol.x[:6]), rms, std, sol.converged, sol.message, per_pair, poses
 
 
 def calibrate_port_rig(air_rig: StereoRig, left_port: DomePort | FlatPort,
@@ -580,6 +653,8 @@ def calibrate_port_rig(air_rig: StereoRig, left_port: DomePort | FlatPort,
             raise CalibrationError(f"the in-air rig must hold pinhole cameras, got "
                                    f"{type(cam).__name__}")
         pins.append(pin)
+    # Checkerboard corners can come back in either of two orders; make each pair agree.
+    right = [orient_consistently(dl, dr) for dl, dr in zip(left, right, strict=True)]
     res_l = calibrate_port(left, pins[0], left_port, cfg)
     res_r = calibrate_port(right, pins[1], right_port, cfg)
     if not (res_l.ok and res_r.ok):
@@ -611,18 +686,35 @@ def calibrate_port_rig(air_rig: StereoRig, left_port: DomePort | FlatPort,
                                   message=f"only {len(pairs)} pairs have the board in both "
                                           f"images", left=res_l, right=res_r)
     T0 = _T(np.median(np.asarray(rels), axis=0))
-    T_rl, rms, std, converged, why = _stereo_in_water(res_l.camera, res_r.camera, pairs,
-                                                      poses_left, T0, cfg)
+    T_rl, rms, std, converged, why, per_pair, poses_fit = _stereo_in_water(
+        res_l.camera, res_r.camera, pairs, poses_left, T0, cfg)
+    rejected: list[tuple[str, str, str]] = []
+    max_reject = math.floor(cfg.max_rejected_fraction * len(pairs))
+    while cfg.reject_outliers and converged:
+        thr, med, mad = _robust_limit(per_pair, cfg.mad_k, cfg.min_ratio)
+        worst = int(np.argmax(per_pair))
+        if per_pair[worst] <= thr or len(rejected) >= max_reject or len(pairs) - 1 < max(
+                1, cfg.min_views):
+            break
+        reason = (f"stereo reprojection RMS {per_pair[worst]:.2f} px is above the outlier "
+                  f"limit {thr:.2f} px (median {med:.2f} px + {cfg.mad_k:g} x robust spread "
+                  f"{mad:.2f} px): the two images disagree (a board misdetected in one of them, "
+                  f"e.g. cut at the image edge, or images not taken together)")
+        log.info("in-water extrinsics: rejecting %s / %s: %s", *names[worst], reason)
+        rejected.append((*names[worst], reason))
+        del pairs[worst], names[worst], poses_fit[worst]
+        T_rl, rms, std, converged, why, per_pair, poses_fit = _stereo_in_water(
+            res_l.camera, res_r.camera, pairs, poses_fit, T_rl, cfg)
     T_left_right = np.linalg.inv(T_rl)
     if not converged or not math.isfinite(rms) or rms > cfg.max_rms_px:
         return PortRigCalibration(
             status=PortStatus.FAILED,
             message=f"in-water extrinsics did not converge ({why}, RMS {rms:.3f} px)",
             left=res_l, right=res_r, T_left_right=T_left_right, rms_px=rms,
-            views=tuple(names))
+            views=tuple(names), views_rejected=tuple(rejected))
     return PortRigCalibration(
         status=PortStatus.OK,
         message=f"both ports and the extrinsics calibrated from {len(pairs)} pairs "
                 f"(stereo RMS {rms:.3f} px)",
         left=res_l, right=res_r, T_left_right=T_left_right, rms_px=rms,
-        T_left_right_std=std, views=tuple(names))
+        T_left_right_std=std, views=tuple(names), views_rejected=tuple(rejected))

@@ -17,6 +17,7 @@ The same calibration runs in water; refraction is then absorbed into the pinhole
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import logging
 import math
@@ -286,22 +287,21 @@ class _Pair:
     uv_r: NDArray[np.float32]
 
 
-def _orient_consistently(det_l: Detection, det_r: Detection) -> Detection:
+def orient_consistently(det_l: Detection, det_r: Detection) -> Detection:
     """Checkerboards: make the right image's corner order agree with the left's.
 
     A checkerboard's corners can come back in either of two 180-degree-rotated orders; in a
     stereo pair both images see nearly the same view, so the right order is the one whose first-
     to-last corner direction agrees with the left image's.
     """
-    if len(det_l) != len(det_r) or len(det_l) < 2:
+    if not (det_l.ambiguous_order and det_r.ambiguous_order) or len(det_l) != len(det_r) or (
+            len(det_l) < 2):
         return det_r
     dir_l = det_l.corners_px[-1] - det_l.corners_px[0]
     dir_r = det_r.corners_px[-1] - det_r.corners_px[0]
     if float(dir_l @ dir_r) >= 0:
         return det_r
-    return Detection(status=det_r.status, corners_px=det_r.corners_px[::-1].copy(),
-                     ids=det_r.ids, points_board_m=det_r.points_board_m,
-                     image_size=det_r.image_size, message=det_r.message, name=det_r.name)
+    return dataclasses.replace(det_r, corners_px=det_r.corners_px[::-1].copy())
 
 
 def _check_sizes(dets: Sequence[Detection], side: str) -> tuple[int, int]:
@@ -559,7 +559,7 @@ def _pairs_from_detections(left: Sequence[Detection], right: Sequence[Detection]
         if problems:
             rejected.append(RejectedView(left=nl, right=nr, reason="; ".join(problems)))
             continue
-        dr = _orient_consistently(dl, dr)
+        dr = orient_consistently(dl, dr)
         common, il, ir = np.intersect1d(dl.ids, dr.ids, return_indices=True)
         if len(common) < cfg.min_common_corners:
             rejected.append(RejectedView(

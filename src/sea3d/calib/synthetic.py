@@ -46,7 +46,7 @@ def board_poses(camera: CameraModel, board: BoardSpec, n_views: int, rng: np.ran
     image (so the views cover it), at a distance spread evenly over ``distance_range_m``, and
     tilted about both in-plane axes by up to ``max_tilt_deg``, with a small roll. With
     ``require_inside``, each pose is redrawn (moving towards the image centre) until every
-    corner is in the image, if that happens within 24 tries; ``also_inside`` lists other
+    corner and the board's printed outline are in the image, if that happens within 24 tries; ``also_inside`` lists other
     cameras ``(camera, T_camera_left)`` that must see the whole board too (a stereo rig).
 
     Raises:
@@ -57,8 +57,15 @@ def board_poses(camera: CameraModel, board: BoardSpec, n_views: int, rng: np.ran
     d0, d1 = distance_range_m
     if not 0 < d0 <= d1:
         raise ConfigError(f"distance_range_m must be 0 < near <= far; got {distance_range_m}")
-    _, pts = board.object_points()
-    centre_board = pts.mean(axis=0)
+    _, corners = board.object_points()
+    centre_board = corners.mean(axis=0)
+    from sea3d.calib.targets import board_origin_offset_m
+
+    ox, oy = board_origin_offset_m(board)
+    bw, bh = board.size_m
+    outline = np.array([[-ox, -oy, 0], [bw - ox, -oy, 0], [bw - ox, bh - oy, 0],
+                        [-ox, bh - oy, 0]], dtype=np.float64)
+    pts = np.concatenate([corners, outline])
     w, h = camera.width, camera.height
     cols = int(np.ceil(np.sqrt(n_views * w / h)))
     rows = int(np.ceil(n_views / cols))

@@ -22,6 +22,7 @@ raises on an image in which the board is missing.
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import logging
 import re
@@ -397,6 +398,8 @@ class Detection:
         image_size: ``(width, height)`` pixels of the image searched.
         message: a short human-readable explanation (why nothing was found, ...).
         name: the image's name (file name) when known.
+        ambiguous_order: True for checkerboards: a symmetric pattern whose corner order may
+            come back rotated by 180 degrees (the ids of ChArUco and tag corners are unique).
     """
 
     status: DetectionStatus
@@ -406,6 +409,7 @@ class Detection:
     image_size: tuple[int, int]
     message: str = ""
     name: str = ""
+    ambiguous_order: bool = False
 
     @property
     def ok(self) -> bool:
@@ -417,9 +421,7 @@ class Detection:
 
     def with_name(self, name: str) -> Detection:
         """The same detection with ``name`` set."""
-        return Detection(status=self.status, corners_px=self.corners_px, ids=self.ids,
-                         points_board_m=self.points_board_m, image_size=self.image_size,
-                         message=self.message, name=name)
+        return dataclasses.replace(self, name=name)
 
 
 def _empty(status: DetectionStatus, size: tuple[int, int], message: str) -> Detection:
@@ -478,7 +480,7 @@ def _detect_checkerboard(gray: NDArray[np.uint8], board: BoardSpec, use_sb: bool
     uv = _canonical_checker_order(uv, pattern)
     return Detection(status=DetectionStatus.DETECTED, corners_px=uv, ids=ids,
                      points_board_m=pts, image_size=size,
-                     message=f"{len(uv)} corners ({how})")
+                     message=f"{len(uv)} corners ({how})", ambiguous_order=True)
 
 
 def _canonical_checker_order(uv: FloatArray, pattern: tuple[int, int]) -> FloatArray:
