@@ -18,7 +18,8 @@ from sea3d.refraction import DomePortCamera
 from sea3d.refraction.presets import paper_rig
 
 PAPER_CENTER_M = np.array([-0.54e-3, 0.58e-3, 2.10e-3])
-# Few rendered views at half resolution: a looser check than tests/calib/test_port.py.
+# Seven rendered views at 800x450: a looser check than tests/calib/test_port.py (the CLI is
+# what is tested here, the accuracy there).
 CLI_DOME_CENTER_TOL_M = 0.5e-3
 
 
@@ -96,11 +97,11 @@ def test_stereo_on_opencv_9x6_with_json_and_report(tmp_path: Path, data_dir: Pat
 
 def test_port_cli_on_rendered_in_water_images(tmp_path: Path, rng: np.random.Generator,
                                               capsys: pytest.CaptureFixture[str]) -> None:
-    size = (960, 540)
+    size = (800, 450)
     rig = paper_rig("dome", size_px=size, dome_center_left_m=tuple(PAPER_CENTER_M),
                     dome_center_right_m=tuple(PAPER_CENTER_M))
     board = parse_board("checkerboard:9x6:60mm")
-    poses = board_poses(rig.left, board, 8, rng, distance_range_m=(0.6, 1.6),
+    poses = board_poses(rig.left, board, 7, rng, distance_range_m=(0.6, 1.4),
                         max_tilt_deg=35, also_inside=[(rig.right, rig.T_right_left)])
     for side, cam, T_cl in (("left", rig.left, np.eye(4)), ("right", rig.right,
                                                              rig.T_right_left)):

@@ -25,10 +25,10 @@ from sea3d.geometry.pinhole import PinholeCamera
 from sea3d.geometry.rig import StereoRig
 
 NOISE_PX = 0.15
-# With 0.15 px noise and 20 views the estimates scatter by about 0.05 % in focal length and
-# 0.05 mm in baseline (seen over seeds); the limits leave a factor of about 4.
-FOCAL_REL_TOL = 2e-3
-PRINCIPAL_POINT_TOL_PX = 1.0
+# OpenCV's calibrateCameraExtended on the same 24 synthetic views reports standard deviations
+# of about 0.9 px in fx, fy (0.17 %) and 1.3-1.8 px in cx, cy: the limits are about 3 sigma.
+FOCAL_REL_TOL = 5e-3
+PRINCIPAL_POINT_TOL_PX = 4.0
 BASELINE_TOL_M = 0.3e-3
 ROTATION_TOL_RAD = 1e-3
 # OpenCV comparison: same detections, same model; ours may only be equal or lower.

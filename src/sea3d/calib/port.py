@@ -19,6 +19,7 @@ length (one scale on fx and fy) is refined too.
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import logging
 import math
@@ -76,6 +77,8 @@ class PortCalibConfig:
         reject_outliers: leave out views (and, for the extrinsics, pairs) whose RMS is above
             ``max(median + mad_k * 1.4826 * MAD, min_ratio * median)``, one at a time,
             refitting after each, at most ``max_rejected_fraction`` of them.
+        joint_refinement: stereo: after the extrinsics with fixed ports, refine both ports,
+            the extrinsics and all board poses together.
     """
 
     refine_focal: bool = False
@@ -86,6 +89,7 @@ class PortCalibConfig:
     point_step_m: float = 1e-6
     port_step_m: float = 1e-6
     reject_outliers: bool = True
+    joint_refinement: bool = True
     mad_k: float = 3.0
     min_ratio: float = 2.0
     max_rejected_fraction: float = 0.3
@@ -339,6 +343,16 @@ def _fail(message: str, rejected: Sequence[tuple[str, str]] = (), **kw: Any) -> 
                            views_rejected=tuple(rejected), **kw)
 
 
+def _port_steps(port: DomePort | FlatPort, cfg: PortCalibConfig) -> FloatArray:
+    """Central-difference steps of the port parameters (+ focal scale)."""
+    steps = np.full(4 if cfg.refine_focal else 3, cfg.port_step_m)
+    if isinstance(port, FlatPort):
+        steps[:2] = 1e-6  # normal components are unitless
+    if cfg.refine_focal:
+        steps[3] = 1e-7
+    return steps
+
+
 def _per_view_rms(residuals: FloatArray, offs: NDArray[Any]) -> FloatArray:
     r = residuals.reshape(-1, 2)
     return np.array([float(np.sqrt(np.mean(r[offs[v]:offs[v + 1]] ** 2) * 2))
@@ -463,11 +477,7 @@ def calibrate_port(detections: Sequence[Detection], pinhole: PinholeCamera,
         theta0 = np.append(theta0, 1.0)
     n_theta = theta0.size
     poses0 = [_initial_pose(v, pinhole) for v in views]
-    steps = np.full(n_theta, cfg.port_step_m)
-    if isinstance(port, FlatPort):
-        steps[:2] = 1e-6  # normal components are unitless
-    if cfg.refine_focal:
-        steps[3] = 1e-7
+    steps = _port_steps(port, cfg)
     x0 = np.concatenate([theta0, *poses0])
     solved = _solve_port(views, make, x0, n_theta, steps, cfg)
     if solved is None:
@@ -543,32 +553,62 @@ def calibrate_port(detections: Sequence[Detection], pinhole: PinholeCamera,
                            views_rejected=tuple(rejected), **kw)
 
 
-def _stereo_in_water(left_cam: PortCamera, right_cam: PortCamera, pairs: list[tuple[_View, _View]],
-                     poses_left: list[FloatArray], T_right_left0: FloatArray, cfg: PortCalibConfig
-                     ) -> tuple[FloatArray, float, FloatArray, bool, str, FloatArray,
-                                list[FloatArray]]:
-    """Joint fit of ``T_right_left`` and the board poses with both port cameras fixed.
+@dataclass
+class _PortModel:
+    """A port camera as a function of its parameters (for joint refinement)."""
+
+    make: Callable[[FloatArray], PortCamera]
+    theta: FloatArray
+    steps: FloatArray
+
+
+def _stereo_in_water(left: _PortModel, right: _PortModel, pairs: list[tuple[_View, _View]],
+                     poses_left: list[FloatArray], T_right_left0: FloatArray,
+                     cfg: PortCalibConfig, refine_ports: bool
+                     ) -> dict[str, Any]:
+    """Fit ``T_right_left`` and the board poses (and, with ``refine_ports``, both cameras' port
+    parameters) to the pairs' corners through both port models.
+
+    Parameters: ``[rvec, t]`` of ``T_right_left``, the board pose in the left camera for every
+    pair, then the port parameters of the left and right camera when refined.
 
     Returns:
-        ``T_right_left``, RMS px, std of the 6 rig parameters, converged, message, per-pair RMS
-        px, and the fitted board poses (rotation vector + translation) in the left camera.
+        A dict: ``T_right_left``, ``rms_px``, ``std`` (all parameters), ``converged``,
+        ``message``, ``per_pair_rms_px``, ``poses`` (rvec + t per pair), ``theta_left``,
+        ``theta_right``.
     """
     V = len(pairs)
-    n_par = 6 + 6 * V
+    n_tl = left.theta.size if refine_ports else 0
+    n_tr = right.theta.size if refine_ports else 0
+    col_tl = 6 + 6 * V
+    col_tr = col_tl + n_tl
+    n_par = col_tr + n_tr
     rig0 = np.concatenate([cv2.Rodrigues(T_right_left0[:3, :3])[0].ravel(), T_right_left0[:3, 3]])
-    x0 = np.concatenate([rig0, *poses_left])
+    x0 = np.concatenate([rig0, *poses_left, left.theta[:n_tl], right.theta[:n_tr]])
     n_l = [len(p[0].obj) for p in pairs]
     n_r = [len(p[1].obj) for p in pairs]
     h = cfg.point_step_m
-
     off_l = np.concatenate([[0], np.cumsum(n_l)]).astype(int)
     off_r = np.concatenate([[0], np.cumsum(n_r)]).astype(int)
     uv_obs = np.concatenate([np.concatenate([p[0].uv for p in pairs]),
                              np.concatenate([p[1].uv for p in pairs])])
     n_left = int(off_l[-1])
     n_all = n_left + int(off_r[-1])
+    fixed_l = None if refine_ports else left.make(left.theta)
+    fixed_r = None if refine_ports else right.make(right.theta)
+
+    def cameras(x: FloatArray) -> tuple[PortCamera, PortCamera]:
+        if not refine_ports:
+            assert fixed_l is not None and fixed_r is not None
+            return fixed_l, fixed_r
+        return left.make(x[col_tl:col_tr]), right.make(x[col_tr:n_par])
 
     def evaluate(x: FloatArray, want_jac: bool) -> tuple[FloatArray, FloatArray | None]:
+        bad = np.full(2 * n_all, np.inf)
+        try:
+            cam_l, cam_r = cameras(x)
+        except RefractionError:
+            return bad, None
         R_rig, dR_rig = _rodrigues_jac(x[:3])
         t_rig = x[3:6]
         rots = []
@@ -581,15 +621,14 @@ def _stereo_in_water(left_cam: PortCamera, right_cam: PortCamera, pairs: list[tu
             pl[off_l[v]:off_l[v + 1]] = vl.obj @ R.T + pose[3:]
             pr_left[off_r[v]:off_r[v + 1]] = vr.obj @ R.T + pose[3:]
         pr = pr_left @ R_rig.T + t_rig
-        bad = np.full(2 * n_all, np.inf)
         if not want_jac:
-            uv_l, ok_l = left_cam.project(pl)
-            uv_r, ok_r = right_cam.project(pr)
+            uv_l, ok_l = cam_l.project(pl)
+            uv_r, ok_r = cam_r.project(pr)
             if not (ok_l.all() and ok_r.all()):
                 return bad, None
             return (np.concatenate([uv_l, uv_r]) - uv_obs).ravel(), None
-        uv_l, Dl = _project_with_point_jac(left_cam, pl, h)
-        uv_r, Dr = _project_with_point_jac(right_cam, pr, h)
+        uv_l, Dl = _project_with_point_jac(cam_l, pl, h)
+        uv_r, Dr = _project_with_point_jac(cam_r, pr, h)
         if Dl is None or Dr is None:
             return bad, None
         J = np.zeros((2 * n_all, n_par))
@@ -610,17 +649,38 @@ def _stereo_in_water(left_cam: PortCamera, right_cam: PortCamera, pairs: list[tu
         for k in range(3):
             Jr[:, k] = np.einsum("nij,nj->ni", Dr, pr_left @ dR_rig[:, :, k].T).ravel()
         Jr[:, 3:6] = Dr.reshape(-1, 3)
+        for model, pts, rows, col0, n_t in ((left, pl, Jl, col_tl, n_tl),
+                                            (right, pr, Jr, col_tr, n_tr)):
+            theta = x[col0:col0 + n_t]
+            for k in range(n_t):
+                tp, tm = theta.copy(), theta.copy()
+                tp[k] += model.steps[k]
+                tm[k] -= model.steps[k]
+                try:
+                    up, vp = model.make(tp).project(pts)
+                    um, vm = model.make(tm).project(pts)
+                except RefractionError:
+                    return bad, None
+                if not (vp.all() and vm.all()):
+                    return bad, None
+                rows[:, col0 + k] = ((up - um) / (2 * model.steps[k])).ravel()
         return (np.concatenate([uv_l, uv_r]) - uv_obs).ravel(), J
 
     sol = levenberg_marquardt(evaluate, x0, max_iter=cfg.max_iter, ftol=1e-10, xtol=1e-10)
     rms = float(np.sqrt(np.mean(sol.residuals.reshape(-1, 2) ** 2) * 2))
-    std = np.sqrt(np.clip(np.diag(_covariance(sol.jac, sol.residuals))[:6], 0, None))
+    std = np.sqrt(np.clip(np.diag(_covariance(sol.jac, sol.residuals)), 0, None))
     r = sol.residuals.reshape(-1, 2)
     r_l, r_r = r[:n_left], r[n_left:]
     per_pair = np.array([float(np.sqrt(np.mean(np.concatenate(
         [r_l[off_l[v]:off_l[v + 1]], r_r[off_r[v]:off_r[v + 1]]]) ** 2) * 2)) for v in range(V)])
-    poses = [sol.x[6 + 6 * v:12 + 6 * v].copy() for v in range(V)]
-    return _T(sol.x[:6]), rms, std, sol.converged, sol.message, per_pair, poses
+    return {
+        "T_right_left": _T(sol.x[:6]), "rms_px": rms, "std": std,
+        "converged": sol.converged, "message": sol.message, "per_pair_rms_px": per_pair,
+        "poses": [sol.x[6 + 6 * v:12 + 6 * v].copy() for v in range(V)],
+        "theta_left": sol.x[col_tl:col_tr].copy() if refine_ports else left.theta,
+        "theta_right": sol.x[col_tr:n_par].copy() if refine_ports else right.theta,
+        "std_left": std[col_tl:col_tr], "std_right": std[col_tr:n_par],
+    }
 
 
 def calibrate_port_rig(air_rig: StereoRig, left_port: DomePort | FlatPort,
@@ -686,11 +746,20 @@ def calibrate_port_rig(air_rig: StereoRig, left_port: DomePort | FlatPort,
                                   message=f"only {len(pairs)} pairs have the board in both "
                                           f"images", left=res_l, right=res_r)
     T0 = _T(np.median(np.asarray(rels), axis=0))
-    T_rl, rms, std, converged, why, per_pair, poses_fit = _stereo_in_water(
-        res_l.camera, res_r.camera, pairs, poses_left, T0, cfg)
+    models = []
+    for pin, port, res in ((pins[0], left_port, res_l), (pins[1], right_port, res_r)):
+        theta = _port_params(res.camera) if res.camera is not None else _port_params(port)
+        if cfg.refine_focal:
+            theta = np.append(theta, res.focal_scale)
+        models.append(_PortModel(make=_camera_factory(pin, port, cfg.refine_focal), theta=theta,
+                                 steps=_port_steps(port, cfg)))
+    # First the extrinsics with both ports fixed (robust start, outlier pairs), then everything
+    # jointly so that the dome centres' uncertainty enters the extrinsics' and vice versa.
+    fit = _stereo_in_water(models[0], models[1], pairs, poses_left, T0, cfg, refine_ports=False)
     rejected: list[tuple[str, str, str]] = []
     max_reject = math.floor(cfg.max_rejected_fraction * len(pairs))
-    while cfg.reject_outliers and converged:
+    while cfg.reject_outliers and fit["converged"]:
+        per_pair = fit["per_pair_rms_px"]
         thr, med, mad = _robust_limit(per_pair, cfg.mad_k, cfg.min_ratio)
         worst = int(np.argmax(per_pair))
         if per_pair[worst] <= thr or len(rejected) >= max_reject or len(pairs) - 1 < max(
@@ -702,19 +771,52 @@ def calibrate_port_rig(air_rig: StereoRig, left_port: DomePort | FlatPort,
                   f"e.g. cut at the image edge, or images not taken together)")
         log.info("in-water extrinsics: rejecting %s / %s: %s", *names[worst], reason)
         rejected.append((*names[worst], reason))
+        poses_fit = fit["poses"]
         del pairs[worst], names[worst], poses_fit[worst]
-        T_rl, rms, std, converged, why, per_pair, poses_fit = _stereo_in_water(
-            res_l.camera, res_r.camera, pairs, poses_fit, T_rl, cfg)
-    T_left_right = np.linalg.inv(T_rl)
+        fit = _stereo_in_water(models[0], models[1], pairs, poses_fit, fit["T_right_left"], cfg,
+                               refine_ports=False)
+    joint = cfg.joint_refinement and fit["converged"]
+    if joint:
+        fit = _stereo_in_water(models[0], models[1], pairs, fit["poses"], fit["T_right_left"],
+                               cfg, refine_ports=True)
+    rms, converged = fit["rms_px"], fit["converged"]
+    T_left_right = np.linalg.inv(fit["T_right_left"])
     if not converged or not math.isfinite(rms) or rms > cfg.max_rms_px:
         return PortRigCalibration(
             status=PortStatus.FAILED,
-            message=f"in-water extrinsics did not converge ({why}, RMS {rms:.3f} px)",
+            message=f"in-water extrinsics did not converge ({fit['message']}, RMS {rms:.3f} px)",
             left=res_l, right=res_r, T_left_right=T_left_right, rms_px=rms,
             views=tuple(names), views_rejected=tuple(rejected))
+    if joint:
+        try:
+            res_l = _with_joint(res_l, models[0], fit["theta_left"], fit["std_left"], left_port)
+            res_r = _with_joint(res_r, models[1], fit["theta_right"], fit["std_right"],
+                                right_port)
+        except RefractionError as err:
+            return PortRigCalibration(
+                status=PortStatus.FAILED, message=f"joint refinement left the port's valid "
+                                                  f"range: {err}", left=res_l, right=res_r)
     return PortRigCalibration(
         status=PortStatus.OK,
         message=f"both ports and the extrinsics calibrated from {len(pairs)} pairs "
-                f"(stereo RMS {rms:.3f} px)",
+                f"(stereo RMS {rms:.3f} px{', refined jointly' if joint else ''})",
         left=res_l, right=res_r, T_left_right=T_left_right, rms_px=rms,
-        T_left_right_std=std, views=tuple(names), views_rejected=tuple(rejected))
+        T_left_right_std=fit["std"][:6], views=tuple(names), views_rejected=tuple(rejected))
+
+
+def _with_joint(res: PortCalibration, model: _PortModel, theta: FloatArray, std: FloatArray,
+                port: DomePort | FlatPort) -> PortCalibration:
+    """``res`` with the port parameters (and focal scale) of the joint stereo refinement."""
+    cam = model.make(theta)
+    kw: dict[str, Any] = {"camera": cam, "port_std": std[:3].copy()}
+    if isinstance(port, DomePort):
+        kw["dome_center_m"] = theta[:3].copy()
+        kw["dome_center_std_m"] = std[:3].copy()
+    else:
+        assert isinstance(cam, FlatPortCamera)
+        kw["normal"] = np.asarray(cam.port.normal).copy()
+        kw["distance_m"] = float(cam.port.distance_m)
+    if theta.size > 3:
+        kw["focal_scale"] = float(theta[3])
+        kw["focal_scale_std"] = float(std[3])
+    return dataclasses.replace(res, **kw)
