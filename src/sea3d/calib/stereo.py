@@ -21,6 +21,7 @@ import dataclasses
 import enum
 import logging
 import math
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -28,6 +29,7 @@ from typing import Any
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+import scipy.sparse
 from scipy.optimize import least_squares
 
 from sea3d.calib._lm import levenberg_marquardt
@@ -212,6 +214,8 @@ class StereoCalibration:
         guidance: plain-words advice: what to capture next and whether to trust the result.
         verdict: ``"trusted"``, ``"usable with care"`` or ``"not trusted"``.
         config: the settings used.
+        timings_s: seconds per stage: ``fit`` (mono + joint refinement), ``rejection``
+            (refits after rejections), ``opencv_start``, ``holdout``, ``total``.
     """
 
     status: CalibrationStatus
@@ -227,6 +231,7 @@ class StereoCalibration:
     guidance: tuple[str, ...] = ()
     verdict: str = "not trusted"
     config: StereoCalibConfig = field(default_factory=StereoCalibConfig)
+    timings_s: dict[str, float] = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
@@ -409,11 +414,27 @@ def _refine_stereo(pairs: Sequence[_Pair], fit: _Fit, flags: int,
         *[np.concatenate([r, t]) for r, t in zip(fit.rvecs, fit.tvecs, strict=True)]])
     cam_cols = [6, 7, 8, 9, *[10 + i for i in free]]  # projectPoints jacobian: fx fy cx cy dist
 
-    def evaluate(x: FloatArray, want_jac: bool) -> tuple[FloatArray, FloatArray | None]:
+    # Sparsity pattern of the Jacobian, fixed for the problem: per view, the left rows touch
+    # camera 1 and the view's pose, the right rows camera 2, the view's pose and the rig.
+    pat_rows, pat_cols = [], []
+    for v in range(V):
+        n = counts[v]
+        a = int(offs[v])
+        pcol = pose0 + 6 * v
+        cols_l = np.r_[0:n_cam, pcol:pcol + 6]
+        cols_r = np.r_[n_cam:2 * n_cam, pcol:pcol + 6, rig0:rig0 + 6]
+        rl = np.arange(a, a + 2 * n)
+        rr = np.arange(a + 2 * n, a + 4 * n)
+        pat_rows += [np.repeat(rl, cols_l.size), np.repeat(rr, cols_r.size)]
+        pat_cols += [np.tile(cols_l, rl.size), np.tile(cols_r, rr.size)]
+    rows_idx = np.concatenate(pat_rows)
+    cols_idx = np.concatenate(pat_cols)
+
+    def evaluate(x: FloatArray, want_jac: bool) -> tuple[FloatArray, Any]:
         K1, dd1, K2, dd2 = unpack(x)
         rv_rig, tv_rig = x[rig0:rig0 + 3], x[rig0 + 3:rig0 + 6]
         res = np.empty(n_res)
-        jac = np.zeros((n_res, n_par)) if want_jac else None
+        blocks = []
         for v in range(V):
             rv, tv = x[pose0 + 6 * v:pose0 + 6 * v + 3], x[pose0 + 6 * v + 3:pose0 + 6 * v + 6]
             n = counts[v]
@@ -424,19 +445,19 @@ def _refine_stereo(pairs: Sequence[_Pair], fit: _Fit, flags: int,
             uv_r, J_r = cv2.projectPoints(objs[v], rv3, tv3, K2, dd2)
             res[a:a + 2 * n] = (uv_l.reshape(-1, 2) - uvl[v]).ravel()
             res[a + 2 * n:a + 4 * n] = (uv_r.reshape(-1, 2) - uvr[v]).ravel()
-            if jac is None:
+            if not want_jac:
                 continue
-            pcol = pose0 + 6 * v
-            jac[a:a + 2 * n, 0:n_cam] = J_l[:, cam_cols]
-            jac[a:a + 2 * n, pcol:pcol + 3] = J_l[:, 0:3]
-            jac[a:a + 2 * n, pcol + 3:pcol + 6] = J_l[:, 3:6]
-            b = a + 2 * n
-            jac[b:b + 2 * n, n_cam:2 * n_cam] = J_r[:, cam_cols]
             Jr_r, Jr_t = J_r[:, 0:3], J_r[:, 3:6]
-            jac[b:b + 2 * n, pcol:pcol + 3] = Jr_r @ dr3dr1 + Jr_t @ dt3dr1
-            jac[b:b + 2 * n, pcol + 3:pcol + 6] = Jr_r @ dr3dt1 + Jr_t @ dt3dt1
-            jac[b:b + 2 * n, rig0:rig0 + 3] = Jr_r @ dr3dr2 + Jr_t @ dt3dr2
-            jac[b:b + 2 * n, rig0 + 3:rig0 + 6] = Jr_r @ dr3dt2 + Jr_t @ dt3dt2
+            left_block = np.concatenate([J_l[:, cam_cols], J_l[:, 0:6]], axis=1)
+            right_block = np.concatenate([
+                J_r[:, cam_cols],
+                Jr_r @ dr3dr1 + Jr_t @ dt3dr1, Jr_r @ dr3dt1 + Jr_t @ dt3dt1,
+                Jr_r @ dr3dr2 + Jr_t @ dt3dr2, Jr_r @ dr3dt2 + Jr_t @ dt3dt2], axis=1)
+            blocks += [left_block.ravel(), right_block.ravel()]
+        if not want_jac:
+            return res, None
+        jac = scipy.sparse.csr_matrix((np.concatenate(blocks), (rows_idx, cols_idx)),
+                                      shape=(n_res, n_par))
         return res, jac
 
     sol = levenberg_marquardt(evaluate, x0, max_iter=max_nfev, ftol=ftol)
@@ -495,7 +516,8 @@ def _opencv_start_fit(pairs: Sequence[_Pair], size: tuple[int, int], flags: int)
 
 
 def _fit(pairs: Sequence[_Pair], size: tuple[int, int], flags: int,
-         init: _Fit | None = None, skip: int | None = None, ftol: float = 1e-12) -> _Fit:
+         init: _Fit | None = None, skip: int | None = None, ftol: float = 1e-12,
+         max_iter: int = 200) -> _Fit:
     """Initial mono calibrations (unless ``init``), then the joint stereo refinement.
 
     With ``init`` and ``skip``, ``init`` holds poses for all of ``pairs`` and ``skip`` names
@@ -508,7 +530,7 @@ def _fit(pairs: Sequence[_Pair], size: tuple[int, int], flags: int,
         start = _Fit(K1=init.K1, d1=init.d1, K2=init.K2, d2=init.d2, R=init.R, T=init.T,
                      rvecs=[init.rvecs[k] for k in keep], tvecs=[init.tvecs[k] for k in keep],
                      rms=init.rms)
-    return _refine_stereo(pairs, start, flags, ftol=ftol)
+    return _refine_stereo(pairs, start, flags, ftol=ftol, max_nfev=max_iter)
 
 
 def _view_residuals(fit: _Fit, pair: _Pair, rvec: FloatArray,
@@ -624,12 +646,16 @@ def calibrate_stereo(left: Sequence[Detection], right: Sequence[Detection],
             f"{len(right)} right images, giving {len(pairs)} usable pairs; at least "
             f"{cfg.min_views} are needed (not found in: {', '.join(missing) or '-'})")
     flags = _DISTORTION_FLAGS[cfg.distortion]
+    timings: dict[str, float] = {}
+    t_start = t0 = time.perf_counter()
     try:
         fit = _fit(pairs, size, flags)
     except cv2.error as err:
         return StereoCalibration(status=CalibrationStatus.FAILED,
                                  message=f"OpenCV calibration failed: {err.msg}",
                                  views_rejected=tuple(rejected), detections=dets, config=cfg)
+    timings["fit"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
     n_usable = len(pairs)
     max_reject = math.floor(cfg.max_rejected_fraction * n_usable)
     n_outliers = 0
@@ -658,6 +684,8 @@ def calibrate_stereo(left: Sequence[Detection], right: Sequence[Detection],
                                      message=f"OpenCV calibration failed: {err.msg}",
                                      views_rejected=tuple(rejected), detections=dets,
                                      config=cfg)
+    timings["rejection"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
     if cfg.opencv_start:
         alt = _opencv_start_fit(pairs, size, flags)
         if alt is not None:
@@ -671,13 +699,15 @@ def calibrate_stereo(left: Sequence[Detection], right: Sequence[Detection],
                                  message="calibration gave non-finite parameters",
                                  views_rejected=tuple(rejected), detections=dets, config=cfg)
 
+    timings["opencv_start"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
     holdout = np.full(len(pairs), np.nan)
     holdout_sq: list[FloatArray] = []
     if cfg.holdout and len(pairs) > cfg.min_views - 1 and len(pairs) >= 4:
         for k in range(len(pairs)):
             rest = pairs[:k] + pairs[k + 1:]
             try:
-                fold = _fit(rest, size, flags, init=fit, skip=k, ftol=1e-8)
+                fold = _fit(rest, size, flags, init=fit, skip=k, ftol=1e-8, max_iter=4)
                 rv, tv = _holdout_pose(fold, pairs[k])
                 rl, rr = _view_residuals(fold, pairs[k], rv, tv)
             except cv2.error as err:
@@ -688,6 +718,7 @@ def calibrate_stereo(left: Sequence[Detection], right: Sequence[Detection],
             holdout_sq.append(np.sum(both**2, axis=1))
     holdout_px = float(np.sqrt(np.mean(np.concatenate(holdout_sq)))) if holdout_sq else math.nan
 
+    timings["holdout"] = time.perf_counter() - t0
     views = []
     all_l, all_r, used_l, used_r = [], [], [], []
     for k, p in enumerate(pairs):
@@ -720,8 +751,9 @@ def calibrate_stereo(left: Sequence[Detection], right: Sequence[Detection],
         left=cam_l, right=cam_r, T_left_right=T_left_right, rms_px=rms, holdout_px=holdout_px,
         views=tuple(views), views_rejected=tuple(rejected), detections=dets, config=cfg)
     verdict, guidance = assess(result)
-    return StereoCalibration(**{**result.__dict__, "verdict": verdict,
-                                "guidance": tuple(guidance)})
+    timings["total"] = time.perf_counter() - t_start
+    return dataclasses.replace(result, verdict=verdict, guidance=tuple(guidance),
+                               timings_s=timings)
 
 
 _REGION_NAMES = {(0, 0): "top-left", (0, 1): "top", (0, 2): "top-right",
