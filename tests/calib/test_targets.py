@@ -217,7 +217,7 @@ def test_board_pdf_has_true_scale_squares_on_a0() -> None:
         assert r[3] == pytest.approx(side_pt, abs=PDF_SCALE_TOL_PT)
     xs = sorted({round(r[0], 3) for r in squares})
     np.testing.assert_allclose(np.diff(xs), side_pt, atol=2 * PDF_SCALE_TOL_PT)
-    bar = [r for r in rects if r[3] <= 10][0]
+    bar = next(r for r in rects if r[3] <= 10)
     assert bar[2] == pytest.approx(0.1 * PT_PER_M, abs=PDF_SCALE_TOL_PT)  # 100 mm scale bar
 
 

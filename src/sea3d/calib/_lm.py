@@ -49,11 +49,11 @@ class LMResult:
         return float(self.residuals @ self.residuals)
 
 
-def _normal_equations(J: FloatArray, r: FloatArray) -> tuple[FloatArray, FloatArray]:
+def _normal_equations(J: Any, r: FloatArray) -> tuple[FloatArray, FloatArray]:
     """``J^T J`` and ``J^T r``. Calibration Jacobians are block-sparse (each view touches its own
     pose and the shared parameters only), so the product goes through a sparse matrix: faster
     than a dense product and free of BLAS thread start-up on small problems."""
-    Js = J if scipy.sparse.issparse(J) else scipy.sparse.csr_matrix(J)
+    Js: Any = J if scipy.sparse.issparse(J) else scipy.sparse.csr_matrix(J)
     JT = Js.T.tocsr()
     return np.asarray((JT @ Js).toarray()), np.asarray(JT @ r)
 

@@ -286,7 +286,8 @@ def _rodrigues_jac(rvec: FloatArray) -> tuple[FloatArray, FloatArray]:
     """``R (3, 3)`` and ``dR/drvec (3, 3, 3)`` (last index: rvec component)."""
     R, J = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3, 1))
     # OpenCV's J is (3, 9): row k = d vec(R) / d rvec_k, vec row-major.
-    return R, J.reshape(3, 3, 3).transpose(1, 2, 0)
+    return (np.asarray(R, dtype=np.float64),
+            np.asarray(J, dtype=np.float64).reshape(3, 3, 3).transpose(1, 2, 0))
 
 
 @dataclass
@@ -332,7 +333,7 @@ def _covariance(J: FloatArray, residuals: FloatArray) -> FloatArray:
     dof = max(m - p, 1)
     sigma2 = float(residuals @ residuals) / dof
     try:
-        return sigma2 * np.linalg.inv(J.T @ J)
+        return np.asarray(sigma2 * np.linalg.inv(J.T @ J), dtype=np.float64)
     except np.linalg.LinAlgError:
         return np.full((p, p), np.nan)
 

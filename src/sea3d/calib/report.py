@@ -78,7 +78,8 @@ def _coverage_image(result: StereoCalibration, side: str,
         bg = np.asarray(background)
         if bg.ndim == 2:
             bg = np.stack([bg] * 3, axis=2)
-        img = cv2.resize(bg[:, :, :3].astype(np.uint8), (img.shape[1], img.shape[0]))
+        img = np.asarray(cv2.resize(bg[:, :, :3].astype(np.uint8),
+                                    (img.shape[1], img.shape[0])), dtype=np.uint8)
     norm = np.clip(counts / max(1.0, float(counts.max())), 0, 1)
     heat = cv2.applyColorMap((norm * 255).astype(np.uint8), cv2.COLORMAP_VIRIDIS)
     heat = cv2.cvtColor(heat, cv2.COLOR_BGR2RGB)
@@ -95,7 +96,7 @@ def _coverage_image(result: StereoCalibration, side: str,
                 cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 2, cv2.LINE_AA)
     cv2.putText(out, f"{side}: coverage {cam.coverage:.0%} (red: no corners)", (8, 20),
                 cv2.FONT_HERSHEY_SIMPLEX, 0.55, (0, 0, 0), 1, cv2.LINE_AA)
-    return out
+    return np.asarray(out, dtype=np.uint8)
 
 
 def rectified_pair(result: StereoCalibration, left_image: NDArray[Any],
@@ -141,7 +142,7 @@ def rectified_pair(result: StereoCalibration, left_image: NDArray[Any],
     for k in range(n_lines):
         y = round((k + 0.5) * h / n_lines)
         cv2.line(pair, (0, y), (pair.shape[1] - 1, y), colours[k % len(colours)], 1)
-    return pair
+    return np.asarray(pair, dtype=np.uint8)
 
 
 def _bar(value: float, vmax: float, colour: str) -> str:

@@ -28,8 +28,8 @@ from typing import Any
 
 import cv2
 import numpy as np
-from numpy.typing import NDArray
 import scipy.sparse
+from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from sea3d.calib._lm import levenberg_marquardt
@@ -339,7 +339,7 @@ def _coverage(corners: Sequence[FloatArray], size: tuple[int, int],
 def _project(obj: NDArray[Any], rvec: NDArray[Any], tvec: NDArray[Any], K: FloatArray,
              dist: FloatArray) -> FloatArray:
     uv, _ = cv2.projectPoints(obj.reshape(-1, 1, 3).astype(np.float64), rvec, tvec, K, dist)
-    return uv.reshape(-1, 2)
+    return np.asarray(uv, dtype=np.float64).reshape(-1, 2)
 
 
 def _rms(res: FloatArray) -> float:
@@ -465,7 +465,8 @@ def _refine_stereo(pairs: Sequence[_Pair], fit: _Fit, flags: int,
     x = sol.x
     K1, dd1, K2, dd2 = unpack(x)
     res = sol.residuals
-    return _Fit(K1=K1, d1=dd1, K2=K2, d2=dd2, R=cv2.Rodrigues(x[rig0:rig0 + 3])[0],
+    return _Fit(K1=K1, d1=dd1, K2=K2, d2=dd2,
+                R=np.asarray(cv2.Rodrigues(x[rig0:rig0 + 3])[0], dtype=np.float64),
                 T=x[rig0 + 3:rig0 + 6].copy(),
                 rvecs=[x[pose0 + 6 * v:pose0 + 6 * v + 3].copy() for v in range(V)],
                 tvecs=[x[pose0 + 6 * v + 3:pose0 + 6 * v + 6].copy() for v in range(V)],
@@ -474,11 +475,13 @@ def _refine_stereo(pairs: Sequence[_Pair], fit: _Fit, flags: int,
 
 def _initial_fit(pairs: Sequence[_Pair], size: tuple[int, int], flags: int) -> _Fit:
     """Mono calibrations (OpenCV), then the rig from the median of the per-view relative poses."""
-    obj = [p.obj for p in pairs]
+    obj: list[Any] = [p.obj for p in pairs]
+    uv_l: list[Any] = [p.uv_l for p in pairs]
+    uv_r: list[Any] = [p.uv_r for p in pairs]
     criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-9)
-    _, K1, d1, rv1, tv1 = cv2.calibrateCamera(obj, [p.uv_l for p in pairs], size, None, None,
+    _, K1, d1, rv1, tv1 = cv2.calibrateCamera(obj, uv_l, size, None, None,  # type: ignore[call-overload]
                                               flags=flags, criteria=criteria)
-    _, K2, d2, rv2, tv2 = cv2.calibrateCamera(obj, [p.uv_r for p in pairs], size, None, None,
+    _, K2, d2, rv2, tv2 = cv2.calibrateCamera(obj, uv_r, size, None, None,  # type: ignore[call-overload]
                                               flags=flags, criteria=criteria)
     rels = []
     for a, b, c, d in zip(rv1, tv1, rv2, tv2, strict=True):
@@ -501,7 +504,7 @@ def _opencv_start_fit(pairs: Sequence[_Pair], size: tuple[int, int], flags: int)
     """
     start = _initial_fit(pairs, size, flags)
     try:
-        out = cv2.stereoCalibrateExtended(
+        out = cv2.stereoCalibrateExtended(  # type: ignore[call-overload]
             [p.obj for p in pairs], [p.uv_l for p in pairs], [p.uv_r for p in pairs],
             start.K1.copy(), start.d1.copy(), start.K2.copy(), start.d2.copy(), size,
             None, None, flags=flags | cv2.CALIB_USE_INTRINSIC_GUESS,
@@ -727,7 +730,7 @@ def calibrate_stereo(left: Sequence[Detection], right: Sequence[Detection],
         all_r.append(rr)
         used_l.append(p.uv_l.reshape(-1, 2).astype(np.float64))
         used_r.append(p.uv_r.reshape(-1, 2).astype(np.float64))
-        dist_m, tilt = _pose_stats(fit.rvecs[k], fit.tvecs[k], p.obj)
+        dist_m, tilt = _pose_stats(fit.rvecs[k], fit.tvecs[k], p.obj.astype(np.float64))
         views.append(ViewStats(left=p.left, right=p.right, rms_left_px=_rms(rl),
                                rms_right_px=_rms(rr), holdout_px=float(holdout[k]),
                                distance_m=dist_m, tilt_deg=tilt,
@@ -743,7 +746,7 @@ def calibrate_stereo(left: Sequence[Detection], right: Sequence[Detection],
     T_right_left = np.eye(4)
     T_right_left[:3, :3] = fit.R
     T_right_left[:3, 3] = fit.T
-    T_left_right = np.linalg.inv(T_right_left)
+    T_left_right: FloatArray = np.asarray(np.linalg.inv(T_right_left), dtype=np.float64)
     rms = _rms(np.concatenate([res_l, res_r]))
     result = StereoCalibration(
         status=CalibrationStatus.OK,
@@ -852,9 +855,9 @@ def opencv_reference_stereo(left: Sequence[Detection], right: Sequence[Detection
     size = _check_sizes(left, "left")
     obj = [p.obj for p in pairs]
     flags = _DISTORTION_FLAGS[distortion]
-    rms_l, K1, d1, _, _ = cv2.calibrateCamera(obj, [p.uv_l for p in pairs], size, None, None,
+    rms_l, K1, d1, _, _ = cv2.calibrateCamera(obj, [p.uv_l for p in pairs], size, None, None,  # type: ignore[call-overload]
                                               flags=flags)
-    rms_r, K2, d2, _, _ = cv2.calibrateCamera(obj, [p.uv_r for p in pairs], size, None, None,
+    rms_r, K2, d2, _, _ = cv2.calibrateCamera(obj, [p.uv_r for p in pairs], size, None, None,  # type: ignore[call-overload]
                                               flags=flags)
     sflags = flags | (cv2.CALIB_FIX_INTRINSIC if fix_intrinsic else cv2.CALIB_USE_INTRINSIC_GUESS)
     rms, *_rest, T, _E, _F = cv2.stereoCalibrate(obj, [p.uv_l for p in pairs],

@@ -46,8 +46,9 @@ def board_poses(camera: CameraModel, board: BoardSpec, n_views: int, rng: np.ran
     image (so the views cover it), at a distance spread evenly over ``distance_range_m``, and
     tilted about both in-plane axes by up to ``max_tilt_deg``, with a small roll. With
     ``require_inside``, each pose is redrawn (moving towards the image centre) until every
-    corner and the board's printed outline are in the image, if that happens within 24 tries; ``also_inside`` lists other
-    cameras ``(camera, T_camera_left)`` that must see the whole board too (a stereo rig).
+    corner and the board's printed outline are in the image, if that happens within 24
+    tries; ``also_inside`` lists other cameras ``(camera, T_camera_left)`` that must see the
+    whole board too (a stereo rig).
 
     Raises:
         ConfigError: ``n_views < 1`` or a bad range.

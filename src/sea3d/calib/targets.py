@@ -273,15 +273,15 @@ def parse_board(spec: str) -> BoardSpec:
     cols, rows = _parse_counts(parts[1], spec)
     dictionary = "DICT_APRILTAG_36h11" if kind == "apriltag" else "DICT_4X4_50"
     first = 0
-    for extra in parts[4:]:
-        extra = extra.strip()
-        if extra.lower().startswith("first="):
+    for raw in parts[4:]:
+        field_text = raw.strip()
+        if field_text.lower().startswith("first="):
             try:
-                first = int(extra.split("=", 1)[1])
+                first = int(field_text.split("=", 1)[1])
             except ValueError as err:
-                raise ConfigError(f"board {spec!r}: bad first id {extra!r}") from err
-        elif extra:
-            dictionary = extra
+                raise ConfigError(f"board {spec!r}: bad first id {field_text!r}") from err
+        elif field_text:
+            dictionary = field_text
     ids = tuple(tuple(first + r * cols + c for c in range(cols)) for r in range(rows))
     return BoardSpec(kind=kind, cols=cols, rows=rows,
                      square_m=_parse_length_m(parts[3], "pitch", spec),
@@ -475,9 +475,9 @@ def _detect_checkerboard(gray: NDArray[np.uint8], board: BoardSpec, use_sb: bool
     if corners is None:
         return _empty(DetectionStatus.NOT_FOUND, size,
                       f"no {pattern[0]}x{pattern[1]} checkerboard found")
-    uv = corners.reshape(-1, 2).astype(np.float64)
+    uv: FloatArray = _canonical_checker_order(corners.reshape(-1, 2).astype(np.float64),
+                                              pattern)
     ids, pts = board.object_points()
-    uv = _canonical_checker_order(uv, pattern)
     return Detection(status=DetectionStatus.DETECTED, corners_px=uv, ids=ids,
                      points_board_m=pts, image_size=size,
                      message=f"{len(uv)} corners ({how})", ambiguous_order=True)
@@ -491,7 +491,7 @@ def _canonical_checker_order(uv: FloatArray, pattern: tuple[int, int]) -> FloatA
     and right images of a stereo pair agree.
     """
     nx, ny = pattern
-    grid = uv.reshape(ny, nx, 2)
+    grid: FloatArray = uv.reshape(ny, nx, 2)
     first, last = grid[0, 0], grid[-1, -1]
     if first.sum() > last.sum():
         grid = grid[::-1, ::-1]
@@ -535,6 +535,8 @@ def detect_board(image: NDArray[Any], board: BoardSpec, *, min_corners: int = 0,
     gray = _to_gray(img)
     if board.kind == "checkerboard":
         return _detect_checkerboard(gray, board, use_sector_based, size)
+    ids: IntArray
+    uv: FloatArray
     all_ids, all_pts = board.object_points()
     lookup = {int(i): k for k, i in enumerate(all_ids)}
     if board.kind == "charuco":
@@ -595,7 +597,7 @@ def diagnose_checkerboard_size(image: NDArray[Any], board: BoardSpec,
     """
     if board.kind != "checkerboard":
         return None
-    gray = _to_gray(np.asarray(image))
+    gray: NDArray[Any] = _to_gray(np.asarray(image))
     scale = 1.0
     if max(gray.shape) > 1000:
         scale = 1000.0 / max(gray.shape)
