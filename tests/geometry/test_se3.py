@@ -61,3 +61,17 @@ def test_bad_transforms_are_rejected():
         quat_wxyz_to_R([0.0, 0.0, 0.0, 0.0])
     with pytest.raises(GeometryError, match=r"\(N, 3\)"):
         transform_points(np.eye(4), np.zeros((3, 2)))
+
+
+def test_look_at_points_z_at_the_target_and_y_down():
+    from sea3d.geometry.se3 import look_at
+
+    T = look_at([0.0, -2.0, 1.0], [0.0, 0.0, 1.0])
+    check_T(T)
+    # The target lies straight ahead on the camera's z axis, 2 m away.
+    p_cam = transform_points(invert_T(T), np.array([[0.0, 0.0, 1.0]]))
+    np.testing.assert_allclose(p_cam, [[0.0, 0.0, 2.0]], atol=1e-12)
+    # World up (+z) appears as image up (-y).
+    np.testing.assert_allclose(T[:3, 1], [0.0, 0.0, -1.0], atol=1e-12)
+    with pytest.raises(GeometryError, match="parallel"):
+        look_at([0.0, 0.0, 0.0], [0.0, 0.0, 1.0])

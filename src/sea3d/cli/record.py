@@ -1,15 +1,210 @@
-"""``sea3d record`` subcommands (not yet implemented)."""
+"""``sea3d record`` (cameras, IMU and echosounder into a session) and ``sea3d monitor``
+(replay a session on the live monitor page)."""
 
 from __future__ import annotations
 
 import argparse
+import json
+import signal
+import sys
+import threading
+from pathlib import Path
 from typing import Any
+
+__all__ = ["register"]
+
+_SOURCE_HELP = (
+    "source: /dev/videoN, N (camera index), gst:PIPELINE, folder:DIR, video:FILE, "
+    "session:PATH[#STREAM], sim:MODULE:FACTORY"
+)
 
 
 def register(sub: Any) -> None:
-    """Add this area's subcommands to the top-level parser's subparsers."""
-    del sub
+    """Add ``record`` and ``monitor`` to the top-level subparsers."""
+    rec = sub.add_parser(
+        "record",
+        help="record stereo cameras (+ IMU, echosounder) into a session",
+        description="Record two cameras and optional IMU and echosounder into an MCAP file or "
+        "a folder session. Ctrl-C or SIGTERM stops cleanly; a summary is printed at the end.",
+    )
+    rec.add_argument("--left", required=True, help=f"left camera {_SOURCE_HELP}")
+    rec.add_argument("--right", required=True, help="right camera, same forms as --left")
+    rec.add_argument("--imu", help="IMU: mti:PORT[@BAUD], session:PATH or sim:MODULE:FACTORY")
+    rec.add_argument("--sonar", help="echosounder: ping:PORT[@BAUD], session:PATH or sim:...")
+    rec.add_argument("--out", required=True, help="output session: *.mcap or a new folder")
+    rec.add_argument("--format", choices=("mcap", "folder"), help="default: from --out")
+    rec.add_argument("--duration", type=float, help="seconds to record (default: until stopped)")
+    rec.add_argument("--rig", help="rig.yaml stored with the session (and its capture settings)")
+    rec.add_argument("--image-encoding", choices=("png", "jpeg", "raw"), default="png")
+    rec.add_argument("--png-compression", type=int, default=1, help="zlib level 0..9 (default 1)")
+    rec.add_argument("--jpeg-quality", type=int, default=95)
+    rec.add_argument("--queue", type=int, default=16, help="frames buffered before dropping")
+    rec.add_argument("--encoders", type=int, default=2, help="encoder threads")
+    rec.add_argument(
+        "--min-free-gb",
+        type=float,
+        default=2.0,
+        help="stop when free disk space falls below this (default 2 GB)",
+    )
+    rec.add_argument(
+        "--replay-speed",
+        type=float,
+        default=1.0,
+        help="pacing of replay sources: 1 real time, 0 as fast as possible",
+    )
+    rec.add_argument(
+        "--block",
+        action="store_true",
+        help="replay sources wait for the writer instead of dropping frames",
+    )
+    rec.add_argument(
+        "--sync",
+        action="store_true",
+        help="configure camera hardware sync with v4l2-ctl first (settings from "
+        "the rig's capture section, else the paper's)",
+    )
+    rec.add_argument(
+        "--monitor", metavar="HOST:PORT", help="serve the live monitor page (e.g. 127.0.0.1:8080)"
+    )
+    rec.add_argument("--json", action="store_true", help="print the summary as JSON")
+    rec.set_defaults(handler=_record)
+
+    mon = sub.add_parser(
+        "monitor",
+        help="replay a session on the monitor web page",
+        description="Serve the monitor page (left/right images, disparity preview, figures) "
+        "for a recorded session, replayed in a loop.",
+    )
+    mon.add_argument("session", help="session: .mcap file or folder")
+    mon.add_argument(
+        "--address",
+        default="127.0.0.1:8080",
+        help="HOST:PORT to listen on (default 127.0.0.1:8080, loopback only)",
+    )
+    mon.add_argument("--speed", type=float, default=1.0, help="replay speed (1 = real time)")
+    mon.add_argument("--once", action="store_true", help="play once instead of looping")
+    mon.add_argument("--duration", type=float, help="stop serving after this many seconds")
+    mon.set_defaults(handler=_monitor)
 
 
-def _unused(_: argparse.Namespace) -> int:  # pragma: no cover - placeholder
+class _StopOnSignals:
+    """Route SIGINT/SIGTERM to a stop callback while active (main thread only)."""
+
+    def __init__(self, stop: Any) -> None:
+        self.stop = stop
+        self.old: dict[int, Any] = {}
+        self.received: int | None = None
+
+    def __enter__(self) -> _StopOnSignals:
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self.old[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        del frame
+        self.received = signum
+        self.stop(f"stopped by {signal.Signals(signum).name}")
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, old in self.old.items():
+            signal.signal(sig, old)
+
+
+def _print_summary(summary: Any, as_json: bool) -> None:
+    if as_json:
+        json.dump(summary.as_dict(), sys.stdout, indent=2)
+        sys.stdout.write("\n")
+        return
+    hours = summary.duration_s / 3600.0
+    rate = summary.bytes_on_disk / hours / 1e9 if hours > 0 else 0.0
+    print(
+        f"recorded {summary.path} ({summary.format}) for {summary.duration_s:.1f} s: "
+        f"{summary.stop_reason}"
+    )
+    for stream, n in summary.frames.items():
+        fps = summary.fps.get(stream)
+        extra = f", {fps:.1f} fps" if fps is not None else ""
+        print(
+            f"  {stream:<6} {n:>7} written, {summary.dropped[stream]:>5} dropped "
+            f"(of {summary.captured[stream]} captured){extra}"
+        )
+    print(f"  {summary.bytes_on_disk / 1e6:.1f} MB on disk ({rate:.1f} GB/h)")
+    for err in summary.errors:
+        print(f"  error: {err}")
+
+
+def _record(args: argparse.Namespace) -> int:
+    from sea3d.capture.recorder import Recorder, RecorderConfig
+    from sea3d.capture.spec import open_source
+    from sea3d.errors import ConfigError
+
+    rig_yaml = None
+    if args.rig:
+        try:
+            rig_yaml = Path(args.rig).read_text(encoding="utf-8")
+        except OSError as err:
+            raise ConfigError(f"cannot read rig file {args.rig}: {err}") from err
+    if args.sync:
+        from sea3d.capture.v4l2_sync import PAPER_SYNC, configure_sync, sync_settings_from_rig_yaml
+
+        settings = sync_settings_from_rig_yaml(rig_yaml, where=args.rig) if rig_yaml else None
+        readback = configure_sync(settings or PAPER_SYNC)
+        print(f"camera sync configured: {readback}", file=sys.stderr)
+    sources = {
+        "left": open_source(args.left, "left", replay_speed=args.replay_speed),
+        "right": open_source(args.right, "right", replay_speed=args.replay_speed),
+    }
+    if rig_yaml is None and hasattr(sources["left"], "stream"):  # session replay: keep its rig
+        from sea3d.io.session import open_session
+
+        with open_session(sources["left"].path) as replayed:  # type: ignore[attr-defined]
+            rig_yaml = replayed.rig_yaml
+    if args.imu:
+        sources["imu"] = open_source(args.imu, "imu", replay_speed=args.replay_speed)
+    if args.sonar:
+        sources["sonar"] = open_source(args.sonar, "sonar", replay_speed=args.replay_speed)
+    config = RecorderConfig(
+        out_path=Path(args.out),
+        format=args.format,
+        duration_s=args.duration,
+        image_encoding=args.image_encoding,
+        png_compression=args.png_compression,
+        jpeg_quality=args.jpeg_quality,
+        queue_frames=args.queue,
+        encoder_threads=args.encoders,
+        block_when_full=args.block,
+        min_free_bytes=int(args.min_free_gb * 1e9),
+        rig_yaml=rig_yaml,
+    )
+    recorder = Recorder(config, sources)
+    server = None
+    if args.monitor:
+        from sea3d.capture.monitor import MonitorServer, parse_address
+
+        host, port = parse_address(args.monitor)
+        server = MonitorServer(recorder, host, port).start()
+        print(f"monitor at {server.url}", file=sys.stderr, flush=True)
+    try:
+        with _StopOnSignals(recorder.request_stop):
+            summary = recorder.run()
+    finally:
+        if server is not None:
+            server.stop()
+    _print_summary(summary, args.json)
+    return 1 if summary.errors else 0
+
+
+def _monitor(args: argparse.Namespace) -> int:
+    from sea3d.capture.monitor import MonitorServer, SessionPlayer, parse_address
+
+    host, port = parse_address(args.address)
+    player = SessionPlayer(args.session, speed=args.speed, loop=not args.once).start()
+    done = threading.Event()
+    try:
+        with MonitorServer(player, host, port) as server, _StopOnSignals(lambda _r: done.set()):
+            print(f"monitor at {server.url} (Ctrl-C to stop)", file=sys.stderr, flush=True)
+            done.wait(args.duration)
+    finally:
+        player.stop()
     return 0

@@ -1,15 +1,123 @@
-"""``sea3d session`` subcommands (not yet implemented)."""
+"""``sea3d session``: inspect and convert recorded sessions (MCAP files or folders)."""
 
 from __future__ import annotations
 
 import argparse
+import json
+import sys
 from typing import Any
+
+__all__ = ["register"]
 
 
 def register(sub: Any) -> None:
-    """Add this area's subcommands to the top-level parser's subparsers."""
-    del sub
+    """Add ``session info``, ``session verify`` and ``session convert`` to the subparsers."""
+    parser = sub.add_parser(
+        "session",
+        help="inspect and convert recorded sessions",
+        description="Inspect and convert recorded sessions: an .mcap file of ROS 2 messages "
+        "or a folder of left/<t_ns>.png, right/<t_ns>.png, imu.csv, sonar.csv, rig.yaml.",
+    )
+    ssub = parser.add_subparsers(dest="session_command", metavar="SUBCOMMAND")
+    parser.set_defaults(handler=lambda _args: (parser.print_help(), 2)[1])
+
+    info = ssub.add_parser("info", help="streams, counts, rates, gaps, duration, size")
+    info.add_argument("path", help="session: .mcap file or folder")
+    info.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    info.add_argument(
+        "--tolerance-ms",
+        type=float,
+        default=None,
+        help="stereo pairing tolerance in ms (default: half the median left frame interval)",
+    )
+    info.add_argument(
+        "--name-unit",
+        choices=("ns", "us"),
+        default="ns",
+        help="unit of the stamps in image file names of a folder (the paper used us)",
+    )
+    info.set_defaults(handler=_info)
+
+    ver = ssub.add_parser(
+        "verify", help="read every record; list damaged ones (exit status 1 if any)"
+    )
+    ver.add_argument("path", help="session: .mcap file or folder")
+    ver.add_argument("--json", action="store_true", help="print JSON")
+    ver.add_argument("--name-unit", choices=("ns", "us"), default="ns")
+    ver.set_defaults(handler=_verify)
+
+    conv = ssub.add_parser(
+        "convert",
+        help="folder to MCAP and back (chosen by OUT's extension; lossless for PNG)",
+    )
+    conv.add_argument("input", help="session to read: .mcap file or folder")
+    conv.add_argument("output", help="new session: *.mcap writes MCAP, anything else a folder")
+    conv.add_argument(
+        "--image-encoding",
+        choices=("png", "jpeg", "raw"),
+        default=None,
+        help="output image encoding (default: keep the input's)",
+    )
+    conv.set_defaults(handler=_convert)
 
 
-def _unused(_: argparse.Namespace) -> int:  # pragma: no cover - placeholder
+def _fmt_t(t_ns: int | None) -> str:
+    return "-" if t_ns is None else f"{t_ns * 1e-9:.6f}"
+
+
+def _info(args: argparse.Namespace) -> int:
+    from sea3d.io.session import open_session
+
+    tol = None if args.tolerance_ms is None else round(args.tolerance_ms * 1e6)
+    with open_session(args.path, name_unit=args.name_unit) as s:
+        report = s.summary(tolerance_ns=tol)
+    if args.json:
+        json.dump(report, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+        return 0
+    out = sys.stdout
+    out.write(f"session   {report['path']} ({report['format']})\n")
+    out.write(f"size      {report['size_bytes'] / 1e6:.1f} MB\n")
+    out.write(f"duration  {report['duration_s']:.3f} s\n")
+    out.write(f"rig       {'yes' if report['rig'] else 'no'}\n\n")
+    out.write(
+        f"{'stream':<8}{'count':>8} {'rate Hz':>11}{'first s':>21}{'last s':>21}{'gaps':>6}\n"
+    )
+    for name, st in report["streams"].items():
+        out.write(
+            f"{name:<8}{st['count']:>8} {st['rate_hz']:>11.2f}{_fmt_t(st['first_t_ns']):>21}"
+            f"{_fmt_t(st['last_t_ns']):>21}{st['gaps']:>6}\n"
+        )
+    p = report["pairs"]
+    out.write(
+        f"\nstereo pairs {p['count']} within {p['tolerance_ns'] / 1e6:.3f} ms; unpaired: "
+        f"{p['unpaired_left']} left, {p['unpaired_right']} right\n"
+    )
     return 0
+
+
+def _convert(args: argparse.Namespace) -> int:
+    from sea3d.io.session import convert_session
+
+    counts = convert_session(args.input, args.output, image_encoding=args.image_encoding)
+    skipped = counts.pop("skipped", 0)
+    parts = ", ".join(f"{v} {k}" for k, v in counts.items())
+    print(
+        f"wrote {args.output}: {parts}" + (f"; skipped {skipped} damaged images" if skipped else "")
+    )
+    return 0
+
+
+def _verify(args: argparse.Namespace) -> int:
+    from sea3d.io.session import verify_session
+
+    report = verify_session(args.path, name_unit=args.name_unit)
+    if args.json:
+        json.dump(report, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        counts = ", ".join(f"{v} {k}" for k, v in report["records"].items())
+        print(f"{args.path}: {counts} readable; {len(report['problems'])} problems")
+        for msg in report["problems"]:
+            print(f"  {msg}")
+    return 0 if report["ok"] else 1

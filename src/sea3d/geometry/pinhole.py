@@ -143,6 +143,11 @@ class PinholeCamera:
         c[: self.dist.size] = self.dist
         return c
 
+    def distortion_kernel_args(self) -> tuple[FloatArray, FloatArray]:
+        """The 14 coefficients and the inverse tilt homography, as the numba kernels take them."""
+        k = self._coeffs()
+        return k, np.asarray(np.linalg.inv(_tilt_matrix(k[12], k[13])), dtype=np.float64)
+
     def distort(self, xy: FloatArray) -> FloatArray:
         """Apply distortion to ``(N, 2)`` normalised coordinates (``X/Z, Y/Z``)."""
         k = self._coeffs()
@@ -173,8 +178,7 @@ class PinholeCamera:
         target = np.asarray(xy_distorted, dtype=np.float64)
         if not self.has_distortion:
             return target.copy(), np.asarray(np.isfinite(target).all(axis=1), dtype=np.bool_)
-        k = self._coeffs()
-        tilt_inv = np.linalg.inv(_tilt_matrix(k[12], k[13]))
+        k, tilt_inv = self.distortion_kernel_args()
         xy = undistort_kernel(
             np.ascontiguousarray(target[:, 0]), np.ascontiguousarray(target[:, 1]), k, tilt_inv
         )

@@ -19,6 +19,7 @@ __all__ = [
     "check_T",
     "compose",
     "invert_T",
+    "look_at",
     "make_T",
     "quat_wxyz_to_R",
     "rotvec_to_R",
@@ -126,3 +127,23 @@ def R_to_quat_wxyz(R: object) -> FloatArray:
     wxyz = np.roll(xyzw, 1, axis=-1)
     sign = np.where(wxyz[..., :1] < 0, -1.0, 1.0)
     return np.asarray(wxyz * sign, dtype=np.float64)
+
+
+def look_at(eye_m: object, target_m: object, up: object = (0.0, 0.0, 1.0)) -> FloatArray:
+    """``T_world_cam`` of a camera at ``eye_m`` looking at ``target_m`` (OpenCV axes: z forward,
+    y down, so the image's "up" is ``up`` projected into the image plane).
+
+    Raises:
+        GeometryError: eye and target coincide, or the view direction is parallel to ``up``.
+    """
+    eye = np.asarray(eye_m, dtype=np.float64).reshape(3)
+    z = np.asarray(target_m, dtype=np.float64).reshape(3) - eye
+    if np.linalg.norm(z) < 1e-12:
+        raise GeometryError("look_at: eye and target coincide")
+    z /= np.linalg.norm(z)
+    x = np.cross(z, np.asarray(up, dtype=np.float64).reshape(3))
+    if np.linalg.norm(x) < 1e-9:
+        raise GeometryError("look_at: view direction is parallel to up")
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    return make_T(np.stack([x, y, z], axis=1), eye)

@@ -16,6 +16,8 @@ import numba as nb
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d.geometry._kernels import undistort_point
+
 FloatArray = NDArray[np.float64]
 
 KIND_DOME = 0.0
@@ -138,17 +140,35 @@ def _perpendicular(a: FloatArray) -> tuple[float, float, float]:
 
 
 @nb.njit(cache=True, parallel=True)
-def unproject_port(xn: FloatArray, yn: FloatArray, a: FloatArray, p: FloatArray) -> FloatArray:
-    """Water rays of undistorted normalised image points ``(xn, yn)``.
+def unproject_port(
+    uv: FloatArray,
+    intrinsics: FloatArray,
+    k: FloatArray,
+    tilt_inv: FloatArray,
+    distorted: bool,
+    a: FloatArray,
+    p: FloatArray,
+) -> FloatArray:
+    """Water rays of pixels ``uv`` ``(N, 2)``.
 
-    Returns ``(N, 6)``: origin on the outer port surface and unit direction, camera frame; NaN
-    rows where there is no ray. ``a`` is the port's unit axis.
+    ``intrinsics`` is ``[fx, fy, cx, cy]``; ``k`` the 14 OpenCV distortion coefficients and
+    ``tilt_inv`` the inverse tilt homography (used only if ``distorted``); ``a`` the port's
+    unit axis. Returns ``(N, 6)``: origin on the outer port surface and unit direction, camera
+    frame; NaN rows where there is no ray.
     """
-    n = xn.shape[0]
+    n = uv.shape[0]
     out = np.empty((n, 6))
     for i in nb.prange(n):
-        inv = 1.0 / math.sqrt(xn[i] * xn[i] + yn[i] * yn[i] + 1.0)
-        dx, dy, dz = xn[i] * inv, yn[i] * inv, inv
+        xn = (uv[i, 0] - intrinsics[2]) / intrinsics[0]
+        yn = (uv[i, 1] - intrinsics[3]) / intrinsics[1]
+        if distorted:
+            xn, yn, ok = undistort_point(xn, yn, k, tilt_inv)
+            if not ok:
+                for j in range(6):
+                    out[i, j] = _NAN
+                continue
+        inv = 1.0 / math.sqrt(xn * xn + yn * yn + 1.0)
+        dx, dy, dz = xn * inv, yn * inv, inv
         along = dx * a[0] + dy * a[1] + dz * a[2]
         bx, by, bz = dx - along * a[0], dy - along * a[1], dz - along * a[2]
         across = math.sqrt(bx * bx + by * by + bz * bz)

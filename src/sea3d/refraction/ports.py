@@ -190,19 +190,22 @@ class _AxialPortCamera:
         """Water rays of ``(N, 2)`` pixels: origins on the outer port surface, unit directions
         into the water, in the camera frame (metres). NaN rows where there is no ray (distortion
         not invertible, total internal reflection)."""
-        pix = as_pixels(uv)
-        xy, _ = self.pinhole.pixels_to_normalized(pix)
+        pix = np.ascontiguousarray(as_pixels(uv))
+        pin = self.pinhole
+        k, tilt_inv = pin.distortion_kernel_args()
         rays = _kernels.unproject_port(
-            np.ascontiguousarray(xy[:, 0]),
-            np.ascontiguousarray(xy[:, 1]),
+            pix,
+            np.array([pin.fx, pin.fy, pin.cx, pin.cy]),
+            k,
+            tilt_inv,
+            pin.has_distortion,
             self._axis(),
             self._params,
         )
         origins, directions = rays[:, :3], rays[:, 3:]
         if self._identity:
             # Exactly the pinhole's directions (the traced ones differ by rounding only).
-            air = np.concatenate([xy, np.ones((xy.shape[0], 1))], axis=1)
-            directions = air / np.linalg.norm(air, axis=1, keepdims=True)
+            directions = pin.unproject(pix).directions
         return Rays(
             origins=np.ascontiguousarray(origins), directions=np.ascontiguousarray(directions)
         )

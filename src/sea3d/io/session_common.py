@@ -1,0 +1,620 @@
+"""Records, image codecs and the reader base class shared by both session layouts.
+
+A session holds named streams with integer-nanosecond stamps:
+
+- ``left``, ``right``: images, ``(H, W)`` or ``(H, W, 3)`` RGB, ``uint8`` or ``uint16``;
+- ``imu``: accelerometer (m/s^2) and gyroscope (rad/s) samples in the IMU (``body``) frame;
+- ``sonar``: echosounder range (m) and confidence (0..1).
+
+:class:`SessionReader` implements everything that does not depend on the layout (access by
+index and by stamp, stereo pairing, per-stream statistics); the MCAP and folder readers only
+index their files and fetch single records.
+"""
+
+from __future__ import annotations
+
+import collections
+import itertools
+import logging
+import os
+from abc import ABC, abstractmethod
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from sea3d.errors import SessionError
+
+__all__ = [
+    "IMAGE_STREAMS",
+    "ImuSample",
+    "ImuSeries",
+    "PairMatch",
+    "SessionReader",
+    "SonarSample",
+    "SonarSeries",
+    "StereoPair",
+    "decode_image",
+    "encode_image",
+]
+
+_log = logging.getLogger(__name__)
+
+IMAGE_STREAMS = ("left", "right")
+IMAGE_ENCODINGS = ("png", "jpeg", "raw")
+MAX_STAMP_NS = 2**63 - 1
+# An interval longer than this many median intervals counts as a gap in ``info()``.
+GAP_FACTOR = 1.5
+
+ImageArray = npt.NDArray[np.uint8] | npt.NDArray[np.uint16]
+
+# PNG row filter "Up" only: on 1080p camera frames about 2.5x faster to encode than libpng's
+# adaptive choice at the same size (measured in benchmarks/bench_record.py); still lossless.
+_PNG_FAST_FILTER: tuple[int, ...] = (
+    (cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_UP)
+    if hasattr(cv2, "IMWRITE_PNG_FILTER")
+    else ()
+)
+
+
+@dataclass(frozen=True)
+class StereoPair:
+    """A left and right image matched by stamp.
+
+    Attributes:
+        t_ns: stamp of the left image, integer nanoseconds.
+        left: left image, (H, W) or (H, W, 3) RGB, uint8 or uint16.
+        right: right image, same layout as ``left``.
+        right_t_ns: stamp of the right image (``None`` when it equals ``t_ns``).
+    """
+
+    t_ns: int
+    left: np.ndarray = field(repr=False)
+    right: np.ndarray = field(repr=False)
+    right_t_ns: int | None = None
+
+
+@dataclass(frozen=True)
+class ImuSample:
+    """One IMU reading in the IMU (``body``) frame.
+
+    Attributes:
+        t_ns: stamp, integer nanoseconds.
+        accel_mps2: (3,) float64 specific force in m/s^2.
+        gyro_radps: (3,) float64 angular rate in rad/s.
+    """
+
+    t_ns: int
+    accel_mps2: np.ndarray
+    gyro_radps: np.ndarray
+
+
+@dataclass(frozen=True)
+class SonarSample:
+    """One echosounder reading.
+
+    Attributes:
+        t_ns: stamp, integer nanoseconds.
+        range_m: distance to the bottom in metres (stored as float32, as in sensor_msgs/Range).
+        confidence: 0..1 (stored as float32); NaN when the sensor gives none.
+    """
+
+    t_ns: int
+    range_m: float
+    confidence: float
+
+
+@dataclass(frozen=True)
+class ImuSeries:
+    """All IMU samples of a session, sorted by stamp.
+
+    Attributes:
+        t_ns: (N,) int64 stamps in nanoseconds, strictly increasing.
+        accel_mps2: (N, 3) float64 specific force in m/s^2, IMU frame.
+        gyro_radps: (N, 3) float64 angular rate in rad/s, IMU frame.
+    """
+
+    t_ns: np.ndarray
+    accel_mps2: np.ndarray
+    gyro_radps: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.t_ns.shape[0])
+
+
+@dataclass(frozen=True)
+class SonarSeries:
+    """All echosounder samples of a session, sorted by stamp.
+
+    Attributes:
+        t_ns: (N,) int64 stamps in nanoseconds, strictly increasing.
+        range_m: (N,) float32 ranges in metres.
+        confidence: (N,) float32 confidence 0..1, NaN where unknown.
+    """
+
+    t_ns: np.ndarray
+    range_m: np.ndarray
+    confidence: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.t_ns.shape[0])
+
+
+@dataclass(frozen=True)
+class PairMatch:
+    """Stereo pairs matched by nearest stamp within a tolerance.
+
+    Attributes:
+        left_index: (P,) int64 indices into the left stream.
+        right_index: (P,) int64 indices into the right stream.
+        unpaired_left: number of left frames with no right frame within the tolerance.
+        unpaired_right: number of right frames with no left frame within the tolerance.
+        tolerance_ns: the tolerance used, nanoseconds.
+    """
+
+    left_index: np.ndarray
+    right_index: np.ndarray
+    unpaired_left: int
+    unpaired_right: int
+    tolerance_ns: int
+
+    def __len__(self) -> int:
+        return int(self.left_index.shape[0])
+
+
+# ----------------------------------------------------------------------------- validation
+
+
+def check_stamp(t_ns: Any, what: str) -> int:
+    """Return ``t_ns`` as a Python int after checking it is a non-negative integer.
+
+    Raises:
+        SessionError: if it is not an integer in [0, 2**63).
+    """
+    if isinstance(t_ns, bool) or not isinstance(t_ns, int | np.integer):
+        raise SessionError(f"{what}: stamp must be an integer number of nanoseconds, got {t_ns!r}")
+    value = int(t_ns)
+    if not 0 <= value <= MAX_STAMP_NS:
+        raise SessionError(f"{what}: stamp {value} ns is outside [0, 2**63)")
+    return value
+
+
+def check_image(image: Any, what: str) -> np.ndarray:
+    """Check an image array: (H, W) or (H, W, 3), uint8 or uint16, non-empty.
+
+    Raises:
+        SessionError: naming ``what`` with the shape and dtype that came.
+    """
+    if not isinstance(image, np.ndarray):
+        raise SessionError(f"{what}: expected a numpy image array, got {type(image).__name__}")
+    if image.dtype not in (np.uint8, np.uint16):
+        raise SessionError(f"{what}: expected a uint8 or uint16 image, got dtype {image.dtype}")
+    ok_shape = image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)
+    if not ok_shape or image.size == 0:
+        raise SessionError(
+            f"{what}: expected an image of shape (H, W) or (H, W, 3), got {image.shape}"
+        )
+    return image
+
+
+# ----------------------------------------------------------------------------- codecs
+
+
+def encode_image(
+    image: np.ndarray, encoding: str, *, png_compression: int = 1, jpeg_quality: int = 95
+) -> bytes:
+    """Encode an RGB image as PNG or JPEG bytes (thread-safe; OpenCV releases the GIL).
+
+    Args:
+        image: (H, W) or (H, W, 3) RGB, uint8 or uint16 (uint16 only for PNG).
+        encoding: ``"png"`` (lossless) or ``"jpeg"``.
+        png_compression: zlib level 0..9 (1 is fast and still about 2x smaller than raw).
+        jpeg_quality: 0..100.
+
+    Raises:
+        SessionError: for an unknown encoding, uint16 JPEG, or an OpenCV encoder failure.
+    """
+    image = check_image(image, "encode_image")
+    bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR) if image.ndim == 3 else image
+    if encoding == "png":
+        ok, buf = cv2.imencode(
+            ".png", bgr, [cv2.IMWRITE_PNG_COMPRESSION, int(png_compression), *_PNG_FAST_FILTER]
+        )
+    elif encoding == "jpeg":
+        if image.dtype != np.uint8:
+            raise SessionError("JPEG encoding needs uint8 images; use png for uint16")
+        ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)])
+    else:
+        raise SessionError(f"unknown image encoding {encoding!r}; expected 'png' or 'jpeg'")
+    if not ok:
+        raise SessionError(
+            f"OpenCV could not encode a {image.shape} {image.dtype} image as {encoding}"
+        )
+    return buf.tobytes()
+
+
+def decode_image(data: bytes | memoryview | np.ndarray, where: str) -> np.ndarray:
+    """Decode PNG/JPEG/TIFF bytes to an RGB (or grey) array, keeping 16-bit depth.
+
+    Raises:
+        SessionError: naming ``where`` when the bytes are not a decodable image.
+    """
+    buf = np.frombuffer(data, dtype=np.uint8) if not isinstance(data, np.ndarray) else data
+    img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED) if buf.size else None
+    if img is None:
+        raise SessionError(f"{where}: cannot decode image data ({buf.size} bytes; damaged?)")
+    if img.ndim == 3 and img.shape[2] == 4:
+        return cv2.cvtColor(img, cv2.COLOR_BGRA2RGB)
+    if img.ndim == 3:
+        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    return img
+
+
+def png_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) from a PNG's IHDR chunk, or None if ``data`` is not a PNG."""
+    if len(data) >= 24 and data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR":
+        return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    return None
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def sort_stamps(stamps: np.ndarray, where: str) -> np.ndarray:
+    """Indices that sort ``stamps`` and drop duplicates (keeping the first), with warnings.
+
+    Args:
+        stamps: (N,) int64 stamps in the order they were stored.
+        where: file or topic name for the warning.
+
+    Returns:
+        (M,) int64 indices into ``stamps``, M <= N, giving strictly increasing stamps.
+    """
+    stamps = np.asarray(stamps, dtype=np.int64)
+    if stamps.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    backwards = np.flatnonzero(np.diff(stamps) < 0)
+    if backwards.size:
+        first = int(backwards[0]) + 1
+        _log.warning(
+            "%s: stamps out of order, going back %d times (first at record %d: t_ns=%d after %d); "
+            "sorting them",
+            where,
+            backwards.size,
+            first,
+            int(stamps[first]),
+            int(stamps[first - 1]),
+        )
+    order = np.argsort(stamps, kind="stable")
+    sorted_stamps = stamps[order]
+    dup = np.flatnonzero(np.diff(sorted_stamps) == 0) + 1
+    if dup.size:
+        _log.warning(
+            "%s: %d duplicate stamps (first t_ns=%d); keeping the first record of each",
+            where,
+            dup.size,
+            int(sorted_stamps[dup[0]]),
+        )
+        keep = np.ones(order.size, dtype=bool)
+        keep[dup] = False
+        order = order[keep]
+    return order.astype(np.int64)
+
+
+def stream_stats(stamps: np.ndarray) -> dict[str, Any]:
+    """Count, rate, first/last stamp and gaps of one stream.
+
+    ``rate_hz`` is 1 / median interval; a gap is an interval longer than 1.5 median intervals.
+    """
+    stamps = np.asarray(stamps, dtype=np.int64)
+    n = int(stamps.size)
+    out: dict[str, Any] = {
+        "count": n,
+        "rate_hz": 0.0,
+        "first_t_ns": int(stamps[0]) if n else None,
+        "last_t_ns": int(stamps[-1]) if n else None,
+        "gaps": 0,
+        "max_interval_s": 0.0,
+    }
+    if n >= 2:
+        dt = np.diff(stamps)
+        median = float(np.median(dt))
+        if median > 0:
+            out["rate_hz"] = 1e9 / median
+            out["gaps"] = int(np.count_nonzero(dt > GAP_FACTOR * median))
+        out["max_interval_s"] = float(dt.max()) * 1e-9
+    return out
+
+
+def match_stamps(
+    left: np.ndarray, right: np.ndarray, tolerance_ns: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Mutual-nearest matching of two sorted stamp arrays within ``tolerance_ns``.
+
+    Returns:
+        (left_index, right_index): (P,) int64 each; pairs are one-to-one and increasing.
+    """
+    left = np.asarray(left, dtype=np.int64)
+    right = np.asarray(right, dtype=np.int64)
+    if left.size == 0 or right.size == 0:
+        empty = np.zeros(0, dtype=np.int64)
+        return empty, empty
+
+    def nearest(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        j = np.searchsorted(b, a)
+        lo = np.clip(j - 1, 0, b.size - 1)
+        hi = np.clip(j, 0, b.size - 1)
+        pick_hi = np.abs(b[hi] - a) < np.abs(b[lo] - a)
+        return np.where(pick_hi, hi, lo)
+
+    l2r = nearest(left, right)
+    r2l = nearest(right, left)
+    li = np.arange(left.size)
+    mutual = r2l[l2r] == li
+    close = np.abs(right[l2r] - left) <= tolerance_ns
+    keep = mutual & close
+    return li[keep].astype(np.int64), l2r[keep].astype(np.int64)
+
+
+# ----------------------------------------------------------------------------- reader base
+
+
+class SessionReader(ABC):
+    """Read access to a recorded session, whatever its layout.
+
+    Open one with :func:`sea3d.io.session.open_session`. Use it as a context manager or call
+    :meth:`close`. Every stamp is an integer number of nanoseconds.
+    """
+
+    format: str = ""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self._ref_shape: dict[str, tuple[tuple[int, ...], np.dtype]] = {}
+
+    # -- layout-specific -----------------------------------------------------------------
+    @property
+    @abstractmethod
+    def rig_yaml(self) -> str | None:
+        """The rig file's YAML text stored with the session, or None."""
+
+    @abstractmethod
+    def stamps(self, stream: str) -> np.ndarray:
+        """(N,) int64 sorted stamps of ``stream`` (``left``, ``right``, ``imu``, ``sonar``).
+
+        Raises:
+            SessionError: for an unknown stream name.
+        """
+
+    @abstractmethod
+    def _read_image(self, stream: str, index: int) -> np.ndarray:
+        """Decode image ``index`` of ``stream``; raise SessionError naming the record."""
+
+    @abstractmethod
+    def image_bytes(self, stream: str, index: int) -> tuple[bytes, str]:
+        """The stored bytes of image ``index`` of ``stream`` and their format (``png``,
+        ``jpeg``, ...); raw images come back PNG-encoded (lossless).
+
+        Raises:
+            SessionError: if the record cannot be read.
+        """
+
+    @abstractmethod
+    def _record_name(self, stream: str, index: int) -> str:
+        """Human-readable name of a record (file or topic) for messages."""
+
+    @abstractmethod
+    def imu(self) -> ImuSeries:
+        """All IMU samples, sorted; an empty series when there are none."""
+
+    @abstractmethod
+    def sonar(self) -> SonarSeries:
+        """All echosounder samples, sorted; an empty series when there are none."""
+
+    @abstractmethod
+    def size_bytes(self) -> int:
+        """Bytes on disk."""
+
+    def close(self) -> None:  # noqa: B027 - optional hook
+        """Release open files."""
+
+    def streams(self) -> list[str]:
+        """Names of the streams that hold at least one record."""
+        return [s for s in ("left", "right", "imu", "sonar") if self.stamps(s).size]
+
+    # -- shared --------------------------------------------------------------------------
+    def __enter__(self) -> SessionReader:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({str(self.path)!r})"
+
+    def index_of(self, stream: str, t_ns: int, tolerance_ns: int = 0) -> int:
+        """Index of the record of ``stream`` nearest to ``t_ns`` within ``tolerance_ns``.
+
+        Raises:
+            SessionError: if no record lies within the tolerance.
+        """
+        stamps = self.stamps(stream)
+        if stamps.size == 0:
+            raise SessionError(f"{self.path}: stream {stream!r} is empty")
+        j = int(np.searchsorted(stamps, t_ns))
+        cands = [k for k in (j - 1, j) if 0 <= k < stamps.size]
+        best = min(cands, key=lambda k: abs(int(stamps[k]) - int(t_ns)))
+        if abs(int(stamps[best]) - int(t_ns)) > tolerance_ns:
+            raise SessionError(
+                f"{self.path}: no {stream} record within {tolerance_ns} ns of t_ns={int(t_ns)} "
+                f"(nearest is {int(stamps[best])})"
+            )
+        return best
+
+    def image(self, stream: str, key: int, *, by: str = "auto") -> np.ndarray:
+        """One image of ``left`` or ``right``, by index or by stamp.
+
+        Args:
+            stream: ``"left"`` or ``"right"``.
+            key: an index (0-based, negative counts from the end) or a stamp in nanoseconds.
+            by: ``"index"``, ``"stamp"`` (exact stamp), or ``"auto"``: an exact stamp match
+                first, otherwise an index.
+
+        Returns:
+            (H, W) or (H, W, 3) RGB, uint8 or uint16.
+
+        Raises:
+            SessionError: unknown stream, no such index or stamp, a damaged record, or an
+                image whose size differs from the stream's first image (file and stamp named).
+        """
+        if stream not in IMAGE_STREAMS:
+            raise SessionError(f"unknown image stream {stream!r}; expected one of {IMAGE_STREAMS}")
+        stamps = self.stamps(stream)
+        n = int(stamps.size)
+        index: int | None = None
+        if by in ("auto", "stamp"):
+            j = int(np.searchsorted(stamps, key))
+            if j < n and int(stamps[j]) == int(key):
+                index = j
+            elif by == "stamp":
+                raise SessionError(f"{self.path}: no {stream} image with t_ns={int(key)}")
+        if index is None:
+            if by not in ("auto", "index"):
+                raise SessionError(f"by must be 'auto', 'index' or 'stamp', got {by!r}")
+            if not -n <= int(key) < n:
+                raise SessionError(
+                    f"{self.path}: {stream} has {n} images; {int(key)} is neither an index "
+                    "nor a stamp"
+                )
+            index = int(key) % n
+        img = self._read_image(stream, index)
+        self._check_shape(stream, index, img)
+        return img
+
+    def _check_shape(self, stream: str, index: int, img: np.ndarray) -> None:
+        ref = self._ref_shape.get(stream)
+        if ref is None:
+            first = img
+            if index != 0:
+                try:
+                    first = self._read_image(stream, 0)
+                except SessionError as err:  # a damaged first image must not condemn the rest
+                    _log.warning(
+                        "%s; using %s as the stream's reference size",
+                        err,
+                        self._record_name(stream, index),
+                    )
+            ref = (first.shape, first.dtype)
+            self._ref_shape[stream] = ref
+        if img.shape != ref[0] or img.dtype != ref[1]:
+            raise SessionError(
+                f"{self._record_name(stream, index)} (t_ns={int(self.stamps(stream)[index])}) is "
+                f"{img.shape} {img.dtype} but the stream's first image is {ref[0]} {ref[1]}"
+            )
+
+    def default_tolerance_ns(self) -> int:
+        """Half the median left frame interval (0 with fewer than two left frames)."""
+        stamps = self.stamps("left")
+        if stamps.size < 2:
+            return 0
+        return int(np.median(np.diff(stamps)) // 2)
+
+    def match_pairs(self, tolerance_ns: int | None = None) -> PairMatch:
+        """Match left and right frames by mutual-nearest stamp within ``tolerance_ns``.
+
+        Args:
+            tolerance_ns: largest stamp difference of a pair; None uses
+                :meth:`default_tolerance_ns` (half the median left frame interval).
+        """
+        tol = self.default_tolerance_ns() if tolerance_ns is None else int(tolerance_ns)
+        if tol < 0:
+            raise SessionError(f"tolerance_ns must be >= 0, got {tol}")
+        left, right = self.stamps("left"), self.stamps("right")
+        li, ri = match_stamps(left, right, tol)
+        return PairMatch(
+            left_index=li,
+            right_index=ri,
+            unpaired_left=int(left.size - li.size),
+            unpaired_right=int(right.size - ri.size),
+            tolerance_ns=tol,
+        )
+
+    def pairs(self, tolerance_ns: int | None = None, *, workers: int = 2) -> Iterator[StereoPair]:
+        """Iterate over stereo pairs in stamp order, skipping damaged ones with a warning.
+
+        Images are decoded ahead in ``workers`` threads (OpenCV releases the GIL while
+        decoding), at most ``2 * workers`` pairs ahead; ``workers=0`` decodes in the caller's
+        thread. Unpaired frames are counted and logged (see :meth:`match_pairs`).
+        """
+        match = self.match_pairs(tolerance_ns)
+        if match.unpaired_left or match.unpaired_right:
+            _log.warning(
+                "%s: %d left and %d right frames have no partner within %d ns",
+                self.path,
+                match.unpaired_left,
+                match.unpaired_right,
+                match.tolerance_ns,
+            )
+        ls, rs = self.stamps("left"), self.stamps("right")
+        todo = list(zip(match.left_index.tolist(), match.right_index.tolist(), strict=True))
+
+        def load(i: int, j: int) -> StereoPair | None:
+            try:
+                left = self.image("left", i, by="index")
+                right = self.image("right", j, by="index")
+            except SessionError as err:
+                _log.warning("skipping pair at t_ns=%d: %s", int(ls[i]), err)
+                return None
+            rt = int(rs[j])
+            return StereoPair(int(ls[i]), left, right, None if rt == int(ls[i]) else rt)
+
+        if workers <= 0 or len(todo) < 2:
+            for i, j in todo:
+                pair = load(i, j)
+                if pair is not None:
+                    yield pair
+            return
+        from concurrent.futures import Future, ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="sea3d-read") as pool:
+            ahead: collections.deque[Future[StereoPair | None]] = collections.deque()
+            it = iter(todo)
+            for i, j in itertools.islice(it, 2 * workers):
+                ahead.append(pool.submit(load, i, j))
+            while ahead:
+                pair = ahead.popleft().result()
+                nxt = next(it, None)
+                if nxt is not None:
+                    ahead.append(pool.submit(load, *nxt))
+                if pair is not None:
+                    yield pair
+
+    def info(self) -> dict[str, dict[str, Any]]:
+        """Per-stream statistics: ``count``, ``rate_hz``, ``first_t_ns``, ``last_t_ns``, ``gaps``
+        (intervals longer than 1.5 median intervals) and ``max_interval_s``."""
+        return {s: stream_stats(self.stamps(s)) for s in ("left", "right", "imu", "sonar")}
+
+    def summary(self, tolerance_ns: int | None = None) -> dict[str, Any]:
+        """Session-level report: path, format, size, duration, rig, streams and pairing."""
+        streams = self.info()
+        firsts = [v["first_t_ns"] for v in streams.values() if v["count"]]
+        lasts = [v["last_t_ns"] for v in streams.values() if v["count"]]
+        match = self.match_pairs(tolerance_ns)
+        return {
+            "path": os.fspath(self.path),
+            "format": self.format,
+            "size_bytes": self.size_bytes(),
+            "duration_s": (max(lasts) - min(firsts)) * 1e-9 if firsts else 0.0,
+            "rig": self.rig_yaml is not None,
+            "streams": streams,
+            "pairs": {
+                "count": len(match),
+                "unpaired_left": match.unpaired_left,
+                "unpaired_right": match.unpaired_right,
+                "tolerance_ns": match.tolerance_ns,
+            },
+        }

@@ -1,0 +1,328 @@
+"""The paper's folder layout: one PNG per frame named by its stamp, CSVs for IMU and sonar.
+
+::
+
+    session/
+      left/<t_ns>.png      right/<t_ns>.png     (or .jpg)
+      imu.csv              t_ns,ax,ay,az,wx,wy,wz   (m/s^2, rad/s)
+      sonar.csv            t_ns,range_m,confidence  (m, 0..1)
+      rig.yaml             the rig file (optional)
+      session.json         format, version, image encoding, counts, "complete"
+
+Every image is written under a temporary name (``.<t_ns>.png.tmp``) and renamed when complete,
+so a crash never leaves a half-written image under its final name. CSV lines are flushed as they
+are written; a torn last line is skipped with a warning when read.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import re
+import time
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+from sea3d.errors import SessionError
+from sea3d.io.session_common import (
+    ImuSeries,
+    SessionReader,
+    SonarSeries,
+    decode_image,
+    sort_stamps,
+)
+
+__all__ = ["FolderSessionReader", "FolderSessionWriter"]
+
+_log = logging.getLogger(__name__)
+
+IMU_HEADER = "t_ns,ax,ay,az,wx,wy,wz"
+SONAR_HEADER = "t_ns,range_m,confidence"
+SESSION_FORMAT = "sea3d-session"
+SESSION_VERSION = 1
+_EXT = {"png": ".png", "jpeg": ".jpg"}
+_IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".pgm", ".ppm")
+_NAME_RE = re.compile(r"^(\d+)$")
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "wb") as f:
+        f.write(data)
+    os.replace(tmp, path)
+
+
+class FolderSessionWriter:
+    """Backend of :class:`~sea3d.io.session.SessionWriter` for the folder layout (not public)."""
+
+    def __init__(self, path: Path, rig_yaml: str | None, image_encoding: str) -> None:
+        if image_encoding not in _EXT:
+            raise SessionError(
+                f"{path}: a folder session stores png or jpeg images, not {image_encoding!r}"
+            )
+        if path.exists() and not path.is_dir():
+            raise SessionError(f"{path} exists and is not a folder")
+        if (path / "session.json").exists() or any(
+            (path / s).is_dir() and any((path / s).iterdir()) for s in ("left", "right")
+        ):
+            raise SessionError(f"{path} already holds a session; refusing to overwrite it")
+        self.path = path
+        self.ext = _EXT[image_encoding]
+        self.image_encoding = image_encoding
+        for s in ("left", "right"):
+            (path / s).mkdir(parents=True, exist_ok=True)
+        if rig_yaml is not None:
+            _atomic_write(path / "rig.yaml", rig_yaml.encode("utf-8"))
+        self._created = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+        self._write_json({}, complete=False)
+        self._csv: dict[str, IO[str]] = {}
+        for name, header in (("imu", IMU_HEADER), ("sonar", SONAR_HEADER)):
+            f = open(path / f"{name}.csv", "w", encoding="ascii", newline="\n")
+            f.write(header + "\n")
+            f.flush()
+            self._csv[name] = f
+        self.bytes_written = 0
+
+    def _write_json(self, counts: dict[str, int], *, complete: bool) -> None:
+        meta = {
+            "format": SESSION_FORMAT,
+            "version": SESSION_VERSION,
+            "layout": "folder",
+            "image_encoding": self.image_encoding,
+            "stamp_unit": "ns",
+            "created_utc": self._created,
+            "counts": counts,
+            "complete": complete,
+        }
+        _atomic_write(self.path / "session.json", (json.dumps(meta, indent=2) + "\n").encode())
+
+    def write_encoded(self, stream: str, t_ns: int, data: bytes) -> None:
+        _atomic_write(self.path / stream / f"{t_ns}{self.ext}", data)
+        self.bytes_written += len(data)
+
+    def write_imu(self, t_ns: int, accel: np.ndarray, gyro: np.ndarray) -> None:
+        vals = ",".join(repr(float(v)) for v in (*accel, *gyro))
+        line = f"{t_ns},{vals}\n"
+        self._csv["imu"].write(line)
+        self._csv["imu"].flush()
+        self.bytes_written += len(line)
+
+    def write_sonar(self, t_ns: int, range_m: np.float32, confidence: np.float32) -> None:
+        line = f"{t_ns},{range_m!s},{confidence!s}\n"
+        self._csv["sonar"].write(line)
+        self._csv["sonar"].flush()
+        self.bytes_written += len(line)
+
+    def flush(self) -> None:
+        for f in self._csv.values():
+            f.flush()
+
+    def close(self, counts: dict[str, int]) -> None:
+        for f in self._csv.values():
+            f.close()
+        self._write_json(counts, complete=True)
+
+
+class FolderSessionReader(SessionReader):
+    """Reader for the folder layout (see the module docstring).
+
+    Args:
+        path: the session folder.
+        name_unit: unit of the numbers in image file names, ``"ns"`` (sea3d) or ``"us"``
+            (the paper's recordings); stamps are always returned in nanoseconds.
+
+    Raises:
+        SessionError: if the folder does not exist or holds no session files.
+    """
+
+    format = "folder"
+
+    def __init__(self, path: Path, *, name_unit: str = "ns") -> None:
+        super().__init__(path)
+        if not self.path.is_dir():
+            raise SessionError(f"session folder {self.path} does not exist")
+        if name_unit not in ("ns", "us"):
+            raise SessionError(f"name_unit must be 'ns' or 'us', got {name_unit!r}")
+        self.meta: dict[str, Any] = {}
+        meta_path = self.path / "session.json"
+        if meta_path.is_file():
+            try:
+                self.meta = json.loads(meta_path.read_text(encoding="utf-8"))
+            except (OSError, ValueError) as err:
+                _log.warning("%s: cannot parse (%s); ignoring it", meta_path, err)
+        if self.meta.get("stamp_unit") == "us":
+            name_unit = "us"
+        self._scale = 1000 if name_unit == "us" else 1
+        rig_path = self.path / "rig.yaml"
+        self._rig = rig_path.read_text(encoding="utf-8") if rig_path.is_file() else None
+        self._files: dict[str, list[str]] = {}
+        self._stamps: dict[str, np.ndarray] = {}
+        for s in ("left", "right"):
+            self._index_images(s)
+        has_any = any(len(v) for v in self._files.values()) or any(
+            (self.path / f).is_file() for f in ("imu.csv", "sonar.csv", "session.json")
+        )
+        if not has_any:
+            raise SessionError(
+                f"{self.path} holds no session: no left/ or right/ images, imu.csv, sonar.csv "
+                "or session.json"
+            )
+        self._imu: ImuSeries | None = None
+        self._sonar: SonarSeries | None = None
+
+    @property
+    def rig_yaml(self) -> str | None:
+        return self._rig
+
+    def _index_images(self, stream: str) -> None:
+        folder = self.path / stream
+        names: list[str] = []
+        stamps: list[int] = []
+        if folder.is_dir():
+            for entry in sorted(os.listdir(folder)):
+                full = folder / entry
+                if entry.startswith(".") and entry.endswith(".tmp"):
+                    _log.warning(
+                        "%s: incomplete write left by an interrupted recording; ignored", full
+                    )
+                    continue
+                stem, suffix = os.path.splitext(entry)
+                if suffix.lower() not in _IMAGE_SUFFIXES:
+                    if not entry.startswith("."):
+                        _log.warning("%s: not an image file; ignored", full)
+                    continue
+                m = _NAME_RE.match(stem)
+                if m is None:
+                    _log.warning(
+                        "%s: name is not an integer stamp (<t_ns>%s); ignored", full, suffix
+                    )
+                    continue
+                names.append(entry)
+                stamps.append(int(m.group(1)) * self._scale)
+        # File listing order means nothing: sort numerically; for equal stamps prefer the
+        # canonical name (no leading zeros) and report the others.
+        by_stamp = sorted(
+            range(len(stamps)),
+            key=lambda i: (
+                stamps[i],
+                os.path.splitext(names[i])[0] != str(stamps[i] // self._scale),
+                names[i],
+            ),
+        )
+        kept: list[int] = []
+        for i in by_stamp:
+            if kept and stamps[kept[-1]] == stamps[i]:
+                _log.warning(
+                    "%s has the same stamp as %s (t_ns=%d); ignored",
+                    folder / names[i],
+                    names[kept[-1]],
+                    stamps[i],
+                )
+                continue
+            kept.append(i)
+        names = [names[i] for i in kept]
+        arr = np.asarray([stamps[i] for i in kept], dtype=np.int64)
+        order = np.arange(arr.size)
+        self._files[stream] = [names[i] for i in order.tolist()]
+        self._stamps[stream] = arr[order]
+
+    def stamps(self, stream: str) -> np.ndarray:
+        if stream in self._stamps:
+            return self._stamps[stream]
+        if stream == "imu":
+            return self.imu().t_ns
+        if stream == "sonar":
+            return self.sonar().t_ns
+        raise SessionError(f"unknown stream {stream!r}; expected left, right, imu or sonar")
+
+    def _record_name(self, stream: str, index: int) -> str:
+        return str(self.path / stream / self._files[stream][index])
+
+    def _read_image(self, stream: str, index: int) -> np.ndarray:
+        name = self._record_name(stream, index)
+        try:
+            data = Path(name).read_bytes()
+        except OSError as err:
+            raise SessionError(f"cannot read {name}: {err}") from err
+        return decode_image(data, f"{name} (t_ns={int(self._stamps[stream][index])})")
+
+    def image_bytes(self, stream: str, index: int) -> tuple[bytes, str]:
+        """The stored (encoded) bytes of an image and its format (``png``, ``jpeg``, ...)."""
+        name = self._record_name(stream, index)
+        suffix = os.path.splitext(name)[1].lower().lstrip(".")
+        fmt = {"jpg": "jpeg", "tif": "tiff"}.get(suffix, suffix)
+        try:
+            return Path(name).read_bytes(), fmt
+        except OSError as err:
+            raise SessionError(f"cannot read {name}: {err}") from err
+
+    def _read_csv(self, name: str, header: str, ncols: int) -> tuple[np.ndarray, np.ndarray]:
+        path = self.path / name
+        if not path.is_file():
+            return np.zeros(0, np.int64), np.zeros((0, ncols - 1), np.float64)
+        stamps: list[int] = []
+        rows: list[list[float]] = []
+        with open(path, encoding="ascii", errors="replace") as f:
+            for lineno, line in enumerate(f, start=1):
+                text = line.strip()
+                if not text:
+                    continue
+                if lineno == 1 and not text[0].isdigit():
+                    if text.replace(" ", "") != header:
+                        _log.warning(
+                            "%s: header %r differs from %r; reading columns by position",
+                            path,
+                            text,
+                            header,
+                        )
+                    continue
+                parts = text.split(",")
+                try:
+                    if len(parts) != ncols:
+                        raise ValueError(f"{len(parts)} fields, expected {ncols}")
+                    t = int(parts[0])
+                    vals = [float(p) for p in parts[1:]]
+                except ValueError as err:
+                    torn = not line.endswith("\n")
+                    _log.warning(
+                        "%s line %d: %s (%r); skipped%s",
+                        path,
+                        lineno,
+                        err,
+                        text[:60],
+                        " (torn last line of an interrupted recording)" if torn else "",
+                    )
+                    continue
+                stamps.append(t)
+                rows.append(vals)
+        t_arr = np.asarray(stamps, dtype=np.int64)
+        v_arr = np.asarray(rows, dtype=np.float64).reshape(-1, ncols - 1)
+        order = sort_stamps(t_arr, str(path))
+        return t_arr[order], v_arr[order]
+
+    def imu(self) -> ImuSeries:
+        if self._imu is None:
+            t, v = self._read_csv("imu.csv", "t_ns,ax,ay,az,wx,wy,wz", 7)
+            self._imu = ImuSeries(t_ns=t, accel_mps2=v[:, :3].copy(), gyro_radps=v[:, 3:].copy())
+        return self._imu
+
+    def sonar(self) -> SonarSeries:
+        if self._sonar is None:
+            t, v = self._read_csv("sonar.csv", "t_ns,range_m,confidence", 3)
+            self._sonar = SonarSeries(
+                t_ns=t, range_m=v[:, 0].astype(np.float32), confidence=v[:, 1].astype(np.float32)
+            )
+        return self._sonar
+
+    def size_bytes(self) -> int:
+        total = 0
+        for root, _dirs, files in os.walk(self.path):
+            for f in files:
+                try:
+                    total += os.path.getsize(os.path.join(root, f))
+                except OSError:
+                    pass
+        return total

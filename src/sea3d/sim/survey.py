@@ -1,0 +1,658 @@
+"""Whole simulated sessions, single stereo pairs and calibration sets, with ground truth.
+
+- :func:`simulate_pair`: one stereo pair of a scene from a pose, with the left view's ground truth.
+- :func:`render_calibration_set`: images of a checkerboard or ChArUco board at varied poses
+  (0.5-2.5 m, tilted, spread over the image) and the true ``T_left_board`` of each view.
+- :func:`simulate_survey`: a trajectory through a scene: stereo frames at the camera rate, IMU at
+  200 Hz, echosounder at 10 Hz, written through any writer with ``write_stereo``, ``write_imu``
+  and ``write_sonar`` (:class:`sea3d.io.session.SessionWriter`), plus ground truth in ``gt/``.
+
+Ground truth on disk (``gt/``, written by :func:`simulate_survey`):
+
+- ``depth/<t_ns>.npy``: left depth, float32 metres along the left camera's z axis, NaN where
+  nothing is hit; ``object_id/<t_ns>.png``: 16-bit object id + 1 (0 = nothing);
+- ``poses_left.tum`` and ``poses_body.tum``: ``t x y z qx qy qz qw`` (t in seconds), poses
+  ``T_world_left`` and ``T_world_body``;
+- ``scene.ply``: the scene mesh (world frame, vertex colours);
+- ``sim.json``: scene, water, seed, rates, ``T_body_left``, ``T_body_sonar``, IMU biases file.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import cv2
+import numpy as np
+import open3d as o3d
+from numpy.typing import NDArray
+
+from sea3d.errors import SimulationError
+from sea3d.geometry.camera import CameraModel
+from sea3d.geometry.pinhole import PinholeCamera
+from sea3d.geometry.rig import StereoRig
+from sea3d.geometry.se3 import R_to_quat_wxyz, invert_T
+from sea3d.sim.motion import (
+    HandHeld,
+    ImuNoise,
+    Lawnmower,
+    Mount,
+    Orbit,
+    Trajectory,
+    imu_samples,
+    make_trajectory,
+    poses,
+    sample_times_ns,
+)
+from sea3d.sim.optics import Imaging
+from sea3d.sim.render import GroundTruth, Renderer
+from sea3d.sim.scene import BoardSpec, Scene, load_scene, make_board, parse_board_spec
+
+__all__ = [
+    "CalibrationSet",
+    "SurveyConfig",
+    "SurveyResult",
+    "render_calibration_set",
+    "scale_rig",
+    "simulate_pair",
+    "simulate_survey",
+]
+
+_log = logging.getLogger(__name__)
+
+FloatArray = NDArray[np.float64]
+Image = NDArray[np.uint8]
+
+
+class SessionSink(Protocol):
+    """What :func:`simulate_survey` writes to (:class:`sea3d.io.session.SessionWriter`)."""
+
+    def write_stereo(self, t_ns: int, left: Image, right: Image) -> None: ...
+
+    def write_imu(self, t_ns: int, accel_mps2: Any, gyro_radps: Any) -> None: ...
+
+    def write_sonar(self, t_ns: int, range_m: float, confidence: float = ...) -> None: ...
+
+
+def _pinhole_of(cam: CameraModel) -> PinholeCamera:
+    pin = getattr(cam, "pinhole", cam)
+    if not isinstance(pin, PinholeCamera):
+        raise SimulationError(f"cannot find the pinhole of a {type(cam).__name__}")
+    return pin
+
+
+def _scaled_pinhole(pin: PinholeCamera, width: int, height: int) -> PinholeCamera:
+    sx, sy = width / pin.width, height / pin.height
+    return PinholeCamera(
+        fx=pin.fx * sx,
+        fy=pin.fy * sy,
+        cx=(pin.cx + 0.5) * sx - 0.5,
+        cy=(pin.cy + 0.5) * sy - 0.5,
+        width=width,
+        height=height,
+        dist=pin.dist,
+    )
+
+
+def scale_rig(rig: StereoRig, size_px: tuple[int, int]) -> StereoRig:
+    """The same rig with images resized to ``size_px = (width, height)``: focal lengths and
+    principal points scale (pixel centres stay pixel centres); distortion and ports are kept.
+
+    Raises:
+        SimulationError: for a non-positive size or a camera without a pinhole.
+    """
+    w, h = int(size_px[0]), int(size_px[1])
+    if w <= 0 or h <= 0:
+        raise SimulationError(f"image size must be positive, got {w}x{h}")
+    if (w, h) == (rig.width, rig.height):
+        return rig
+    cams = []
+    for cam in (rig.left, rig.right):
+        pin = _scaled_pinhole(_pinhole_of(cam), w, h)
+        port = getattr(cam, "port", None)
+        cams.append(type(cam)(pin, port) if port is not None else pin)  # type: ignore[call-arg]
+    return StereoRig(left=cams[0], right=cams[1], T_left_right=rig.T_left_right)
+
+
+def in_air(rig: StereoRig) -> StereoRig:
+    """The rig's bare pinhole cameras (ports removed): the rig as it sees in air."""
+    return StereoRig(
+        left=_pinhole_of(rig.left), right=_pinhole_of(rig.right), T_left_right=rig.T_left_right
+    )
+
+
+def _imaging(water: str | Imaging | None) -> Imaging:
+    if isinstance(water, Imaging):
+        return water
+    if water is None:
+        return Imaging.clean()
+    return Imaging.underwater(water)
+
+
+def simulate_pair(
+    rig: StereoRig,
+    scene: Scene | str,
+    T_world_left: FloatArray,
+    water: str | Imaging | None = None,
+    *,
+    seed: int = 0,
+    time_s: float = 0.0,
+    supersample: int = 2,
+    renderer: Renderer | None = None,
+) -> tuple[Image, Image, GroundTruth]:
+    """Render one stereo pair.
+
+    Args:
+        rig: the stereo rig (pinhole, dome- or flat-port cameras).
+        scene: a :class:`Scene`, a built-in scene name or a scene YAML path.
+        T_world_left: ``(4, 4)`` left camera pose.
+        water: ``"none"``/None (clean), ``"clear"``, ``"coastal"``, ``"turbid"`` (every effect on)
+            or an :class:`Imaging` for full control.
+        seed: sensor-noise seed (the same seed gives the same images).
+        time_s: scene time (caustics).
+        supersample: rays per pixel along each axis.
+        renderer: reuse a renderer of the same scene (keeps its camera-ray cache).
+
+    Returns:
+        ``(left, right, gt_left)``: two ``(H, W, 3)`` uint8 RGB images and the left ground truth.
+
+    Raises:
+        SimulationError: bad scene, water or pose.
+    """
+    sc = load_scene(scene) if isinstance(scene, str) else scene
+    r = renderer or Renderer(sc, supersample=supersample)
+    imaging = _imaging(water)
+    rng = np.random.default_rng(seed)
+    T_wl = np.asarray(T_world_left, dtype=np.float64)
+    left = r.render(rig.left, T_wl, imaging, time_s=time_s, rng=rng)
+    right = r.render(rig.right, T_wl @ rig.T_left_right, imaging, time_s=time_s, rng=rng)
+    return left.image, right.image, left.gt
+
+
+# ----------------------------------------------------------------------------------------------
+# Calibration sets
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class CalibrationSet:
+    """Rendered calibration views.
+
+    Attributes:
+        lefts: list of ``(H, W, 3)`` uint8 RGB images.
+        rights: list of ``(H, W, 3)`` uint8 RGB images.
+        T_left_board: list of ``(4, 4)`` float64 true board poses in the left camera frame.
+        t_ns: list of int stamps (views are 1 s apart).
+        board: the :class:`BoardSpec`.
+    """
+
+    lefts: list[Image]
+    rights: list[Image]
+    T_left_board: list[FloatArray]
+    t_ns: list[int]
+    board: BoardSpec
+
+    def __iter__(self) -> Iterator[Any]:
+        """Unpack as ``lefts, rights, T_left_board = render_calibration_set(...)``."""
+        return iter((self.lefts, self.rights, self.T_left_board))
+
+
+def _board_outline(spec: BoardSpec) -> FloatArray:
+    s = spec.square_m
+    x0, x1, y0, y1 = -s, spec.cols * s, -s, spec.rows * s
+    return np.array([[x0, y0, 0], [x1, y0, 0], [x1, y1, 0], [x0, y1, 0]], dtype=np.float64)
+
+
+def _visible(
+    cam: CameraModel, T_cam_board: FloatArray, pts_board: FloatArray, margin_px: float
+) -> bool:
+    p = pts_board @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
+    if np.any(p[:, 2] <= 0.05):
+        return False
+    uv, ok = cam.project(p)
+    if not np.all(ok):
+        return False
+    return bool(
+        np.all(
+            (uv[:, 0] >= margin_px)
+            & (uv[:, 0] <= cam.width - 1 - margin_px)
+            & (uv[:, 1] >= margin_px)
+            & (uv[:, 1] <= cam.height - 1 - margin_px)
+        )
+    )
+
+
+def _random_rotation_towards(
+    z_axis: FloatArray, tilt_max_rad: float, roll_max_rad: float, g: np.random.Generator
+) -> FloatArray:
+    """A rotation whose third column is ``z_axis`` tilted by up to ``tilt_max_rad`` and rolled."""
+    z = z_axis / np.linalg.norm(z_axis)
+    x = np.array([1.0, 0.0, 0.0]) - z[0] * z  # board x roughly along the camera's x
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R0 = np.stack([x, y, z], axis=1)
+    tilt = g.uniform(0.0, tilt_max_rad)
+    az = g.uniform(0.0, 2 * np.pi)
+    axis = np.array([np.cos(az), np.sin(az), 0.0])
+    Rt = cv2.Rodrigues(axis * tilt)[0]
+    roll = g.uniform(-roll_max_rad, roll_max_rad)
+    Rr = cv2.Rodrigues(np.array([0.0, 0.0, roll]))[0]
+    return np.asarray(R0 @ Rt @ Rr, dtype=np.float64)
+
+
+def render_calibration_set(
+    rig: StereoRig,
+    board: BoardSpec | str,
+    views: int,
+    medium: str = "water",
+    seed: int = 0,
+    *,
+    distance_range_m: tuple[float, float] = (0.5, 2.5),
+    tilt_max_deg: float = 40.0,
+    water: str | Imaging | None = None,
+    supersample: int = 6,
+    margin_px: float = 8.0,
+    progress: Callable[[int], None] | None = None,
+) -> CalibrationSet:
+    """Render a calibration set of a board at random poses seen fully by both cameras.
+
+    The board's frame has its origin at the first inner corner, x along the ``cols`` inner
+    corners, y along the ``rows``, z into the board. Poses: distance uniform in
+    ``distance_range_m``, centre aimed at a random point of a 4x4 grid over the image (so views
+    cover the whole image), tilted up to ``tilt_max_deg`` and rolled up to 30 degrees.
+
+    Args:
+        rig: the stereo rig.
+        board: a :class:`BoardSpec` or its text (``checkerboard:9x6:40mm``).
+        views: number of views.
+        medium: ``"water"`` (the rig's cameras as given, ports included) or ``"air"`` (the
+            bare pinholes, ports removed: the in-air calibration the workflow starts with).
+        seed: chooses the poses (and sensor noise if ``water`` has any).
+        distance_range_m: board distances, metres.
+        tilt_max_deg: largest tilt away from facing the camera.
+        water: image effects (default clean).
+        supersample: rays per pixel along each axis.
+        margin_px: every board corner (outer squares included) stays this far inside both images.
+        progress: called with 1 after each view.
+
+    Returns:
+        :class:`CalibrationSet`.
+
+    Raises:
+        SimulationError: bad board text, ``views < 1``, unknown medium, or no pose fits the image.
+    """
+    if views < 1:
+        raise SimulationError(f"views must be >= 1, got {views}")
+    if medium not in ("water", "air"):
+        raise SimulationError(f"medium must be 'water' or 'air', got {medium!r}")
+    spec = parse_board_spec(board) if isinstance(board, str) else board
+    cams = rig if medium == "water" else in_air(rig)
+    g = np.random.default_rng(seed)
+    # The board sits at the world origin; the cameras move (one scene, one ray cache).
+    scene = Scene(name=f"calibration_{spec.kind}", surface_z_m=1e3)
+    scene.add(make_board(spec, np.eye(4)))
+    renderer = Renderer(scene, supersample=supersample)
+    # Clean calibration images are lit evenly (a diffuse light box), so corners have full contrast.
+    imaging = Imaging(ambient=1.0) if water is None or water == "none" else _imaging(water)
+    outline = _board_outline(spec)
+    centre_board = np.array(
+        [(spec.cols - 1) * spec.square_m / 2, (spec.rows - 1) * spec.square_m / 2, 0.0]
+    )
+    T_right_left = invert_T(rig.T_left_right)
+    grid = [(i, j) for j in range(4) for i in range(4)]
+    lefts, rights, poses_lb, stamps = [], [], [], []
+    for k in range(views):
+        T_lb = None
+        for _attempt in range(400):
+            gi, gj = grid[k % len(grid)] if _attempt == 0 else grid[int(g.integers(len(grid)))]
+            u = (gi + g.uniform(0.1, 0.9)) / 4 * cams.width
+            v = (gj + g.uniform(0.1, 0.9)) / 4 * cams.height
+            d = g.uniform(*distance_range_m)
+            ray = cams.left.unproject(np.array([[u, v]]))
+            if not ray.valid[0]:
+                continue
+            target = ray.at(np.array([d]))[0]
+            R = _random_rotation_towards(
+                ray.directions[0], np.deg2rad(tilt_max_deg), np.deg2rad(30.0), g
+            )
+            T = np.eye(4)
+            T[:3, :3] = R
+            T[:3, 3] = target - R @ centre_board
+            if _visible(cams.left, T, outline, margin_px) and _visible(
+                cams.right, T_right_left @ T, outline, margin_px
+            ):
+                T_lb = T
+                break
+        if T_lb is None:
+            raise SimulationError(
+                f"no board pose at {distance_range_m} m keeps the whole {spec.kind} "
+                f"{spec.cols}x{spec.rows} ({spec.square_m * 1e3:.0f} mm) inside both images; "
+                f"use a smaller board or larger distances"
+            )
+        T_world_left = invert_T(T_lb)  # world = board frame
+        rng = np.random.default_rng(seed * 1000 + k)
+        lv = renderer.render(cams.left, T_world_left, imaging, rng=rng)
+        rv = renderer.render(cams.right, T_world_left @ rig.T_left_right, imaging, rng=rng)
+        lefts.append(lv.image)
+        rights.append(rv.image)
+        poses_lb.append(T_lb)
+        stamps.append(int(k * 1_000_000_000))
+        if progress is not None:
+            progress(1)
+    return CalibrationSet(
+        lefts=lefts, rights=rights, T_left_board=poses_lb, t_ns=stamps, board=spec
+    )
+
+
+def write_calibration_set(cal: CalibrationSet, out: Path) -> None:
+    """Write ``left/<t_ns>.png``, ``right/<t_ns>.png`` and ``gt/boards.json``.
+
+    Raises:
+        SimulationError: if the folder cannot be written.
+    """
+    try:
+        for sub in ("left", "right", "gt"):
+            (out / sub).mkdir(parents=True, exist_ok=True)
+        for t, li, ri in zip(cal.t_ns, cal.lefts, cal.rights, strict=True):
+            cv2.imwrite(str(out / "left" / f"{t}.png"), li[:, :, ::-1])
+            cv2.imwrite(str(out / "right" / f"{t}.png"), ri[:, :, ::-1])
+        spec = cal.board
+        boards = [
+            {"t_ns": t, "T_left_board": T.tolist()}
+            for t, T in zip(cal.t_ns, cal.T_left_board, strict=True)
+        ]
+        meta = {
+            "board": {
+                "kind": spec.kind,
+                "cols": spec.cols,
+                "rows": spec.rows,
+                "square_m": spec.square_m,
+                "marker_m": spec.marker_m,
+                "dictionary": spec.dictionary,
+            }
+        }
+        (out / "gt" / "boards.json").write_text(json.dumps(boards, indent=1))
+        (out / "gt" / "board.json").write_text(json.dumps(meta, indent=1))
+    except OSError as err:
+        raise SimulationError(f"cannot write calibration set to {out}: {err}") from err
+
+
+# ----------------------------------------------------------------------------------------------
+# Surveys
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, kw_only=True)
+class SurveyConfig:
+    """A simulated session.
+
+    Attributes:
+        frames: number of stereo frames.
+        fps: camera rate, frames per second.
+        imu_rate_hz: IMU rate.
+        sonar_rate_hz: echosounder rate.
+        trajectory: ``lawnmower``, ``orbit`` or ``handheld``.
+        water: ``none``, ``clear``, ``coastal`` or ``turbid``.
+        seed: noise and hand-held wobble seed.
+        supersample: rays per pixel along each axis.
+        camera_tilt_deg: the cameras' downward tilt on the body; None = 60 degrees for the
+            lawnmower survey (looking at the floor), 30 for the others.
+        imu_noise: add MTi-300-like IMU noise.
+        sonar_noise_fraction: echosounder range noise, fraction of range (standard deviation).
+    """
+
+    frames: int = 300
+    fps: float = 10.0
+    imu_rate_hz: float = 200.0
+    sonar_rate_hz: float = 10.0
+    trajectory: str = "lawnmower"
+    water: str = "coastal"
+    seed: int = 0
+    supersample: int = 2
+    camera_tilt_deg: float | None = None
+    imu_noise: bool = True
+    sonar_noise_fraction: float = 0.005
+
+    def tilt_deg(self) -> float:
+        """The camera tilt in effect (see ``camera_tilt_deg``)."""
+        if self.camera_tilt_deg is not None:
+            return float(self.camera_tilt_deg)
+        return 60.0 if self.trajectory == "lawnmower" else 30.0
+
+    def __post_init__(self) -> None:
+        if self.frames < 1 or self.fps <= 0 or self.imu_rate_hz <= 0 or self.sonar_rate_hz <= 0:
+            raise SimulationError(
+                f"survey needs frames >= 1 and positive rates; got frames={self.frames}, "
+                f"fps={self.fps}, "
+                f"imu_rate_hz={self.imu_rate_hz}, sonar_rate_hz={self.sonar_rate_hz}"
+            )
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class SurveyResult:
+    """What :func:`simulate_survey` produced.
+
+    Attributes:
+        frame_t_ns: ``(F,)`` int64 frame stamps.
+        T_world_left: ``(F, 4, 4)`` true left camera poses.
+        T_world_body: ``(F, 4, 4)`` true body poses.
+        imu_count: IMU samples written.
+        sonar_count: echosounder samples written.
+    """
+
+    frame_t_ns: NDArray[np.int64]
+    T_world_left: FloatArray
+    T_world_body: FloatArray
+    imu_count: int
+    sonar_count: int
+
+
+def _scene_focus(scene: Scene) -> tuple[tuple[float, float, float], float]:
+    for obj in scene.objects:
+        if obj.name == "aruco_cube":
+            c = obj.T_world_object[:3, 3]
+            floor = (
+                float(np.asarray(scene.floor_height(np.array([c[0]]), np.array([c[1]])))[0])
+                if scene.floor_height
+                else c[2]
+            )
+            return (float(c[0]), float(c[1]), float(c[2])), floor
+    lo, hi = scene.bounds_m()
+    c = (lo + hi) / 2
+    floor = (
+        float(np.asarray(scene.floor_height(np.array([c[0]]), np.array([c[1]])))[0])
+        if scene.floor_height
+        else float(lo[2])
+    )
+    return (float(c[0]), float(c[1]), floor), floor
+
+
+def default_trajectory(scene: Scene, config: SurveyConfig) -> Trajectory:
+    """The configured trajectory kind, sized to the scene: it stays inside the scene's footprint
+    and under its water surface, and keeps the paper rig's 0.6 m minimum stereo range in mind
+    where the scene allows (the tank does not quite)."""
+    focus, floor = _scene_focus(scene)
+    lo, hi = scene.bounds_m()
+    extent = float(min(hi[0] - lo[0], hi[1] - lo[1]))
+    water_m = float(scene.surface_z_m - floor)
+    duration = max((config.frames - 1) / config.fps, 1.0 / config.fps)
+    fx, fy, fz = focus
+    kind = config.trajectory
+    if kind == "lawnmower":
+        width = min(3.0, 0.5 * extent)
+        return Lawnmower(
+            center_m=(fx, fy - width / 3),
+            z_m=floor + min(1.5, 0.7 * water_m),
+            width_m=width,
+            lane_spacing_m=width / 6,
+            speed_mps=0.1 * width,
+            duration_s=duration,
+        )
+    if kind == "orbit":
+        return Orbit(
+            target_m=(fx, fy, fz),
+            radius_m=min(1.2, 0.3 * extent),
+            height_m=min(0.8, 0.55 * water_m),
+            period_s=max(duration, 20.0),
+            duration_s=duration,
+            camera_tilt_deg=config.tilt_deg(),
+        )
+    if kind in ("handheld", "hand-held"):
+        off = min(0.9, 0.3 * extent)
+        return HandHeld(
+            start_m=(fx - off, fy - off, floor + min(1.0, 0.6 * water_m)),
+            velocity_mps=(0.05 * off, 0.05 * off, 0.0),
+            yaw_deg=45.0,
+            pitch_deg=20.0,
+            shake_m=0.04 * min(1.0, off / 0.9),
+            duration_s=duration,
+            seed=config.seed,
+        )
+    return make_trajectory(kind, duration_s=duration)  # raises for an unknown kind
+
+
+def _tum_line(t_ns: int, T: FloatArray) -> str:
+    q = R_to_quat_wxyz(T[:3, :3])
+    x, y, z = T[:3, 3]
+    return (
+        f"{t_ns * 1e-9:.9f} {x:.9f} {y:.9f} {z:.9f} {q[1]:.12f} {q[2]:.12f} {q[3]:.12f} {q[0]:.12f}"
+    )
+
+
+def write_tum(path: Path, t_ns: Sequence[int], T: FloatArray) -> None:
+    """Poses as a TUM trajectory file: ``t x y z qx qy qz qw`` per line, t in seconds."""
+    lines = ["# t x y z qx qy qz qw"] + [
+        _tum_line(int(t), Ti) for t, Ti in zip(t_ns, T, strict=True)
+    ]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def simulate_survey(
+    scene: Scene,
+    rig: StereoRig,
+    config: SurveyConfig,
+    writer: SessionSink,
+    gt_dir: Path | None = None,
+    *,
+    trajectory: Trajectory | None = None,
+    mount: Mount | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> SurveyResult:
+    """Fly a trajectory through a scene and write the session and its ground truth.
+
+    Streams are written in time order: IMU and echosounder samples up to each frame's stamp, then
+    the frame. The first frame is at t = 0.
+
+    Args:
+        scene: the scene.
+        rig: the stereo rig.
+        config: :class:`SurveyConfig`.
+        writer: a session writer (``write_stereo``, ``write_imu``, ``write_sonar``).
+        gt_dir: folder for ground truth (created), or None for none.
+        trajectory: overrides the configured trajectory.
+        mount: sensor placement on the body (default :meth:`Mount.default` for the rig).
+        progress: called with 1 after each frame.
+
+    Returns:
+        :class:`SurveyResult`.
+
+    Raises:
+        SimulationError: bad configuration or an unwritable ``gt_dir``.
+    """
+    traj = trajectory or default_trajectory(scene, config)
+    mount = mount or Mount.default(baseline_m=rig.baseline_m, camera_tilt_deg=config.tilt_deg())
+    imaging = _imaging(config.water if config.water != "none" else None)
+    rng = np.random.default_rng(config.seed)
+    renderer = Renderer(scene, supersample=config.supersample)
+    frame_t = sample_times_ns((config.frames - 1) / config.fps, config.fps)[: config.frames]
+    end_ns = int(frame_t[-1])
+    imu_t = sample_times_ns(end_ns * 1e-9, config.imu_rate_hz)
+    imu = imu_samples(
+        traj,
+        imu_t,
+        noise=ImuNoise.mti300() if config.imu_noise else None,
+        rng=np.random.default_rng(config.seed + 1),
+    )
+    sonar_t = sample_times_ns(end_ns * 1e-9, config.sonar_rate_hz)
+    T_wb_sonar = poses(traj, sonar_t.astype(np.float64) * 1e-9) @ mount.T_body_sonar
+    hits = renderer.cast(T_wb_sonar[:, :3, 3], -T_wb_sonar[:, :3, 2])
+    srng = np.random.default_rng(config.seed + 2)
+    sonar_range = hits.t_m * (
+        1.0 + config.sonar_noise_fraction * srng.standard_normal(hits.t_m.shape)
+    )
+    T_wb = poses(traj, frame_t.astype(np.float64) * 1e-9)
+    T_wl = T_wb @ mount.T_body_left
+    if gt_dir is not None:
+        try:
+            (gt_dir / "depth").mkdir(parents=True, exist_ok=True)
+            (gt_dir / "object_id").mkdir(parents=True, exist_ok=True)
+            write_tum(gt_dir / "poses_left.tum", frame_t.tolist(), T_wl)
+            write_tum(gt_dir / "poses_body.tum", frame_t.tolist(), T_wb)
+            o3d.io.write_triangle_mesh(str(gt_dir / "scene.ply"), scene.combined_mesh())  # type: ignore[arg-type]
+            np.savetxt(
+                gt_dir / "imu_bias.csv",
+                np.column_stack([imu.t_ns, imu.accel_bias_mps2, imu.gyro_bias_radps]),
+                delimiter=",",
+                header="t_ns,ba_x,ba_y,ba_z,bg_x,bg_y,bg_z",
+                comments="",
+                fmt=["%d"] + ["%.9e"] * 6,
+            )
+            meta = {
+                "scene": scene.name,
+                "water": config.water,
+                "seed": config.seed,
+                "frames": config.frames,
+                "fps": config.fps,
+                "imu_rate_hz": config.imu_rate_hz,
+                "sonar_rate_hz": config.sonar_rate_hz,
+                "trajectory": config.trajectory,
+                "T_body_left": mount.T_body_left.tolist(),
+                "T_body_sonar": mount.T_body_sonar.tolist(),
+                "imu_noise": config.imu_noise,
+                "depth": "depth/<t_ns>.npy float32 m along the left camera z axis, NaN = no hit",
+                "object_id": "object_id/<t_ns>.png uint16, object index + 1, 0 = no hit",
+                "objects": [o.name for o in scene.objects],
+            }
+            (gt_dir / "sim.json").write_text(json.dumps(meta, indent=1))
+        except OSError as err:
+            raise SimulationError(f"cannot write ground truth to {gt_dir}: {err}") from err
+    i_imu = 0
+    i_sonar = 0
+    for k, t_ns in enumerate(frame_t):
+        while i_imu < len(imu_t) and imu_t[i_imu] <= t_ns:
+            writer.write_imu(int(imu_t[i_imu]), imu.accel_mps2[i_imu], imu.gyro_radps[i_imu])
+            i_imu += 1
+        while i_sonar < len(sonar_t) and sonar_t[i_sonar] <= t_ns:
+            hit = bool(np.isfinite(sonar_range[i_sonar]))
+            writer.write_sonar(
+                int(sonar_t[i_sonar]),
+                float(sonar_range[i_sonar]) if hit else float("nan"),
+                1.0 if hit else 0.0,
+            )
+            i_sonar += 1
+        time_s = float(t_ns) * 1e-9
+        lv = renderer.render(rig.left, T_wl[k], imaging, time_s=time_s, rng=rng)
+        rv = renderer.render(rig.right, T_wl[k] @ rig.T_left_right, imaging, time_s=time_s, rng=rng)
+        writer.write_stereo(int(t_ns), lv.image, rv.image)
+        if gt_dir is not None:
+            np.save(gt_dir / "depth" / f"{int(t_ns)}.npy", lv.gt.depth_m)
+            cv2.imwrite(
+                str(gt_dir / "object_id" / f"{int(t_ns)}.png"),
+                (lv.gt.object_id + 1).astype(np.uint16),
+            )
+        if progress is not None:
+            progress(1)
+    return SurveyResult(
+        frame_t_ns=frame_t,
+        T_world_left=T_wl,
+        T_world_body=T_wb,
+        imu_count=i_imu,
+        sonar_count=i_sonar,
+    )
+
+
+__all__ += ["default_trajectory", "in_air", "write_calibration_set", "write_tum"]

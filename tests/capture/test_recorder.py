@@ -1,0 +1,227 @@
+"""Recorder: every frame accounted for, clean stops (user, disk, source failure), and the
+session it writes reads back exactly."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+from sea3d.capture import recorder as recorder_mod
+from sea3d.capture.recorder import Recorder, RecorderConfig
+from sea3d.capture.sources import ArraySource, CallableSource, Source
+from sea3d.errors import CaptureError, ConfigError
+from sea3d.io.session import ImuSample, SonarSample, open_session
+
+FRAME_NS = 33_333_333
+NO_RESERVE = 0  # tests do not need a disk reserve
+
+
+def _imgs(rng, n, shape=(24, 32, 3)):
+    return [rng.integers(0, 256, size=shape, dtype=np.uint8) for _ in range(n)]
+
+
+def _imu_source(n):
+    it = iter(range(n))
+
+    def produce():
+        k = next(it, None)
+        return (
+            None
+            if k is None
+            else ImuSample(k * 5_000_000, np.array([k, 0.0, 9.81]), np.array([0.0, 0.0, k / 10]))
+        )
+
+    return CallableSource(produce, kind="imu")
+
+
+def _sonar_source(n):
+    it = iter(range(n))
+
+    def produce():
+        k = next(it, None)
+        return None if k is None else SonarSample(k * 100_000_000 + 3, 2.0 + k, 0.5)
+
+    return CallableSource(produce, kind="sonar")
+
+
+@pytest.mark.parametrize("fmt", ["mcap", "folder"])
+def test_blocking_replay_records_every_frame_and_reads_back_exactly(tmp_path, fmt):
+    rng = np.random.default_rng(0)
+    left, right = _imgs(rng, 5), _imgs(rng, 5)
+    out = tmp_path / ("r.mcap" if fmt == "mcap" else "r_dir")
+    config = RecorderConfig(
+        out_path=out,
+        block_when_full=True,
+        queue_frames=2,
+        min_free_bytes=NO_RESERVE,
+        rig_yaml="x: 1\n",
+    )
+    sources: dict[str, Source] = {
+        "left": ArraySource(left, count=20, speed=0),
+        "right": ArraySource(right, count=20, speed=0),
+        "imu": _imu_source(50),
+        "sonar": _sonar_source(4),
+    }
+    summary = Recorder(config, sources).run()
+    assert summary.frames == {"left": 20, "right": 20, "imu": 50, "sonar": 4}
+    assert summary.dropped == {"left": 0, "right": 0, "imu": 0, "sonar": 0}
+    assert summary.stop_reason == "the camera sources ended"
+    assert summary.errors == []
+    with open_session(out) as s:
+        assert s.rig_yaml == "x: 1\n"
+        assert s.stamps("left").tolist() == [k * FRAME_NS for k in range(20)]
+        for k in range(20):
+            np.testing.assert_array_equal(s.image("left", k), left[k % 5])
+            np.testing.assert_array_equal(s.image("right", k), right[k % 5])
+        assert len(list(s.pairs())) == 20
+        assert s.imu().accel_mps2[:, 0].tolist() == list(range(50))
+        assert s.sonar().range_m.tolist() == [2.0, 3.0, 4.0, 5.0]
+        assert summary.bytes_on_disk == s.size_bytes()
+
+
+def test_frames_dropped_when_the_queue_is_full_are_counted_never_silent(tmp_path):
+    rng = np.random.default_rng(0)
+    big = _imgs(rng, 2, shape=(480, 640, 3))
+    config = RecorderConfig(
+        out_path=tmp_path / "d.mcap",
+        queue_frames=1,
+        encoder_threads=1,
+        min_free_bytes=NO_RESERVE,
+        png_compression=9,
+    )
+    summary = Recorder(
+        config,
+        {"left": ArraySource(big, count=60, speed=0), "right": ArraySource(big, count=60, speed=0)},
+    ).run()
+    with open_session(tmp_path / "d.mcap") as s:
+        for side in ("left", "right"):
+            assert summary.captured[side] == 60
+            assert summary.frames[side] + summary.dropped[side] == 60
+            assert s.stamps(side).size == summary.frames[side]
+    assert summary.dropped["left"] + summary.dropped["right"] > 0  # PNG level 9 is slow
+
+
+def test_request_stop_from_another_thread_closes_a_readable_session(tmp_path):
+    rng = np.random.default_rng(0)
+    imgs = _imgs(rng, 3)
+    config = RecorderConfig(out_path=tmp_path / "s.mcap", min_free_bytes=NO_RESERVE)
+    rec = Recorder(
+        config,
+        {
+            "left": ArraySource(imgs, rate_hz=200.0, speed=1.0),
+            "right": ArraySource(imgs, rate_hz=200.0, speed=1.0),
+        },
+    )
+    timer = threading.Timer(0.5, rec.request_stop, args=("stopped by test",))
+    timer.start()
+    summary = rec.run()
+    timer.join()
+    assert summary.stop_reason == "stopped by test"
+    with open_session(tmp_path / "s.mcap") as s:
+        assert s.complete
+        assert s.stamps("left").size == summary.frames["left"] > 0
+
+
+def test_disk_space_is_checked_before_and_during_recording(tmp_path, monkeypatch):
+    img = np.zeros((8, 8), np.uint8)
+    config = RecorderConfig(out_path=tmp_path / "a.mcap", min_free_bytes=10**18)
+    with pytest.raises(CaptureError, match=r"GB free for .*a\.mcap"):
+        Recorder(config, {"left": ArraySource([img]), "right": ArraySource([img])}).run()
+    assert not (tmp_path / "a.mcap").exists()
+
+    free = iter([5 * 10**9, 5 * 10**9, 5 * 10**9] + [10**8] * 1000)
+    monkeypatch.setattr(recorder_mod, "disk_free_bytes", lambda _p: next(free))
+    config = RecorderConfig(
+        out_path=tmp_path / "b", min_free_bytes=10**9, disk_check_interval_s=0.05
+    )
+    summary = Recorder(
+        config,
+        {"left": ArraySource([img], rate_hz=100.0), "right": ArraySource([img], rate_hz=100.0)},
+    ).run()
+    assert summary.stop_reason.startswith("disk nearly full: 0.10 GB free")
+    with open_session(tmp_path / "b") as s:
+        assert s.stamps("left").size == summary.frames["left"]
+
+
+class _FailingSource(Source):
+    kind = "image"
+
+    def __init__(self, fail_after: int) -> None:
+        super().__init__("flaky-cam")
+        self.n, self.fail_after = 0, fail_after
+
+    def read(self):
+        from sea3d.capture.sources import ImageFrame
+
+        if self.n >= self.fail_after:
+            raise CaptureError("camera flaky-cam: 30 grabs failed in a row; camera lost")
+        self.n += 1
+        return ImageFrame(self.n * FRAME_NS, np.full((8, 8), self.n, np.uint8))
+
+
+def test_a_lost_camera_stops_the_recording_with_its_reason_and_keeps_the_data(tmp_path):
+    config = RecorderConfig(
+        out_path=tmp_path / "c.mcap", block_when_full=True, min_free_bytes=NO_RESERVE
+    )
+    img = np.zeros((8, 8), np.uint8)
+    summary = Recorder(
+        config, {"left": _FailingSource(7), "right": ArraySource([img], rate_hz=100.0)}
+    ).run()
+    assert "left source flaky-cam" in summary.stop_reason and "camera lost" in summary.stop_reason
+    assert summary.errors and summary.frames["left"] == 7
+    with open_session(tmp_path / "c.mcap") as s:
+        assert s.image("left", 6)[0, 0] == 7
+
+
+def test_bad_configurations_are_rejected(tmp_path):
+    with pytest.raises(ConfigError, match="duration_s must be > 0"):
+        RecorderConfig(out_path=tmp_path / "x.mcap", duration_s=0)
+    img = np.zeros((2, 2), np.uint8)
+    with pytest.raises(ConfigError, match="stream imu needs imu records"):
+        Recorder(RecorderConfig(out_path=tmp_path / "x.mcap"), {"imu": ArraySource([img])})
+
+
+@pytest.mark.parametrize("fmt", ["mcap", "folder"])
+def test_a_full_disk_mid_recording_stops_with_a_summary_and_a_readable_session(
+    tmp_path, monkeypatch, fmt
+):
+    import errno
+
+    from sea3d.io import session_folder, session_mcap
+
+    budget = {"bytes": 0}
+
+    def failing(real):
+        def wrapper(self_or_path, data, *args):
+            budget["bytes"] += len(data)
+            if budget["bytes"] > 6_000_000:  # the disk is full after about 6 MB
+                raise OSError(errno.ENOSPC, "No space left on device")
+            return real(self_or_path, data, *args)
+
+        return wrapper
+
+    if fmt == "mcap":
+        monkeypatch.setattr(session_mcap._FdWriter, "write", failing(session_mcap._FdWriter.write))
+    else:
+        monkeypatch.setattr(session_folder, "_atomic_write", failing(session_folder._atomic_write))
+    rng = np.random.default_rng(0)
+    imgs = _imgs(rng, 3, shape=(120, 160, 3))  # about 58 kB per PNG
+    out = tmp_path / ("f.mcap" if fmt == "mcap" else "f_dir")
+    config = RecorderConfig(out_path=out, block_when_full=True, min_free_bytes=NO_RESERVE)
+    summary = Recorder(
+        config,
+        {
+            "left": ArraySource(imgs, count=200, speed=0),
+            "right": ArraySource(imgs, count=200, speed=0),
+        },
+    ).run()
+    assert "No space left on device" in summary.stop_reason
+    assert any("No space left" in e for e in summary.errors)
+    monkeypatch.undo()
+    with open_session(out) as s:
+        n = s.stamps("left").size
+        assert 0 < n <= summary.frames["left"]
+        for k in range(n):
+            np.testing.assert_array_equal(s.image("left", k), imgs[k % 3])

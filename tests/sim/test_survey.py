@@ -1,0 +1,166 @@
+"""Simulated sessions read back through the session reader, with consistent ground truth."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sea3d.cli import main as sea3d_main
+from sea3d.io.rig_file import rig_to_yaml
+from sea3d.io.session import SessionWriter, open_session
+from sea3d.refraction.presets import paper_rig
+from sea3d.sim.motion import Mount, Orbit
+from sea3d.sim.scene import builtin_scene
+from sea3d.sim.survey import SurveyConfig, scale_rig, simulate_survey
+
+SONAR_REL_TOL = 0.03  # 0.5 % range noise, 3 sigma plus beam footprint on a bumpy floor
+TUM_TOL_M = 1e-8
+
+
+@pytest.mark.parametrize("fmt", ["folder", "mcap"])
+def test_simulated_session_reads_back_with_all_streams(tmp_path: Path, fmt: str) -> None:
+    rig = paper_rig("dome", size_px=(96, 54))
+    scene = builtin_scene("lake")
+    config = SurveyConfig(frames=3, fps=10.0, water="coastal", supersample=1, trajectory="orbit")
+    out = tmp_path / ("s.mcap" if fmt == "mcap" else "s")
+    gt = tmp_path / "gt"
+    with SessionWriter(out, format=fmt, rig_yaml=rig_to_yaml(rig)) as w:
+        result = simulate_survey(scene, rig, config, w, gt)
+    with open_session(out) as s:
+        pairs = list(s.pairs())
+        imu = s.imu()
+        sonar = s.sonar()
+    assert [p.t_ns for p in pairs] == result.frame_t_ns.tolist() == [0, 100_000_000, 200_000_000]
+    assert pairs[0].left.shape == (54, 96, 3)
+    assert len(imu) == 41 and imu.t_ns[-1] == 200_000_000  # 200 Hz over 0.2 s
+    assert len(sonar) == 3
+    depth = np.load(gt / "depth" / "100000000.npy")
+    assert depth.dtype == np.float32 and depth.shape == (54, 96) and np.isfinite(depth).any()
+    tum = np.loadtxt(gt / "poses_left.tum")
+    np.testing.assert_allclose(tum[:, 1:4], result.T_world_left[:, :3, 3], atol=TUM_TOL_M)
+    assert (gt / "scene.ply").stat().st_size > 0
+
+
+def test_echosounder_measures_the_distance_to_the_floor_below() -> None:
+    scene = builtin_scene("lake")
+    traj = Orbit(
+        target_m=(0.0, 0.0, 0.0), radius_m=1.5, height_m=1.0, duration_s=1.0, camera_tilt_deg=30.0
+    )
+    mount = Mount.default()
+    rig = paper_rig("none", size_px=(32, 18))
+
+    class Sink:
+        def __init__(self) -> None:
+            self.sonar: list[tuple[int, float, float]] = []
+
+        def write_stereo(self, *a: object) -> None:
+            pass
+
+        def write_imu(self, *a: object) -> None:
+            pass
+
+        def write_sonar(self, t_ns: int, r: float, c: float = 0.0) -> None:
+            self.sonar.append((t_ns, r, c))
+
+    sink = Sink()
+    config = SurveyConfig(frames=1, water="none", supersample=1, imu_noise=False)
+    simulate_survey(scene, rig, config, sink, None, trajectory=traj, mount=mount)
+    _t_ns, r, conf = sink.sonar[0]
+    from sea3d.sim.motion import poses
+
+    T = poses(traj, np.array([0.0]))[0] @ mount.T_body_sonar
+    origin, down = T[:3, 3], -T[:3, 2]
+    # The floor height along the beam, found by bisection on the scene's height function.
+    lo, hi = 0.0, 5.0
+    for _ in range(60):
+        mid = (lo + hi) / 2
+        p = origin + mid * down
+        if p[2] > scene.floor_height(np.array([p[0]]), np.array([p[1]]))[0]:
+            lo = mid
+        else:
+            hi = mid
+    assert conf == 1.0 and r == pytest.approx(lo, rel=SONAR_REL_TOL)
+
+
+def test_scale_rig_keeps_pixel_centres_and_ports() -> None:
+    rig = paper_rig("dome")
+    small = scale_rig(rig, (960, 540))
+    assert (small.width, small.height) == (960, 540)
+    assert small.left.pinhole.fx == pytest.approx(rig.left.pinhole.fx / 2)
+    assert small.left.pinhole.cx == pytest.approx((rig.left.pinhole.cx + 0.5) / 2 - 0.5)
+    assert small.left.port == rig.left.port
+
+
+def test_cli_calibration_writes_images_and_true_board_poses(tmp_path: Path) -> None:
+    out = tmp_path / "cal"
+    status = sea3d_main(
+        [
+            "sim",
+            "calibration",
+            "--board",
+            "checkerboard:9x6:40mm",
+            "--views",
+            "2",
+            "--size",
+            "320x180",
+            "--distance",
+            "0.8",
+            "1.4",
+            "--medium",
+            "air",
+            "--out",
+            str(out),
+        ]
+    )
+    assert status == 0
+    import json
+
+    boards = json.loads((out / "gt" / "boards.json").read_text())
+    assert len(boards) == 2 and np.asarray(boards[0]["T_left_board"]).shape == (4, 4)
+    assert (
+        len(list((out / "left").glob("*.png"))) == 2
+        and len(list((out / "right").glob("*.png"))) == 2
+    )
+
+
+def test_cli_rejects_a_missing_output_and_unknown_scene(tmp_path: Path) -> None:
+    assert sea3d_main(["sim", "--scene", "lake", "--frames", "1"]) == 2
+    assert (
+        sea3d_main(["sim", "--scene", "atlantis", "--frames", "1", "--out", str(tmp_path / "x")])
+        == 2
+    )
+
+
+def test_cli_survey_with_a_rig_file_writes_a_folder_session(tmp_path: Path) -> None:
+    from sea3d.io.rig_file import load_rig, save_rig
+
+    rig_path = save_rig(paper_rig("flat", size_px=(1920, 1080)), tmp_path / "rig.yaml")
+    out = tmp_path / "run"
+    argv = [
+        "sim",
+        "--scene",
+        "tank",
+        "--rig",
+        str(rig_path),
+        "--frames",
+        "2",
+        "--size",
+        "96x54",
+        "--water",
+        "turbid",
+        "--trajectory",
+        "handheld",
+        "--out",
+        str(out),
+        "--format",
+        "folder",
+    ]
+    assert sea3d_main(argv) == 0
+    with open_session(out) as s:
+        assert len(list(s.pairs())) == 2
+        stored = s.rig_yaml
+    assert stored is not None and "96" in stored
+    assert load_rig(rig_path).width == 1920  # the input file is untouched
+    assert len(list((out / "gt" / "depth").glob("*.npy"))) == 2
