@@ -4,7 +4,7 @@ Sets:
   1. OpenCV's 13-pair 640x480 stereo set (``calib/opencv_9x6`` in the test data), detected here.
   2. A synthetic 40-pair 1920x1080 set: the paper's camera with OpenCV distortion, a 9x6 board
      of 60 mm squares at 0.6-2.5 m, corners projected with 0.15 px noise (``--rendered``
-     renders and detects the images instead, slower).
+     renders the images with the simulator, ``sea3d.sim``, and detects them instead: slower).
   3. Port calibration on a synthetic 20-pair 1920x1080 in-water set through the paper's domes
      (no OpenCV counterpart exists; CALIBMAR is C++/Qt).
 
@@ -168,13 +168,23 @@ def set_40(repeat: int, rendered: bool) -> None:
     poses = board_poses(rig.left, board, 40, rng, distance_range_m=(0.6, 2.5), max_tilt_deg=40,
                         also_inside=[(rig.right, rig.T_right_left)])
     if rendered:
-        header("synthetic 40 pairs, 1920x1080, rendered - detection per image")
-        images = []
-        for cam, T_cl in ((rig.left, np.eye(4)), (rig.right, rig.T_right_left)):
-            r = BoardRenderer(cam, board, texture_px_per_m=3000.0, supersample=1)
-            images += [r.render(T_cl @ T, blur_px=0.8) for T in poses]
+        header("simulated 40 pairs, 1920x1080, rendered in air - detection per image")
+        try:
+            from sea3d.sim import render_calibration_set
+
+            t0 = time.perf_counter()
+            cal = render_calibration_set(rig, "checkerboard:9x6:60mm", 40, medium="air",
+                                         seed=0, distance_range_m=(0.6, 2.5), supersample=2)
+            images = [np.asarray(im) for im in cal.lefts + cal.rights]
+            print(f"  (sea3d.sim rendered 80 images in {time.perf_counter() - t0:.1f} s)")
+        except ImportError:
+            images = []
+            for cam, T_cl in ((rig.left, np.eye(4)), (rig.right, rig.T_right_left)):
+                r = BoardRenderer(cam, board, texture_px_per_m=3000.0, supersample=1)
+                images += [r.render(T_cl @ T, blur_px=0.8) for T in poses]
         t_ours, dets = timed(lambda: [detect_board(g, board) for g in images], 1)
-        t_cv, cv_dets = timed(lambda: [opencv_detect(g, (9, 6)) for g in images], 1)
+        grays = [cv2.cvtColor(g, cv2.COLOR_RGB2GRAY) if g.ndim == 3 else g for g in images]
+        t_cv, cv_dets = timed(lambda: [opencv_detect(g, (9, 6)) for g in grays], 1)
         n = len(images)
         row("detect (sector-based + fallback)", t_ours / n, t_cv / n,
             f"found {sum(d.ok for d in dets)}/{n}; OpenCV {sum(c is not None for c in cv_dets)}"
