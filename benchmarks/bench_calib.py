@@ -30,7 +30,7 @@ import numpy as np
 from sea3d.calib.port import calibrate_port_rig
 from sea3d.calib.stereo import StereoCalibConfig, calibrate_stereo, orient_consistently
 from sea3d.calib.synthetic import BoardRenderer, board_poses, synthetic_detections
-from sea3d.calib.targets import Detection, detect_board, parse_board
+from sea3d.calib.targets import Detection, DetectionStatus, detect_board, parse_board
 from sea3d.geometry.pinhole import PinholeCamera
 from sea3d.geometry.rig import StereoRig
 from sea3d.refraction import DomePort
@@ -143,6 +143,22 @@ def set_13(data: Path, repeat: int) -> None:
         f"{sum(c is not None for c in cv_dets)}/{n}")
     named = [d.with_name(p.name) for d, p in zip(dets, paths_l + paths_r, strict=True)]
     left, right = named[:len(paths_l)], named[len(paths_l):]
+    # OpenCV's plain pipeline on its own (classic) detections, for the README's 0.45 px.
+    ids, pts = board.object_points()
+    cv_named = [Detection(status=DetectionStatus.DETECTED if c is not None
+                          else DetectionStatus.NOT_FOUND,
+                          corners_px=(c.reshape(-1, 2).astype(np.float64) if c is not None
+                                      else np.zeros((0, 2))),
+                          ids=ids if c is not None else ids[:0],
+                          points_board_m=pts if c is not None else pts[:0], image_size=(640, 480),
+                          name=p.name, ambiguous_order=True)
+                for c, p in zip(cv_dets, paths_l + paths_r, strict=True)]
+    cl, cr = paired(cv_named[:len(paths_l)], cv_named[len(paths_l):])
+    plain = opencv_stereo(cl, cr, (640, 480))
+    print(f"  OpenCV's own pipeline (classic detections, calibrateCamera, stereoCalibrate): "
+          f"stereo RMS {plain['rms_joint']:.4f} px (intrinsic guess), "
+          f"{plain['rms_fixed']:.4f} px (fixed intrinsics); mono "
+          f"{plain['rms_mono'][0]:.3f} / {plain['rms_mono'][1]:.3f} px")
     stereo_section("OpenCV 9x6 set: 13 pairs - calibration stages (same detections)", left,
                    right, (640, 480), repeat)
 

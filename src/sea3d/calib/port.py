@@ -75,7 +75,8 @@ class PortCalibConfig:
         port_step_m: central-difference step on port parameters (metres; unitless for the
             flat-port normal components and the focal scale).
         reject_outliers: leave out views (and, for the extrinsics, pairs) whose RMS is above
-            ``max(median + mad_k * 1.4826 * MAD, min_ratio * median)``, one at a time,
+            ``max(median + mad_k * 1.4826 * MAD, min_ratio * median, min_reject_px)``, one at
+            a time,
             refitting after each, at most ``max_rejected_fraction`` of them.
         joint_refinement: stereo: after the extrinsics with fixed ports, refine both ports,
             the extrinsics and all board poses together.
@@ -92,6 +93,7 @@ class PortCalibConfig:
     joint_refinement: bool = True
     mad_k: float = 3.0
     min_ratio: float = 2.0
+    min_reject_px: float = 0.25
     max_rejected_fraction: float = 0.3
 
     def __post_init__(self) -> None:
@@ -360,10 +362,10 @@ def _per_view_rms(residuals: FloatArray, offs: NDArray[Any]) -> FloatArray:
                      for v in range(len(offs) - 1)])
 
 
-def _robust_limit(errors: FloatArray, mad_k: float, min_ratio: float) -> tuple[float, float, float]:
+def _robust_limit(errors: FloatArray, cfg: PortCalibConfig) -> tuple[float, float, float]:
     med = float(np.median(errors))
     mad = 1.4826 * float(np.median(np.abs(errors - med)))
-    return max(med + mad_k * mad, min_ratio * med), med, mad
+    return max(med + cfg.mad_k * mad, cfg.min_ratio * med, cfg.min_reject_px), med, mad
 
 
 def _solve_port(views: Sequence[_View], make: Callable[[FloatArray], PortCamera], x0: FloatArray,
@@ -488,7 +490,7 @@ def calibrate_port(detections: Sequence[Detection], pinhole: PinholeCamera,
     n_outliers, max_reject = 0, math.floor(cfg.max_rejected_fraction * len(views))
     while cfg.reject_outliers:
         per_view = _per_view_rms(sol.residuals, offs)
-        thr, med, mad = _robust_limit(per_view, cfg.mad_k, cfg.min_ratio)
+        thr, med, mad = _robust_limit(per_view, cfg)
         worst = int(np.argmax(per_view))
         if per_view[worst] <= thr or n_outliers >= max_reject or len(views) - 1 < (
                 cfg.min_views):
@@ -761,7 +763,7 @@ def calibrate_port_rig(air_rig: StereoRig, left_port: DomePort | FlatPort,
     max_reject = math.floor(cfg.max_rejected_fraction * len(pairs))
     while cfg.reject_outliers and fit["converged"]:
         per_pair = fit["per_pair_rms_px"]
-        thr, med, mad = _robust_limit(per_pair, cfg.mad_k, cfg.min_ratio)
+        thr, med, mad = _robust_limit(per_pair, cfg)
         worst = int(np.argmax(per_pair))
         if per_pair[worst] <= thr or len(rejected) >= max_reject or len(pairs) - 1 < max(
                 1, cfg.min_views):

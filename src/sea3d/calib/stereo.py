@@ -81,6 +81,8 @@ class StereoCalibConfig:
         reject_outliers: drop views whose RMS is far above the others.
         mad_k: rejection threshold in robust standard deviations (1.4826 MAD) above the median.
         min_ratio: a view is never rejected below ``min_ratio * median`` per-view RMS.
+        min_reject_px: nor below this RMS: on clean data a view at 0.1 px is no outlier even
+            when the median is 0.05 px.
         max_rejected_fraction: at most this share of the usable views is rejected.
         holdout: compute the leave-one-pair-out holdout error.
         opencv_start: also start the final joint refinement from OpenCV's ``stereoCalibrate``
@@ -94,6 +96,7 @@ class StereoCalibConfig:
     reject_outliers: bool = True
     mad_k: float = 3.0
     min_ratio: float = 1.5
+    min_reject_px: float = 0.25
     max_rejected_fraction: float = 0.3
     holdout: bool = True
     opencv_start: bool = False
@@ -603,7 +606,7 @@ def _pairs_from_detections(left: Sequence[Detection], right: Sequence[Detection]
 def _robust_threshold(errors: FloatArray, cfg: StereoCalibConfig) -> tuple[float, float, float]:
     med = float(np.median(errors))
     mad = 1.4826 * float(np.median(np.abs(errors - med)))
-    return max(med + cfg.mad_k * mad, cfg.min_ratio * med), med, mad
+    return max(med + cfg.mad_k * mad, cfg.min_ratio * med, cfg.min_reject_px), med, mad
 
 
 def calibrate_stereo(left: Sequence[Detection], right: Sequence[Detection],
@@ -675,7 +678,8 @@ def calibrate_stereo(left: Sequence[Detection], right: Sequence[Detection],
         p = pairs.pop(worst)
         reason = (f"reprojection RMS {errs[worst]:.2f} px is above the outlier limit "
                   f"{thr:.2f} px (median {med:.2f} px + {cfg.mad_k:g} x robust spread "
-                  f"{mad:.2f} px, at least {cfg.min_ratio:g} x median); a blurred image, a "
+                  f"{mad:.2f} px, at least {cfg.min_ratio:g} x median and "
+                  f"{cfg.min_reject_px:g} px); a blurred image, a "
                   f"misdetected corner or a bent board")
         log.info("rejecting %s / %s: %s", p.left, p.right, reason)
         rejected.append(RejectedView(left=p.left, right=p.right, reason=reason))

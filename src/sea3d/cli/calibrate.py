@@ -73,6 +73,10 @@ def _add_pair_inputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("--right", required=True, metavar="GLOB", help="right images")
     p.add_argument("--board", required=True, metavar="BOARD",
                    help="board spec (checkerboard:9x6:25mm ...) or board file")
+    p.add_argument("--detector", choices=["accurate", "fast"], default="accurate",
+                   help="checkerboards: accurate = OpenCV's sector-based detector (about 0.3 s "
+                        "per 640x480 image, 1.5 s at 1920x1080); fast = findChessboardCorners + "
+                        "cornerSubPix (10 ms, larger corner errors)")
 
 
 # ---------------------------------------------------------------------- helpers
@@ -99,7 +103,8 @@ def _load_image(path: Path) -> Any:
     return img
 
 
-def _detect_all(paths: list[Path], board: Any, quiet: bool) -> list[Any]:
+def _detect_all(paths: list[Path], board: Any, quiet: bool, detector: str = "accurate"
+                ) -> list[Any]:
     from tqdm import tqdm
 
     from sea3d.calib.targets import Detection, DetectionStatus, detect_board
@@ -116,7 +121,8 @@ def _detect_all(paths: list[Path], board: Any, quiet: bool) -> list[Any]:
                                  image_size=(0, 0), message="cannot read the image",
                                  name=path.name))
             continue
-        det = detect_board(img, board).with_name(path.name)
+        det = detect_board(img, board, use_sector_based=detector == "accurate").with_name(
+            path.name)
         log.debug("%s: %s (%s)", path.name, det.status, det.message)
         out.append(det)
     return out
@@ -194,8 +200,8 @@ def _stereo(args: argparse.Namespace) -> int:
     left_paths, right_paths = _expand(args.left, "left"), _expand(args.right, "right")
     _pair_paths(left_paths, right_paths)
     quiet = bool(args.json)
-    left = _detect_all(left_paths, board, quiet)
-    right = _detect_all(right_paths, board, quiet)
+    left = _detect_all(left_paths, board, quiet, args.detector)
+    right = _detect_all(right_paths, board, quiet, args.detector)
     cfg = StereoCalibConfig(distortion=args.distortion, min_views=args.min_views,
                             reject_outliers=not args.no_reject, holdout=not args.no_holdout,
                             opencv_start=args.opencv_start)
@@ -256,8 +262,8 @@ def _port(args: argparse.Namespace) -> int:
     left_paths, right_paths = _expand(args.left, "left"), _expand(args.right, "right")
     _pair_paths(left_paths, right_paths)
     quiet = bool(args.json)
-    left = _detect_all(left_paths, board, quiet)
-    right = _detect_all(right_paths, board, quiet)
+    left = _detect_all(left_paths, board, quiet, args.detector)
+    right = _detect_all(right_paths, board, quiet, args.detector)
     ports: list[DomePort | FlatPort] = []
     for _ in range(2):
         if args.port == "dome":
