@@ -56,9 +56,13 @@ def _run(args: argparse.Namespace) -> int:
         return 0
     ours, base = s["refraction_corrected"], s["pinhole_in_water_baseline"]
     print(f"valid depth on {100 * s['valid_fraction']:.1f} % of pixels, {s['points']} points")
-    print(
+    line = (
         f"median depth error: {100 * ours['median_rel']:.2f} % refraction-corrected, "
         f"{100 * base['median_rel']:.2f} % pinhole-in-water baseline"
     )
+    ignored = s.get("ports_ignored_baseline")
+    if ignored is not None:
+        line += f", {100 * ignored['median_rel']:.2f} % with the ports ignored"
+    print(line)
     print(f"report: {result.report_html}")
     return 0

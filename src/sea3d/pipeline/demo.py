@@ -158,6 +158,17 @@ def run_demo(config: DemoConfig, progress: Callable[[str], None] | None = None) 
     )
     pin_pts = rect_pts @ maps.R_rect_left_left
     baseline = point_depth_errors(pin_pts, rig.left, gt.depth_m)
+    ignored = None
+    if config.port != "none":
+        # What a user gets by taking the in-air calibration underwater and ignoring the ports.
+        step("matching again with the in-air rig (ports ignored), for comparison")
+        rig_air = scale_rig(paper_rig("none"), config.size_px)
+        t0 = time.perf_counter()
+        depth_air = compute_depth(
+            rectify_rig(rig_air), left, right, engine_config, max_depth_m=20.0
+        )
+        timings["ports_ignored_s"] = time.perf_counter() - t0
+        ignored = point_depth_errors(depth_air.points_left, rig.left, gt.depth_m)
 
     step("writing depth, point cloud and report")
     write_depth_png_mm(out / "depth_mm.png", depth.depth_m)
@@ -174,6 +185,7 @@ def run_demo(config: DemoConfig, progress: Callable[[str], None] | None = None) 
         "points": len(depth.points_left),
         "refraction_corrected": errors.as_dict(),
         "pinhole_in_water_baseline": baseline.as_dict(),
+        "ports_ignored_baseline": ignored.as_dict() if ignored is not None else None,
         "virtual_pinhole_rms_px": (
             maps.report_left.rms_px if maps.report_left is not None else 0.0
         ),
