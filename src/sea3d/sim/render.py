@@ -115,6 +115,11 @@ class _CameraRays:
     offsets: tuple[tuple[float, float], ...]  # (du, dv) of every sample, centre first
 
 
+def _clock() -> tuple[float, float]:
+    """(wall, process CPU) seconds now; CPU time counts every thread of the process."""
+    return time.perf_counter(), time.process_time()
+
+
 def _sample_offsets(supersample: int) -> tuple[list[tuple[float, float]], tuple[int, ...]]:
     """Pixel offsets: the centre first (ground truth), then the stratified colour samples."""
     n = supersample
@@ -205,7 +210,10 @@ class Renderer:
                 )
         self._other_lut = np.concatenate([[False], ~self._sand])  # index object_id + 1
         self._ray_cache: dict[tuple[int, int], tuple[Any, _CameraRays]] = {}
+        # Seconds spent per stage, summed over calls (clear them to start over): wall time, and
+        # process CPU time (all threads; the fused path and ray generation only).
         self.timings_s: dict[str, float] = defaultdict(float)
+        self.cpu_timings_s: dict[str, float] = defaultdict(float)
 
     # ------------------------------------------------------------------------------------------
 
@@ -243,7 +251,7 @@ class Renderer:
         cached = self._ray_cache.get(key)
         if cached is not None and cached[0] is camera:
             return cached[1]
-        t0 = time.perf_counter()
+        c0 = _clock()
         w, h = int(camera.width), int(camera.height)
         offsets, colour = _sample_offsets(self.supersample)
         # Adaptive supersampling needs the extra rays for a few pixels only: made on demand.
@@ -269,8 +277,15 @@ class Renderer:
             offsets=tuple(offsets),
         )
         self._ray_cache[key] = (camera, cam_rays)
-        self.timings_s["ray_generation"] += time.perf_counter() - t0
+        self._lap("ray_generation", c0)
         return cam_rays
+
+    def _lap(self, key: str, start: tuple[float, float]) -> tuple[float, float]:
+        """Add the wall and CPU time since ``start`` (from :func:`_clock`) to stage ``key``."""
+        now = _clock()
+        self.timings_s[key] += now[0] - start[0]
+        self.cpu_timings_s[key] += now[1] - start[1]
+        return now
 
     def render(
         self,
@@ -422,7 +437,7 @@ class Renderer:
             obj_id.reshape(n),
             (points.reshape(n, 3), depth.reshape(n), rng_m.reshape(n), normals.reshape(n, 3)),
         )
-        t0 = time.perf_counter()
+        c0 = _clock()
         self._shade_rays(
             o_cam,
             d_cam,
@@ -438,28 +453,28 @@ class Renderer:
             radiance.reshape(n, 3),
         )
         del t_m, n_w
-        self.timings_s["shading"] += time.perf_counter() - t0
+        self._lap("shading", c0)
         # Pass 2: the stratified colour samples where the centre rays show an edge (adaptive),
         # or everywhere.
         if len(cam_rays.offsets) > 1:
-            t0 = time.perf_counter()
+            c0 = _clock()
             if self.adaptive:
                 vv, uu = np.nonzero(edge_pixels(obj_id, depth, radiance, self._hard_lut))
             else:
                 vv, uu = np.nonzero(np.ones((h, w), dtype=bool))
-            self.timings_s["shading"] += time.perf_counter() - t0
+            self._lap("shading", c0)
             colour_idx = np.asarray(cam_rays.colour_samples)
             n_sub = len(colour_idx)
             batch = max(1, (self.chunk_rows * w) // n_sub)
             for b0 in range(0, vv.size, batch):
                 bv, bu = vv[b0 : b0 + batch], uu[b0 : b0 + batch]
-                t0 = time.perf_counter()
+                c0 = _clock()
                 if cam_rays.origins.shape[0] > 1:
                     o_sub = cam_rays.origins[colour_idx[:, None], bv[None, :], bu[None, :]]
                     d_sub = cam_rays.dirs[colour_idx[:, None], bv[None, :], bu[None, :]]
                 else:
                     o_sub, d_sub = self._sample_rays(camera, cam_rays, colour_idx, bu, bv)
-                self.timings_s["ray_generation"] += time.perf_counter() - t0
+                self._lap("ray_generation", c0)
                 m = n_sub * bv.size
                 o_s = np.ascontiguousarray(o_sub.reshape(m, 3))
                 d_s = np.ascontiguousarray(d_sub.reshape(m, 3))
@@ -471,7 +486,7 @@ class Renderer:
                     np.empty((m, 3), dtype=np.float32),
                 )
                 t_s, n_s = self._trace(o_s, d_s, R, tvec, obj_s, gt_s)
-                t0 = time.perf_counter()
+                c0 = _clock()
                 rad = np.empty((m, 3), dtype=np.float32)
                 self._shade_rays(
                     o_s,
@@ -488,11 +503,11 @@ class Renderer:
                     rad,
                 )
                 radiance[bv, bu] = rad.reshape(n_sub, bv.size, 3).mean(axis=0)
-                self.timings_s["shading"] += time.perf_counter() - t0
+                self._lap("shading", c0)
             self.last_supersampled_fraction = float(vv.size) / float(n)
-        t0 = time.perf_counter()
+        c0 = _clock()
         image = imaging.sensor(radiance, rng)
-        self.timings_s["sensor"] += time.perf_counter() - t0
+        self._lap("sensor", c0)
         gt = GroundTruth(
             depth_m=depth, range_m=rng_m, points_cam=points, normals_cam=normals, object_id=obj_id
         )
@@ -509,11 +524,11 @@ class Renderer:
     ) -> tuple[FloatArray, F32]:
         """Cast camera-frame rays posed by ``(R, tvec)``; fill object ids and ground truth
         (points, depth, range, normals in the camera frame); return ``t`` and world normals."""
-        t0 = time.perf_counter()
+        c0 = _clock()
         rays, bad = world_rays(o_cam, d_cam, R, tvec)
-        t1 = time.perf_counter()
+        c0 = self._lap("transform", c0)
         ans = self._rc.cast_rays(o3d.core.Tensor.from_numpy(rays), nthreads=self.nthreads)
-        t2 = time.perf_counter()
+        c0 = self._lap("casting", c0)
         n = rays.shape[0]
         t_m = np.empty(n, dtype=np.float64)
         n_w = np.empty((n, 3), dtype=np.float32)
@@ -532,9 +547,7 @@ class Renderer:
             n_w,
             *gt_out,
         )
-        self.timings_s["transform"] += t1 - t0
-        self.timings_s["casting"] += t2 - t1
-        self.timings_s["shading"] += time.perf_counter() - t2
+        self._lap("shading", c0)
         return t_m, n_w
 
     def _shade_rays(
