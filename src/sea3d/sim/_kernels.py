@@ -243,7 +243,7 @@ def world_rays(o_cam: F32, d_cam: F32, R: F64, t: F64) -> tuple[F32, NDArray[np.
     return rays, bad
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, parallel=True, nogil=True)
 def hits_and_truth(
     t_hit: F32,
     gid: NDArray[np.uint32],
@@ -343,7 +343,7 @@ def _sand1(
         out3[c] = np.float32(min(1.0, max(0.0, par[c] * shade)))
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, parallel=True, nogil=True)
 def shade_fused(
     o_cam: F32,
     d_cam: F32,
