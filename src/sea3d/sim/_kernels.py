@@ -320,17 +320,22 @@ def world_hit_points(
 
 
 @numba.njit(cache=True)
-def _sand1(
-    x: float, y: float, z: float, f: float, par: F64, cache: NDArray[np.float64], out3: F32
-) -> None:
-    seed = np.int64(par[6])
+def _sand_shade(
+    x: float,
+    y: float,
+    z: float,
+    f: float,
+    grain_freq: float,
+    contrast: float,
+    ripple_wavelength: float,
+    seed: np.int64,
+    cache: NDArray[np.float64],
+) -> float:
+    """The brightness factor of :func:`sand_albedo` at one point (albedo = colour x this)."""
     s0 = np.uint64(seed & 0xFFFFFFFF)
     s1 = np.uint64((seed + 1) & 0xFFFFFFFF)
     s2 = np.uint64((seed + 2) & 0xFFFFFFFF)
     s3 = np.uint64((seed + 3) & 0xFFFFFFFF)
-    grain_freq = par[3]
-    contrast = par[4]
-    ripple_wavelength = par[5]
     patches = fbm1_cached(x, y, z, 0.0, 1.5, 2, 0.5, s0, cache, 0)
     mid = fbm1_cached(x, y, z, f, 12.0, 3, 0.6, s3, cache, 2)
     grain = fbm1_cached(x, y, z, f, grain_freq, 4, 0.8, s1, cache, 5)
@@ -339,8 +344,7 @@ def _sand1(
         warp = fbm1_cached(x, y, z, 0.0, 1.5, 1, 0.5, s2, cache, 9)
         phase = (x * 0.8 + y * 0.6) / ripple_wavelength
         shade += 0.12 * np.sin(2.0 * np.pi * (phase + 3.0 * warp))
-    for c in range(3):
-        out3[c] = np.float32(min(1.0, max(0.0, par[c] * shade)))
+    return shade
 
 
 @numba.njit(cache=True, parallel=True, nogil=True)
@@ -415,11 +419,37 @@ def shade_fused(
             if sand[k]:
                 qx, qy, qz = px, py, pz
                 if has_T[k]:
-                    Ti = T_inv[k]
-                    qx = Ti[0, 0] * px + Ti[0, 1] * py + Ti[0, 2] * pz + Ti[0, 3]
-                    qy = Ti[1, 0] * px + Ti[1, 1] * py + Ti[1, 2] * pz + Ti[1, 3]
-                    qz = Ti[2, 0] * px + Ti[2, 1] * py + Ti[2, 2] * pz + Ti[2, 3]
-                _sand1(qx, qy, qz, ti * pixel_angle, sand_par[k], cache, alb)
+                    qx = (
+                        T_inv[k, 0, 0] * px
+                        + T_inv[k, 0, 1] * py
+                        + T_inv[k, 0, 2] * pz
+                        + T_inv[k, 0, 3]
+                    )
+                    qy = (
+                        T_inv[k, 1, 0] * px
+                        + T_inv[k, 1, 1] * py
+                        + T_inv[k, 1, 2] * pz
+                        + T_inv[k, 1, 3]
+                    )
+                    qz = (
+                        T_inv[k, 2, 0] * px
+                        + T_inv[k, 2, 1] * py
+                        + T_inv[k, 2, 2] * pz
+                        + T_inv[k, 2, 3]
+                    )
+                shade = _sand_shade(
+                    qx,
+                    qy,
+                    qz,
+                    ti * pixel_angle,
+                    sand_par[k, 3],
+                    sand_par[k, 4],
+                    sand_par[k, 5],
+                    np.int64(sand_par[k, 6]),
+                    cache,
+                )
+                for c in range(3):
+                    alb[c] = np.float32(min(1.0, max(0.0, sand_par[k, c] * shade)))
             else:
                 for c in range(3):
                     alb[c] = albedo_pre[i, c]
