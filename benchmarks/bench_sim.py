@@ -2,12 +2,11 @@
 with every water effect on (coastal water, lamp, caustics, vignetting, blur, noise).
 
 Prints, as medians over several pairs, the wall time and the process CPU time (all threads) per
-pair from ``Renderer.render_pair`` (which overlaps the right view's casting with the left view's
-shading), and, from two sequential ``render`` calls, the breakdown: ray generation (through the
-dome model, once per camera, cached across frames), ray transform, casting (Open3D), shading
-(ground truth, textures, caustics, light, water, adaptive supersampling) and the sensor model.
-The machine may be shared with other jobs: CPU time is the steadier figure; on an idle 2-core
-machine the wall time lies between CPU/2 and CPU.
+pair, and the breakdown: ray generation (through the dome model, once per camera, cached across
+frames), ray transform, casting (Open3D), shading (ground truth, textures, caustics, light,
+water, adaptive supersampling) and the sensor model. The machine may be shared with other jobs:
+CPU time is the steadier figure; on an idle 2-core machine the wall time lies between CPU/2 and
+CPU.
 
 The same pair is rendered by the reference path (``Renderer(fused=False)``: the per-material,
 row-chunked renderer the fused one replaced) in the same process, and the images are compared
@@ -43,17 +42,13 @@ def _clock() -> tuple[float, float]:
 
 
 def _pair(
-    renderer: Renderer, rig, T_wl: np.ndarray, imaging: Imaging, seed: int, paired: bool = True
+    renderer: Renderer, rig, T_wl: np.ndarray, imaging: Imaging, seed: int
 ) -> tuple[float, float, RenderedView, RenderedView]:
-    """Render one pair (``render_pair``, or two ``render`` calls); return (wall s, CPU s, left,
-    right)."""
+    """Render one pair; return (wall s, CPU s, left, right)."""
     rng = np.random.default_rng(seed)
     w0, c0 = _clock()
-    if paired:
-        left, right = renderer.render_pair(rig, T_wl, imaging, rng=rng, time_s=0.5)
-    else:
-        left = renderer.render(rig.left, T_wl, imaging, rng=rng, time_s=0.5)
-        right = renderer.render(rig.right, T_wl @ rig.T_left_right, imaging, rng=rng, time_s=0.5)
+    left = renderer.render(rig.left, T_wl, imaging, rng=rng, time_s=0.5)
+    right = renderer.render(rig.right, T_wl @ rig.T_left_right, imaging, rng=rng, time_s=0.5)
     w1, c1 = _clock()
     return w1 - w0, c1 - c0, left, right
 
@@ -83,20 +78,13 @@ def main() -> None:
     w1, c1 = _clock()
     ray_gen_wall, ray_gen_cpu = w1 - w0, c1 - c0
     _pair(renderer, rig, T_wl, imaging, 0)  # warm-up: numba compilation or cache load
-    # The headline: render_pair (the right view's casting overlaps the left view's shading).
-    walls, cpus = [], []
-    for _ in range(args.runs):
-        wall, cpu, left, right = _pair(renderer, rig, T_wl, imaging, 0)
-        walls.append(wall)
-        cpus.append(cpu)
-    # The breakdown: two sequential render calls, so each stage's CPU time is its own.
-    seq_walls, seq_cpus, parts_wall, parts_cpu = [], [], [], []
+    walls, cpus, parts_wall, parts_cpu = [], [], [], []
     for _ in range(args.runs):
         renderer.timings_s.clear()
         renderer.cpu_timings_s.clear()
-        wall, cpu, _, _ = _pair(renderer, rig, T_wl, imaging, 0, paired=False)
-        seq_walls.append(wall)
-        seq_cpus.append(cpu)
+        wall, cpu, left, right = _pair(renderer, rig, T_wl, imaging, 0)
+        walls.append(wall)
+        cpus.append(cpu)
         parts_wall.append(dict(renderer.timings_s))
         parts_cpu.append(dict(renderer.cpu_timings_s))
 
@@ -129,12 +117,8 @@ def main() -> None:
         f"{ray_gen_cpu:.2f} s CPU, {ray_gen_wall:.2f} s wall for both cameras"
     )
     print(
-        f"  per pair (render_pair), median of {args.runs}: {med(cpus):.2f} s CPU, "
-        f"{med(walls):.2f} s wall (min {min(walls):.2f} s)   [aim: < 2 s wall on 2 cores]"
-    )
-    print(
-        f"  per pair as two render calls, median of {args.runs}: {med(seq_cpus):.2f} s CPU, "
-        f"{med(seq_walls):.2f} s wall (min {min(seq_walls):.2f} s); per stage (medians):"
+        f"  per pair, median of {args.runs}: {med(cpus):.2f} s CPU, {med(walls):.2f} s wall "
+        f"(min {min(walls):.2f} s)   [aim: < 2 s wall on 2 cores]"
     )
     print(f"    {'stage':<10} {'CPU s':>6} {'wall s':>7}")
     for key in STAGES:

@@ -285,21 +285,3 @@ def test_fused_shading_handles_a_posed_sand_object_and_clean_imaging() -> None:
     fast, ref = _fused_and_reference(_plane_scene(T_plane), np.eye(4), Imaging.clean())
     np.testing.assert_array_equal(fast.image, ref.image)
     np.testing.assert_array_equal(fast.radiance, ref.radiance)
-
-
-def test_render_pair_gives_the_images_of_two_render_calls() -> None:
-    # render_pair overlaps the right view's casting with the left view's shading (two threads);
-    # the result, noise included, must be that of rendering left then right.
-    rig = paper_rig("dome", size_px=(240, 135))
-    T = np.eye(4)
-    T[:3, :3] = np.diag([1.0, -1.0, -1.0])
-    T[:3, 3] = (-0.3, 0.2, 1.1)
-    renderer = Renderer(builtin_scene("lake"), supersample=2)
-    imaging = Imaging.underwater("coastal")
-    pair = renderer.render_pair(rig, T, imaging, time_s=0.3, rng=np.random.default_rng(0))
-    rng = np.random.default_rng(0)
-    left = renderer.render(rig.left, T, imaging, time_s=0.3, rng=rng)
-    right = renderer.render(rig.right, T @ rig.T_left_right, imaging, time_s=0.3, rng=rng)
-    np.testing.assert_array_equal(pair[0].image, left.image)
-    np.testing.assert_array_equal(pair[1].image, right.image)
-    np.testing.assert_array_equal(pair[1].gt.depth_m, right.gt.depth_m)

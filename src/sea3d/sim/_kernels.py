@@ -243,7 +243,7 @@ def world_rays(o_cam: F32, d_cam: F32, R: F64, t: F64) -> tuple[F32, NDArray[np.
     return rays, bad
 
 
-@numba.njit(cache=True, parallel=True, nogil=True)
+@numba.njit(cache=True, parallel=True)
 def hits_and_truth(
     t_hit: F32,
     gid: NDArray[np.uint32],
@@ -347,7 +347,7 @@ def _sand_shade(
     return shade
 
 
-@numba.njit(cache=True, parallel=True, nogil=True)
+@numba.njit(cache=True, parallel=True)
 def shade_fused(
     o_cam: F32,
     d_cam: F32,

@@ -22,7 +22,6 @@ Where nothing is hit, float fields are NaN and ``object_id`` is -1.
 from __future__ import annotations
 
 import logging
-import threading
 import time
 from collections import defaultdict
 from dataclasses import dataclass
@@ -34,7 +33,6 @@ from numpy.typing import NDArray
 
 from sea3d.errors import SimulationError
 from sea3d.geometry.camera import CameraModel
-from sea3d.geometry.rig import StereoRig
 from sea3d.sim._kernels import (
     N_SAND_PARAMS,
     camera_ground_truth,
@@ -408,86 +406,6 @@ class Renderer:
         )
         return RenderedView(image=image, radiance=radiance, gt=gt)
 
-    def render_pair(
-        self,
-        rig: StereoRig,
-        T_world_left: FloatArray,
-        imaging: Imaging | None = None,
-        *,
-        time_s: float = 0.0,
-        rng: np.random.Generator | None = None,
-    ) -> tuple[RenderedView, RenderedView]:
-        """Render the left and right views of a stereo rig at one instant.
-
-        The same images as :meth:`render` on ``rig.left`` at ``T_world_left`` then ``rig.right``
-        at ``T_world_left @ rig.T_left_right`` (``rng`` draws the left's sensor noise first), but
-        faster on a multi-core machine: Open3D casts on one core and holds the GIL, so the right
-        view's casting runs in a second thread while the left view's shading kernel (numba,
-        parallel, GIL released) runs.
-
-        Args:
-            rig: the :class:`~sea3d.geometry.rig.StereoRig`.
-            T_world_left: ``(4, 4)`` float64 pose of the left camera.
-            imaging: as in :meth:`render`.
-            time_s: scene time, seconds.
-            rng: generator for sensor noise (required when noise is on).
-
-        Returns:
-            ``(left, right)`` :class:`RenderedView`.
-
-        Raises:
-            SimulationError: for a malformed pose.
-        """
-        T_l = np.asarray(T_world_left, dtype=np.float64)
-        if T_l.shape != (4, 4) or not np.all(np.isfinite(T_l)):
-            raise SimulationError(
-                f"T_world_left must be a finite 4x4 matrix, got shape {T_l.shape}"
-            )
-        T_r = T_l @ rig.T_left_right
-        imaging = imaging or Imaging.clean()
-        if not self.fused:
-            return (
-                self.render(rig.left, T_l, imaging, time_s=time_s, rng=rng),
-                self.render(rig.right, T_r, imaging, time_s=time_s, rng=rng),
-            )
-        cam_r = self.camera_rays(rig.right)
-        n_r = cam_r.origins.shape[1] * cam_r.origins.shape[2]
-        c0 = _clock()
-        rays_r, bad_r = world_rays(
-            cam_r.origins[0].reshape(n_r, 3),
-            cam_r.dirs[0].reshape(n_r, 3),
-            np.ascontiguousarray(T_r[:3, :3]),
-            np.ascontiguousarray(T_r[:3, 3]),
-        )
-        self._lap("transform", c0)
-        go = threading.Event()
-        result: dict[str, Any] = {}
-
-        def cast_right() -> None:
-            go.wait()
-            t0 = time.perf_counter()
-            try:
-                result["ans"] = self._rc.cast_rays(
-                    o3d.core.Tensor.from_numpy(rays_r), nthreads=self.nthreads
-                )
-            except BaseException as exc:  # re-raised in the calling thread
-                result["error"] = exc
-            self.timings_s["casting"] += time.perf_counter() - t0
-
-        worker = threading.Thread(target=cast_right, name="sea3d-sim-cast", daemon=True)
-        worker.start()
-        try:
-            left = self._render_fused(rig.left, T_l, imaging, time_s, rng, go=go)
-        finally:
-            go.set()
-            worker.join()
-        if "error" in result:
-            raise result["error"]
-        right = self._render_fused(
-            rig.right, T_r, imaging, time_s, rng, pre=(rays_r, bad_r, result["ans"])
-        )
-        return left, right
-
     def _render_fused(
         self,
         camera: CameraModel,
@@ -495,15 +413,8 @@ class Renderer:
         imaging: Imaging,
         time_s: float,
         rng: np.random.Generator | None,
-        *,
-        go: threading.Event | None = None,
-        pre: tuple[F32, NDArray[np.bool_], Any] | None = None,
     ) -> RenderedView:
-        """:meth:`render` in whole-image numba passes: the same numbers as the reference path.
-
-        ``go`` is set just before the long shading kernel starts (it releases the GIL, so another
-        thread can cast meanwhile); ``pre`` is the centre rays' ``(world rays, bad, cast result)``
-        when they were cast already."""
+        """:meth:`render` in whole-image numba passes: the same numbers as the reference path."""
         cam_rays = self.camera_rays(camera)
         _, h, w, _ = cam_rays.origins.shape
         n = h * w
@@ -525,7 +436,6 @@ class Renderer:
             tvec,
             obj_id.reshape(n),
             (points.reshape(n, 3), depth.reshape(n), rng_m.reshape(n), normals.reshape(n, 3)),
-            pre=pre,
         )
         c0 = _clock()
         self._shade_rays(
@@ -541,7 +451,6 @@ class Renderer:
             time_s,
             w,
             radiance.reshape(n, 3),
-            go=go,
         )
         del t_m, n_w
         self._lap("shading", c0)
@@ -612,19 +521,14 @@ class Renderer:
         tvec: FloatArray,
         obj_out: NDArray[np.int32],
         gt_out: tuple[F32, F32, F32, F32],
-        pre: tuple[F32, NDArray[np.bool_], Any] | None = None,
     ) -> tuple[FloatArray, F32]:
-        """Cast camera-frame rays posed by ``(R, tvec)`` (or take ``pre``, see
-        :meth:`_render_fused`); fill object ids and ground truth (points, depth, range, normals
-        in the camera frame); return ``t`` and world normals."""
+        """Cast camera-frame rays posed by ``(R, tvec)``; fill object ids and ground truth
+        (points, depth, range, normals in the camera frame); return ``t`` and world normals."""
         c0 = _clock()
-        if pre is None:
-            rays, bad = world_rays(o_cam, d_cam, R, tvec)
-            c0 = self._lap("transform", c0)
-            ans = self._rc.cast_rays(o3d.core.Tensor.from_numpy(rays), nthreads=self.nthreads)
-            c0 = self._lap("casting", c0)
-        else:
-            rays, bad, ans = pre
+        rays, bad = world_rays(o_cam, d_cam, R, tvec)
+        c0 = self._lap("transform", c0)
+        ans = self._rc.cast_rays(o3d.core.Tensor.from_numpy(rays), nthreads=self.nthreads)
+        c0 = self._lap("casting", c0)
         n = rays.shape[0]
         t_m = np.empty(n, dtype=np.float64)
         n_w = np.empty((n, 3), dtype=np.float32)
@@ -660,7 +564,6 @@ class Renderer:
         time_s: float,
         row_len: int,
         out: F32,
-        go: threading.Event | None = None,
     ) -> None:
         """Radiance of each ray into ``out`` ``(N, 3)``: sand inside the fused kernel, the other
         materials' albedo first through their own ``albedo`` on their hits."""
@@ -683,8 +586,6 @@ class Renderer:
         sun_dir = -np.asarray(imaging.sun_direction_world, dtype=np.float64)
         sun_dir /= np.linalg.norm(sun_dir)
         light_pos = R @ np.asarray(imaging.vehicle_light_offset_m, dtype=np.float64) + tvec
-        if go is not None:
-            go.set()
         shade_fused(
             o_cam,
             d_cam,

@@ -168,7 +168,8 @@ def simulate_pair(
     imaging = _imaging(water)
     rng = np.random.default_rng(seed)
     T_wl = np.asarray(T_world_left, dtype=np.float64)
-    left, right = r.render_pair(rig, T_wl, imaging, time_s=time_s, rng=rng)
+    left = r.render(rig.left, T_wl, imaging, time_s=time_s, rng=rng)
+    right = r.render(rig.right, T_wl @ rig.T_left_right, imaging, time_s=time_s, rng=rng)
     return left.image, right.image, left.gt
 
 
@@ -334,7 +335,8 @@ def render_calibration_set(
             )
         T_world_left = invert_T(T_lb)  # world = board frame
         rng = np.random.default_rng(seed * 1000 + k)
-        lv, rv = renderer.render_pair(cams, T_world_left, imaging, rng=rng)
+        lv = renderer.render(cams.left, T_world_left, imaging, rng=rng)
+        rv = renderer.render(cams.right, T_world_left @ rig.T_left_right, imaging, rng=rng)
         lefts.append(lv.image)
         rights.append(rv.image)
         poses_lb.append(T_lb)
@@ -633,7 +635,8 @@ def simulate_survey(
             )
             i_sonar += 1
         time_s = float(t_ns) * 1e-9
-        lv, rv = renderer.render_pair(rig, T_wl[k], imaging, time_s=time_s, rng=rng)
+        lv = renderer.render(rig.left, T_wl[k], imaging, time_s=time_s, rng=rng)
+        rv = renderer.render(rig.right, T_wl[k] @ rig.T_left_right, imaging, time_s=time_s, rng=rng)
         writer.write_stereo(int(t_ns), lv.image, rv.image)
         if gt_dir is not None:
             np.save(gt_dir / "depth" / f"{int(t_ns)}.npy", lv.gt.depth_m)
