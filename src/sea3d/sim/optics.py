@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.errors import SimulationError
-from sea3d.sim._kernels import caustic_raw, light_and_water
+from sea3d.sim._kernels import caustic_raw, expose, light_and_water, noise_and_encode
 
 __all__ = ["WATER_PRESETS", "Imaging", "Water", "encode_srgb", "water_preset"]
 
@@ -291,27 +291,27 @@ class Imaging:
         Raises:
             SimulationError: if noise is on and no generator is given.
         """
-        img = radiance.astype(np.float32) * np.float32(self.exposure)
-        h, w = img.shape[:2]
-        if self.vignetting > 0:
-            img = img * _vignette(h, w, float(self.vignetting))[:, :, None]
+        h, w = radiance.shape[:2]
+        img = np.empty((h, w, 3), dtype=np.float32)
+        vig = (
+            _vignette(h, w, float(self.vignetting))
+            if self.vignetting > 0
+            else np.empty((0, 0), dtype=np.float32)
+        )
+        expose(np.ascontiguousarray(radiance, dtype=np.float32), float(self.exposure), vig, img)
         if self.blur_sigma_px > 0:
-            img = np.asarray(
-                cv2.GaussianBlur(img, (0, 0), self.blur_sigma_px, borderType=cv2.BORDER_REFLECT),
-                dtype=np.float32,
+            cv2.GaussianBlur(
+                img, (0, 0), self.blur_sigma_px, dst=img, borderType=cv2.BORDER_REFLECT
             )
+        normals: F32 = np.empty((0, 0, 0), dtype=np.float32)
         if self.full_well_e > 0 or self.read_noise > 0:
             if rng is None:
                 raise SimulationError("sensor noise is on but no random generator was given")
             # Shot noise (Gaussian approximation of Poisson, thousands of electrons), read noise.
-            sigma = (
-                np.sqrt(np.clip(img, 0.0, 1.5) / self.full_well_e)
-                if self.full_well_e > 0
-                else np.float32(0.0)
-            )
-            sigma = np.sqrt(sigma * sigma + np.float32(self.read_noise) ** 2)
-            img = img + sigma * rng.standard_normal(img.shape, dtype=np.float32)
-        return encode_srgb(img)
+            normals = rng.standard_normal(img.shape, dtype=np.float32)
+        return noise_and_encode(
+            img, normals, float(self.full_well_e), float(self.read_noise), _srgb_lut()
+        )
 
 
 @lru_cache(maxsize=8)
@@ -340,7 +340,8 @@ def encode_srgb(linear: F32) -> NDArray[np.uint8]:
 
 
 @lru_cache(maxsize=1)
-def _caustic_mean() -> float:
+def caustic_mean() -> float:
+    """Mean of the unnormalised caustic pattern (the normalisation of :func:`caustic_pattern`)."""
     p = np.random.default_rng(0).random((200_000, 3)) * 50.0
     return float(np.mean(caustic_raw(p, 1.0, 0.0)))
 
@@ -365,4 +366,4 @@ def caustic_pattern(
         float(scale_m),
         float(time_s * speed_per_s),
     )
-    return raw.astype(np.float64) / _caustic_mean()
+    return raw.astype(np.float64) / caustic_mean()
