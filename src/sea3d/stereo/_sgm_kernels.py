@@ -525,14 +525,22 @@ def invalidate_left_border(disp: np.ndarray, reach: int, tolerance: float) -> No
     A left pixel ``x`` can only be matched if its disparity is at most ``x``. Near the left
     border the true disparity may exceed ``x``; the search then returns some wrong smaller
     value. Where the smallest valid disparity among the next ``reach`` pixels to the right
-    exceeds ``x + tolerance``, pixel ``x`` is set invalid (in place; NaN).
+    exceeds ``x + tolerance``, pixel ``x`` is set invalid (in place; NaN). Rows are scanned
+    from right to left, so that a run of wrong border pixels cannot vouch for itself: each
+    pixel is judged against neighbours already judged.
     """
     h, w = disp.shape
     nan = np.float32(np.nan)
     for y in prange(h):
+        row_max = np.float32(-1.0)
         for x in range(w):
-            if x >= 4 * w // 5:
-                break
+            v = disp[y, x]
+            if v == v and v > row_max:
+                row_max = v
+        if row_max < 0:
+            continue
+        start = min(int(row_max) + reach + 1, 4 * w // 5)
+        for x in range(start, -1, -1):
             dmin = np.float32(np.inf)
             for xx in range(x + 1, min(x + reach + 1, w)):
                 v = disp[y, xx]
@@ -542,5 +550,3 @@ def invalidate_left_border(disp: np.ndarray, reach: int, tolerance: float) -> No
                 continue
             if dmin > x + tolerance:
                 disp[y, x] = nan
-            elif dmin < x - reach:
-                break  # far enough from the border in this row
