@@ -17,8 +17,8 @@ import cv2
 import numpy as np
 
 from sea3d.eval.disparity import disparity_metrics
+from sea3d.io.depth_files import read_disparity
 from sea3d.stereo import make_config, match
-from sea3d.stereo.files import read_disparity
 from sea3d.stereo.gpu_sgm import GpuSgmConfig, match_gpu_sgm
 
 SCENES = {  # left, right, ground truth, scale, max disparity

@@ -12,7 +12,7 @@ import pytest
 from sea3d.cli import main
 from sea3d.errors import StereoError
 from sea3d.eval import disparity_metrics
-from sea3d.stereo.files import read_disparity, read_pfm, write_disparity, write_pfm
+from sea3d.io.depth_files import read_disparity, read_pfm, write_disparity, write_pfm
 
 EXACT_PERCENT = 1e-9
 

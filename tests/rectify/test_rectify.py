@@ -18,6 +18,7 @@ from sea3d.geometry import PinholeCamera
 from sea3d.geometry.camera import CameraModel
 from sea3d.geometry.rig import StereoRig
 from sea3d.geometry.se3 import make_T, rotvec_to_R
+from sea3d.io.depth_files import read_depth_png_mm, write_depth_png_mm, write_ply
 from sea3d.rectify import fit_virtual_pinhole, rectify_images, rectify_rig
 from sea3d.refraction.presets import paper_rig
 from sea3d.stereo import SgmConfig
@@ -27,7 +28,6 @@ from sea3d.stereo.depth import (
     disparity_to_depth,
     max_disparity_for_depth,
 )
-from sea3d.stereo.files import read_depth_png_mm, write_depth_png_mm, write_ply
 
 ROW_ALIGN_PX = 0.02  # rectified rows of one point agree (undistortPoints iterates)
 POINT_ROUNDTRIP_M = 1e-6

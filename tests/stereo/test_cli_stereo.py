@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from sea3d.cli import main
+from sea3d.io.depth_files import read_depth_png_mm, read_disparity
 from sea3d.io.rig_file import save_rig
 from sea3d.refraction.presets import paper_rig
-from sea3d.stereo.files import read_depth_png_mm, read_disparity
 
 _HERE = Path(__file__).resolve().parent
 PLANE_DEPTH_REL = 0.01

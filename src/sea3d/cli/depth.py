@@ -55,8 +55,8 @@ def _warm_up(engine: str) -> float:
 
 
 def _cmd_stereo(args: argparse.Namespace) -> int:
+    from sea3d.io.depth_files import write_disparity
     from sea3d.stereo import match
-    from sea3d.stereo.files import write_disparity
     from sea3d.stereo.filters import FilterChain, parse_filter_chain
 
     config = _engine_config(args)
@@ -100,7 +100,7 @@ def _cmd_stereo(args: argparse.Namespace) -> int:
 def _cmd_eval_disparity(args: argparse.Namespace) -> int:
     from sea3d.errors import StereoError
     from sea3d.eval import disparity_metrics
-    from sea3d.stereo.files import read_disparity
+    from sea3d.io.depth_files import read_disparity
 
     est = read_disparity(args.estimate, scale=args.est_scale)
     gt = read_disparity(args.ground_truth, scale=args.scale)
@@ -128,12 +128,12 @@ def _cmd_depth_session(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from sea3d.errors import StereoError
+    from sea3d.io.depth_files import write_depth_png_mm, write_ply
     from sea3d.io.rig_file import load_rig, rig_from_yaml
     from sea3d.io.session import open_session
     from sea3d.rectify import rectify_rig
     from sea3d.stereo import make_config
     from sea3d.stereo.depth import compute_depth, max_disparity_for_depth
-    from sea3d.stereo.files import write_depth_png_mm, write_ply
 
     if not (0 < args.min_depth < args.max_depth):
         raise StereoError(
@@ -218,11 +218,11 @@ def _cmd_depth(args: argparse.Namespace) -> int:
         raise StereoError("--points needs a file name (cloud.ply) for a single pair")
 
     from sea3d.errors import StereoError
+    from sea3d.io.depth_files import write_depth, write_ply
     from sea3d.io.rig_file import load_rig
     from sea3d.rectify import rectify_rig
     from sea3d.stereo import make_config
     from sea3d.stereo.depth import compute_depth, max_disparity_for_depth
-    from sea3d.stereo.files import write_depth, write_ply
 
     if not (0 < args.min_depth < args.max_depth):
         raise StereoError(

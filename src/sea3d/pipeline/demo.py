@@ -98,6 +98,7 @@ def run_demo(config: DemoConfig, progress: Callable[[str], None] | None = None) 
     """
     from sea3d.eval.depth_gt import point_depth_errors
     from sea3d.geometry.se3 import look_at
+    from sea3d.io.depth_files import write_depth, write_depth_png_mm, write_disparity, write_ply
     from sea3d.io.rig_file import save_rig
     from sea3d.pipeline.report import write_demo_report
     from sea3d.rectify import rectify_rig
@@ -105,7 +106,6 @@ def run_demo(config: DemoConfig, progress: Callable[[str], None] | None = None) 
     from sea3d.sim import builtin_scene, load_scene, scale_rig, simulate_pair
     from sea3d.stereo import make_config
     from sea3d.stereo.depth import compute_depth, disparity_to_depth
-    from sea3d.stereo.files import write_depth, write_depth_png_mm, write_disparity, write_ply
 
     def step(msg: str) -> None:
         log.debug(msg)

@@ -1,4 +1,5 @@
-"""Disparity map files: PFM (read/write), NPY, float32 TIFF, and Middlebury scaled PNG/PGM.
+"""Disparity, depth and point-cloud files: PFM (read/write), NPY, float32 TIFF, Middlebury scaled
+PNG/PGM, 16-bit millimetre depth PNG (0 invalid) and binary PLY point clouds.
 
 PFM ("Portable Float Map", as used by the Middlebury benchmark): a text header
 ``Pf`` (one channel) or ``PF`` (three), then ``"<width> <height>"``, then a scale whose sign
