@@ -6,12 +6,13 @@ import cv2
 import numpy as np
 import pytest
 
+from sea3d.calib.targets import parse_board
 from sea3d.geometry.pinhole import PinholeCamera
 from sea3d.refraction.presets import paper_rig
 from sea3d.sim.materials import SandMaterial
 from sea3d.sim.optics import WATER_PRESETS, Imaging
 from sea3d.sim.render import Renderer
-from sea3d.sim.scene import Scene, SceneObject, builtin_scene, parse_board_spec, plane_mesh
+from sea3d.sim.scene import Scene, SceneObject, builtin_scene, plane_mesh
 from sea3d.sim.survey import render_calibration_set, simulate_pair
 
 SIZE_PX = (640, 360)
@@ -61,11 +62,12 @@ def _corner_errors(rig, port_cam, spec, cal) -> np.ndarray:
     errors = []
     for img, T in zip(cal.lefts, cal.T_left_board, strict=True):
         gray = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
-        ok, corners = cv2.findChessboardCorners(gray, (spec.cols, spec.rows))
+        ok, corners = cv2.findChessboardCorners(gray, spec.corner_grid)
         assert ok, "OpenCV did not find the rendered checkerboard"
         crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
         corners = cv2.cornerSubPix(gray, corners, (5, 5), (-1, -1), crit).reshape(-1, 2)
-        pts = spec.corners_board() @ T[:3, :3].T + T[:3, 3]
+        _ids, pts_board = spec.object_points()  # x fastest, as OpenCV orders them
+        pts = pts_board @ T[:3, :3].T + T[:3, 3]
         uv, valid = port_cam.project(pts)
         assert valid.all()
         d = corners[:, None, :] - uv[None, :, :]
@@ -78,7 +80,7 @@ def _corner_errors(rig, port_cam, spec, cal) -> np.ndarray:
 @pytest.mark.parametrize("port", ["none", "dome"])
 def test_detected_checkerboard_corners_land_on_projected_board_corners(port: str) -> None:
     rig = paper_rig(port, size_px=SIZE_PX)
-    spec = parse_board_spec("checkerboard:9x6:40mm")
+    spec = parse_board("checkerboard:9x6:40mm")
     cal = render_calibration_set(
         rig, spec, 3, "water", seed=1, distance_range_m=(0.5, 0.9), supersample=6
     )
@@ -180,19 +182,26 @@ CHARUCO_RMS_TOL_PX = 0.4  # small squares (~30 px) with markers inside the corne
 
 
 def test_charuco_corners_match_the_board_frame_convention() -> None:
-    """OpenCV's ChArUco corner k lands on corners_board()[k] (frame at the first inner corner).
+    """OpenCV's ChArUco corner k lands on the calib board's object point with id k (frame at the
+    first inner corner), for OpenCV's own board built from the spec's square counts.
 
     OpenCV's CharucoDetector alone returns corners offset by about +0.5 px in x and y (seen here
     on exact renders); after cornerSubPix the offset is gone, so the test refines first.
     """
-    from sea3d.sim.scene import cv2_charuco
-
     rig = paper_rig("none", size_px=SIZE_PX)
-    spec = parse_board_spec("charuco:7x5:50mm:37mm:DICT_4X4_50")
+    spec = parse_board("charuco:7x5:50mm:37mm:DICT_4X4_50")
     lefts, _rights, poses = render_calibration_set(
         rig, spec, 2, "air", seed=0, distance_range_m=(0.55, 0.75)
     )
-    detector = cv2.aruco.CharucoDetector(cv2_charuco(spec))
+    board = cv2.aruco.CharucoBoard(
+        (spec.cols, spec.rows),  # calib counts ChArUco squares, as OpenCV does
+        spec.square_m,
+        spec.marker_m,
+        cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50),
+    )
+    detector = cv2.aruco.CharucoDetector(board)
+    all_ids, pts_board = spec.object_points()
+    assert np.array_equal(all_ids, np.arange(len(all_ids)))
     errors = []
     for img, T in zip(lefts, poses, strict=True):
         gray = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
@@ -200,7 +209,7 @@ def test_charuco_corners_match_the_board_frame_convention() -> None:
         assert ids is not None and len(ids) >= 10
         crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
         corners = cv2.cornerSubPix(gray, corners, (4, 4), (-1, -1), crit).reshape(-1, 2)
-        pts = spec.corners_board()[ids.ravel()] @ T[:3, :3].T + T[:3, 3]
+        pts = pts_board[ids.ravel()] @ T[:3, :3].T + T[:3, 3]
         uv, _ = rig.left.project(pts)
         errors.append(corners - uv)
     err = np.concatenate(errors)

@@ -7,8 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from sea3d.calib.targets import parse_board
 from sea3d.errors import SimulationError
-from sea3d.sim.scene import builtin_scene, load_scene, parse_board_spec
+from sea3d.sim.scene import builtin_scene, load_scene, sim_board
 
 
 @pytest.mark.parametrize("name", ["tank", "lake", "reef"])
@@ -52,10 +53,15 @@ def test_bad_scenes_are_rejected_with_the_offending_value(tmp_path: Path) -> Non
 
 
 def test_board_specs_parse_and_reject_garbage() -> None:
-    b = parse_board_spec("checkerboard:9x6:40mm")
-    assert (b.cols, b.rows, b.square_m) == (9, 6, pytest.approx(0.04))
-    c = parse_board_spec("charuco:5x7:4cm:3cm:DICT_4X4_50")
-    assert (c.cols, c.rows, c.marker_m, c.dictionary) == (4, 6, pytest.approx(0.03), "DICT_4X4_50")
+    b = sim_board("checkerboard:9x6:40mm")
+    assert (b.corner_grid, b.square_m) == ((9, 6), pytest.approx(0.04))
+    c = sim_board("charuco:5x7:4cm:3cm:DICT_4X4_50")
+    # charuco counts squares: 5x7 squares have 4x6 inner corners
+    assert (c.cols, c.rows, c.corner_grid) == (5, 7, (4, 6))
+    assert (c.marker_m, c.dictionary) == (pytest.approx(0.03), "DICT_4X4_50")
+    assert c == parse_board("charuco:5x7:4cm:3cm:DICT_4X4_50")  # the calibrator's board
     for text in ("checkerboard:9x6", "circles:4x11:20mm", "checkerboard:nine:40mm"):
-        with pytest.raises(SimulationError):
-            parse_board_spec(text)
+        with pytest.raises(SimulationError, match="bad board spec"):
+            sim_board(text)
+    with pytest.raises(SimulationError, match="apriltag"):
+        sim_board("apriltag:7x5:91.4mm:114.3mm")  # a calib board the simulator cannot draw

@@ -83,7 +83,8 @@ def register(sub: Any) -> None:
     c.add_argument(
         "--board",
         default="checkerboard:9x6:40mm",
-        help="checkerboard:COLSxROWS:SQUARE (inner corners) or charuco:SXxSY:SQUARE:MARKER[:DICT]",
+        help="board as for 'sea3d calibrate': checkerboard:COLSxROWS:SQUARE (inner corners) or "
+        "charuco:COLSxROWS:SQUARE:MARKER[:DICT][:legacy] (squares), or a board .yaml file",
     )
     c.add_argument("--views", type=int, default=20, help="number of views (default 20)")
     c.add_argument(

@@ -8,12 +8,10 @@ from sea3d.sim.motion import HandHeld, ImuNoise, Lawnmower, Mount, Orbit, imu_sa
 from sea3d.sim.optics import WATER_PRESETS, Imaging, Water
 from sea3d.sim.render import GroundTruth, RenderedView, Renderer
 from sea3d.sim.scene import (
-    BoardSpec,
     Scene,
     SceneObject,
     builtin_scene,
     load_scene,
-    parse_board_spec,
 )
 from sea3d.sim.survey import (
     CalibrationSet,
@@ -27,7 +25,6 @@ from sea3d.sim.survey import (
 
 __all__ = [
     "WATER_PRESETS",
-    "BoardSpec",
     "CalibrationSet",
     "GroundTruth",
     "HandHeld",
@@ -46,7 +43,6 @@ __all__ = [
     "builtin_scene",
     "imu_samples",
     "load_scene",
-    "parse_board_spec",
     "render_calibration_set",
     "scale_rig",
     "simulate_pair",

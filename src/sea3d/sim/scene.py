@@ -27,7 +27,8 @@ import open3d as o3d
 import yaml
 from numpy.typing import NDArray
 
-from sea3d.errors import SimulationError
+from sea3d.calib.targets import BoardSpec, board_origin_offset_m, parse_board, render_board
+from sea3d.errors import ConfigError, SimulationError
 from sea3d.sim.materials import (
     ArucoCubeMaterial,
     CheckerboardMaterial,
@@ -36,19 +37,17 @@ from sea3d.sim.materials import (
     RockMaterial,
     SandMaterial,
     SolidMaterial,
-    aruco_dictionary,
 )
 from sea3d.sim.noise import fbm
 
 __all__ = [
-    "BoardSpec",
     "Scene",
     "SceneObject",
     "builtin_scene",
     "load_scene",
     "make_board",
-    "parse_board_spec",
     "scene_from_dict",
+    "sim_board",
 ]
 
 _log = logging.getLogger(__name__)
@@ -322,76 +321,35 @@ def tank_wall_mesh(
 # ----------------------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True, kw_only=True)
-class BoardSpec:
-    """A calibration board.
-
-    Attributes:
-        kind: ``"checkerboard"`` or ``"charuco"``.
-        cols: inner corners along the board's x axis.
-        rows: inner corners along y.
-        square_m: square side, metres.
-        marker_m: ArUco marker side (ChArUco only), metres.
-        dictionary: ArUco dictionary (ChArUco only).
-    """
-
-    kind: str
-    cols: int
-    rows: int
-    square_m: float
-    marker_m: float = 0.0
-    dictionary: str = "DICT_6X6_250"
-
-    def corners_board(self) -> FloatArray:
-        """``(cols*rows, 3)`` inner corners in the board frame (x fastest), metres."""
-        jj, ii = np.mgrid[0 : self.rows, 0 : self.cols]
-        return np.stack(
-            [ii.ravel() * self.square_m, jj.ravel() * self.square_m, np.zeros(ii.size)], axis=1
-        ).astype(np.float64)
+# The simulator renders the chessboard-based kinds of sea3d.calib.targets (tag grids need
+# another outline and pose sampler, see render_calibration_set).
+SIM_BOARD_KINDS = ("checkerboard", "charuco")
+_TEXELS_PER_SQUARE = 40  # ChArUco texture resolution
 
 
-def parse_board_spec(text: str) -> BoardSpec:
-    """Parse ``checkerboard:9x6:40mm`` or ``charuco:5x7:40mm:30mm[:DICT_6X6_250]``.
+def sim_board(board: BoardSpec | str, where: str = "board") -> BoardSpec:
+    """The :class:`sea3d.calib.targets.BoardSpec` of ``board``, checked for the simulator.
 
-    For a checkerboard ``9x6`` counts inner corners; for ChArUco ``5x7`` counts squares (as
-    OpenCV's ``CharucoBoard`` does), so the inner corners are 4x6.
+    ``board`` is a spec or a board string as :func:`sea3d.calib.targets.parse_board` reads it
+    (``checkerboard:9x6:40mm`` counts inner corners, ``charuco:5x7:40mm:30mm[:DICT_6X6_250]``
+    counts squares), so a string means the same physical board to ``sea3d sim calibration`` and
+    to ``sea3d calibrate``.
 
     Raises:
-        SimulationError: for anything else, naming the text.
+        SimulationError: the string is malformed or the kind is not a checkerboard or ChArUco
+            board, naming ``where`` and the text.
     """
-    parts = text.strip().split(":")
-
-    def _length_m(s: str) -> float:
-        s = s.strip().lower()
-        for unit, scale in (("mm", 1e-3), ("cm", 1e-2), ("m", 1.0)):
-            if s.endswith(unit):
-                return float(s[: -len(unit)]) * scale
-        raise ValueError(s)
-
-    try:
-        kind = parts[0].lower()
-        nx, ny = (int(n) for n in parts[1].lower().split("x"))
-        if kind == "checkerboard" and len(parts) == 3:
-            spec = BoardSpec(kind=kind, cols=nx, rows=ny, square_m=_length_m(parts[2]))
-        elif kind == "charuco" and len(parts) in (4, 5):
-            spec = BoardSpec(
-                kind=kind,
-                cols=nx - 1,
-                rows=ny - 1,
-                square_m=_length_m(parts[2]),
-                marker_m=_length_m(parts[3]),
-                dictionary=parts[4] if len(parts) == 5 else "DICT_6X6_250",
-            )
-        else:
-            raise ValueError(text)
-    except (ValueError, IndexError) as err:
+    if isinstance(board, str):
+        try:
+            spec = parse_board(board)
+        except ConfigError as err:
+            raise SimulationError(f"{where}: bad board spec {board!r}: {err}") from err
+    else:
+        spec = board
+    if spec.kind not in SIM_BOARD_KINDS:
         raise SimulationError(
-            f"bad board spec {text!r}: expected 'checkerboard:9x6:40mm' (inner corners, square) or "
-            f"'charuco:5x7:40mm:30mm[:DICT_6X6_250]' (squares, square, marker)"
-        ) from err
-    if spec.cols < 2 or spec.rows < 2 or spec.square_m <= 0:
-        raise SimulationError(
-            f"bad board spec {text!r}: need at least 2x2 inner corners and a positive square"
+            f"{where}: the simulator renders {' and '.join(SIM_BOARD_KINDS)} boards, "
+            f"got {spec.kind!r} ({spec.name})"
         )
     return spec
 
@@ -399,27 +357,31 @@ def parse_board_spec(text: str) -> BoardSpec:
 def make_board(
     spec: BoardSpec, T_world_board: FloatArray, margin_m: float | None = None
 ) -> SceneObject:
-    """A calibration board as a textured plane at ``T_world_board`` (board frame: origin at the
-    first inner corner, x along ``cols``, y along ``rows``, z into the board)."""
+    """A calibration board as a textured plane at ``T_world_board``.
+
+    Board frame (that of :mod:`sea3d.calib.targets`): origin at the first inner corner, x along
+    ``cols``, y along ``rows``, z into the board, metres. Checkerboards are analytic; ChArUco
+    boards are :func:`sea3d.calib.targets.render_board`'s image at 40 texels per square.
+
+    Raises:
+        SimulationError: ``spec`` is not a checkerboard or ChArUco board.
+    """
+    spec = sim_board(spec)
     margin = spec.square_m * 0.75 if margin_m is None else margin_m
     material: Any
     if spec.kind == "checkerboard":
+        cols, rows = spec.corner_grid
         material = CheckerboardMaterial(
-            cols=spec.cols, rows=spec.rows, square_m=spec.square_m, margin_m=margin
+            cols=cols, rows=rows, square_m=spec.square_m, margin_m=margin
         )
         x0, x1, y0, y1 = material.extent_m()
     else:
-        board = cv2_charuco(spec)
-        px_per_square = 40
-        nsx, nsy = spec.cols + 1, spec.rows + 1
-        img = board.generateImage(
-            (nsx * px_per_square, nsy * px_per_square), marginSize=0, borderBits=1
-        )
+        img = render_board(spec, px_per_m=_TEXELS_PER_SQUARE / spec.square_m)
         rgb = np.repeat((img.astype(np.float32) / 255.0)[:, :, None], 3, axis=2)
         rgb = (0.03 + (0.85 - 0.03) * rgb).astype(np.float32)
-        texel = spec.square_m / px_per_square
+        ox, oy = board_origin_offset_m(spec)
         material = ImageMaterial(
-            image_rgb=rgb, texel_m=texel, x0_m=-spec.square_m, y0_m=-spec.square_m
+            image_rgb=rgb, texel_m=spec.square_m / _TEXELS_PER_SQUARE, x0_m=-ox, y0_m=-oy
         )
         x0, x1, y0, y1 = material.extent_m()
         x0, x1, y0, y1 = x0 - margin, x1 + margin, y0 - margin, y1 + margin
@@ -429,18 +391,6 @@ def make_board(
         mesh=mesh,
         material=material,
         T_world_object=np.asarray(T_world_board, dtype=np.float64),
-    )
-
-
-def cv2_charuco(spec: BoardSpec) -> Any:
-    """The OpenCV ``CharucoBoard`` matching a ChArUco :class:`BoardSpec`."""
-    import cv2
-
-    return cv2.aruco.CharucoBoard(
-        (spec.cols + 1, spec.rows + 1),
-        spec.square_m,
-        spec.marker_m,
-        aruco_dictionary(spec.dictionary),
     )
 
 
@@ -598,7 +548,7 @@ def _add_object(scene: Scene, obj: Any, where: str) -> None:
             )
         )
     elif kind == "board":
-        spec = parse_board_spec(str(obj.get("board", "checkerboard:9x6:40mm")))
+        spec = sim_board(str(obj.get("board", "checkerboard:9x6:40mm")), where)
         T = (
             np.asarray(obj["T_world_board"], dtype=np.float64)
             if "T_world_board" in obj

@@ -31,6 +31,7 @@ import numpy as np
 import open3d as o3d
 from numpy.typing import NDArray
 
+from sea3d.calib.targets import BoardSpec
 from sea3d.errors import SimulationError
 from sea3d.geometry.camera import CameraModel
 from sea3d.geometry.pinhole import PinholeCamera
@@ -50,7 +51,7 @@ from sea3d.sim.motion import (
 )
 from sea3d.sim.optics import Imaging
 from sea3d.sim.render import GroundTruth, Renderer
-from sea3d.sim.scene import BoardSpec, Scene, load_scene, make_board, parse_board_spec
+from sea3d.sim.scene import Scene, load_scene, make_board, sim_board
 
 __all__ = [
     "CalibrationSet",
@@ -187,7 +188,7 @@ class CalibrationSet:
         rights: list of ``(H, W, 3)`` uint8 RGB images.
         T_left_board: list of ``(4, 4)`` float64 true board poses in the left camera frame.
         t_ns: list of int stamps (views are 1 s apart).
-        board: the :class:`BoardSpec`.
+        board: the board, a :class:`sea3d.calib.targets.BoardSpec`.
     """
 
     lefts: list[Image]
@@ -203,7 +204,8 @@ class CalibrationSet:
 
 def _board_outline(spec: BoardSpec) -> FloatArray:
     s = spec.square_m
-    x0, x1, y0, y1 = -s, spec.cols * s, -s, spec.rows * s
+    cols, rows = spec.corner_grid
+    x0, x1, y0, y1 = -s, cols * s, -s, rows * s
     return np.array([[x0, y0, 0], [x1, y0, 0], [x1, y1, 0], [x0, y1, 0]], dtype=np.float64)
 
 
@@ -260,14 +262,16 @@ def render_calibration_set(
 ) -> CalibrationSet:
     """Render a calibration set of a board at random poses seen fully by both cameras.
 
-    The board's frame has its origin at the first inner corner, x along the ``cols`` inner
-    corners, y along the ``rows``, z into the board. Poses: distance uniform in
+    The board frame is that of :mod:`sea3d.calib.targets`: origin at the first inner corner, x
+    along the first count, y along the second, z into the board. Poses: distance uniform in
     ``distance_range_m``, centre aimed at a random point of a 4x4 grid over the image (so views
     cover the whole image), tilted up to ``tilt_max_deg`` and rolled up to 30 degrees.
 
     Args:
         rig: the stereo rig.
-        board: a :class:`BoardSpec` or its text (``checkerboard:9x6:40mm``).
+        board: a :class:`sea3d.calib.targets.BoardSpec` or a board string as
+            :func:`sea3d.calib.targets.parse_board` reads it (``checkerboard:9x6:40mm`` counts
+            inner corners, ``charuco:5x7:40mm:30mm`` squares): checkerboard or ChArUco.
         views: number of views.
         medium: ``"water"`` (the rig's cameras as given, ports included) or ``"air"`` (the
             bare pinholes, ports removed: the in-air calibration the workflow starts with).
@@ -283,13 +287,15 @@ def render_calibration_set(
         :class:`CalibrationSet`.
 
     Raises:
-        SimulationError: bad board text, ``views < 1``, unknown medium, or no pose fits the image.
+        SimulationError: bad board text, a board kind other than checkerboard or ChArUco,
+            ``views < 1``, unknown medium, or no pose fits the image.
     """
     if views < 1:
         raise SimulationError(f"views must be >= 1, got {views}")
     if medium not in ("water", "air"):
         raise SimulationError(f"medium must be 'water' or 'air', got {medium!r}")
-    spec = parse_board_spec(board) if isinstance(board, str) else board
+    spec = sim_board(board)
+    cols, rows = spec.corner_grid
     cams = rig if medium == "water" else in_air(rig)
     g = np.random.default_rng(seed)
     # The board sits at the world origin; the cameras move (one scene, one ray cache).
@@ -300,7 +306,7 @@ def render_calibration_set(
     imaging = Imaging(ambient=1.0) if water is None or water == "none" else _imaging(water)
     outline = _board_outline(spec)
     centre_board = np.array(
-        [(spec.cols - 1) * spec.square_m / 2, (spec.rows - 1) * spec.square_m / 2, 0.0]
+        [(cols - 1) * spec.square_m / 2, (rows - 1) * spec.square_m / 2, 0.0]
     )
     T_right_left = invert_T(rig.T_left_right)
     grid = [(i, j) for j in range(4) for i in range(4)]
@@ -329,8 +335,8 @@ def render_calibration_set(
                 break
         if T_lb is None:
             raise SimulationError(
-                f"no board pose at {distance_range_m} m keeps the whole {spec.kind} "
-                f"{spec.cols}x{spec.rows} ({spec.square_m * 1e3:.0f} mm) inside both images; "
+                f"no board pose at {distance_range_m} m keeps the whole board {spec.name} "
+                f"inside both images; "
                 f"use a smaller board or larger distances"
             )
         T_world_left = invert_T(T_lb)  # world = board frame
@@ -368,11 +374,14 @@ def write_calibration_set(cal: CalibrationSet, out: Path) -> None:
         meta = {
             "board": {
                 "kind": spec.kind,
-                "cols": spec.cols,
-                "rows": spec.rows,
+                # inner corners (ChArUco too), as this file has always held
+                "cols": spec.corner_grid[0],
+                "rows": spec.corner_grid[1],
                 "square_m": spec.square_m,
                 "marker_m": spec.marker_m,
-                "dictionary": spec.dictionary,
+                # the simulator's old checkerboards carried the ChArUco default; kept so that
+                # readers of this file see what they always did
+                "dictionary": spec.dictionary or "DICT_6X6_250",
             }
         }
         (out / "gt" / "boards.json").write_text(json.dumps(boards, indent=1))
