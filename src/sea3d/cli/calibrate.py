@@ -7,6 +7,7 @@ import argparse
 import glob
 import json
 import logging
+import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -80,11 +81,16 @@ def _add_pair_inputs(p: argparse.ArgumentParser) -> None:
 
 
 # ---------------------------------------------------------------------- helpers
+def _natural_key(path: Path) -> list[Any]:
+    """Sort ``left2.png`` before ``left10.png`` and stamps numerically (1e9 after 2e8)."""
+    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", str(path))]
+
+
 def _expand(pattern: str, side: str) -> list[Path]:
-    paths = sorted(Path(p) for p in glob.glob(pattern))
+    paths = sorted((Path(p) for p in glob.glob(pattern)), key=_natural_key)
     if not paths and Path(pattern).is_dir():
-        paths = sorted(p for p in Path(pattern).iterdir() if p.suffix.lower() in (
-            ".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm"))
+        paths = sorted((p for p in Path(pattern).iterdir() if p.suffix.lower() in (
+            ".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm")), key=_natural_key)
     if not paths:
         raise CalibrationError(f"--{side} {pattern!r} matches no files")
     return paths
