@@ -538,17 +538,7 @@ def calibrate_port(detections: Sequence[Detection], pinhole: PinholeCamera,
     except RefractionError as err:
         return _fail(f"the fit left the port's valid range: {err}", rejected, **common)
     kw: dict[str, Any] = dict(common)
-    if isinstance(port, DomePort):
-        kw["dome_center_m"] = theta[:3].copy()
-        kw["dome_center_std_m"] = std[:3].copy()
-    else:
-        assert isinstance(cam, FlatPortCamera)
-        kw["normal"] = np.asarray(cam.port.normal).copy()
-        kw["distance_m"] = float(cam.port.distance_m)
-    kw["port_std"] = std[:3].copy()
-    if cfg.refine_focal:
-        kw["focal_scale"] = float(theta[3])
-        kw["focal_scale_std"] = float(std[3])
+    kw.update(_port_fields(cam, port, theta, std, with_focal=cfg.refine_focal))
     message = (f"converged in {sol.iterations} steps: RMS {rms:.3f} px (pinhole start "
                f"{initial_rms:.3f} px) over {len(views)} views")
     log.info("port calibration %s", message)
@@ -811,7 +801,15 @@ def _with_joint(res: PortCalibration, model: _PortModel, theta: FloatArray, std:
                 port: DomePort | FlatPort) -> PortCalibration:
     """``res`` with the port parameters (and focal scale) of the joint stereo refinement."""
     cam = model.make(theta)
-    kw: dict[str, Any] = {"camera": cam, "port_std": std[:3].copy()}
+    kw: dict[str, Any] = {"camera": cam}
+    kw.update(_port_fields(cam, port, theta, std, with_focal=theta.size > 3))
+    return dataclasses.replace(res, **kw)
+
+
+def _port_fields(cam: Any, port: DomePort | FlatPort, theta: FloatArray, std: FloatArray,
+                 *, with_focal: bool) -> dict[str, Any]:
+    """The result fields of fitted port parameters ``theta`` (and their ``std``)."""
+    kw: dict[str, Any] = {"port_std": std[:3].copy()}
     if isinstance(port, DomePort):
         kw["dome_center_m"] = theta[:3].copy()
         kw["dome_center_std_m"] = std[:3].copy()
@@ -819,7 +817,7 @@ def _with_joint(res: PortCalibration, model: _PortModel, theta: FloatArray, std:
         assert isinstance(cam, FlatPortCamera)
         kw["normal"] = np.asarray(cam.port.normal).copy()
         kw["distance_m"] = float(cam.port.distance_m)
-    if theta.size > 3:
+    if with_focal:
         kw["focal_scale"] = float(theta[3])
         kw["focal_scale_std"] = float(std[3])
-    return dataclasses.replace(res, **kw)
+    return kw
