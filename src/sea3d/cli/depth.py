@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -282,7 +281,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
 
 
 def register(sub: Any) -> None:
-    """Add ``stereo``, ``eval`` (``eval disparity``) and ``depth`` to the top-level parser."""
+    """Add ``stereo`` and ``depth`` to the top-level parser."""
     p = sub.add_parser(
         "stereo",
         help="match a rectified stereo pair into a disparity map",
@@ -307,27 +306,6 @@ def register(sub: Any) -> None:
     p.add_argument("--json", action="store_true", help="print timings and figures as JSON")
     p.set_defaults(handler=_cmd_stereo)
 
-    e = sub.add_parser("eval", help="evaluate results against ground truth")
-    esub = e.add_subparsers(dest="eval_command", metavar="WHAT")
-    ed = esub.add_parser(
-        "disparity",
-        help="bad-pixel rates, EPE and density against ground-truth disparity",
-        description="Compare EST with GT (PFM, NPY, TIFF, or scaled PNG/PGM; 0 or NaN unknown).",
-    )
-    ed.add_argument("estimate", metavar="EST", help="estimated disparity (.pfm .npy .tiff .png)")
-    ed.add_argument("ground_truth", metavar="GT", help="ground-truth disparity")
-    ed.add_argument(
-        "--scale",
-        type=float,
-        default=None,
-        help="GT integer images store d * scale (Middlebury: 16, 8 or 4)",
-    )
-    ed.add_argument(
-        "--est-scale", type=float, default=None, help="the same for an integer estimate image"
-    )
-    ed.add_argument("--json", action="store_true", help="print the figures as JSON")
-    ed.set_defaults(handler=_cmd_eval_disparity)
-    e.set_defaults(handler=lambda a: (e.print_help(sys.stderr), 2)[1])
 
     d = sub.add_parser(
         "depth",
@@ -381,3 +359,25 @@ def register(sub: Any) -> None:
     )
     d.add_argument("--json", action="store_true", help="print timings and figures as JSON")
     d.set_defaults(handler=_cmd_depth)
+
+
+def register_eval(esub: Any) -> None:
+    """Add ``eval disparity`` to the ``eval`` command's subparsers."""
+    ed = esub.add_parser(
+        "disparity",
+        help="bad-pixel rates, EPE and density against ground-truth disparity",
+        description="Compare EST with GT (PFM, NPY, TIFF, or scaled PNG/PGM; 0 or NaN unknown).",
+    )
+    ed.add_argument("estimate", metavar="EST", help="estimated disparity (.pfm .npy .tiff .png)")
+    ed.add_argument("ground_truth", metavar="GT", help="ground-truth disparity")
+    ed.add_argument(
+        "--scale",
+        type=float,
+        default=None,
+        help="GT integer images store d * scale (Middlebury: 16, 8 or 4)",
+    )
+    ed.add_argument(
+        "--est-scale", type=float, default=None, help="the same for an integer estimate image"
+    )
+    ed.add_argument("--json", action="store_true", help="print the figures as JSON")
+    ed.set_defaults(handler=_cmd_eval_disparity)
