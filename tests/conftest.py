@@ -34,3 +34,21 @@ def data_dir() -> Path:
 def rng() -> np.random.Generator:
     """One seeded generator per test; never the global RNG."""
     return np.random.default_rng(0)
+
+
+def _register_hypothesis_profiles() -> None:
+    """Property-based drills: a fast default for CI, the thorough run with SEA3D_DRILLS=full."""
+    try:
+        from hypothesis import HealthCheck, settings
+    except ImportError:  # pragma: no cover - hypothesis is a dev dependency
+        return
+    settings.register_profile(
+        "ci", max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow]
+    )
+    settings.register_profile(
+        "full", max_examples=1000, deadline=None, suppress_health_check=[HealthCheck.too_slow]
+    )
+    settings.load_profile("full" if os.environ.get("SEA3D_DRILLS") == "full" else "ci")
+
+
+_register_hypothesis_profiles()
