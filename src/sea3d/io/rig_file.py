@@ -26,6 +26,21 @@
 
 A flat port has ``normal``, ``distance_m``, ``thickness_m`` and the indices instead.
 
+Optional blocks for the rig's other sensors (a file without them loads as before)::
+
+    imu:
+      T_left_imu: [[...], [...], [...], [0, 0, 0, 1]]   # IMU (body) -> left camera, metres
+      rate_hz: 200.0
+      gyro_noise_density_radps_sqrthz: 1.7e-4
+      gyro_random_walk_radps_sqrts: 1.9e-5
+      accel_noise_density_mps2_sqrthz: 2.0e-3
+      accel_random_walk_mps2_sqrts: 3.0e-3
+      gravity_mps2: 9.81          # optional, default 9.81
+      time_offset_s: 0.0          # optional: t_imu = t_cam + time_offset_s
+    sonar:
+      T_left_sonar: [[...], ...]  # echosounder -> left camera; its beam points along its -z
+      beam_deg: 30.0              # full cone angle
+
 Importers read OpenCV FileStorage stereo YAML as MATLAB's stereoCameraCalibrator exports it
 (``cameraMatrixLeft``, ``distCoeffsLeft``, ..., ``R``, ``T`` in millimetres; OpenCV's convention
 ``p_right = R p_left + T``) and OpenCV's ``stereo_calib`` sample files (``M1 D1 M2 D2`` in
@@ -49,12 +64,13 @@ import yaml
 from sea3d.errors import RigFileError, Sea3dError
 from sea3d.geometry.camera import CameraModel
 from sea3d.geometry.pinhole import DISTORTION_LENGTHS, PinholeCamera
-from sea3d.geometry.rig import StereoRig
+from sea3d.geometry.rig import ImuSpec, SonarSpec, StereoRig
 from sea3d.geometry.se3 import invert_T, make_T
 from sea3d.refraction.ports import DomePort, DomePortCamera, FlatPort, FlatPortCamera
 
 __all__ = [
     "RigFormat",
+    "imu_to_dict",
     "load_rig",
     "rig_from_dict",
     "rig_from_yaml",
@@ -63,6 +79,7 @@ __all__ = [
     "rig_to_opencv_yaml",
     "rig_to_yaml",
     "save_rig",
+    "sonar_to_dict",
 ]
 
 log = logging.getLogger(__name__)
@@ -140,7 +157,7 @@ def _camera_to_dict(cam: CameraModel) -> dict[str, Any]:
 
 def rig_to_dict(rig: StereoRig) -> dict[str, Any]:
     """The rig as plain Python values (the ``rig.yaml`` schema)."""
-    return {
+    out: dict[str, Any] = {
         "format": FORMAT_NAME,
         "version": FORMAT_VERSION,
         "image_width_px": rig.width,
@@ -149,6 +166,47 @@ def rig_to_dict(rig: StereoRig) -> dict[str, Any]:
         "right": _camera_to_dict(rig.right),
         "T_left_right": [[float(v) for v in row] for row in rig.T_left_right],
     }
+    out.update(_sensors_to_dict(rig))
+    return out
+
+
+# --------------------------------------------------------------------------- IMU / echosounder
+_IMU_NOISE_KEYS = (
+    "gyro_noise_density_radps_sqrthz",
+    "gyro_random_walk_radps_sqrts",
+    "accel_noise_density_mps2_sqrthz",
+    "accel_random_walk_mps2_sqrts",
+)
+
+
+def imu_to_dict(imu: ImuSpec) -> dict[str, Any]:
+    """The ``imu:`` block of ``rig.yaml``."""
+    out: dict[str, Any] = {
+        "T_left_imu": [[float(v) for v in row] for row in imu.T_left_imu],
+        "rate_hz": imu.rate_hz,
+    }
+    for key in _IMU_NOISE_KEYS:
+        out[key] = float(getattr(imu, key))
+    out["gravity_mps2"] = imu.gravity_mps2
+    out["time_offset_s"] = imu.time_offset_s
+    return out
+
+
+def sonar_to_dict(sonar: SonarSpec) -> dict[str, Any]:
+    """The ``sonar:`` block of ``rig.yaml``."""
+    return {
+        "T_left_sonar": [[float(v) for v in row] for row in sonar.T_left_sonar],
+        "beam_deg": sonar.beam_deg,
+    }
+
+
+def _sensors_to_dict(rig: StereoRig) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    if rig.imu is not None:
+        out["imu"] = imu_to_dict(rig.imu)
+    if rig.sonar is not None:
+        out["sonar"] = sonar_to_dict(rig.sonar)
+    return out
 
 
 def rig_to_yaml(rig: StereoRig) -> str:
@@ -265,6 +323,57 @@ def _camera_from_dict(r: _Reader, data: Any, name: str, width: int, height: int)
     raise r.fail(f"{pp}type", f"expected none, dome or flat, got {kind!r}")
 
 
+def _imu_from_dict(r: _Reader, data: Any) -> ImuSpec:
+    p = "imu."
+    if not isinstance(data, Mapping):
+        raise r.fail("imu", f"expected a mapping, got {data!r}")
+    known = {"T_left_imu", "rate_hz", "gravity_mps2", "time_offset_s", *_IMU_NOISE_KEYS}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise r.fail(f"{p}{unknown[0]}", f"unknown key (expected {', '.join(sorted(known))})")
+    values: dict[str, Any] = {
+        "T_left_imu": r.array(data, "T_left_imu", (4, 4), p),
+        "rate_hz": r.number(data, "rate_hz", p),
+    }
+    for key in _IMU_NOISE_KEYS:
+        values[key] = r.number(data, key, p)
+    for key in ("gravity_mps2", "time_offset_s"):
+        if key in data:
+            values[key] = r.number(data, key, p)
+    try:
+        return ImuSpec(**values)
+    except Sea3dError as err:
+        raise r.fail("imu", str(err)) from err
+
+
+def _sonar_from_dict(r: _Reader, data: Any) -> SonarSpec:
+    p = "sonar."
+    if not isinstance(data, Mapping):
+        raise r.fail("sonar", f"expected a mapping, got {data!r}")
+    unknown = sorted(set(data) - {"T_left_sonar", "beam_deg"})
+    if unknown:
+        raise r.fail(f"{p}{unknown[0]}", "unknown key (expected T_left_sonar, beam_deg)")
+    try:
+        return SonarSpec(
+            T_left_sonar=r.array(data, "T_left_sonar", (4, 4), p),
+            beam_deg=r.number(data, "beam_deg", p),
+        )
+    except RigFileError:
+        raise
+    except Sea3dError as err:
+        raise r.fail("sonar", str(err)) from err
+
+
+def _sensors_from_dict(r: _Reader, data: Mapping[str, Any]) -> dict[str, Any]:
+    """The optional ``imu`` and ``sonar`` blocks as ``StereoRig`` keyword arguments."""
+    out: dict[str, Any] = {}
+    if data.get("imu") is not None:
+        out["imu"] = _imu_from_dict(r, data["imu"])
+    if data.get("sonar") is not None:
+        out["sonar"] = _sonar_from_dict(r, data["sonar"])
+    return out
+
+
 def rig_from_dict(data: Any, source: str = "<dict>") -> StereoRig:
     """Build a rig from the ``rig.yaml`` schema.
 
@@ -292,8 +401,9 @@ def rig_from_dict(data: Any, source: str = "<dict>") -> StereoRig:
     left = _camera_from_dict(r, r.get(data, "left", ""), "left", int(width), int(height))
     right = _camera_from_dict(r, r.get(data, "right", ""), "right", int(width), int(height))
     T = r.array(data, "T_left_right", (4, 4))
+    sensors = _sensors_from_dict(r, data)
     try:
-        return StereoRig(left=left, right=right, T_left_right=T)
+        return StereoRig(left=left, right=right, T_left_right=T, **sensors)
     except Sea3dError as err:
         raise r.fail("T_left_right", str(err)) from err
 
@@ -534,7 +644,16 @@ def load_rig(
         return _load_opencv(
             p, nodes, Path(extrinsics) if extrinsics else None, image_size, translation_scale
         )
-    return rig_from_yaml(text, str(p))  # JSON is valid YAML
+    if head.startswith("{"):
+        # JSON: read as JSON, since YAML 1.1 takes numbers such as 3e-05 for strings
+        import json
+
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as err:
+            raise RigFileError(f"{p}: not valid JSON: {err}") from err
+        return rig_from_dict(data, str(p))
+    return rig_from_yaml(text, str(p))
 
 
 def _atomic_write(path: Path, text: str) -> None:
