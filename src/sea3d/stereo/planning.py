@@ -229,7 +229,9 @@ def override_rig(
     if baseline_m is not None:
         t = T[:3, 3]
         T[:3, 3] = t * (baseline_m / np.linalg.norm(t))
-    return StereoRig(left=cams[0], right=cams[1], T_left_right=T)
+    return StereoRig(
+        left=cams[0], right=cams[1], T_left_right=T, imu=rig.imu, sonar=rig.sonar
+    )
 
 
 # ----------------------------------------------------------------------------- figures
