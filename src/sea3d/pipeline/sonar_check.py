@@ -8,8 +8,8 @@ Where things come from:
 - poses: ``--poses FILE.tum`` (``T_world_left``, e.g. the odometry's ``trajectory.tum``), else
   the simulator's ground truth ``gt/poses_left.tum``, else none (same-instant fit);
 - depth: ``--depth DIR`` with ``DIR/depth/<t_ns>.png`` from ``sea3d depth --session`` (16-bit
-  millimetres along the rectified left camera) or ``<t_ns>.npy`` (float32 metres; with
-  ``depth_frame="raw"`` along the raw left camera, as the simulator's ``gt/depth``), else
+  millimetres along the rectified left camera) or ``<t_ns>.npy`` / ``.tiff`` (float32 metres;
+  with ``depth_frame="raw"`` along the raw left camera, as the simulator's ``gt/depth``), else
   computed here with the chosen matching engine;
 - truth (simulator only): the beam cast against ``gt/scene.ply`` from the true poses.
 """
@@ -26,6 +26,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from sea3d.errors import SessionError
@@ -153,11 +154,15 @@ def _load_views(
     if depth_dir is not None:
         folder = depth_dir / "depth" if (depth_dir / "depth").is_dir() else depth_dir
         files = sorted(
-            (p for p in folder.iterdir() if p.stem.isdigit() and p.suffix in (".png", ".npy")),
+            (
+                p
+                for p in folder.iterdir()
+                if p.stem.isdigit() and p.suffix.lower() in (".png", ".npy", ".tif", ".tiff")
+            ),
             key=lambda p: int(p.stem),
         )
         if not files:
-            raise SessionError(f"{folder} holds no depth maps named <t_ns>.png or <t_ns>.npy")
+            raise SessionError(f"{folder} holds no depth maps named <t_ns>.png, .npy or .tiff")
         files = files[::every]
         stamps = np.array([int(p.stem) for p in files], dtype=np.int64)
         poses = _poses_at(stamps, pose_t, pose_T)
@@ -169,7 +174,15 @@ def _load_views(
             if T is None:
                 continue
             try:
-                d = np.load(f) if f.suffix == ".npy" else read_depth_png_mm(f)
+                suffix = f.suffix.lower()
+                if suffix == ".npy":
+                    d = np.load(f)
+                elif suffix == ".png":
+                    d = read_depth_png_mm(f)
+                else:  # float32 metres (the simulator's gt/depth since it went lossless TIFF)
+                    d = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+                    if d is None:
+                        raise ValueError("not a readable TIFF")
             except (OSError, ValueError) as err:
                 raise SessionError(f"cannot read depth map {f}: {err}") from err
             d = np.asarray(d, dtype=np.float32)
