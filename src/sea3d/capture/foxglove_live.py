@@ -494,12 +494,24 @@ class FoxgloveBridge:
 
     # -- threads ---------------------------------------------------------------------------
     def _run(self) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
         pub = self.publisher
+        # left and right are JPEG-encoded side by side (OpenCV releases the GIL): on two
+        # cores about twice the frames of one encoder thread
+        pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="sea3d-foxglove-jpeg")
+        try:
+            self._loop(pub, pool)
+        finally:
+            pool.shutdown(wait=True)
+
+    def _loop(self, pub: FoxglovePublisher, pool: Any) -> None:
         while not self._stop.is_set():
             self._wake.wait(self.poll_interval_s)
             self._wake.clear()
             try:
                 self._publish_samples()
+                jobs = []
                 for stream in ("left", "right"):
                     latest = self.provider.latest(stream)
                     if latest is None or latest[0] == self._seen.get(stream):
@@ -509,7 +521,10 @@ class FoxgloveBridge:
                     if stream == "left":
                         self._new_frame_time(rec.t_ns)
                         self._publish_series_until(rec.t_ns)
-                    pub.publish_image(stream, self._stamp(rec.t_ns), rec.image)
+                    t_pub = self._stamp(rec.t_ns)
+                    jobs.append(pool.submit(pub.publish_image, stream, t_pub, rec.image))
+                for job in jobs:
+                    job.result()
                 self._remember_pair()
             except Exception as err:  # never take the recorder down with the live view
                 msg = f"Foxglove publishing: {type(err).__name__}: {err}"
