@@ -252,3 +252,34 @@ def test_monitor_with_a_taken_foxglove_port_is_a_one_line_error(session, capsys)
 def test_no_browser_without_foxglove_is_refused(session, capsys):
     assert main(["monitor", str(session[0]), "--no-browser"]) == 2
     assert "--no-browser needs --foxglove" in capsys.readouterr().err
+
+
+def test_poses_clouds_and_meshes_reach_the_client():
+    """What the process pipeline will publish once odometry runs, decoded by the client
+    through the schemas the server advertises."""
+    with FoxglovePublisher(FoxgloveConfig(port=0)) as pub:
+        client = FoxgloveClient(pub.url)
+        try:
+            client.subscribe(["/odometry/pose", "/odometry/trajectory", "/cloud", "/mesh", "/tf"])
+            time.sleep(0.2)
+            T = np.eye(4)
+            T[:3, 3] = (1.0, 2.0, -0.5)
+            pub.publish_pose(10, T)
+            pub.publish_trajectory(10, np.stack([np.eye(4), T]))
+            pts = np.array([[0.0, 0.0, 1.0], [1.0, 2.0, 3.0]])
+            pub.publish_cloud(10, pts, np.array([[255, 0, 0], [0, 255, 0]], np.uint8))
+            pub.publish_mesh(10, pts[[0, 1, 1]] + [[0, 0, 0], [0, 0, 0], [1, 0, 0]], [[0, 1, 2]])
+            pose = client.wait_for("/odometry/pose")[0][1]
+            path = client.wait_for("/odometry/trajectory")[0][1]
+            cloud = client.wait_for("/cloud")[0][1]
+            mesh = client.wait_for("/mesh")[0][1]
+            tf = client.wait_for("/tf")[0][1]
+        finally:
+            client.close()
+    assert (pose.pose.position.x, pose.pose.position.y, pose.pose.position.z) == (1.0, 2.0, -0.5)
+    assert len(path.poses) == 2 and pose.frame_id == "world"
+    rec = np.frombuffer(cloud.data, np.dtype([("xyz", "<f4", 3), ("rgba", "u1", 4)]))
+    np.testing.assert_allclose(rec["xyz"], pts)
+    assert rec["rgba"][1].tolist() == [0, 255, 0, 255]
+    assert list(mesh.entities[0].triangles[0].indices) == [0, 1, 2]
+    assert tf.transforms[0].child_frame_id == "left" and tf.transforms[0].translation.y == 2.0
