@@ -23,7 +23,7 @@ import queue
 import shutil
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -166,7 +166,21 @@ class Recorder:
         self._t_start = 0.0
         self._t_stop: float | None = None
         self._disk_free = 0
+        self._listeners: list[Callable[[str, Any], None]] = []
         self.running = False
+
+    def add_listener(self, fn: Callable[[str, Any], None]) -> None:
+        """Also hand every captured record to ``fn(stream, record)`` (live views such as
+        Foxglove). Called in the capture threads: it must return at once; what it raises is
+        logged and never stops the recording."""
+        self._listeners.append(fn)
+
+    def _notify(self, stream: str, rec: Any) -> None:
+        for fn in self._listeners:
+            try:
+                fn(stream, rec)
+            except Exception as err:
+                _log.warning("listener %r failed on a %s record: %s", fn, stream, err)
 
     # -- control --------------------------------------------------------------------------
     def request_stop(self, reason: str = "stopped by user") -> None:
@@ -259,6 +273,7 @@ class Recorder:
             self.captured[stream] += 1
             self._latest[stream] = rec
             self._seq[stream] += 1
+            self._notify(stream, rec)
             if self.config.block_when_full:
                 # Wait for the writer even after a stop request: it drains the queue.
                 while not slots.acquire(timeout=0.1):
@@ -301,6 +316,7 @@ class Recorder:
             self._latest[stream] = rec
             self._seq[stream] += 1
             self.written[stream] += 1
+            self._notify(stream, rec)
         self._ended.add(stream)
 
     def _write_images(self, q: queue.Queue[Any], slots: dict[str, threading.Semaphore]) -> None:

@@ -11,6 +11,8 @@ import threading
 from pathlib import Path
 from typing import Any
 
+from sea3d.cli._foxglove import FOXGLOVE_HELP as _FOXGLOVE_HELP
+
 __all__ = ["register"]
 
 _SOURCE_HELP = (
@@ -66,6 +68,7 @@ def register(sub: Any) -> None:
     rec.add_argument(
         "--monitor", metavar="HOST:PORT", help="serve the live monitor page (e.g. 127.0.0.1:8080)"
     )
+    rec.add_argument("--foxglove", metavar="HOST:PORT", help=_FOXGLOVE_HELP)
     rec.add_argument("--json", action="store_true", help="print the summary as JSON")
     rec.set_defaults(handler=_record)
 
@@ -84,6 +87,12 @@ def register(sub: Any) -> None:
     mon.add_argument("--speed", type=float, default=1.0, help="replay speed (1 = real time)")
     mon.add_argument("--once", action="store_true", help="play once instead of looping")
     mon.add_argument("--duration", type=float, help="stop serving after this many seconds")
+    mon.add_argument("--foxglove", metavar="HOST:PORT", help=_FOXGLOVE_HELP)
+    mon.add_argument(
+        "--no-browser",
+        action="store_true",
+        help="with --foxglove: only the Foxglove WebSocket server, no monitor page",
+    )
     mon.set_defaults(handler=_monitor)
 
 
@@ -185,26 +194,52 @@ def _record(args: argparse.Namespace) -> int:
         host, port = parse_address(args.monitor)
         server = MonitorServer(recorder, host, port).start()
         print(f"monitor at {server.url}", file=sys.stderr, flush=True)
+    foxglove = None
+    if args.foxglove:
+        from sea3d.cli._foxglove import start_foxglove
+
+        foxglove = start_foxglove(args.foxglove, recorder, rig_yaml=rig_yaml, required=False)
     try:
         with _StopOnSignals(recorder.request_stop):
             summary = recorder.run()
     finally:
         if server is not None:
             server.stop()
+        if foxglove is not None:
+            foxglove[1].stop()
+            foxglove[0].stop()
     _print_summary(summary, args.json)
     return 1 if summary.errors else 0
 
 
 def _monitor(args: argparse.Namespace) -> int:
     from sea3d.capture.monitor import MonitorServer, SessionPlayer, parse_address
+    from sea3d.errors import ConfigError
 
+    if args.no_browser and not args.foxglove:
+        raise ConfigError("--no-browser needs --foxglove HOST:PORT (otherwise nothing is served)")
     host, port = parse_address(args.address)
     player = SessionPlayer(args.session, speed=args.speed, loop=not args.once).start()
     done = threading.Event()
+    foxglove = None
     try:
-        with MonitorServer(player, host, port) as server, _StopOnSignals(lambda _r: done.set()):
-            print(f"monitor at {server.url} (Ctrl-C to stop)", file=sys.stderr, flush=True)
-            done.wait(args.duration)
+        if args.foxglove:
+            from sea3d.cli._foxglove import start_foxglove
+
+            foxglove = start_foxglove(
+                args.foxglove, player, rig_yaml=player.session.rig_yaml, replay=player
+            )
+        with _StopOnSignals(lambda _r: done.set()):
+            if args.no_browser:
+                print("serving Foxglove only (Ctrl-C to stop)", file=sys.stderr, flush=True)
+                done.wait(args.duration)
+            else:
+                with MonitorServer(player, host, port) as server:
+                    print(f"monitor at {server.url} (Ctrl-C to stop)", file=sys.stderr, flush=True)
+                    done.wait(args.duration)
     finally:
+        if foxglove is not None:
+            foxglove[1].stop()
+            foxglove[0].stop()
         player.stop()
     return 0
