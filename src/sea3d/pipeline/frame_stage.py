@@ -262,7 +262,8 @@ def process_frame(config: FrameStageConfig, t_ns: int, left: NDArray[Any],
     t2 = time.perf_counter()
     K = maps.P_left[:3, :3]
     points_rect = res.points_left @ maps.R_rect_left_left.T
-    fusion = virtual_pinhole_depth(res.depth_m, points_rect, K, method=config.resample)
+    fusion = virtual_pinhole_depth(res.depth_m, points_rect, K, method=config.resample,
+                                   focal_baseline_px_m=maps.focal_px * maps.baseline_m)
     timings["resample_s"] = time.perf_counter() - t2
     valid = float(np.isfinite(res.depth_m).mean())
     return FrameResult(

@@ -289,6 +289,7 @@ def run_process(
     *,
     progress: ProgressFactory | None = None,
     on_result: Callable[[ProcessResult], None] | None = None,
+    odometry: Callable[[Any, Any], Odometry] | None = None,
 ) -> ProcessResult:
     """Process a recorded session into a trajectory, mesh, cloud and report (see the module).
 
@@ -297,6 +298,8 @@ def run_process(
         config: :class:`ProcessConfig`.
         progress: progress-bar factory (the CLI's tqdm); None shows nothing.
         on_result: called with the result at the end (after :func:`publish_results`).
+        odometry: ``factory(rig, maps) -> Odometry`` to use instead of :func:`make_odometry`
+            (another estimator, or a test double).
 
     Returns:
         :class:`ProcessResult`.
@@ -370,8 +373,12 @@ def run_process(
             if config.use_imu and not has_imu:
                 log.warning("%s has no IMU samples: the odometry runs visual-only", session_path)
             poses = read_trajectory(config.poses_path) if config.poses_path else None
-            odometry, odometry_name = make_odometry(rig, maps, use_imu=use_imu, poses=poses,
-                                                    config=config.odometry_config)
+            if odometry is not None:
+                odo = odometry(rig, maps)
+                odometry_name = str(getattr(odo, "name", type(odo).__name__))
+            else:
+                odo, odometry_name = make_odometry(rig, maps, use_imu=use_imu, poses=poses,
+                                                   config=config.odometry_config)
             # -- cache ------------------------------------------------------------------
             cache = FrameCache(out / "cache", {"stage": stage_cfg.fingerprint(),
                                                "session": str(session_path.resolve())})
@@ -475,13 +482,13 @@ def run_process(
                         R_rect_left_left=R_rect,
                         imu=_imu_chunk(imu, t_prev, res.t_ns) if use_imu else None,
                     )
-                    est = odometry.step(obs)
+                    est = odo.step(obs)
                     t_prev = res.t_ns
                     estimates.append(est)
                     if est.loop_closure:
                         loop_closures += 1
                         kf_rect = {k: T @ T_left_rect
-                                   for k, T in odometry.keyframe_poses().items()}
+                                   for k, T in odo.keyframe_poses().items()}
                     if est.keyframe_id is not None:
                         kf_rect[est.keyframe_id] = np.asarray(est.T_world_left) @ T_left_rect
                     timer.add("odometry_s", time.perf_counter() - to)
@@ -520,8 +527,8 @@ def run_process(
                            f"({n_unreadable} unreadable, {n_failed} failed)")
 
     # -- final poses, merge ---------------------------------------------------------------
-    t_traj, T_traj = odometry.trajectory()
-    final_kf = {k: T @ T_left_rect for k, T in odometry.keyframe_poses().items()}
+    t_traj, T_traj = odo.trajectory()
+    final_kf = {k: T @ T_left_rect for k, T in odo.keyframe_poses().items()}
     tm = time.perf_counter()
     merge_bar = bar("merge", len(store.ids()))
     try:

@@ -15,9 +15,9 @@ pixel ``q`` holds the depth of the surface on the virtual pinhole's ray through 
 - ``resample`` (default): the exact points sample the surface at ``p + delta(p)``; since
   ``delta`` is smooth and small, the surface on ray ``q`` is the depth map interpolated at
   ``q - delta(q)`` (first order in ``delta``'s gradient: residual far below a millimetre).
-  Bilinear interpolation is used only where the 2x2 neighbourhood is valid and spans less
-  than ``max_step_rel`` of the depth (no mixing across depth edges); at the border of a hole
-  the nearest sample is taken, and across a depth edge the pixel is dropped.
+  Bilinear interpolation is used where the 2x2 cell is valid; at hole and image borders the
+  nearest sample, or the pixel's own value; across a depth edge (a step of more than a
+  pixel of disparity where the surface is not smooth) the pixel is dropped.
 - ``raster``: each exact point is z-buffered into its nearest pixel (quantisation: up to half
   a pixel sideways).
 - ``none``: the depth map as it is (the error this module removes).
@@ -77,13 +77,44 @@ def pinhole_offsets(depth_m: F32, points_rect: F64, K: F64) -> tuple[F32, F32]:
     return du, dv
 
 
+def _edge_cells(depth: F32, scale: float | NDArray[np.float64], threshold: float
+                ) -> NDArray[np.bool_]:
+    """Interpolation cells (``[v, v+1] x [u, u+1]``, indexed by their top-left pixel) that
+    straddle a depth edge.
+
+    Works on ``D = scale / z`` (disparity in pixels when ``scale = f B``): on any plane ``1/z``
+    is affine in the pixel coordinates, so the second differences of ``D`` vanish on smooth
+    surfaces however slanted they are, and jump at an edge. A cell is an edge cell when its
+    ``D`` spans more than ``threshold`` *and* one of its pixels has a second difference (along
+    u or v) above ``threshold``: noise roughens ``D`` too, but interpolating between nearly
+    equal values cannot put a point between two surfaces.
+    """
+    h, w = depth.shape
+    with np.errstate(divide="ignore", invalid="ignore"):
+        D = np.where(np.isfinite(depth), scale / depth.astype(np.float64), np.nan)
+    d2 = np.zeros((h, w))
+    d2[:, 1:-1] = np.nan_to_num(np.abs(D[:, :-2] - 2 * D[:, 1:-1] + D[:, 2:]), nan=0.0)
+    d2[1:-1, :] = np.fmax(d2[1:-1, :], np.nan_to_num(
+        np.abs(D[:-2, :] - 2 * D[1:-1, :] + D[2:, :]), nan=0.0))
+    pr = np.pad(d2, ((0, 1), (0, 1)), constant_values=0.0)
+    rough = np.maximum.reduce([pr[:-1, :-1], pr[:-1, 1:], pr[1:, :-1], pr[1:, 1:]])
+    pd = np.pad(D, ((0, 1), (0, 1)), constant_values=np.nan)
+    cell = np.stack([pd[:-1, :-1], pd[:-1, 1:], pd[1:, :-1], pd[1:, 1:]])
+    fin = np.isfinite(cell)
+    span = np.where(fin, cell, -np.inf).max(axis=0) - np.where(fin, cell, np.inf).min(axis=0)
+    span = np.where(fin.sum(axis=0) >= 2, span, 0.0)
+    return np.asarray((span > threshold) & (rough > threshold), dtype=np.bool_)
+
+
 def virtual_pinhole_depth(
     depth_m: F32,
     points_rect: F64,
     K: F64,
     *,
     method: ResampleMethod = "resample",
-    max_step_rel: float = 0.02,
+    focal_baseline_px_m: float | None = None,
+    edge_disparity_px: float = 1.0,
+    edge_rel: float = 0.02,
 ) -> F32:
     """The depth image a pinhole TSDF integration needs for exactly triangulated points.
 
@@ -95,8 +126,12 @@ def virtual_pinhole_depth(
             left frame, metres.
         K: (3, 3) the rectified left intrinsics (``RectifyMaps.P_left[:, :3]``).
         method: ``resample``, ``raster`` or ``none``.
-        max_step_rel: ``resample`` only: largest depth spread within an interpolation cell,
-            relative to depth; wider cells (depth edges) are dropped.
+        focal_baseline_px_m: ``f * B`` of the rectified rig (pixels times metres); with it,
+            depth edges are steps of more than ``edge_disparity_px`` in disparity (stereo
+            noise is a fraction of a pixel, whatever the depth).
+        edge_disparity_px: see above.
+        edge_rel: without ``focal_baseline_px_m``, edges are steps of more than this fraction
+            of the inverse depth.
 
     Returns:
         (H, W) float32 metres, NaN invalid.
@@ -140,24 +175,21 @@ def virtual_pinhole_depth(
                     borderValue=np.nan)
     near = cv2.remap(depth, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
                      borderValue=np.nan)
-    # Depth spread over the valid pixels of the 2x2 cell each sample interpolates from.
-    pad = np.pad(depth, ((0, 1), (0, 1)), constant_values=np.nan)
-    cell = np.stack([pad[:-1, :-1], pad[:-1, 1:], pad[1:, :-1], pad[1:, 1:]])
-    finite = np.isfinite(cell)
-    hi = np.where(finite, cell, -np.inf).max(axis=0)
-    lo = np.where(finite, cell, np.inf).min(axis=0)
-    with np.errstate(invalid="ignore"):
-        spread = np.where(finite.any(axis=0), hi - lo, np.inf).astype(np.float32)
-    x0 = np.floor(map_x).astype(np.int64)
-    y0 = np.floor(map_y).astype(np.int64)
-    inside = ok & (x0 >= 0) & (x0 < w) & (y0 >= 0) & (y0 < h)
-    s = np.full((h, w), np.inf, np.float32)
-    s[inside] = spread[y0[inside], x0[inside]]
-    # Bilinear where the whole cell is valid; the nearest sample where it is not (image and
-    # hole borders); nothing across a depth edge.
-    value = np.where(np.isfinite(bil), bil, near)
-    with np.errstate(invalid="ignore"):
-        good = inside & np.isfinite(value) & (s <= max_step_rel * value)
+    if focal_baseline_px_m is not None:
+        edges = _edge_cells(depth, float(focal_baseline_px_m), edge_disparity_px)
+    else:
+        with np.errstate(all="ignore"):
+            scale = 1.0 / float(np.nanmedian(1.0 / depth)) if np.isfinite(depth).any() else 1.0
+        edges = _edge_cells(depth, scale, edge_rel)
+    x0 = np.clip(np.floor(map_x).astype(np.int64), 0, w - 1)
+    y0 = np.clip(np.floor(map_y).astype(np.int64), 0, h - 1)
+    inside = ok & (map_x >= 0) & (map_x <= w - 1) & (map_y >= 0) & (map_y <= h - 1)
+    # Bilinear where the whole cell is valid; else the nearest sample; else (image border,
+    # isolated holes) the pixel's own value, off by at most its sub-pixel offset times the
+    # surface's slope; nothing across a depth edge.
+    value = np.where(inside & np.isfinite(bil), bil,
+                     np.where(inside & np.isfinite(near), near, depth))
+    good = ok & np.isfinite(value) & ~edges[y0, x0]
     out: F32 = np.full((h, w), np.nan, np.float32)
     out[good] = value[good]
     return out

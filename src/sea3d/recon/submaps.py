@@ -7,9 +7,12 @@ the submap started, which keeps the final merge exact when nothing moved). Every
 ``keyframes_per_submap`` keyframes, or when the active submap reaches ``max_blocks`` voxel
 blocks, it is *finished*: its voxels are copied out (:class:`~sea3d.recon.types.Submap`) and
 handed to the caller, who stores them (the process pipeline spills them to disk) and may
-drop them from memory. So memory holds one active submap: at most ``max_blocks`` blocks of
-``block_resolution^3`` voxels of 20 bytes (tsdf, weight, RGB as float32), plus the hash map's
-growth headroom (it doubles: :meth:`SubmapFusion.memory_bytes` reports what is held).
+drop them from memory. So memory holds one active submap: its hash map starts with room for
+``min(initial_blocks, max_blocks)`` blocks and grows by doubling, and the submap is finished
+once it holds ``max_blocks`` (at the next keyframe, or at once, keeping its anchor), so what it
+holds stays below ``2 (max_blocks + b) B`` with ``b`` the blocks one frame adds and ``B`` the
+bytes of a block (``block_resolution^3`` voxels of 20 bytes: tsdf, weight, RGB as float32;
+10 KB at 8^3). :meth:`SubmapFusion.memory_bytes` reports what is held.
 
 After the last frame, :func:`merge_submaps` places every submap at ``T_world_anchor @
 T_anchor_grid`` with the keyframe poses the odometry holds *then* (after every loop closure)
@@ -23,7 +26,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal, Protocol
 
 import numpy as np
@@ -157,7 +160,9 @@ class SubmapFusion:
         return self._active.memory_bytes if self._active is not None else 0
 
     def _start(self, anchor_id: int, T_world_anchor: F64, t_ns: int) -> None:
-        self._active = TsdfVolume(self.config.tsdf)
+        tsdf = self.config.tsdf
+        self._active = TsdfVolume(
+            replace(tsdf, initial_blocks=min(tsdf.initial_blocks, self.config.max_blocks)))
         self._active_id += 1
         self._anchor_id = anchor_id
         self._T_anchor_grid = _rigid_inverse(T_world_anchor)  # grid = world, now
@@ -230,6 +235,16 @@ class SubmapFusion:
                     finished.append(done)
                 self._start(keyframe_id, np.asarray(T_world_cam, np.float64), int(t_ns))
             self._keyframes.append(int(keyframe_id))
+        elif self._active is not None and self._active.block_count >= self.config.max_blocks:
+            # Full, and no keyframe to start the next one: the next submap keeps the anchor.
+            T_anchor = keyframe_poses.get(self._anchor_id)
+            if T_anchor is not None:
+                anchor, kfs = self._anchor_id, list(self._keyframes)
+                done = self._finish()
+                if done is not None:
+                    finished.append(done)
+                self._start(anchor, np.asarray(T_anchor, np.float64), int(t_ns))
+                self._keyframes = kfs[:1]
         if self._active is None:
             # Trusted frames before the first keyframe have nothing to be anchored to.
             return FusionStep(status="skipped_no_anchor", finished=tuple(finished))
@@ -244,8 +259,6 @@ class SubmapFusion:
         touched = self._active.integrate(depth_m, color_rgb, K, T_grid_cam)
         self.frames_integrated += 1
         self.peak_memory_bytes = max(self.peak_memory_bytes, self._active.memory_bytes)
-        if self._active.block_count >= self.config.max_blocks and keyframe_id is None:
-            log.debug("submap %d reached %d blocks", self._active_id, self._active.block_count)
         return FusionStep(status="integrated", submap_id=self._active_id,
                           finished=tuple(finished), blocks_touched=touched)
 
@@ -471,7 +484,7 @@ def merge_submaps(
         if len(coords) == 0:
             continue
         inner = np.all((coords >= c_lo) & (coords < c_hi), axis=1)
-        voxels += int(np.count_nonzero(inner & (wsum >= config.weight_threshold)))
+        voxels += int(np.count_nonzero(inner & (wsum > config.weight_threshold)))
         vol = TsdfVolume.from_blocks(_to_blocks(coords, wsum, tmean, cmean, config), config)
         mesh = vol.extract_mesh()
         if len(tiles) > 1 and not mesh.empty:
