@@ -2,13 +2,13 @@
 
 import numpy as np
 import pytest
-from synthetic_views import BOX_HI, K, render, survey_poses
 
 from sea3d.errors import ReconError
 from sea3d.geometry.se3 import rotvec_to_R
 from sea3d.io.result_cache import DiskSubmapStore
 from sea3d.recon.submaps import FusionConfig, MemorySubmapStore, SubmapFusion, merge_submaps
 from sea3d.recon.tsdf import TsdfConfig, TsdfVolume
+from synthetic_views import BOX_HI, K, render, survey_poses
 
 VOXEL_M = 0.02
 TSDF = TsdfConfig(voxel_m=VOXEL_M)
@@ -71,7 +71,7 @@ def test_tiled_merge_equals_the_whole_merge():
     kf = _run(_TRUE, _KEYFRAMES, SubmapFusion(FusionConfig(tsdf=TSDF, keyframes_per_submap=3)),
               store)
     whole = merge_submaps(store, kf, TSDF, tile_m=None).mesh
-    tiled = merge_submaps(store, kf, TSDF, tile_m=1.2).mesh  # seams at x = 0 and y = 0 cross the box
+    tiled = merge_submaps(store, kf, TSDF, tile_m=1.2).mesh  # seams at x = 0, y = 0: the box
     assert len(tiled.triangles) == len(whole.triangles)
     np.testing.assert_allclose(_sorted(tiled.vertices), _sorted(whole.vertices), atol=1e-9)
 
@@ -164,7 +164,7 @@ def test_disk_store_round_trip_and_damage(tmp_path):
     data = bytearray(p.read_bytes())
     data[-10] ^= 0xFF
     p.write_bytes(bytes(data))
-    with pytest.raises(ReconError, match="submap 1 .* damaged.*checksum"):
+    with pytest.raises(ReconError, match=r"submap 1 .* damaged.*checksum"):
         store.get(1)
     with pytest.raises(ReconError, match="anchor keyframe"):
         merge_submaps(store, {}, TSDF)

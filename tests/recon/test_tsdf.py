@@ -8,11 +8,11 @@ import numpy as np
 import open3d as o3d
 import open3d.core as o3c
 import pytest
-from synthetic_views import BOX_HI, K, render, survey_poses
 
 from sea3d.errors import ReconError
 from sea3d.geometry.se3 import look_at
 from sea3d.recon.tsdf import TsdfConfig, TsdfVolume
+from synthetic_views import BOX_HI, K, render, survey_poses
 
 VOXEL_M = 0.02
 # Marching cubes on a TSDF of a plane puts vertices within a small fraction of a voxel of it;
@@ -34,7 +34,7 @@ def test_volume_holds_the_surface_after_integration():
     # The floor seen from 1.3 m covers about 2 m^2: tens of thousands of triangles.
     assert len(mesh.triangles) > 5000
     assert np.abs(mesh.vertices[:, 2]).max() < ON_SURFACE_TOL_M
-    pts, cols, nrm = vol.extract_points()
+    pts, _, nrm = vol.extract_points()
     assert len(pts) > 1000 and np.abs(pts[:, 2]).max() < ON_SURFACE_TOL_M
     # Normals of the floor point up or down, never sideways.
     assert np.median(np.abs(nrm[:, 2])) > 0.99

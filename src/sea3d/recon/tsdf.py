@@ -13,9 +13,11 @@ Depth is float32 metres along the camera's z axis, NaN invalid, seen by a pinhol
 intrinsics ``K`` (pixel centres at integer coordinates, as everywhere in sea3d) and pose
 ``T_volume_cam``. Open3D finds a voxel's depth pixel by truncating its projection, so
 :meth:`TsdfVolume.integrate` hands it the principal point shifted by half a pixel: then it
-reads the nearest pixel, and a slanted surface is not biased by half a pixel's depth step. For refractive rigs that camera is the rectified
-left view's virtual pinhole, and the depth image must first be put where that pinhole sees
-each exactly triangulated point: :func:`sea3d.recon.depth_resample.virtual_pinhole_depth`.
+reads the nearest pixel, and a slanted surface is not biased by half a pixel's depth step.
+
+For refractive rigs that camera is the rectified left view's virtual pinhole, and the depth
+image must first be put where that pinhole sees each exactly triangulated point:
+:func:`sea3d.recon.depth_resample.virtual_pinhole_depth`.
 """
 
 from __future__ import annotations
