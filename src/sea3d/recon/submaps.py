@@ -356,8 +356,14 @@ def _to_blocks(coords: NDArray[np.int64], weight: F64, tsdf: F64, color: F64,
                            trunc_voxels=config.trunc_voxels)
     keys = np.floor_divide(coords, r)
     local = coords - keys * r
-    ukeys, inv = np.unique(keys, axis=0, return_inverse=True)
+    k0 = keys.min(axis=0)
+    dims = keys.max(axis=0) - k0 + 1
+    kk = keys - k0
+    lin = (kk[:, 0] * dims[1] + kk[:, 1]) * dims[2] + kk[:, 2]
+    ulin, inv = np.unique(lin, return_inverse=True)
     inv = inv.reshape(-1)
+    ukeys = np.stack([ulin // (dims[1] * dims[2]), (ulin // dims[2]) % dims[1], ulin % dims[2]],
+                     axis=1) + k0
     m = len(ukeys)
     T = np.zeros((m, r, r, r), np.float32)
     W = np.zeros((m, r, r, r), np.float32)
@@ -517,7 +523,7 @@ def _tiles(lo: F64, hi: F64, tile_m: float | None) -> Iterator[tuple[F64, F64]]:
         return
     if not tile_m > 0:
         raise ReconError(f"tile_m must be > 0, got {tile_m}")
-    start = np.floor(lo / tile_m) * tile_m
+    start = np.asarray(lo, np.float64)
     n = np.maximum(np.ceil((hi - start) / tile_m).astype(np.int64), 1)
     for i in range(n[0]):
         for j in range(n[1]):
