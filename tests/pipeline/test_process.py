@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scripted_odometry import ScriptedOdometry
 
+from scripted_odometry import ScriptedOdometry
 from sea3d.cli import main
 from sea3d.errors import ConfigError, SessionError
 from sea3d.geometry.se3 import rotvec_to_R
@@ -58,7 +58,7 @@ def first_run(sim_session, tmp_path_factory):
 
 
 def test_outputs_and_summary(first_run, sim_session):
-    out, result = first_run
+    out, _ = first_run
     for name in ("trajectory.tum", "mesh.ply", "cloud.ply", "status.csv", "summary.json",
                  "report.html"):
         assert (out / name).is_file(), name
