@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["image_tag", "write_demo_report"]
+__all__ = ["colorbar_tag", "depth_check_html", "image_tag", "write_process_report"]
 
 
 def image_tag(rgb: NDArray[np.uint8], alt: str, *, max_width_px: int = 960) -> str:
@@ -34,8 +34,22 @@ def _pct(x: float) -> str:
     return "n/a" if not np.isfinite(x) else f"{100.0 * x:.2f} %"
 
 
-def write_demo_report(
-    path: Path,
+def colorbar_tag(lo: float, hi: float, label: str, *, cmap: str = "turbo") -> str:
+    """A horizontal colour bar (PNG) for pictures coloured with OpenCV's or matplotlib's turbo
+    map over the fixed range ``lo``..``hi``."""
+    from matplotlib.colorbar import ColorbarBase
+    from matplotlib.colors import Normalize
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6.0, 0.75))
+    ax = fig.add_axes((0.05, 0.55, 0.9, 0.3))
+    ColorbarBase(ax, cmap=cmap, norm=Normalize(lo, hi), orientation="horizontal")
+    ax.set_xlabel(label, fontsize=8)
+    ax.tick_params(labelsize=7)
+    return _figure_tag(fig, f"colour bar: {label}").replace("<img ", '<img class="bar" ', 1)
+
+
+def depth_check_html(
     *,
     left: NDArray[np.uint8],
     right: NDArray[np.uint8],
@@ -47,8 +61,10 @@ def write_demo_report(
     error_range_m: tuple[float, float],
     cloud_rgb: NDArray[np.uint8],
     summary: dict[str, Any],
-) -> Path:
-    """Write the demo's HTML report and return its path."""
+) -> str:
+    """The single-pair depth check of the demo, as an HTML fragment: the input pair, depth
+    against ground truth beside the pinhole-in-water and ports-ignored baselines, disparity,
+    depth and error pictures with colour bars, and the pair's point cloud."""
     ours = summary["refraction_corrected"]
     base = summary["pinhole_in_water_baseline"]
     ignored = summary.get("ports_ignored_baseline")
@@ -71,32 +87,12 @@ def write_demo_report(
             f"<td>{_pct(b['median_rel'])}</td>"
             f"<td>{_pct(other['median_rel']) if other else 'n/a'}</td></tr>"
         )
-    timings = "".join(
-        f"<tr><td>{html.escape(k)}</td><td>{v:.2f} s</td></tr>"
-        for k, v in summary["timings_s"].items()
-    )
-    cfg = summary["config"]
-    page = f"""<!doctype html>
-<html lang="en"><head><meta charset="utf-8"><title>sea3d demo</title>
-<style>
-body {{ font-family: system-ui, sans-serif; margin: 2em; max-width: 1000px; color: #222; }}
-img {{ max-width: 100%; display: block; margin: 0.3em 0 1em; }}
-table {{ border-collapse: collapse; margin: 0.5em 0 1.5em; }}
-td, th {{ border: 1px solid #ccc; padding: 0.3em 0.7em; text-align: right; }}
-td:first-child, th:first-child {{ text-align: left; }}
-.pair {{ display: flex; gap: 0.5em; }} .pair div {{ flex: 1; }}
-.note {{ color: #555; font-size: 0.9em; }}
-</style></head><body>
-<h1>sea3d demo: refraction-corrected stereo depth</h1>
-<p>Scene <b>{html.escape(str(cfg["scene"]))}</b>, water <b>{html.escape(str(cfg["water"]))}</b>,
-the paper's rig ({summary["image_size_px"][0]}x{summary["image_size_px"][1]}, baseline 107 mm)
-behind <b>{html.escape(str(cfg["port"]))}</b> ports, engine <b>{html.escape(str(cfg["engine"]))}</b>
-with {summary["max_disparity_px"]} disparities. Valid depth on
+    return f"""<h2>One stereo pair: depth against ground truth</h2>
+<p>The survey's first pair, {summary["image_size_px"][0]}x{summary["image_size_px"][1]},
+matched with {summary["max_disparity_px"]} disparities: valid depth on
 {_pct(summary["valid_fraction"])} of the rectified pixels, {summary["points"]} points.</p>
-<h2>Input pair (simulated, with ground truth)</h2>
 <div class="pair"><div>{image_tag(left, "left image", max_width_px=640)}</div>
 <div>{image_tag(right, "right image", max_width_px=640)}</div></div>
-<h2>Depth against ground truth</h2>
 <table><tr><th>method</th><th>points</th><th>median |error| / depth</th><th>median |error|</th>
 <th>90th pct relative</th><th>mean signed relative</th><th>within 1 %</th></tr>
 {"".join(rows)}</table>
@@ -108,29 +104,22 @@ disparities with the best-fitting pinhole (z = f B / d): the paper's in-water pi
 whose virtual-pinhole fit leaves {summary["virtual_pinhole_rms_px"]:.2f} px RMS. The last row,
 if shown, matches the same images again with the in-air calibration, as if the ports were not
 there.</p>
-<h2>Disparity</h2>
-<p class="note">Rectified left view, colour scale {disparity_range[0]:.0f} (blue) to
-{disparity_range[1]:.0f} px (red); black = invalid.</p>
+<h3>Disparity</h3>
+<p class="note">Rectified left view; black = invalid.</p>
 {image_tag(disparity_rgb, "disparity")}
-<h2>Depth</h2>
-<p class="note">Rectified left view, {depth_range_m[0]} m (blue) to {depth_range_m[1]} m (red).</p>
+{colorbar_tag(disparity_range[0], disparity_range[1], "disparity (px)")}
+<h3>Depth</h3>
+<p class="note">Rectified left view; black = invalid.</p>
 {image_tag(depth_rgb, "depth")}
-<h2>Depth error</h2>
-<p class="note">Raw left view, estimated minus true depth,
-{1000 * error_range_m[0]:.0f} mm (blue) to +{1000 * error_range_m[1]:.0f} mm (red);
-green is zero.</p>
+{colorbar_tag(depth_range_m[0], depth_range_m[1], "depth (m)")}
+<h3>Depth error</h3>
+<p class="note">Raw left view, estimated minus true depth; black = no estimate.</p>
 {image_tag(error_rgb, "depth error")}
-<h2>Point cloud</h2>
-<p class="note">cloud.ply (left camera frame, metres), seen from above and to the side.</p>
+{colorbar_tag(1000 * error_range_m[0], 1000 * error_range_m[1], "depth error (mm)")}
+<h3>The pair's point cloud</h3>
+<p class="note">Left camera frame, seen from above and to the side.</p>
 {image_tag(cloud_rgb, "point cloud")}
-<h2>Timings</h2><table>{timings}</table>
-<p class="note">Files beside this report: rig.yaml, depth_mm.png (16-bit millimetres, 0 =
-invalid), depth_m.npy (float32 metres, NaN invalid), disparity.pfm, cloud.ply,
-gt_depth_m.npy, summary.json.</p>
-</body></html>
 """
-    path.write_text(page)
-    return path
 
 
 # ------------------------------------------------------------------------------ process report
@@ -228,12 +217,15 @@ def _fmt(x: Any, unit: str = "", scale: float = 1.0, digits: int = 3) -> str:
     return f"{x * scale:.{digits}f}{unit}"
 
 
-def write_process_report(path: Path, result: Any) -> Path:
+def write_process_report(path: Path, result: Any, *, title: str | None = None,
+                         intro_html: str = "", sections_html: str = "") -> Path:
     """Write ``report.html`` of a ``sea3d process`` run and return its path.
 
     The page holds: the run's figures, the path seen from above (against the ground truth
     when the session has one), a shaded picture of the mesh (CPU ray casting), the status
-    timeline, and the timings (one-off kernel compilation shown apart).
+    timeline, and the timings (one-off kernel compilation shown apart). ``title``,
+    ``intro_html`` and ``sections_html`` (inserted before the trajectory) let the demo put its
+    own parts on the same page.
     """
     from sea3d.io.trajectory_files import read_trajectory
     from sea3d.recon.render import render_mesh, view_from_above
@@ -319,8 +311,9 @@ def write_process_report(path: Path, result: Any) -> Path:
     wrows = "".join(f"<tr><td>{html.escape(k)}</td><td>{v:.2f} s</td></tr>"
                     for k, v in wt.items() if k != "warmup_s" and not k.startswith("pyramid"))
     warm = wt.get("warmup_s", 0.0)
+    page_title = html.escape(title or "sea3d process report")
     page = f"""<!doctype html>
-<html lang="en"><head><meta charset="utf-8"><title>sea3d process report</title>
+<html lang="en"><head><meta charset="utf-8"><title>{page_title}</title>
 <style>
 body {{ font-family: system-ui, sans-serif; margin: 2em; max-width: 1000px; color: #222; }}
 img {{ max-width: 100%; display: block; margin: 0.3em 0 1em; }}
@@ -328,14 +321,18 @@ table {{ border-collapse: collapse; margin: 0.5em 0 1.5em; }}
 td, th {{ border: 1px solid #ccc; padding: 0.3em 0.7em; text-align: right; }}
 td:first-child, th:first-child {{ text-align: left; }}
 .note {{ color: #555; font-size: 0.9em; }}
+.pair {{ display: flex; gap: 0.5em; }} .pair div {{ flex: 1; }}
+img.bar {{ max-width: 520px; margin-top: -0.6em; }}
 </style></head><body>
-<h1>sea3d process: {html.escape(Path(s["session"]).name)}</h1>
+<h1>{html.escape(title or "sea3d process: " + Path(s["session"]).name)}</h1>
+{intro_html}
 <p>{s["frames"]} stereo frames at {s["image_size_px"][0]}x{s["image_size_px"][1]}
 ({"refractive rig, depth triangulated with refracted rays" if s["refractive"] else "pinhole rig"}),
 poses from <b>{html.escape(str(s["odometry"]))}</b>, TSDF voxels of {1000 * s["voxel_m"]:.0f} mm,
 per-frame stage on {html.escape(str(s["executor"]["kind"]))}
 ({s["executor"]["workers"]} workers).</p>
 <table>{fact_rows}</table>
+{sections_html}
 <h2>Trajectory</h2>
 {traj_img}
 {gt_html}

@@ -159,7 +159,7 @@ def view_from_above(
     back = np.cross(side, up)
     direction = -np.cos(tilt) * up + np.sin(tilt) * back  # from the eye to the centre
     fov_v = 2 * np.arctan(np.tan(np.deg2rad(fov_deg) / 2) / aspect)
-    dist = 1.15 * radius / np.sin(min(np.deg2rad(fov_deg), fov_v) / 2)
+    dist = 0.9 * radius / np.tan(min(np.deg2rad(fov_deg), fov_v) / 2)
     eye = centre - dist * direction
     screen_up = up - direction * float(up @ direction)
     return look_at(eye, centre, up=screen_up)
