@@ -148,20 +148,20 @@ class TsdfVolume:
         K_o3d[0, 2] += 0.5
         K_o3d[1, 2] += 0.5
         Kt = o3c.Tensor(K_o3d, o3c.float64)
-        with np.errstate(invalid="ignore"):
-            ok = np.isfinite(depth) & (depth >= c.depth_min_m) & (depth <= c.depth_max_m)
-        if not ok.any():
-            return 0
-        d = np.where(ok, depth, np.float32(0.0)).astype(np.float32)
+        # Invalid and out-of-range depth -> 0, which Open3D skips.
+        d = np.nan_to_num(depth, nan=0.0, posinf=0.0, neginf=0.0)
+        d[(d < c.depth_min_m) | (d > c.depth_max_m)] = 0.0
         R, t = T[:3, :3], T[:3, 3]
         extrinsic = np.eye(4)
         extrinsic[:3, :3] = R.T
         extrinsic[:3, 3] = -R.T @ t
         Et = o3c.Tensor(extrinsic, o3c.float64)
-        dimg = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(d)))
+        dimg = o3d.t.geometry.Image(o3c.Tensor(d))
         blocks = self._vbg.compute_unique_block_coordinates(
             dimg, Kt, Et, 1.0, c.depth_max_m, c.trunc_voxels
         )
+        if blocks.shape[0] == 0:
+            return 0
         if color_rgb is None:
             self._vbg.integrate(blocks, dimg, Kt, Et, 1.0, c.depth_max_m, c.trunc_voxels)
         else:
