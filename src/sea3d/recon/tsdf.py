@@ -151,6 +151,8 @@ class TsdfVolume:
         # Invalid and out-of-range depth -> 0, which Open3D skips.
         d = np.nan_to_num(depth, nan=0.0, posinf=0.0, neginf=0.0)
         d[(d < c.depth_min_m) | (d > c.depth_max_m)] = 0.0
+        if not d.any():
+            return 0  # Open3D raises when an image touches no block
         R, t = T[:3, :3], T[:3, 3]
         extrinsic = np.eye(4)
         extrinsic[:3, :3] = R.T
