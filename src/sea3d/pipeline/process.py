@@ -118,8 +118,9 @@ class ProcessConfig:
     """Fuse every frame with a trusted pose, or keyframes only."""
     keyframes_per_submap: int = 20
     """Keyframes per TSDF submap."""
-    max_submap_blocks: int = 40_000
-    """Voxel blocks after which a submap is finished (bounds memory: 20 KB per block)."""
+    max_submap_blocks: int = 20_000
+    """Voxel blocks after which a submap is finished (bounds memory: 10 KB per block of 8^3
+    voxels)."""
     in_flight: int | None = None
     """Frames between reader and ordered stages at most; None: 2 per worker + 2."""
     fresh: bool = False
