@@ -72,7 +72,8 @@ class InlineExecutor:
 
 def _limit_threads(threads: int) -> None:
     """Worker initialiser: keep each worker's library thread pools to its share of cores."""
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    for var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
+                "MKL_NUM_THREADS"):
         os.environ.setdefault(var, str(threads))
 
 
@@ -167,7 +168,7 @@ def make_executor(workers: int | None, scheduler: str | Any | None) -> Executor:
     """The executor for ``--workers N`` / ``--scheduler ADDRESS``.
 
     Args:
-        workers: local processes; None: one per two cores (at least 1), 0: in the caller.
+        workers: local processes; None: one per core (at most 8), 0: in the caller.
         scheduler: a Dask scheduler address or ``distributed.Client``; excludes ``workers``.
 
     Raises:
@@ -178,7 +179,9 @@ def make_executor(workers: int | None, scheduler: str | Any | None) -> Executor:
             raise ConfigError("give either --workers or --scheduler, not both")
         return DaskExecutor(scheduler)
     if workers is None:
-        workers = max(1, (os.cpu_count() or 2) // 2)
+        # One single-threaded worker per core (up to 8): the per-frame stage has serial
+        # parts (triangulation, resampling) that threads inside one worker cannot fill.
+        workers = max(1, min(os.cpu_count() or 1, 8))
     if workers == 0:
         return InlineExecutor()
     return ProcessExecutor(workers)
