@@ -65,3 +65,11 @@ class ScriptedOdometry:
 
     def trajectory(self):
         return np.asarray(self.frames, np.int64), np.stack([self.truth[t] for t in self.frames])
+
+
+def tint_red(image):
+    """An 'enhancement' for tests: halves green and blue (a visible, checkable change)."""
+    out = image.copy()
+    if out.ndim == 3:
+        out[..., 1:] //= 2
+    return out

@@ -229,3 +229,28 @@ def test_no_rig_is_a_clear_error(tmp_path, sim_session):
     shutil.copytree(sim_session, bare, ignore=shutil.ignore_patterns("rig.yaml", "gt"))
     with pytest.raises(SessionError, match="stores no rig; pass --rig"):
         run_process(bare, _config(tmp_path / "o"))
+
+
+def test_the_enhancement_hook_colours_the_mesh(sim_session, first_run, tmp_path):
+    from scripted_odometry import tint_red
+
+    gt = _gt(sim_session)
+    res = run_process(sim_session, _config(tmp_path / "enh", enhance=tint_red, max_frames=3),
+                      odometry=lambda rig, maps: ScriptedOdometry(gt.t_ns, gt.T_world_x))
+    plain = read_mesh(first_run[0] / "mesh.ply").colors_rgb.astype(float).mean(axis=0)
+    tinted = res.mesh.colors_rgb.astype(float).mean(axis=0)
+    assert tinted[0] == pytest.approx(plain[0], rel=0.1)
+    assert tinted[1] < 0.6 * plain[1] and tinted[2] < 0.6 * plain[2]
+
+
+def test_an_mcap_session_with_ground_truth_beside_it(tmp_path, capsys):
+    mcap = tmp_path / "dive.mcap"
+    assert main(["-q", "sim", "--frames", "4", "--size", "192x108", "--water", "clear",
+                 "--out", str(mcap)]) == 0
+    assert (tmp_path / "dive_gt" / "poses_left.tum").is_file()
+    capsys.readouterr()
+    assert main(["process", str(mcap), "-o", str(tmp_path / "out"), "--workers", "0",
+                 "--poses", str(tmp_path / "dive_gt" / "poses_left.tum"), "--json"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["frames"] == 4 and s["ground_truth"].endswith("dive_gt")
+    assert s["mesh"]["triangles"] > 1000
