@@ -21,6 +21,7 @@ from sea3d.errors import ConfigError, SessionError
 from sea3d.geometry.se3 import rotvec_to_R
 from sea3d.io.mesh_files import read_mesh
 from sea3d.io.result_cache import FrameCache
+from sea3d.io.session import SessionWriter, open_session
 from sea3d.io.trajectory_files import read_trajectory
 from sea3d.pipeline.process import ProcessConfig, run_process
 
@@ -38,8 +39,12 @@ def _config(out: Path, **kw) -> ProcessConfig:
     return ProcessConfig(**base)
 
 
+def _gt_dir(session: Path) -> Path:
+    return session.with_name(session.stem + "_gt")
+
+
 def _gt(session: Path):
-    return read_trajectory(session / "gt" / "poses_left.tum")
+    return read_trajectory(_gt_dir(session) / "poses_left.tum")
 
 
 def _with_cache(src: Path, dst: Path) -> Path:
@@ -69,7 +74,8 @@ def test_outputs_and_summary(first_run, sim_session):
     assert s["frames"] == 30 and s["keyframes"] == 10 and s["frames_lost"] == 0
     # T_world_left for every stereo frame, stamped with the session's time.
     traj = read_trajectory(out / "trajectory.tum")
-    left = sorted(int(p.stem) for p in (sim_session / "left").glob("*.png"))
+    with open_session(sim_session) as session:
+        left = session.stamps("left").tolist()
     assert traj.t_ns.tolist() == left
     np.testing.assert_allclose(traj.T_world_x, _gt(sim_session).T_world_x, atol=1e-8)
     assert s["path_length_m"] == pytest.approx(
@@ -156,8 +162,8 @@ def test_an_interrupted_run_resumes_from_its_cache(sim_session, first_run, tmp_p
 def test_a_cache_of_another_configuration_is_refused(sim_session, first_run, tmp_path):
     out = _with_cache(first_run[0], tmp_path / "other")
     with pytest.raises(ConfigError, match="another configuration"):
-        run_process(sim_session, _config(out, max_depth_m=3.0, poses_path=sim_session / "gt" /
-                                         "poses_left.tum"))
+        run_process(sim_session, _config(out, max_depth_m=3.0,
+                                         poses_path=_gt_dir(sim_session) / "poses_left.tum"))
 
 
 def test_local_processes_give_the_inline_depth(sim_session, first_run, tmp_path):
@@ -201,10 +207,11 @@ def _same_depth(out_a: Path, out_b: Path, n: int) -> None:
 def test_cli_process_with_known_poses(sim_session, first_run, tmp_path, capsys):
     out = _with_cache(first_run[0], tmp_path / "cli")
     code = main(["process", str(sim_session), "-o", str(out), "--poses",
-                 str(sim_session / "gt" / "poses_left.tum"), "--workers", "0", "--json"])
+                 str(_gt_dir(sim_session) / "poses_left.tum"), "--workers", "0", "--json"])
     assert code == 0
     s = json.loads(capsys.readouterr().out)
     assert s["frames_from_cache"] == 30 and s["odometry"].startswith("known poses")
+    assert s["ground_truth"].endswith("lake_gt")  # found beside the MCAP file
     assert s["trajectory_vs_gt"]["ate_m"]["rmse"] < 1e-6
 
 
@@ -224,9 +231,12 @@ def test_cli_process_bad_input_is_one_line(tmp_path, sim_session, capsys):
     assert "cannot reach the Dask scheduler tcp://127.0.0.1:9" in capsys.readouterr().err
 
 
-def test_no_rig_is_a_clear_error(tmp_path, sim_session):
+def test_no_rig_is_a_clear_error(tmp_path, rng):
     bare = tmp_path / "bare"
-    shutil.copytree(sim_session, bare, ignore=shutil.ignore_patterns("rig.yaml", "gt"))
+    img = rng.integers(0, 255, (48, 64, 3), dtype=np.uint8)
+    with SessionWriter(bare, format="folder") as w:
+        w.write_stereo(0, img, img)
+        w.write_stereo(100_000_000, img, img)
     with pytest.raises(SessionError, match="stores no rig; pass --rig"):
         run_process(bare, _config(tmp_path / "o"))
 
@@ -241,16 +251,3 @@ def test_the_enhancement_hook_colours_the_mesh(sim_session, first_run, tmp_path)
     tinted = res.mesh.colors_rgb.astype(float).mean(axis=0)
     assert tinted[0] == pytest.approx(plain[0], rel=0.1)
     assert tinted[1] < 0.6 * plain[1] and tinted[2] < 0.6 * plain[2]
-
-
-def test_an_mcap_session_with_ground_truth_beside_it(tmp_path, capsys):
-    mcap = tmp_path / "dive.mcap"
-    assert main(["-q", "sim", "--frames", "4", "--size", "192x108", "--water", "clear",
-                 "--out", str(mcap)]) == 0
-    assert (tmp_path / "dive_gt" / "poses_left.tum").is_file()
-    capsys.readouterr()
-    assert main(["process", str(mcap), "-o", str(tmp_path / "out"), "--workers", "0",
-                 "--poses", str(tmp_path / "dive_gt" / "poses_left.tum"), "--json"]) == 0
-    s = json.loads(capsys.readouterr().out)
-    assert s["frames"] == 4 and s["ground_truth"].endswith("dive_gt")
-    assert s["mesh"]["triangles"] > 1000

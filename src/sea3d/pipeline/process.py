@@ -362,11 +362,15 @@ def run_process(
             t0 = time.perf_counter()
             rig, maps = stage_geometry(stage_cfg)
             timer.add("rectify_maps_s", time.perf_counter() - t0)
+            from sea3d.io.rig_file import rig_from_yaml
+
+            native = rig_from_yaml(rig_yaml, "the rig")
             first = session.image("left", int(match.left_index[0]), by="index")
-            if first.shape[:2] != (rig.height, rig.width) and config.size_px is None:
+            if first.shape[:2] != (native.height, native.width):
                 raise SessionError(
                     f"{session_path}: images are {first.shape[1]}x{first.shape[0]} but the rig "
-                    f"is {rig.width}x{rig.height}; pass the right --rig (or --size to resize)"
+                    f"is {native.width}x{native.height}; pass the rig of this camera with --rig"
+                    " (--size then sets the processing size)"
                 )
             imu = session.imu()
             has_imu = len(imu) > 0
@@ -528,7 +532,17 @@ def run_process(
                            f"({n_unreadable} unreadable, {n_failed} failed)")
 
     # -- final poses, merge ---------------------------------------------------------------
-    t_traj, T_traj = odo.trajectory()
+    t_final, T_final = odo.trajectory()
+    # One pose per processed frame, in frame order: the odometry's final (re-optimised) pose,
+    # or its per-frame estimate for a frame its trajectory lacks.
+    final = {int(t): np.asarray(T, np.float64) for t, T in zip(t_final, T_final, strict=True)}
+    missing = sum(1 for e in estimates if int(e.t_ns) not in final)
+    if missing:
+        log.warning("the odometry's trajectory lacks %d of %d frames; their per-frame "
+                    "estimates are used", missing, len(estimates))
+    t_traj = np.array([e.t_ns for e in estimates], np.int64)
+    T_traj = np.stack([final.get(int(e.t_ns), np.asarray(e.T_world_left, np.float64))
+                       for e in estimates])
     final_kf = {k: T @ T_left_rect for k, T in odo.keyframe_poses().items()}
     tm = time.perf_counter()
     merge_bar = bar("merge", len(store.ids()))
@@ -564,8 +578,7 @@ def run_process(
     statuses = [e.status for e in estimates]
     trusted = np.array([s in TRUSTED for s in statuses])
     seg = np.array([e.segment for e in estimates], np.int64)
-    est_T = np.stack([np.asarray(T, np.float64) for T in T_traj]) if len(T_traj) else np.zeros(
-        (0, 4, 4))
+    est_T = T_traj
     counts = {s.value: int(sum(1 for x in statuses if x == s)) for s in TrackingStatus}
     summary: dict[str, Any] = {
         "session": str(session_path),
