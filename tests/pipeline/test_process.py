@@ -239,6 +239,13 @@ def test_no_rig_is_a_clear_error(tmp_path, rng):
         w.write_stereo(100_000_000, img, img)
     with pytest.raises(SessionError, match="stores no rig; pass --rig"):
         run_process(bare, _config(tmp_path / "o"))
+    from sea3d.io.rig_file import save_rig
+    from sea3d.refraction.presets import paper_rig
+
+    save_rig(paper_rig("dome"), tmp_path / "rig.yaml")
+    with pytest.raises(SessionError, match="images are 64x48 but the rig is 1920x1080"):
+        run_process(bare, _config(tmp_path / "o", rig_path=tmp_path / "rig.yaml",
+                                  size_px=(64, 48)))
 
 
 def test_the_enhancement_hook_colours_the_mesh(sim_session, first_run, tmp_path):

@@ -359,9 +359,6 @@ def run_process(
             else None,
         )
         try:
-            t0 = time.perf_counter()
-            rig, maps = stage_geometry(stage_cfg)
-            timer.add("rectify_maps_s", time.perf_counter() - t0)
             from sea3d.io.rig_file import rig_from_yaml
 
             native = rig_from_yaml(rig_yaml, "the rig")
@@ -372,6 +369,9 @@ def run_process(
                     f"is {native.width}x{native.height}; pass the rig of this camera with --rig"
                     " (--size then sets the processing size)"
                 )
+            t0 = time.perf_counter()
+            rig, maps = stage_geometry(stage_cfg)
+            timer.add("rectify_maps_s", time.perf_counter() - t0)
             imu = session.imu()
             has_imu = len(imu) > 0
             use_imu = config.use_imu and has_imu
