@@ -12,8 +12,9 @@ the per-frame stage
 Each run is a fresh subprocess, so its peak memory is its own: ``peak_rss_mb`` of the client
 and of the largest worker (``ru_maxrss``). Printed per run: frames per second of the frame
 loop (reading, per-frame stage, odometry, fusion; merge, outputs and evaluation after it
-listed apart), wall time, peak memory, and the mesh's accuracy and completeness against the
-scene (median and 90th percentile, mm) with the ATE.
+listed apart), wall time, CPU time (client and workers, whole run), peak memory, and the
+mesh's accuracy and completeness against the scene (median and 90th percentile, mm) with the
+ATE. On a shared machine wall times depend on the load; CPU seconds much less.
 
 Poses: ``--odometry gt`` (the simulator's, default while this build has no odometry),
 ``real`` (sea3d's, once merged) or ``auto``. ``--integrate keyframes`` compares fusing only
@@ -44,6 +45,11 @@ def simulate(session: Path, frames: int, size: str) -> None:
                  "--water", "coastal", "--format", "folder", "--out", str(session)])
     if code != 0:
         raise SystemExit(f"simulation failed ({code})")
+
+
+def _cpu(who: int) -> float:
+    r = resource.getrusage(who)
+    return float(r.ru_utime + r.ru_stime)
 
 
 def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
@@ -89,6 +95,8 @@ def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
         "after_loop_s": {k: s["timings_s"].get(k, 0.0) for k in ("merge_s", "cloud_s",
                                                                "write_s", "evaluate_s")},
         "one_off_s": s["one_off_s"],
+        "cpu_client_s": _cpu(resource.RUSAGE_SELF),
+        "cpu_workers_s": _cpu(resource.RUSAGE_CHILDREN),
         "peak_rss_client_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
         "peak_rss_worker_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024,
         "active_submap_peak_mb": s["active_submap_peak_mb"],
@@ -127,8 +135,8 @@ def main() -> None:
     simulate(session, args.frames, args.size)
     print(f"lake, {args.frames} frames at {args.size}, coastal water, dome ports; each run in a "
           "fresh process, per-frame results recomputed")
-    print(f"{'run':8} {'fps':>6} {'loop s':>7} {'wall s':>7} {'client MB':>10} {'worker MB':>10}"
-          f" {'mesh acc mm (med/p90)':>22} {'compl mm':>12} {'ATE mm':>7}")
+    print(f"{'run':10} {'fps':>6} {'loop s':>7} {'wall s':>7} {'CPU s':>7} {'client MB':>10} "
+          f"{'worker MB':>10} {'mesh acc mm (med/p90)':>22} {'compl mm':>12} {'ATE mm':>7}")
     results = []
     for kind in args.runs.split(","):
         policies = ["trusted", "keyframes"] if args.integrate == "both" else [args.integrate]
@@ -148,7 +156,9 @@ def main() -> None:
             acc = r["mesh_accuracy_mm"] or [float("nan")] * 2
             comp = r["mesh_completeness_mm"] or [float("nan")] * 2
             name = kind if len(policies) == 1 else f"{kind}/{policy[:3]}"
-            print(f"{name:8} {r['fps']:6.2f} {r['frame_loop_s']:7.1f} {r['wall_s']:7.1f} "
+            cpu = r["cpu_client_s"] + r["cpu_workers_s"]
+            print(f"{name:10} {r['fps']:6.2f} {r['frame_loop_s']:7.1f} {r['wall_s']:7.1f} "
+                  f"{cpu:7.1f} "
                   f"{r['peak_rss_client_mb']:10.0f} {r['peak_rss_worker_mb']:10.0f} "
                   f"{acc[0]:10.1f} / {acc[1]:7.1f} {comp[0]:5.1f} / {comp[1]:4.1f} "
                   f"{r['ate_rmse_mm'] if r['ate_rmse_mm'] is not None else float('nan'):7.2f}")

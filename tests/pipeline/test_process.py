@@ -80,7 +80,8 @@ def test_outputs_and_summary(first_run, sim_session):
     np.testing.assert_allclose(traj.T_world_x, _gt(sim_session).T_world_x, atol=1e-8)
     assert s["path_length_m"] == pytest.approx(
         float(np.linalg.norm(np.diff(traj.T_world_x[:, :3, 3], axis=0), axis=1).sum()))
-    assert s["timings_s"]["total_s"] > 0 and "warmup_s" in s["worker_timings_s"]
+    assert s["timings_s"]["total_s"] > 0 and "match_s" in s["worker_timings_s"]
+    assert "rectify_maps_s" in s["one_off_s"]
     html = (out / "report.html").read_text()
     assert html.count("data:image/") >= 3 and "Status timeline" in html
 

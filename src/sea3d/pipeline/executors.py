@@ -40,6 +40,11 @@ class Executor(Protocol):
         """Start ``fn(*args)``; return a future (``done()``, ``result()``)."""
         ...
 
+    def share(self, obj: Any) -> Any:
+        """Something to pass to ``submit`` that is ``obj`` on the workers, sent once (None
+        where the executor's set-up already gave it to every worker)."""
+        ...
+
     def wait_first(self, futures: Iterable[Any]) -> None:
         """Block until at least one of ``futures`` is done."""
         ...
@@ -63,6 +68,9 @@ class InlineExecutor:
             fut.set_exception(err)
         return fut
 
+    def share(self, obj: Any) -> Any:
+        return obj
+
     def wait_first(self, futures: Iterable[Any]) -> None:
         return None
 
@@ -70,11 +78,15 @@ class InlineExecutor:
         return None
 
 
-def _limit_threads(threads: int) -> None:
-    """Worker initialiser: keep each worker's library thread pools to its share of cores."""
+def _init_worker(threads: int, setup: tuple[Callable[..., Any], tuple[Any, ...]] | None) -> None:
+    """Worker initialiser: keep each worker's library thread pools to its share of cores, then
+    run the caller's set-up (e.g. install the rectification maps)."""
     for var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
                 "MKL_NUM_THREADS"):
         os.environ.setdefault(var, str(threads))
+    if setup is not None:
+        fn, args = setup
+        fn(*args)
 
 
 class ProcessExecutor:
@@ -82,11 +94,13 @@ class ProcessExecutor:
 
     Args:
         workers: number of processes (>= 1).
+        setup: ``(fn, args)`` run once in each worker as it starts.
     """
 
     name = "processes"
 
-    def __init__(self, workers: int) -> None:
+    def __init__(self, workers: int,
+                 setup: tuple[Callable[..., Any], tuple[Any, ...]] | None = None) -> None:
         if workers < 1:
             raise ConfigError(f"--workers must be >= 1 for a process pool, got {workers}")
         self.workers = workers
@@ -94,12 +108,15 @@ class ProcessExecutor:
         self._pool = ProcessPoolExecutor(
             max_workers=workers,
             mp_context=multiprocessing.get_context("spawn"),
-            initializer=_limit_threads,
-            initargs=(threads,),
+            initializer=_init_worker,
+            initargs=(threads, setup),
         )
 
     def submit(self, fn: Callable[..., Any], *args: Any) -> Future[Any]:
         return self._pool.submit(fn, *args)
+
+    def share(self, obj: Any) -> Any:
+        return None  # the set-up gave it to every worker
 
     def wait_first(self, futures: Iterable[Any]) -> None:
         cf_wait(list(futures), return_when=FIRST_COMPLETED)
@@ -154,6 +171,9 @@ class DaskExecutor:
             )
         return self.client.submit(fn, *args, pure=False)
 
+    def share(self, obj: Any) -> Any:
+        return self.client.scatter(obj, broadcast=True)
+
     def wait_first(self, futures: Iterable[Any]) -> None:
         fs = list(futures)
         if fs:
@@ -164,12 +184,18 @@ class DaskExecutor:
             self.client.close()
 
 
-def make_executor(workers: int | None, scheduler: str | Any | None) -> Executor:
+def make_executor(
+    workers: int | None,
+    scheduler: str | Any | None,
+    *,
+    setup: tuple[Callable[..., Any], tuple[Any, ...]] | None = None,
+) -> Executor:
     """The executor for ``--workers N`` / ``--scheduler ADDRESS``.
 
     Args:
         workers: local processes; None: one per core (at most 8), 0: in the caller.
         scheduler: a Dask scheduler address or ``distributed.Client``; excludes ``workers``.
+        setup: ``(fn, args)`` each local worker process runs as it starts.
 
     Raises:
         ConfigError: both given, or bad values.
@@ -184,4 +210,4 @@ def make_executor(workers: int | None, scheduler: str | Any | None) -> Executor:
         workers = max(1, min(os.cpu_count() or 1, 8))
     if workers == 0:
         return InlineExecutor()
-    return ProcessExecutor(workers)
+    return ProcessExecutor(workers, setup)

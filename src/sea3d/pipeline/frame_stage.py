@@ -3,9 +3,10 @@
 :func:`process_frame` is a pure function of a :class:`FrameStageConfig` and one raw stereo
 pair (arrays, not paths), so it runs unchanged in the client, in a local worker process or on
 a Dask worker on another machine, which needs only the sea3d package: the rig travels inside
-the config as its YAML text, and each process builds the rectification maps once (cached by
-configuration) and compiles the matcher's kernels once (loaded from numba's cache, timed as
-``warmup_s`` so that reports can say it is one-off).
+the config as its YAML text, the client hands each worker the rectification maps it built
+once (:func:`install_geometry`: no worker fits the virtual pinholes again), and each process
+compiles the matcher's kernels once (loaded from numba's cache, timed as ``warmup_s`` so that
+reports can say it is one-off).
 
 Depth comes out twice: ``depth_m``, exactly triangulated on the rectified grid (what the
 odometry gets), and ``fusion_depth_m``, the same surface re-sampled where the rectified
@@ -30,7 +31,8 @@ from numpy.typing import NDArray
 from sea3d.errors import ConfigError, Sea3dError
 from sea3d.recon.depth_resample import ResampleMethod, virtual_pinhole_depth
 
-__all__ = ["FrameResult", "FrameStageConfig", "process_frame", "stage_geometry"]
+__all__ = ["FrameResult", "FrameStageConfig", "install_geometry", "process_frame",
+           "stage_geometry"]
 
 log = logging.getLogger(__name__)
 
@@ -153,13 +155,30 @@ def _geometry(rig_yaml: str, size_px: tuple[int, int] | None, min_depth_m: float
     return rig, maps
 
 
+_INSTALLED: dict[tuple[Any, ...], tuple[Any, Any]] = {}
+
+
+def _geometry_key(config: FrameStageConfig) -> tuple[Any, ...]:
+    return (config.rig_yaml, config.size_px, config.min_depth_m, config.max_depth_m)
+
+
+def install_geometry(config: FrameStageConfig, geometry: tuple[Any, Any]) -> None:
+    """Give this process the ``(rig, maps)`` of ``config``, built elsewhere (the client), so
+    that a worker does not fit the virtual pinholes again (seconds per worker at 640x360)."""
+    _INSTALLED[_geometry_key(config)] = geometry
+
+
 def stage_geometry(config: FrameStageConfig) -> tuple[Any, Any]:
     """``(rig, maps)``: the (scaled) :class:`~sea3d.geometry.rig.StereoRig` and its
-    :class:`~sea3d.rectify.maps.RectifyMaps`, built once per process and configuration.
+    :class:`~sea3d.rectify.maps.RectifyMaps`: as installed by :func:`install_geometry`, or
+    built once per process and configuration.
 
     Raises:
         RigFileError, RectifyError: an invalid rig.
     """
+    got = _INSTALLED.get(_geometry_key(config))
+    if got is not None:
+        return got
     out: tuple[Any, Any] = _geometry(config.rig_yaml, config.size_px, config.min_depth_m,
                                      config.max_depth_m)
     return out
@@ -210,13 +229,15 @@ def _to_u8(img: NDArray[Any]) -> NDArray[np.uint8]:
 
 
 def process_frame(config: FrameStageConfig, t_ns: int, left: NDArray[Any],
-                  right: NDArray[Any]) -> FrameResult:
+                  right: NDArray[Any], geometry: tuple[Any, Any] | None = None) -> FrameResult:
     """Enhance (if configured), rectify, match and triangulate one raw stereo pair.
 
     Args:
         config: :class:`FrameStageConfig`.
         t_ns: the pair's stamp.
         left, right: raw images (H, W) or (H, W, 3) RGB, uint8 or uint16, at the recorded size.
+        geometry: ``(rig, maps)`` of ``config`` built by the caller (see
+            :func:`install_geometry`); None builds or reuses this process's own.
 
     Returns:
         :class:`FrameResult` (``failed`` with a message for images it cannot use, never an
@@ -229,6 +250,8 @@ def process_frame(config: FrameStageConfig, t_ns: int, left: NDArray[Any],
     from sea3d.stereo.depth import compute_depth, max_disparity_for_depth
 
     timings: dict[str, float] = {}
+    if geometry is not None and _geometry_key(config) not in _INSTALLED:
+        install_geometry(config, geometry)
     warm = _prepare_process(config)
     if warm > 0:
         timings["warmup_s"] = warm

@@ -45,7 +45,13 @@ from sea3d.odometry.types import (
     OdometryEstimate,
     TrackingStatus,
 )
-from sea3d.pipeline.frame_stage import FrameResult, FrameStageConfig, process_frame, stage_geometry
+from sea3d.pipeline.frame_stage import (
+    FrameResult,
+    FrameStageConfig,
+    install_geometry,
+    process_frame,
+    stage_geometry,
+)
 
 __all__ = [
     "ProcessConfig",
@@ -349,15 +355,15 @@ def run_process(
             n_pairs = min(n_pairs, config.max_frames)
         left_stamps = session.stamps("left")
         order = [int(left_stamps[i]) for i in match.left_index[:n_pairs]]
-        executor = make_executor(config.workers, config.scheduler)
-        n_workers = max(1, executor.workers)
+        n_local = config.workers if config.workers is not None else min(os.cpu_count() or 1, 8)
         stage_cfg = FrameStageConfig(
             rig_yaml=rig_yaml, size_px=config.size_px, engine=config.engine,
             max_disparity_px=config.max_disparity_px, min_depth_m=config.min_depth_m,
             max_depth_m=config.max_depth_m, enhance=config.enhance,
-            threads=max(1, (os.cpu_count() or 1) // n_workers) if executor.name != "dask"
-            else None,
+            threads=max(1, (os.cpu_count() or 1) // max(1, n_local))
+            if config.scheduler is None else None,
         )
+        executor: Any = None
         try:
             from sea3d.io.rig_file import rig_from_yaml
 
@@ -372,6 +378,10 @@ def run_process(
             t0 = time.perf_counter()
             rig, maps = stage_geometry(stage_cfg)
             timer.add("rectify_maps_s", time.perf_counter() - t0)
+            executor = make_executor(config.workers, config.scheduler,
+                                     setup=(install_geometry, (stage_cfg, (rig, maps))))
+            n_workers = max(1, executor.workers)
+            geometry_arg = executor.share((rig, maps))
             imu = session.imu()
             has_imu = len(imu) > 0
             use_imu = config.use_imu and has_imu
@@ -452,7 +462,8 @@ def run_process(
                             continue
                         finally:
                             timer.add("read_s", time.perf_counter() - tr)
-                        pending[t] = executor.submit(process_frame, stage_cfg, t, left, right)
+                        pending[t] = executor.submit(process_frame, stage_cfg, t, left, right,
+                                                     geometry_arg)
                     t_next = order[consume_i]
                     if t_next not in ready:
                         executor.wait_first(pending.values())
@@ -522,7 +533,8 @@ def run_process(
                     b.close()
             timer.add("frame_loop_wall_s", time.perf_counter() - t_stage0)
         except BaseException:
-            executor.close()
+            if executor is not None:
+                executor.close()
             raise
     last = fusion.finish()
     if last is not None:
