@@ -138,7 +138,7 @@ class DaskExecutor:
 
     name = "dask"
 
-    def __init__(self, scheduler: str | Any, *, timeout_s: float = 10.0) -> None:
+    def __init__(self, scheduler: str | Any, *, timeout_s: float = 5.0) -> None:
         import distributed
 
         self._own = isinstance(scheduler, str)
