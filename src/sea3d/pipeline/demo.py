@@ -144,6 +144,9 @@ def run_demo(
     if session.exists():
         import shutil
 
+        if not (session / "gt" / "sim.json").is_file():
+            raise ConfigError(f"{session} exists and is not a session the demo simulated; "
+                              "choose another --out")
         shutil.rmtree(session)  # a fresh dive each run (results below are recomputed too)
     step(
         f"simulating a {config.frames}-frame lawnmower survey of '{config.scene}' at "
