@@ -71,7 +71,7 @@ def test_tiled_merge_equals_the_whole_merge():
     kf = _run(_TRUE, _KEYFRAMES, SubmapFusion(FusionConfig(tsdf=TSDF, keyframes_per_submap=3)),
               store)
     whole = merge_submaps(store, kf, TSDF, tile_m=None).mesh
-    tiled = merge_submaps(store, kf, TSDF, tile_m=1.2).mesh  # seams at x = 0, y = 0: the box
+    tiled = merge_submaps(store, kf, TSDF, tile_m=1.2).mesh  # several tiles: seams cross the map
     assert len(tiled.triangles) == len(whole.triangles)
     np.testing.assert_allclose(_sorted(tiled.vertices), _sorted(whole.vertices), atol=1e-9)
 
