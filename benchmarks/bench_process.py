@@ -111,6 +111,7 @@ def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
         if "completeness_m" in mv else None,
         "ate_rmse_mm": 1000 * tv["ate_m"]["rmse"] if "ate_m" in tv else None,
         "path_length_m": s["path_length_m"],
+        "worker_timings_s": s["worker_timings_s"],
     }
 
 
@@ -167,6 +168,9 @@ def main() -> None:
         print(f"poses: {r['odometry']}; path {r['path_length_m']:.2f} m; after the frame loop "
               f"(first run): " + ", ".join(f"{k} {v:.1f}" for k, v in r["after_loop_s"].items())
               + f"; one-off: {r['one_off_s']}")
+        print("per-frame stage, summed over workers (first run): " + ", ".join(
+            f"{k} {v:.1f}" for k, v in r["worker_timings_s"].items()
+            if not k.startswith("pyramid")))
         for x in results:
             if x["integrate"] == "keyframes" or args.integrate == "both":
                 print(f"  {x['kind']} integrate={x['integrate']}: {x['frames_fused']} frames "
