@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from sea3d.cli import main
-from sea3d.errors import SessionError
+from sea3d.errors import OdometryError
 from sea3d.eval.sonar import (
     DepthView,
     beam_axis,
@@ -31,7 +31,7 @@ from sea3d.geometry.rig import SonarSpec, StereoRig
 from sea3d.geometry.se3 import invert_T
 from sea3d.io.rig_file import rig_to_yaml
 from sea3d.io.session import SessionWriter
-from sea3d.io.tum_poses import read_tum_poses
+from sea3d.io.trajectory_files import read_trajectory
 from sea3d.sim.motion import Mount
 from sea3d.sim.survey import write_tum
 
@@ -195,13 +195,14 @@ def test_pose_interpolation_and_comparison_known_answers():
 
 
 def test_tum_round_trip_and_bad_lines(world, tmp_path):
-    t, T = read_tum_poses(world["gt"] / "poses_left.tum")
+    traj = read_trajectory(world["gt"] / "poses_left.tum", "tum")
+    t, T = traj.t_ns, traj.T_world_x
     assert t.tolist() == world["t_ns"].tolist()
     np.testing.assert_allclose(T, world["T"], atol=1e-8)
     bad = tmp_path / "bad.tum"
     bad.write_text("# t x y z qx qy qz qw\n0 1 2 3 0 0 0 1\n0.1 1 2 3 0 0\n")
-    with pytest.raises(SessionError, match="line 3: expected 8 numbers"):
-        read_tum_poses(bad)
+    with pytest.raises(OdometryError, match=r"bad\.tum:3: expected 8 values"):
+        read_trajectory(bad, "tum")
 
 
 def test_cli_stereo_against_echosounder_against_truth(world, tmp_path, capsys):

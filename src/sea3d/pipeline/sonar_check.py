@@ -287,7 +287,7 @@ def run_sonar_check(
     """
     from sea3d.io.rig_file import rig_from_yaml
     from sea3d.io.session import open_session
-    from sea3d.io.tum_poses import read_tum_poses
+    from sea3d.io.trajectory_files import read_trajectory
 
     if depth_frame not in ("rect", "raw"):
         raise SessionError(f"depth_frame must be rect or raw, got {depth_frame!r}")
@@ -310,10 +310,12 @@ def run_sonar_check(
         pose_t = pose_T = None
         pose_src = "none (same-instant local fit)"
         if poses_path is not None:
-            pose_t, pose_T = read_tum_poses(poses_path)
+            traj = read_trajectory(poses_path, "tum")
+            pose_t, pose_T = traj.t_ns, traj.T_world_x
             pose_src = f"{poses_path}"
         elif gt is not None and (gt / "poses_left.tum").is_file():
-            pose_t, pose_T = read_tum_poses(gt / "poses_left.tum")
+            traj = read_trajectory(gt / "poses_left.tum", "tum")
+            pose_t, pose_T = traj.t_ns, traj.T_world_x
             pose_src = f"ground truth {gt / 'poses_left.tum'} (simulator)"
         views = _load_views(
             session,
@@ -341,7 +343,8 @@ def run_sonar_check(
         and (gt / "scene.ply").is_file()
         and (gt / "poses_left.tum").is_file()
     ):
-        gt_t, gt_T = read_tum_poses(gt / "poses_left.tum")
+        gt_traj = read_trajectory(gt / "poses_left.tum", "tum")
+        gt_t, gt_T = gt_traj.t_ns, gt_traj.T_world_x
         truth = _true_ranges(gt / "scene.ply", gt_t, gt_T, sonar.t_ns, T_left_sonar, beam)
         truth_src = f"beam cast against {gt / 'scene.ply'} from the true poses"
     r = np.asarray(sonar.range_m, dtype=np.float64).copy()
