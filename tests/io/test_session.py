@@ -11,11 +11,13 @@ import numpy as np
 import pytest
 
 from sea3d.errors import SessionError
+from sea3d.io.rig_file import rig_to_yaml
 from sea3d.io.session import SessionWriter, StereoPair, convert_session, open_session
+from sea3d.refraction.presets import paper_rig
 
 FRAME_NS = 33_333_333
 T0_NS = 1_700_000_000_123_456_789
-RIG_YAML = "# test rig\nleft: {fx: 1082.4}\nright: {fx: 1082.4}\n"
+RIG_YAML = rig_to_yaml(paper_rig("dome"))
 LAYOUTS = [("mcap", "s.mcap"), ("folder", "s_dir")]
 
 
@@ -217,7 +219,7 @@ def test_convert_between_layouts_is_lossless_for_png(tmp_path, src_name, dst_nam
     src, dst, back = tmp_path / src_name, tmp_path / dst_name, tmp_path / f"back_{src_name}"
     left, right, imu, sonar = _write_all(src, None, rng, shape=(16, 20), dtype=np.uint16)
     counts = convert_session(src, dst)
-    assert counts == {"left": 6, "right": 6, "imu": 24, "sonar": 6, "skipped": 0}
+    assert counts == {"left": 6, "right": 6, "imu": 24, "sonar": 6, "skipped": 0, "problems": []}
     convert_session(dst, back)
     with open_session(src) as a, open_session(dst) as b, open_session(back) as c:
         assert b.rig_yaml == RIG_YAML and c.rig_yaml == RIG_YAML
