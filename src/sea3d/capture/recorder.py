@@ -247,6 +247,7 @@ class Recorder:
                 "confidence": float(sonar.confidence),
             },
             "stop_reason": self._stop_reason or None,
+            "mode": "recording",
         }
 
     # -- threads ----------------------------------------------------------------------------

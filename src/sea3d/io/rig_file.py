@@ -37,6 +37,7 @@ file, the key and the value, and no partial rig is returned.
 from __future__ import annotations
 
 import logging
+import math
 import os
 import reprlib
 import tempfile
@@ -197,9 +198,13 @@ class _Reader:
         value = self.get(data, key, prefix)
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise self.fail(f"{prefix}{key}", f"expected a number, got {_short(value)}")
-        if not np.isfinite(value):
+        try:
+            number = float(value)  # an int beyond float range raises OverflowError
+        except OverflowError:
+            number = float("inf")
+        if not math.isfinite(number):
             raise self.fail(f"{prefix}{key}", f"expected a finite number, got {_short(value)}")
-        return float(value)
+        return number
 
     def array(
         self, data: Mapping[str, Any], key: str, shape: tuple[int, ...] | None, prefix: str = ""
@@ -378,6 +383,11 @@ def decode_rig_bytes(data: bytes, source: str) -> str:
                     f"{source}: starts with a {codec} byte-order mark but byte {err.start} "
                     f"cannot be decoded; save the rig as UTF-8"
                 ) from err
+    if b"\x00" in data:
+        raise RigFileError(
+            f"{source}: not UTF-8 text: NUL bytes (it looks like UTF-16 without a byte-order "
+            "mark); save the rig as UTF-8"
+        )
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as err:
@@ -430,7 +440,7 @@ def safe_yaml(text: str, source: str) -> Any:
             _count_yaml_nodes(root, source)
         return yaml.safe_load(text)
     except yaml.YAMLError as err:
-        message = str(err)
+        message = " ".join(str(err).split())  # one line
         if len(message) > 400:
             message = message[:400] + "..."
         raise RigFileError(f"{source}: not valid YAML: {message}") from err

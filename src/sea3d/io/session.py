@@ -618,6 +618,11 @@ def verify_session(path: str | os.PathLike[str], *, name_unit: str = "ns") -> di
     collector = _WarningCollector()
     io_logger = logging.getLogger("sea3d.io")
     io_logger.addHandler(collector)
+    # The verdict must not depend on the caller's logging set-up: let warnings reach the
+    # collector even where the application only logs errors.
+    old_level = io_logger.level
+    if io_logger.getEffectiveLevel() > logging.WARNING:
+        io_logger.setLevel(logging.WARNING)
     problems: list[str] = []
     records: dict[str, int] = {}
     frames: list[dict[str, Any]] = []
@@ -658,8 +663,13 @@ def verify_session(path: str | os.PathLike[str], *, name_unit: str = "ns") -> di
             chunks = [asdict(c) for c in getattr(reader, "damaged_chunks", [])]
             for c in chunks:
                 c["streams"] = list(c["streams"])
+            problems = reader.problems + problems
+            for stream, n in reader.skipped.items():
+                if n:
+                    problems.append(f"{path}: {n} damaged {stream} records skipped")
     finally:
         io_logger.removeHandler(collector)
+        io_logger.setLevel(old_level)
     seen: set[str] = set()
     unique = []
     for msg in collector.messages + problems:

@@ -4,10 +4,15 @@
 
     session/
       left/<t_ns>.png      right/<t_ns>.png     (or .jpg)
-      imu.csv              t_ns,ax,ay,az,wx,wy,wz   (m/s^2, rad/s)
-      sonar.csv            t_ns,range_m,confidence  (m, 0..1)
+      imu.csv              t_ns,ax,ay,az,wx,wy,wz,crc32   (m/s^2, rad/s)
+      sonar.csv            t_ns,range_m,confidence,crc32  (m, 0..1)
       rig.yaml             the rig file (optional)
+      checksums.csv        stream,file,bytes,crc32: one line per image (and the rig)
       session.json         format, version, image encoding, counts, "complete"
+
+The ``crc32`` column (8 hex digits, CRC-32 of the line before it) and ``checksums.csv`` let a
+reader refuse damaged readings and images instead of passing them on; folders without them
+(the paper's) are read as before, unchecked.
 
 Every image is written under a temporary name (``.<t_ns>.png.tmp``) and renamed when complete,
 so a crash never leaves a half-written image under its final name. CSV lines are flushed as they
@@ -16,6 +21,7 @@ are written; a torn last line is skipped with a warning when read.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -41,8 +47,12 @@ __all__ = ["FolderSessionReader", "FolderSessionWriter"]
 
 _log = logging.getLogger(__name__)
 
-IMU_HEADER = "t_ns,ax,ay,az,wx,wy,wz"
-SONAR_HEADER = "t_ns,range_m,confidence"
+# The last column is the CRC-32 (8 hex digits) of the line's text before it, so that a damaged
+# reading is skipped, never passed on; files without it (the paper's) are read as well.
+IMU_COLUMNS = "t_ns,ax,ay,az,wx,wy,wz"
+SONAR_COLUMNS = "t_ns,range_m,confidence"
+IMU_HEADER = IMU_COLUMNS + ",crc32"
+SONAR_HEADER = SONAR_COLUMNS + ",crc32"
 SESSION_FORMAT = "sea3d-session"
 SESSION_VERSION = 1
 CHECKSUM_HEADER = "stream,file,bytes,crc32"
@@ -103,8 +113,9 @@ class FolderSessionWriter:
         try:
             for s in ("left", "right"):
                 (path / s).mkdir(parents=True, exist_ok=True)
-            if rig_yaml is not None:
-                _atomic_write(path / "rig.yaml", rig_yaml.encode("utf-8"))
+            rig_bytes = None if rig_yaml is None else rig_yaml.encode("utf-8")
+            if rig_bytes is not None:
+                _atomic_write(path / "rig.yaml", rig_bytes)
             self._write_json({}, complete=False)
             for name, header in (
                 ("imu", IMU_HEADER),
@@ -115,12 +126,20 @@ class FolderSessionWriter:
                 self._csv[name] = f
                 f.write(header + "\n")
                 f.flush()
+            if rig_bytes is not None:
+                self._line("checksums", f"rig,rig.yaml,{len(rig_bytes)},{zlib.crc32(rig_bytes)}\n")
         except OSError as err:
             for opened in self._csv.values():
                 try:
                     opened.close()
                 except OSError:
                     pass
+            for name in ("imu.csv", "sonar.csv", "checksums.csv", "session.json", "rig.yaml"):
+                with contextlib.suppress(OSError):  # nothing usable: do not block a new attempt
+                    (path / name).unlink()
+            for sub in ("left", "right", ""):
+                with contextlib.suppress(OSError):
+                    (path / sub).rmdir() if sub else path.rmdir()
             raise SessionWriteError(f"cannot write {path}: {_why(err)}", kept="nothing") from err
 
     def _kept(self) -> str:
@@ -131,15 +150,17 @@ class FolderSessionWriter:
     def _check(self, size: int) -> None:
         if self.broken is not None:
             raise SessionWriteError(self.broken, kept=self._kept())
-        if self.min_free_bytes > 0:
-            st = os.statvfs(self.path)
-            free = int(st.f_bavail) * int(st.f_frsize)
-            if free - size - 4096 < self.min_free_bytes:
+        st = os.statvfs(self.path)
+        free = int(st.f_bavail) * int(st.f_frsize)
+        if free - size - 65536 < self.min_free_bytes:  # room for session.json at close
+            if self.min_free_bytes > 0:
                 self.broken = (
                     f"{self.path}: free space would fall under the "
                     f"{self.min_free_bytes / 1e9:.2f} GB reserve ({free / 1e9:.2f} GB free)"
                 )
-                raise SessionWriteError(self.broken, kept=self._kept())
+            else:
+                self.broken = f"{self.path}: the disk is full ({free} bytes free)"
+            raise SessionWriteError(self.broken, kept=self._kept())
 
     def _failed(self, what: str, err: OSError) -> SessionWriteError:
         self.broken = f"{self.path}: writing {what} failed: {_why(err)}"
@@ -185,8 +206,8 @@ class FolderSessionWriter:
             raise self._failed("checksums.csv", err) from err
 
     def write_imu(self, t_ns: int, accel: np.ndarray, gyro: np.ndarray) -> None:
-        vals = ",".join(repr(float(v)) for v in (*accel, *gyro))
-        line = f"{t_ns},{vals}\n"
+        text = f"{t_ns}," + ",".join(repr(float(v)) for v in (*accel, *gyro))
+        line = f"{text},{zlib.crc32(text.encode()):08x}\n"
         self._check(len(line))
         try:
             self._line("imu", line)
@@ -195,7 +216,8 @@ class FolderSessionWriter:
         self._done("imu", t_ns, len(line))
 
     def write_sonar(self, t_ns: int, range_m: np.float32, confidence: np.float32) -> None:
-        line = f"{t_ns},{range_m!s},{confidence!s}\n"
+        text = f"{t_ns},{range_m!s},{confidence!s}"
+        line = f"{text},{zlib.crc32(text.encode()):08x}\n"
         self._check(len(line))
         try:
             self._line("sonar", line)
@@ -269,13 +291,23 @@ class FolderSessionReader(SessionReader):
             from sea3d.errors import RigFileError
             from sea3d.io.rig_file import read_rig_text
 
+        self._checksums = self._read_checksums()
+        if rig_path.is_file():
             try:
+                want = self._checksums.get(("rig", "rig.yaml"))
+                if want is not None:
+                    data = rig_path.read_bytes()
+                    if (len(data), zlib.crc32(data)) != want:
+                        raise RigFileError(
+                            f"{rig_path}: the stored rig is damaged ({len(data)} bytes with "
+                            f"CRC-32 {zlib.crc32(data)}; checksums.csv says {want[0]} bytes "
+                            f"with {want[1]})"
+                        )
                 self._rig = read_rig_text(rig_path)
-            except RigFileError as err:
+            except (RigFileError, OSError) as err:
                 self._rig_problem = str(err)
                 self.problems.append(str(err))
                 _log.warning("%s", err)
-        self._checksums = self._read_checksums()
         self._files: dict[str, list[str]] = {}
         self._stamps: dict[str, np.ndarray] = {}
         for s in ("left", "right"):
@@ -366,7 +398,7 @@ class FolderSessionReader(SessionReader):
         for lineno, line in enumerate(lines[1:], start=2):
             parts = line.split(",")
             try:
-                if len(parts) != 4 or parts[0] not in ("left", "right"):
+                if len(parts) != 4 or parts[0] not in ("left", "right", "rig"):
                     raise ValueError(f"{len(parts)} fields")
                 out[(parts[0], parts[1])] = (int(parts[2]), int(parts[3]))
             except ValueError:
@@ -409,34 +441,41 @@ class FolderSessionReader(SessionReader):
         enc = self.meta.get("image_encoding")
         return str(enc) if enc else None
 
-    def _read_csv(self, name: str, header: str, ncols: int) -> tuple[np.ndarray, np.ndarray]:
+    def _read_csv(self, name: str, columns: str, ncols: int) -> tuple[np.ndarray, np.ndarray]:
         path = self.path / name
         if not path.is_file():
             return np.zeros(0, np.int64), np.zeros((0, ncols - 1), np.float64)
         stamps: list[int] = []
         rows: list[list[float]] = []
+        stream = name.removesuffix(".csv")
         with open(path, encoding="ascii", errors="replace") as f:
             for lineno, line in enumerate(f, start=1):
                 text = line.strip()
                 if not text:
                     continue
                 if lineno == 1 and not text[0].isdigit():
-                    if text.replace(" ", "") != header:
+                    if text.replace(" ", "") not in (columns, columns + ",crc32"):
                         _log.warning(
                             "%s: header %r differs from %r; reading columns by position",
                             path,
                             text,
-                            header,
+                            columns,
                         )
                     continue
                 parts = text.split(",")
                 try:
-                    if len(parts) != ncols:
-                        raise ValueError(f"{len(parts)} fields, expected {ncols}")
+                    if len(parts) == ncols + 1:
+                        body, _, crc = text.rpartition(",")
+                        if len(crc) != 8 or int(crc, 16) != zlib.crc32(body.encode()):
+                            raise ValueError("damaged (CRC-32 mismatch)")
+                        parts = parts[:-1]
+                    elif len(parts) != ncols:
+                        raise ValueError(f"{len(parts)} fields, expected {ncols} (+ crc32)")
                     t = int(parts[0])
                     vals = [float(p) for p in parts[1:]]
                 except ValueError as err:
                     torn = not line.endswith("\n")
+                    self.skipped[stream] = self.skipped.get(stream, 0) + 1
                     _log.warning(
                         "%s line %d: %s (%r); skipped%s",
                         path,
@@ -455,13 +494,13 @@ class FolderSessionReader(SessionReader):
 
     def imu(self) -> ImuSeries:
         if self._imu is None:
-            t, v = self._read_csv("imu.csv", "t_ns,ax,ay,az,wx,wy,wz", 7)
+            t, v = self._read_csv("imu.csv", IMU_COLUMNS, 7)
             self._imu = ImuSeries(t_ns=t, accel_mps2=v[:, :3].copy(), gyro_radps=v[:, 3:].copy())
         return self._imu
 
     def sonar(self) -> SonarSeries:
         if self._sonar is None:
-            t, v = self._read_csv("sonar.csv", "t_ns,range_m,confidence", 3)
+            t, v = self._read_csv("sonar.csv", SONAR_COLUMNS, 3)
             self._sonar = SonarSeries(
                 t_ns=t, range_m=v[:, 0].astype(np.float32), confidence=v[:, 1].astype(np.float32)
             )

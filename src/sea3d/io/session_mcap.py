@@ -38,6 +38,7 @@ chunks, and a damaged record length is bridged through the summary's chunk index
 
 from __future__ import annotations
 
+import contextlib
 import io
 import logging
 import os
@@ -54,6 +55,7 @@ from typing import Any
 
 import numpy as np
 from mcap.data_stream import ReadDataStream, RecordBuilder
+from mcap.exceptions import McapError
 from mcap.records import (
     Attachment,
     AttachmentIndex,
@@ -93,6 +95,8 @@ _OP_ATTACHMENT_INDEX, _OP_STATISTICS, _OP_METADATA, _OP_METADATA_INDEX = 0x0A, 0
 _OP_SUMMARY_OFFSET, _OP_DATA_END = 0x0E, 0x0F
 _MESSAGE_HEAD = struct.Struct("<BQHIQQ")  # opcode, length, channel, sequence, log, publish
 _CHUNK_HEAD = struct.Struct("<BQQQQI")  # opcode, length, start, end, uncompressed size, crc
+# What parsing a damaged record can raise (mcap's readers raise EndOfFile, a McapError).
+_PARSE_ERRORS = (struct.error, ValueError, UnicodeDecodeError, EOFError, McapError)
 # A chunk's records are decompressed into memory: refuse absurd sizes (a damaged header)
 # instead of allocating them. Our chunks are a few MiB.
 MAX_CHUNK_BYTES = 1 << 30
@@ -222,6 +226,7 @@ class _ChunkedMcap:
         self.attachment_indexes: list[AttachmentIndex] = []
         self.metadata_indexes: list[MetadataIndex] = []
         self.message_counts: dict[int, int] = {}
+        self.committed: dict[int, int] = {}  # messages per channel that reached the file
         self.message_start = 0
         self.message_end = 0
         self.data_crc = 0
@@ -239,13 +244,8 @@ class _ChunkedMcap:
         return at
 
     def _reset_chunk(self) -> None:
-        self.buf = bytearray()
-        self.chunk_index: dict[int, list[tuple[int, int]]] = {}
-        self.chunk_schemas: set[int] = set()
-        self.chunk_channels: set[int] = set()
-        self.chunk_start: int | None = None
-        self.chunk_end = 0
-        self.chunk_counts: dict[int, int] = {}
+        self.pending: list[tuple[int, int, bytes | memoryview]] = []
+        self._pending_bytes = 0
 
     # -- definitions and top-level records ---------------------------------------------------
     def start(self, profile: str, library: str) -> None:
@@ -295,86 +295,126 @@ class _ChunkedMcap:
     # -- messages and chunks -----------------------------------------------------------------
     def add_message(self, cid: int, log_time: int, data: bytes | memoryview) -> None:
         """Append a message to the open chunk (nothing is written until it closes)."""
-        if cid not in self.chunk_channels:
-            sid = self.channels[cid].schema_id
-            if sid and sid not in self.chunk_schemas:
-                self.buf += self._schema_bytes[sid]
-                self.chunk_schemas.add(sid)
-            self.buf += self._channel_bytes[cid]
-            self.chunk_channels.add(cid)
-        seq = self._sequence[cid]
-        self._sequence[cid] = seq + 1
-        self.chunk_index.setdefault(cid, []).append((log_time, len(self.buf)))
-        self.buf += _MESSAGE_HEAD.pack(
-            _OP_MESSAGE, 22 + len(data), cid, seq & 0xFFFFFFFF, log_time, log_time
-        )
-        self.buf += data
-        self.chunk_counts[cid] = self.chunk_counts.get(cid, 0) + 1
-        if self.chunk_start is None or log_time < self.chunk_start:
-            self.chunk_start = log_time
-        self.chunk_end = max(self.chunk_end, log_time)
+        self.pending.append((cid, log_time, data))
+        self._pending_bytes += 31 + len(data)
 
     @property
     def pending_bytes(self) -> int:
-        return len(self.buf)
+        return self._pending_bytes
+
+    def _chunk_parts(
+        self, messages: Sequence[tuple[int, int, bytes | memoryview]]
+    ) -> tuple[list[bytes | bytearray], ChunkIndex, dict[int, int]]:
+        """The chunk record (with the definitions its messages need) and message indexes, as
+        parts for one write; the chunk index with offsets relative to the chunk start."""
+        buf = bytearray()
+        schemas: set[int] = set()
+        channels: set[int] = set()
+        index: dict[int, list[tuple[int, int]]] = {}
+        counts: dict[int, int] = {}
+        start, end = messages[0][1], messages[0][1]
+        for cid, log_time, data in messages:
+            if cid not in channels:
+                sid = self.channels[cid].schema_id
+                if sid and sid not in schemas:
+                    buf += self._schema_bytes[sid]
+                    schemas.add(sid)
+                buf += self._channel_bytes[cid]
+                channels.add(cid)
+            seq = self._sequence[cid]
+            self._sequence[cid] = seq + 1
+            index.setdefault(cid, []).append((log_time, len(buf)))
+            buf += _MESSAGE_HEAD.pack(
+                _OP_MESSAGE, 22 + len(data), cid, seq & 0xFFFFFFFF, log_time, log_time
+            )
+            buf += data
+            counts[cid] = counts.get(cid, 0) + 1
+            start, end = min(start, log_time), max(end, log_time)
+        crc = zlib.crc32(buf)
+        if self.compression == "zstd":
+            payload: bytes | bytearray = self._zstd.compress(buf)
+        elif self.compression == "lz4":
+            import lz4.frame
+
+            payload = lz4.frame.compress(buf)
+        else:
+            payload = buf
+        comp = self.compression.encode() if self.compression != "none" else b""
+        body_len = 8 + 8 + 8 + 4 + 4 + len(comp) + 8 + len(payload)
+        head = _CHUNK_HEAD.pack(_OP_CHUNK, body_len, start, end, len(buf), crc)
+        head += struct.pack("<I", len(comp)) + comp + struct.pack("<Q", len(payload))
+        chunk_length = len(head) + len(payload)
+        parts: list[bytes | bytearray] = [head, payload]
+        offsets: dict[int, int] = {}
+        rel = chunk_length
+        for cid, entries in index.items():
+            rec = _record_bytes(MessageIndex(channel_id=cid, records=entries))
+            offsets[cid] = rel
+            rel += len(rec)
+            parts.append(rec)
+        ci = ChunkIndex(
+            message_start_time=start,
+            message_end_time=end,
+            chunk_start_offset=0,
+            chunk_length=chunk_length,
+            message_index_offsets=offsets,
+            message_index_length=rel - chunk_length,
+            compression=comp.decode(),
+            compressed_size=len(payload),
+            uncompressed_size=len(buf),
+        )
+        return parts, ci, counts
+
+    def _write_chunk(self, messages: Sequence[tuple[int, int, bytes | memoryview]]) -> None:
+        parts, ci, counts = self._chunk_parts(messages)
+        at = self._commit(parts)
+        ci.chunk_start_offset = at
+        ci.message_index_offsets = {c: at + o for c, o in ci.message_index_offsets.items()}
+        for cid, n in counts.items():
+            self.message_counts[cid] = self.message_counts.get(cid, 0) + n
+            self.committed[cid] = self.committed.get(cid, 0) + n
+        if not self.chunk_indexes:
+            self.message_start = ci.message_start_time
+        self.message_start = min(self.message_start, ci.message_start_time)
+        self.message_end = max(self.message_end, ci.message_end_time)
+        self.chunk_indexes.append(ci)
 
     def flush_chunk(self) -> None:
         """Write the open chunk and its message indexes in one piece.
 
-        Raises:
-            OSError: the write failed; the file is cut back to its previous end and the
-                chunk's messages are dropped (they count as not written).
-        """
-        if not self.chunk_counts:
-            return
-        records = self.buf
-        crc = zlib.crc32(records)
-        if self.compression == "zstd":
-            payload: bytes | bytearray = self._zstd.compress(records)
-        elif self.compression == "lz4":
-            import lz4.frame
+        If that fails (disk full, reserve reached), as many of its messages as fit are
+        written in smaller chunks, in order, before the error is raised; the rest are dropped.
+        :attr:`committed` counts, per channel, the messages that reached the file.
 
-            payload = lz4.frame.compress(records)
-        else:
-            payload = records
-        comp = self.compression.encode() if self.compression != "none" else b""
-        start = self.chunk_start or 0
-        body_len = 8 + 8 + 8 + 4 + 4 + len(comp) + 8 + len(payload)
-        head = _CHUNK_HEAD.pack(_OP_CHUNK, body_len, start, self.chunk_end, len(records), crc)
-        head += struct.pack("<I", len(comp)) + comp + struct.pack("<Q", len(payload))
-        chunk_length = len(head) + len(payload)
-        index_offsets: dict[int, int] = {}
-        index_parts: list[bytes] = []
-        rel = chunk_length
-        for cid, entries in self.chunk_index.items():
-            rec = _record_bytes(MessageIndex(channel_id=cid, records=entries))
-            index_offsets[cid] = rel
-            rel += len(rec)
-            index_parts.append(rec)
+        Raises:
+            OSError, _ReserveReached: the write failed; the file ends after its last complete
+                chunk.
+        """
+        messages = self.pending
+        self._reset_chunk()
+        if not messages:
+            return
         try:
-            at = self._commit([head, payload, *index_parts])
-        finally:
-            counts, times = self.chunk_counts, (start, self.chunk_end)
-            self._reset_chunk()
-        for cid, n in counts.items():
-            self.message_counts[cid] = self.message_counts.get(cid, 0) + n
-        if not self.chunk_indexes:
-            self.message_start = times[0]
-        self.message_start = min(self.message_start, times[0])
-        self.message_end = max(self.message_end, times[1])
-        self.chunk_indexes.append(
-            ChunkIndex(
-                message_start_time=times[0],
-                message_end_time=times[1],
-                chunk_start_offset=at,
-                chunk_length=chunk_length,
-                message_index_offsets={c: at + o for c, o in index_offsets.items()},
-                message_index_length=rel - chunk_length,
-                compression=comp.decode(),
-                compressed_size=len(payload),
-                uncompressed_size=len(records),
-            )
-        )
+            self._write_chunk(messages)
+        except (OSError, _ReserveReached) as err:
+            self._salvage(messages)
+            raise err
+
+    def _salvage(self, messages: Sequence[tuple[int, int, bytes | memoryview]]) -> int:
+        """Write a prefix of ``messages`` in halves for as long as writes succeed; return how
+        many were written."""
+        if len(messages) <= 1:
+            return 0
+        half = len(messages) // 2
+        try:
+            self._write_chunk(messages[:half])
+        except (OSError, _ReserveReached):
+            return self._salvage(messages[:half])
+        try:
+            self._write_chunk(messages[half:])
+        except (OSError, _ReserveReached):
+            return half + self._salvage(messages[half:])
+        return len(messages)
 
     def discard_chunk(self) -> None:
         self._reset_chunk()
@@ -382,7 +422,6 @@ class _ChunkedMcap:
     # -- end ---------------------------------------------------------------------------------
     def finish(self) -> None:
         """Data end, summary (schemas, channels, statistics, indexes) and footer."""
-        self.flush_chunk()
         data_end = _record_bytes(DataEnd(data_section_crc=0))
         # The data section CRC covers everything before the DataEnd record.
         data_end = data_end[:9] + struct.pack("<I", self.data_crc)
@@ -509,9 +548,8 @@ class McapSessionWriter:
         self._free = 0
         self._spent_since_check = 0
         self.broken: str | None = None
-        self.counts: dict[str, int] = {}
-        self.pending: dict[str, int] = {}
-        self.last_t_ns: int | None = None
+        self._closing = False
+        self.channels: dict[str, int] = {}
         self.bytes_written = 0
         self.out = _FdWriter(path)
         self.mcap = _ChunkedMcap(
@@ -526,11 +564,20 @@ class McapSessionWriter:
                 METADATA_NAME,
                 {"format": "sea3d-session", "version": "1", "image_encoding": image_encoding},
             )
-        except OSError as err:
+        except (OSError, _ReserveReached) as err:
             self.out.close(sync=False)
-            raise SessionWriteError(
-                f"cannot write {path}: {err.strerror or err}", kept="nothing"
-            ) from err
+            with contextlib.suppress(OSError):  # it holds nothing; do not block a new attempt
+                path.unlink()
+            if isinstance(err, OSError):
+                why = err.strerror or str(err)
+            elif self.min_free_bytes > 0:
+                why = (
+                    f"{err.free / 1e9:.2f} GB free, under the "
+                    f"{self.min_free_bytes / 1e9:.2f} GB reserve"
+                )
+            else:
+                why = f"the disk is full ({err.free} bytes free)"
+            raise SessionWriteError(f"cannot write {path}: {why}", kept="nothing") from err
         image_type = (
             "sensor_msgs/msg/Image"
             if image_encoding == "raw"
@@ -546,7 +593,6 @@ class McapSessionWriter:
             "sonar_confidence": "std_msgs/msg/Float32",
         }
         schema_ids: dict[str, int] = {}
-        self.channels: dict[str, int] = {}
         self._stream_of_channel: dict[int, str] = {}
         for stream, typename in types.items():
             if typename not in schema_ids:
@@ -569,44 +615,57 @@ class McapSessionWriter:
             self._spent_since_check = 0
         return self._free - self._spent_since_check
 
+    def _floor(self) -> int:
+        """Free bytes a write must leave: the reserve, plus (until closing) room for what
+        :meth:`close` writes after the last chunk (the second rig copy and the summary)."""
+        if self._closing:
+            return self.min_free_bytes
+        room = 64 * 1024 + len(self.rig_bytes or b"") + 256 * len(self.mcap.chunk_indexes)
+        return self.min_free_bytes + room
+
     def _reserve(self, size: int) -> None:
-        """Refuse a write that would take free space under the reserve (called per write)."""
-        if self.min_free_bytes <= 0:
-            return
+        """Refuse a write that would take free space under the reserve (called per write;
+        with no reserve, a write the disk has no room for)."""
         free = self._free_estimate(size)
-        if free - size < self.min_free_bytes:
+        if free - size < self._floor():
             raise _ReserveReached(free)
         self._spent_since_check += size
 
     def _admit(self, size: int) -> None:
         """Before a message of ``size`` bytes joins the open chunk: if the chunk would then no
-        longer fit above the reserve, write what is pending (it still fits) and stop."""
-        if self.min_free_bytes <= 0:
-            return
-        need = self.mcap.pending_bytes + size + 64 * 1024  # chunk header and indexes
+        longer fit above the reserve, write what is pending (it still fits) and stop. Also
+        with no reserve: a chunk is never made larger than the room left on the disk."""
+        need = self.mcap.pending_bytes + size + 4096  # chunk header and message indexes
         free = self._free_estimate(need)
-        if free - need < self.min_free_bytes:
+        if free - need < self._floor():
             self.flush()
-            raise self._fail(_ReserveReached(free))
+            raise self._fail(_ReserveReached(free), 0)
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Messages per stream that reached the file."""
+        committed = self.mcap.committed if hasattr(self, "mcap") else {}
+        return {stream: committed.get(cid, 0) for stream, cid in self.channels.items()}
 
     def _kept(self) -> str:
         parts = [f"{n} {s}" for s, n in self.counts.items() if n and not s.endswith("_info")]
-        last = "" if self.last_t_ns is None else f" up to t_ns={self.last_t_ns}"
-        return (", ".join(parts) or "no records") + last
+        if not parts:
+            return "no records"
+        return ", ".join(parts) + f" up to t_ns={self.mcap.message_end}"
 
-    def _fail(self, err: BaseException) -> SessionWriteError:
-        lost = sum(v for k, v in self.pending.items() if not k.endswith("_info"))
-        self.pending = {}
-        if isinstance(err, _ReserveReached):
+    def _fail(self, err: BaseException, lost: int) -> SessionWriteError:
+        if isinstance(err, _ReserveReached) and self.min_free_bytes > 0:
             self.broken = (
                 f"{self.path}: free space would fall under the {self.min_free_bytes / 1e9:.2f} "
                 f"GB reserve ({err.free / 1e9:.2f} GB free)"
             )
+        elif isinstance(err, _ReserveReached):
+            self.broken = f"{self.path}: the disk is full ({err.free} bytes free)"
         else:
             why = err.strerror if isinstance(err, OSError) and err.strerror else str(err)
             self.broken = f"{self.path}: writing failed: {why}"
         if lost:
-            self.broken += f"; {lost} records of the open chunk were not written"
+            self.broken += f"; the last {lost} messages did not fit and were not written"
         return SessionWriteError(self.broken, kept=self._kept())
 
     def _check_open(self) -> None:
@@ -618,25 +677,23 @@ class McapSessionWriter:
 
         Raises:
             SessionWriteError: the chunk could not be written (disk full, reserve reached, I/O
-                error); the file keeps every earlier chunk.
+                error); the file keeps every earlier chunk and as much of this one as fitted.
         """
         self._check_open()
         size = self.mcap.pending_bytes
+        pending = len(self.mcap.pending)
+        before = sum(self.mcap.committed.values())
         try:
             self.mcap.flush_chunk()
         except (OSError, _ReserveReached) as err:
-            raise self._fail(err) from err
-        for stream, n in self.pending.items():
-            self.counts[stream] = self.counts.get(stream, 0) + n
+            lost = pending - (sum(self.mcap.committed.values()) - before)
+            raise self._fail(err, lost) from err
         self.bytes_written += size
-        self.pending = {}
         self.pending_since = None
 
     def _add(self, stream: str, t_ns: int, data: memoryview | bytes) -> None:
         self._admit(len(data))
         self.mcap.add_message(self.channels[stream], t_ns, data)
-        self.pending[stream] = self.pending.get(stream, 0) + 1
-        self.last_t_ns = t_ns if self.last_t_ns is None else max(self.last_t_ns, t_ns)
         now = time.monotonic()
         if self.pending_since is None:
             self.pending_since = now
@@ -685,7 +742,6 @@ class McapSessionWriter:
         cdr = ts.serialize_cdr(msg, "sensor_msgs/msg/CompressedImage")
         self._admit(len(cdr) + 1024)
         self.mcap.add_message(self.channels[stream], t_ns, cdr)
-        self.pending[stream] = self.pending.get(stream, 0) + 1
         self._camera_info(stream, t_ns, height, width)
 
     def write_raw(self, stream: str, t_ns: int, image: np.ndarray) -> None:
@@ -714,7 +770,6 @@ class McapSessionWriter:
         cdr = ts.serialize_cdr(msg, "sensor_msgs/msg/Image")
         self._admit(len(cdr) + 1024)
         self.mcap.add_message(self.channels[stream], t_ns, cdr)
-        self.pending[stream] = self.pending.get(stream, 0) + 1
         self._camera_info(stream, t_ns, h, w)
 
     def write_imu(self, t_ns: int, accel: np.ndarray, gyro: np.ndarray) -> None:
@@ -751,7 +806,6 @@ class McapSessionWriter:
         self.mcap.add_message(
             self.channels["sonar"], t_ns, ts.serialize_cdr(msg, "sensor_msgs/msg/Range")
         )
-        self.pending["sonar"] = self.pending.get("sonar", 0) + 1
         self._add("sonar_confidence", t_ns, ts.serialize_cdr(conf, "std_msgs/msg/Float32"))
 
     def close(self, counts: dict[str, int]) -> None:
@@ -770,6 +824,7 @@ class McapSessionWriter:
                 except SessionWriteError as err:
                     error = err
             self.mcap.discard_chunk()
+            self._closing = True
             good_end = self.out.pos
             try:
                 if self.rig_bytes is not None:
@@ -859,6 +914,9 @@ class _Summary:
     chunk_indexes: list[ChunkIndex]
     statistics: Statistics | None
     summary_start: int
+    # Offsets of the data section's indexed records (chunks, attachments, metadata, data
+    # end): where a walk stopped by a damaged record length can resume.
+    anchors: list[int] = field(default_factory=list)
 
 
 class McapSessionReader(SessionReader):
@@ -895,6 +953,7 @@ class McapSessionReader(SessionReader):
         self._top_messages: dict[int, list[tuple[int, int]]] = {}
         self._rig_copies = 0
         self._rig_damaged = False
+        self._footer_missing = False
         self.metadata: dict[str, dict[str, str]] = {}
         self.complete = False
         self.data_end_at: int | None = None
@@ -942,9 +1001,14 @@ class McapSessionReader(SessionReader):
         return os.pread(self._f.fileno(), length, offset)
 
     def _scan(self) -> None:
-        if self._size < len(MCAP_MAGIC) or self._pread(0, 8) != MCAP_MAGIC:
-            raise SessionError(f"{self.path} is not an MCAP file (missing magic bytes)")
+        head = self._pread(0, 9)
+        if len(head) < 9 or head[:8] != MCAP_MAGIC:
+            same = sum(a == b for a, b in zip(head[:8], MCAP_MAGIC, strict=False))
+            if len(head) < 9 or same < 7 or head[8] != _OP_HEADER:
+                raise SessionError(f"{self.path} is not an MCAP file (missing magic bytes)")
+            self._problem(f"{self.path}: the magic bytes at the start are damaged; read anyway")
         self._summary = self._read_summary()
+        anchors = self._summary.anchors if self._summary is not None else []
         pos = 8
         while True:
             if pos + 9 > self._size:
@@ -955,17 +1019,30 @@ class McapSessionReader(SessionReader):
                 break
             opcode, length = struct.unpack("<BQ", self._pread(pos, 9))
             start, end = pos + 9, pos + 9 + length
-            if end > self._size or (self._summary and end > self._summary.summary_start):
+            limit = self._summary.summary_start if self._summary else self._size
+            if end > limit:
+                # The last chunk's message indexes may be cut short (some channels indexed,
+                # others not): index it from its own records.
+                if self._chunks:
+                    self._chunks[-1].indexed = False
+                resume = next((a for a in anchors if a > pos), None)
                 self._problem(
                     f"{self.path}: record 0x{opcode:02x} at byte {pos} claims {length} bytes, "
                     f"past the {'data section' if self._summary else 'file'} end (cut short or "
-                    f"a damaged length); reading the {len(self._chunks)} complete chunks "
-                    "before it"
+                    "a damaged length); "
+                    + (
+                        f"resuming at byte {resume} through the summary's index"
+                        if resume is not None
+                        else f"reading the {len(self._chunks)} complete chunks before it"
+                    )
                 )
-                break
+                if resume is None:
+                    break
+                pos = resume
+                continue
             try:
                 self._scan_record(opcode, pos, start, length)
-            except (struct.error, ValueError, UnicodeDecodeError, EOFError) as err:
+            except _PARSE_ERRORS as err:
                 self._problem(f"{self.path}: damaged record 0x{opcode:02x} at byte {pos} ({err})")
             if opcode == _OP_DATA_END:
                 self.complete = True
@@ -975,8 +1052,10 @@ class McapSessionReader(SessionReader):
                 self.complete = True
                 break
             pos = end
-        if not self.complete:
-            self._recover_from_summary(pos)
+        if not self.complete and self._chunks:
+            # Cut short: the last chunk's message indexes may be partial (some channels
+            # indexed, others not), so index it from its own records.
+            self._chunks[-1].indexed = False
         if self._summary is not None:
             self._check_against_summary()
             for sid, schema in self._summary.schemas.items():
@@ -992,11 +1071,13 @@ class McapSessionReader(SessionReader):
         """The summary section, when the file has one and its CRC holds (else None)."""
         footer_at = self._size - 8 - 29
         if footer_at < 8 or self._pread(self._size - 8, 8) != MCAP_MAGIC:
+            self._footer_missing = True
             return None
         raw = self._pread(footer_at, 29)
         opcode, length = struct.unpack_from("<BQ", raw, 0)
         if opcode != _OP_FOOTER or length != 20:
             self._problem(f"{self.path}: footer is damaged; the summary is not used")
+            self._footer_missing = True
             return None
         footer = Footer.read(ReadDataStream(io.BytesIO(raw[9:])))
         if footer.summary_start == 0:
@@ -1030,12 +1111,23 @@ class McapSessionReader(SessionReader):
                     c = Channel.read(stream)
                     summary.channels[c.id] = c
                 elif opcode == _OP_CHUNK_INDEX:
-                    summary.chunk_indexes.append(ChunkIndex.read(stream))
+                    ci = ChunkIndex.read(stream)
+                    summary.chunk_indexes.append(ci)
+                    summary.anchors.append(ci.chunk_start_offset)
+                elif opcode == _OP_ATTACHMENT_INDEX:
+                    summary.anchors.append(AttachmentIndex.read(stream).offset)
+                elif opcode == _OP_METADATA_INDEX:
+                    summary.anchors.append(MetadataIndex.read(stream).offset)
                 elif opcode == _OP_STATISTICS:
                     summary.statistics = Statistics.read(stream)
-        except (struct.error, ValueError, UnicodeDecodeError, EOFError) as err:
+        except _PARSE_ERRORS as err:
             self._problem(f"{self.path}: summary cannot be parsed ({err}); it is not used")
             return None
+        data_end_at = footer.summary_start - 13
+        head = self._pread(data_end_at, 9)
+        if len(head) == 9 and struct.unpack("<BQ", head) == (_OP_DATA_END, 4):
+            summary.anchors.append(data_end_at)
+        summary.anchors = sorted(a for a in set(summary.anchors) if 8 <= a < footer.summary_start)
         return summary
 
     def _check_against_summary(self) -> None:
@@ -1055,38 +1147,6 @@ class McapSessionReader(SessionReader):
                 f"{ci.message_start_time}..{ci.message_end_time}; streams "
                 f"{', '.join(topics) or 'unknown'}) listed in the summary cannot be read; its "
                 "records are lost"
-            )
-
-    def _recover_from_summary(self, stopped_at: int) -> None:
-        """After the walk stopped early (a damaged record length, say), find the chunks
-        behind the damage through the summary's chunk indexes, when the file has one."""
-        if self._summary is None:
-            return
-        known = {c.file_offset for c in self._chunks}
-        recovered = 0
-        for ci in self._summary.chunk_indexes:
-            at = ci.chunk_start_offset
-            if at in known or at < stopped_at:
-                continue
-            try:
-                op, clen = struct.unpack("<BQ", self._pread(at, 9))
-                if op != _OP_CHUNK or at + 9 + clen > self._summary.summary_start:
-                    continue
-                self._scan_record(_OP_CHUNK, at, at + 9, clen)
-                for mi_offset in ci.message_index_offsets.values():
-                    op, mlen = struct.unpack("<BQ", self._pread(mi_offset, 9))
-                    if op == _OP_MESSAGE_INDEX and mi_offset + 9 + mlen <= self._size:
-                        self._scan_record(_OP_MESSAGE_INDEX, mi_offset, mi_offset + 9, mlen)
-            except (struct.error, ValueError, UnicodeDecodeError, EOFError) as err:
-                self._problem(f"{self.path}: chunk at byte {at} from the summary: {err}")
-                continue
-            recovered += 1
-        if recovered:
-            _log.warning(
-                "%s: found %d more chunks after the damage at byte %d through the summary",
-                self.path,
-                recovered,
-                stopped_at,
             )
 
     def _scan_record(self, opcode: int, pos: int, start: int, length: int) -> None:
@@ -1260,7 +1320,7 @@ class McapSessionReader(SessionReader):
         for rec in defs:
             try:
                 self._add_def(rec[0], rec[9:], overwrite=False)
-            except (struct.error, ValueError, UnicodeDecodeError, EOFError) as err:
+            except _PARSE_ERRORS as err:
                 self._mark_damaged(k, f"damaged definition record ({err})")
                 return
         if not chunk.indexed:
@@ -1304,6 +1364,11 @@ class McapSessionReader(SessionReader):
                     "chunks and attachments are damaged (message indexes, metadata, "
                     "definitions)"
                 )
+        if self.data_end_at is not None and self._footer_missing:
+            self._problem(
+                f"{self.path}: the file was closed (it has its data-end record) but its footer "
+                "is missing or damaged"
+            )
         stats = self._summary.statistics if self._summary is not None else None
         if stats is not None:
             for cid, expected in stats.channel_message_counts.items():
