@@ -47,6 +47,7 @@ def _write_all(path, fmt, rng, *, shape=(24, 32, 3), dtype=np.uint8, n=6, encodi
     return left, right, (imu_t, accel, gyro), (sonar_t, ranges, conf)
 
 
+@pytest.mark.parametrize("encoding", ["png", "jxl"])
 @pytest.mark.parametrize(("fmt", "name"), LAYOUTS)
 @pytest.mark.parametrize(
     ("shape", "dtype"),
@@ -57,10 +58,12 @@ def _write_all(path, fmt, rng, *, shape=(24, 32, 3), dtype=np.uint8, n=6, encodi
         ((24, 32, 3), np.uint16),
     ],
 )
-def test_png_round_trip_is_exact_for_every_stream(tmp_path, fmt, name, shape, dtype):
+def test_lossless_round_trip_is_exact_for_every_stream(tmp_path, fmt, name, shape, dtype, encoding):
     rng = np.random.default_rng(0)
     path = tmp_path / name
-    left, right, imu, sonar = _write_all(path, fmt, rng, shape=shape, dtype=dtype)
+    left, right, imu, sonar = _write_all(
+        path, fmt, rng, shape=shape, dtype=dtype, encoding=encoding
+    )
     with open_session(path) as s:
         assert s.format == fmt
         assert s.rig_yaml == RIG_YAML
@@ -82,12 +85,16 @@ def test_png_round_trip_is_exact_for_every_stream(tmp_path, fmt, name, shape, dt
         np.testing.assert_array_equal(son.confidence, sonar[2].astype(np.float32))
 
 
-def test_raw_image_messages_round_trip_exactly(tmp_path):
+@pytest.mark.parametrize("compression", [None, "none", "lz4", "zstd"])
+def test_raw_image_messages_round_trip_exactly(tmp_path, compression):
     rng = np.random.default_rng(0)
     path = tmp_path / "raw.mcap"
-    left, right, _, _ = _write_all(
-        path, "mcap", rng, shape=(20, 30, 3), dtype=np.uint16, encoding="raw"
-    )
+    left = _images(rng, 4, (20, 30, 3), np.uint16)
+    right = _images(rng, 4, (20, 30), np.uint8)
+    with SessionWriter(path, image_encoding="raw", chunk_compression=compression) as w:
+        for i in range(4):
+            w.write_image("left", i * FRAME_NS, left[i])
+            w.write_image("right", i * FRAME_NS, right[i])
     with open_session(path) as s:
         for i in range(len(left)):
             np.testing.assert_array_equal(s.image("left", i), left[i])

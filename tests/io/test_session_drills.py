@@ -147,7 +147,9 @@ def assert_nothing_wrong(got: dict[str, Any]) -> None:
     for stream in ("imu", "sonar"):
         for t, vals in got[stream].items():
             assert t in TRUTH[stream], f"{stream} stamp {t} was never written"
-            for a, b in zip(vals, TRUTH[stream][t], strict=True):
+            for k, (a, b) in enumerate(zip(vals, TRUTH[stream][t], strict=True)):
+                if stream == "sonar" and k == 1 and np.isnan(a):
+                    continue  # confidence unknown (its own record was lost): NaN, documented
                 np.testing.assert_array_equal(np.float32(a), np.float32(b))
     assert got["rig"] in (None, RIG_YAML)
 

@@ -95,6 +95,15 @@ class RecorderConfig:
             )
         if self.min_free_bytes < 0 or self.disk_check_interval_s <= 0:
             raise ConfigError("min_free_bytes must be >= 0 and disk_check_interval_s > 0")
+        if self.image_encoding not in ("jxl", "png", "jpeg", "raw"):
+            raise ConfigError(
+                f"image_encoding must be jxl, png, jpeg or raw, got {self.image_encoding!r}"
+            )
+        if not 0 <= self.png_compression <= 9 or not 0 <= self.jpeg_quality <= 100:
+            raise ConfigError(
+                f"png_compression must be 0..9 and jpeg_quality 0..100, got "
+                f"{self.png_compression} and {self.jpeg_quality}"
+            )
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -364,12 +364,10 @@ def decode_image(data: bytes | memoryview | np.ndarray, where: str) -> np.ndarra
                 f"{where}: cannot decode JPEG XL data ({buf.size} bytes; damaged or cut "
                 f"short?): {err}"
             ) from err
-    if fmt == "jpeg":
-        tail = buf[-4096:].tobytes().rstrip(b"\x00")
-        if not tail.endswith(b"\xff\xd9"):
-            raise SessionError(
-                f"{where}: JPEG is cut short ({buf.size} bytes, no end-of-image marker)"
-            )
+    if fmt in ("png", "jpeg"):
+        # Structure first (PNG chunk CRCs up to IEND, JPEG end marker): a damaged image is
+        # refused with its reason, before libpng prints its own complaints to stderr.
+        check_encoded_image(memoryview(cast(Any, buf)), where)
     img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED) if buf.size else None
     if img is None:
         raise SessionError(f"{where}: cannot decode image data ({buf.size} bytes; damaged?)")

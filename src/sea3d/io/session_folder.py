@@ -436,6 +436,32 @@ class FolderSessionReader(SessionReader):
         fmt = {"jpg": "jpeg", "tif": "tiff"}.get(suffix, suffix)
         return self._stored_bytes(stream, index), fmt
 
+    def check(self) -> list[str]:
+        """Compare what is readable with the counts ``session.json`` recorded at close
+        (a CSV or image folder cut at a line or file boundary shows no damage of its own).
+
+        Returns the new problems (also in :attr:`problems`).
+        """
+        before = len(self.problems)
+        counts = self.meta.get("counts") if self.meta.get("complete") else None
+        if isinstance(counts, dict):
+            found = {
+                "left": int(self.stamps("left").size),
+                "right": int(self.stamps("right").size),
+                "imu": len(self.imu()) + self.skipped.get("imu", 0),
+                "sonar": len(self.sonar()) + self.skipped.get("sonar", 0),
+            }
+            for stream, n in found.items():
+                want = counts.get(stream)
+                if isinstance(want, int) and want != n:
+                    message = (
+                        f"{self.path}: session.json counts {want} {stream} records, the folder "
+                        f"holds {n}"
+                    )
+                    self.problems.append(message)
+                    _log.warning("%s", message)
+        return self.problems[before:]
+
     @property
     def image_encoding(self) -> str | None:
         enc = self.meta.get("image_encoding")
