@@ -148,7 +148,18 @@ def test_record_rejects_unknown_sources_and_bad_rig(tmp_path, capsys):
         )
         == 2
     )
-    assert "cannot read rig file" in capsys.readouterr().err
+    assert "none.yaml: rig file not found" in capsys.readouterr().err
+    # A rig that cannot be used is refused before anything is recorded.
+    bad = tmp_path / "thick_dome.yaml"
+    bad.write_text(RIG_YAML.replace("thickness_m: 0.0031", "thickness_m: 10.0", 1))
+    utf16 = tmp_path / "utf16.yaml"
+    utf16.write_bytes(RIG_YAML.encode("utf-16-le"))
+    for rig, why in ((bad, "not below the inner radius"), (utf16, "not UTF-8 text")):
+        args = ["record", "--left", "0", "--right", "1", "--rig", str(rig), "--out"]
+        assert main([*args, str(tmp_path / "y.mcap")]) == 2
+        err = capsys.readouterr().err
+        assert why in err and rig.name in err and "Traceback" not in err
+        assert not (tmp_path / "y.mcap").exists()
 
 
 @pytest.mark.parametrize("out_name", ["killed.mcap", "killed_dir"])

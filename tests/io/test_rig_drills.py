@@ -7,6 +7,7 @@ length, never a traceback; every rig that loads must be physically possible.
 from __future__ import annotations
 
 import copy
+import os
 import resource
 import tracemalloc
 
@@ -26,6 +27,12 @@ from sea3d.io.rig_file import (
     rig_to_yaml,
 )
 from sea3d.refraction.presets import paper_rig
+
+
+def _examples(ci: int) -> int:
+    """Examples per property: ``ci`` in the default profile, 1000 with SEA3D_DRILLS=full."""
+    return 1000 if os.environ.get("SEA3D_DRILLS") == "full" else ci
+
 
 # A message is one line a person reads: bounded whatever the file holds.
 MAX_MESSAGE_CHARS = 1000
@@ -166,7 +173,7 @@ def _leaves(data: object, prefix: str = "") -> list[str]:
 _KEYS = _leaves(GOOD)
 
 
-@settings(max_examples=80)
+@settings(max_examples=_examples(80))
 @given(key=st.sampled_from(_KEYS), value=_NASTY)
 def test_any_value_anywhere_loads_a_physical_rig_or_fails_in_one_line(key, value):
     try:
@@ -178,7 +185,7 @@ def test_any_value_anywhere_loads_a_physical_rig_or_fails_in_one_line(key, value
     check_rig_physics(rig, "mangled.yaml")  # whatever loads is physically possible
 
 
-@settings(max_examples=80)
+@settings(max_examples=_examples(80))
 @given(data=st.data())
 def test_mangled_yaml_text_loads_or_fails_in_one_line(data):
     raw = bytearray(GOOD_TEXT.encode())

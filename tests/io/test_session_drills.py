@@ -34,6 +34,12 @@ from sea3d.io.session import SessionWriter, convert_session, open_session, verif
 from sea3d.io.session_common import decode_image, encode_image
 from sea3d.refraction.presets import paper_rig
 
+
+def _examples(ci: int) -> int:
+    """Examples per property: ``ci`` in the default profile, 1000 with SEA3D_DRILLS=full."""
+    return 1000 if os.environ.get("SEA3D_DRILLS") == "full" else ci
+
+
 FRAME_NS = 33_333_333
 RIG_YAML = rig_to_yaml(paper_rig("dome"))
 N_PAIRS = 6
@@ -200,7 +206,7 @@ def _flip(data: bytes, bits: list[int]) -> bytes:
 
 
 @pytest.mark.slow
-@settings(max_examples=60)
+@settings(max_examples=_examples(60))
 @given(bit=st.integers(min_value=0))
 def test_one_flipped_bit_loses_at_most_its_chunk_and_verify_sees_it(bit):
     mcap_bytes = _mcap_bytes()
@@ -222,7 +228,7 @@ def test_one_flipped_bit_loses_at_most_its_chunk_and_verify_sees_it(bit):
 
 
 @pytest.mark.slow
-@settings(max_examples=30)
+@settings(max_examples=_examples(30))
 @given(bits=st.lists(st.integers(min_value=0), min_size=2, max_size=12))
 def test_many_flipped_bits_give_errors_or_true_values_never_wrong_ones(bits):
     mcap_bytes = _mcap_bytes()
@@ -241,7 +247,7 @@ def test_many_flipped_bits_give_errors_or_true_values_never_wrong_ones(bits):
 
 
 @pytest.mark.slow
-@settings(max_examples=30)
+@settings(max_examples=_examples(30))
 @given(data=st.data())
 def test_folder_sessions_with_damaged_files_never_hand_out_wrong_values(data, tmp_path_factory):
     path = tmp_path_factory.mktemp("folder") / "s"
@@ -288,7 +294,7 @@ _IMAGE = np.random.default_rng(7).integers(0, 256, size=(40, 56, 3), dtype=np.ui
 _ENCODED = {enc: encode_image(_IMAGE, enc) for enc in ("png", "jpeg", "jxl")}
 
 
-@settings(max_examples=60)
+@settings(max_examples=_examples(60))
 @given(enc=st.sampled_from(sorted(_ENCODED)), frac=st.floats(0.0, 1.0, exclude_max=True))
 def test_a_cut_image_is_refused_never_decoded_half_grey(enc, frac):
     data = _ENCODED[enc]
@@ -297,7 +303,7 @@ def test_a_cut_image_is_refused_never_decoded_half_grey(enc, frac):
         decode_image(data[:cut], f"frame.{enc}")
 
 
-@settings(max_examples=40)
+@settings(max_examples=_examples(40))
 @given(bit=st.integers(min_value=8 * 8))  # past the PNG signature
 def test_a_flipped_bit_in_a_png_is_refused_by_its_chunk_crcs(bit):
     data = bytearray(_ENCODED["png"])

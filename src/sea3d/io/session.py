@@ -506,12 +506,12 @@ def convert_session(
     problems: list[str] = []
     skipped = 0
 
-    def damaged(message: str) -> None:
+    def damaged(message: str, records: int = 1) -> None:
         nonlocal skipped
         if strict:
             raise SessionError(f"{message}; refusing to convert a damaged session (--strict)")
         problems.append(message)
-        skipped += 1
+        skipped += records
 
     with open_session(src) as reader:
         if strict:
@@ -566,8 +566,7 @@ def convert_session(
                     )
                 for stream, n in reader.skipped.items():
                     if n:
-                        damaged(f"{src}: {n} damaged {stream} records left out")
-                        skipped += n - 1
+                        damaged(f"{src}: {n} damaged {stream} records left out", n)
                 for msg in reader.problems:
                     if msg not in problems:
                         problems.append(msg)
