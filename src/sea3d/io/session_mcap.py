@@ -100,6 +100,7 @@ _PARSE_ERRORS = (struct.error, ValueError, UnicodeDecodeError, EOFError, McapErr
 # A chunk's records are decompressed into memory: refuse absurd sizes (a damaged header)
 # instead of allocating them. Our chunks are a few MiB.
 MAX_CHUNK_BYTES = 1 << 30
+MAX_SUMMARY_BYTES = 256 << 20  # a day of recording has a summary of about 13 MB
 
 TOPICS = {
     "left": "/cam/left/image",
@@ -1085,6 +1086,9 @@ class McapSessionReader(SessionReader):
         if not 8 <= footer.summary_start < footer_at:
             self._problem(f"{self.path}: footer points outside the file; summary not used")
             return None
+        if footer_at - footer.summary_start > MAX_SUMMARY_BYTES:
+            self._problem(f"{self.path}: the footer points at an implausibly large summary")
+            return None
         section = self._pread(footer.summary_start, footer_at - footer.summary_start)
         if footer.summary_crc != 0:
             crc = zlib.crc32(raw[:25], zlib.crc32(section))
@@ -1133,7 +1137,16 @@ class McapSessionReader(SessionReader):
     def _check_against_summary(self) -> None:
         assert self._summary is not None
         found = {c.file_offset for c in self._chunks}
-        missing = [ci for ci in self._summary.chunk_indexes if ci.chunk_start_offset not in found]
+        missing = []
+        for ci in self._summary.chunk_indexes:
+            if ci.chunk_start_offset in found:
+                continue
+            # The walk skipped it (a record length damaged into a larger, plausible value
+            # swallows the records behind it): read it where the summary says it is.
+            if self._scan_indexed_chunk(ci):
+                continue
+            missing.append(ci)
+        self._chunks.sort(key=lambda c: c.file_offset)
         for ci in missing:
             topics = sorted(
                 {
@@ -1149,6 +1162,31 @@ class McapSessionReader(SessionReader):
                 "records are lost"
             )
 
+    def _scan_indexed_chunk(self, ci: ChunkIndex) -> bool:
+        """Add the chunk (and its message indexes) a summary chunk index points at."""
+        at = ci.chunk_start_offset
+        limit = self._summary.summary_start if self._summary is not None else self._size
+        n = len(self._chunks)
+        try:
+            op, length = struct.unpack("<BQ", self._pread(at, 9))
+            if op != _OP_CHUNK or at + 9 + length > limit:
+                return False
+            self._scan_record(_OP_CHUNK, at, at + 9, length)
+        except _PARSE_ERRORS:
+            return False
+        if len(self._chunks) == n:
+            return False
+        chunk = self._chunks[-1]
+        try:
+            for mi_at in ci.message_index_offsets.values():
+                op, mlen = struct.unpack("<BQ", self._pread(mi_at, 9))
+                if op != _OP_MESSAGE_INDEX or mi_at + 9 + mlen > limit:
+                    raise ValueError("message index missing")
+                self._scan_record(_OP_MESSAGE_INDEX, mi_at, mi_at + 9, mlen)
+        except _PARSE_ERRORS:
+            chunk.indexed, chunk.index = False, {}  # rebuilt from the chunk's own records
+        return True
+
     def _scan_record(self, opcode: int, pos: int, start: int, length: int) -> None:
         if opcode == _OP_CHUNK:
             head = self._pread(start, 32)
@@ -1160,6 +1198,8 @@ class McapSessionReader(SessionReader):
             doff = start + 40 + clen
             if doff + dlen > start + length:
                 raise ValueError("chunk data longer than its record")
+            if dlen > MAX_CHUNK_BYTES or usize > MAX_CHUNK_BYTES:
+                raise ValueError(f"chunk of {max(dlen, usize)} bytes, larger than any sea3d writes")
             self._chunks.append(_Chunk(pos, t0, t1, usize, crc, comp, doff, dlen))
         elif opcode == _OP_MESSAGE_INDEX:
             if not self._chunks:
