@@ -650,7 +650,7 @@ def main() -> None:
         print(header)
         print("-" * len(header))
         tallies = [
-            (drill_cuts(data, scratch, step=7 * q), True),
+            (drill_cuts(data, scratch, step=13 * q), True),
             (drill_flips(data, scratch, 2000 // q, 1, rng), True),
             (drill_flips(data, scratch, 500 // q, 8, rng), True),
             (drill_folder(scratch, 300 // q, rng), True),

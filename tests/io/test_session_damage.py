@@ -312,3 +312,22 @@ def test_a_damaged_record_length_midway_loses_only_that_chunk(tmp_path, caplog):
         for i, frame in enumerate((0, 1, 2, 4, 5, 6, 7)):
             np.testing.assert_array_equal(s.image("left", i), _frame(frame))
     assert any("through the summary" in r.message for r in caplog.records)
+
+
+def test_a_folder_cut_at_a_line_or_file_boundary_is_still_reported_by_verify(tmp_path):
+    from sea3d.io.session import verify_session
+
+    path = tmp_path / "s"
+    with SessionWriter(path, format="folder") as w:
+        for i in range(4):
+            w.write_stereo(i * FRAME_NS, _frame(i), _frame(i))
+            w.write_imu(i * FRAME_NS, [0, 0, 9.81], [0, 0, 0])
+    assert verify_session(path)["ok"]
+    lines = (path / "imu.csv").read_text().splitlines(keepends=True)
+    (path / "imu.csv").write_text("".join(lines[:-1]))  # no torn line: nothing to see in it
+    report = verify_session(path)
+    assert not report["ok"] and any("session.json counts 4 imu" in p for p in report["problems"])
+    sums = (path / "checksums.csv").read_text().splitlines(keepends=True)
+    (path / "checksums.csv").write_text("".join(sums[:3]))
+    report = verify_session(path)
+    assert any("have no line in checksums.csv" in p for p in report["problems"])

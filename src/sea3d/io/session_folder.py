@@ -443,6 +443,20 @@ class FolderSessionReader(SessionReader):
         Returns the new problems (also in :attr:`problems`).
         """
         before = len(self.problems)
+        if (self.path / "checksums.csv").is_file():
+            unchecked = [
+                f"{stream}/{name}"
+                for stream in ("left", "right")
+                for name in self._files[stream]
+                if (stream, name) not in self._checksums
+            ]
+            if unchecked:
+                message = (
+                    f"{self.path}: {len(unchecked)} images have no line in checksums.csv (cut "
+                    f"short?) and cannot be checked, e.g. {unchecked[0]}"
+                )
+                self.problems.append(message)
+                _log.warning("%s", message)
         counts = self.meta.get("counts") if self.meta.get("complete") else None
         if isinstance(counts, dict):
             found = {

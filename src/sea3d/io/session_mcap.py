@@ -640,7 +640,7 @@ class McapSessionWriter:
         free = self._free_estimate(need)
         if free - need < self._floor():
             self.flush()
-            raise self._fail(_ReserveReached(free), 0)
+            raise self._fail(_ReserveReached(_disk_free_bytes(self.path.parent)), 0)
 
     @property
     def counts(self) -> dict[str, int]:
