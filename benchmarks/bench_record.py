@@ -252,7 +252,12 @@ def reference_imwrite_fps(
 
 
 def bench_record(
-    scratch: Path, left: list[np.ndarray], right: list[np.ndarray], duration: float
+    scratch: Path,
+    left: list[np.ndarray],
+    right: list[np.ndarray],
+    duration: float,
+    runs: list[tuple[str, str]],
+    modes: list[str],
 ) -> None:
     ref_fps = reference_imwrite_fps(scratch / "ref", left, right, min(duration, 10.0))
     shutil.rmtree(scratch / "ref")
@@ -267,8 +272,8 @@ def bench_record(
     )
     print(header)
     print("-" * len(header))
-    for layout, enc in (("mcap", "jxl"), ("folder", "jxl"), ("mcap", "png"), ("mcap", "raw")):
-        for mode in ("paced 2 x 30 fps", "max, zero drops"):
+    for layout, enc in runs:
+        for mode in modes:
             out = scratch / ("s.mcap" if layout == "mcap" else "s_dir")
             paced = mode.startswith("paced")
             load0 = os.getloadavg()[0]
@@ -366,6 +371,14 @@ def main() -> None:
     ap.add_argument("--codecs", action="store_true", help="part 1: codec CPU and size table")
     ap.add_argument("--record", action="store_true", help="part 2: the recorder")
     ap.add_argument("--read", action="store_true", help="part 3: read-back")
+    ap.add_argument(
+        "--runs",
+        default="mcap:jxl,folder:jxl,mcap:png,mcap:raw",
+        help="part 2: layout:encoding pairs (default: %(default)s)",
+    )
+    ap.add_argument(
+        "--paced-only", action="store_true", help="part 2: only the runs paced at 2 x 30 fps"
+    )
     ap.add_argument("--duration", type=float, default=10.0, help="seconds per recorder run")
     ap.add_argument("--frames", type=int, default=10, help="distinct frames")
     ap.add_argument("--repeats", type=int, default=3, help="repeats (medians)")
@@ -400,7 +413,9 @@ def main() -> None:
         if args.codecs:
             bench_codecs(left[:6], args.repeats)
         if args.record:
-            bench_record(scratch, left, right, args.duration)
+            runs = [tuple(r.split(":", 1)) for r in args.runs.split(",")]
+            modes = ["paced 2 x 30 fps"] + ([] if args.paced_only else ["max, zero drops"])
+            bench_record(scratch, left, right, args.duration, runs, modes)  # type: ignore[arg-type]
         if args.read:
             bench_read(scratch, left, right, args.read_pairs, args.repeats)
     finally:

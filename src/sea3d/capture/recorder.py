@@ -70,6 +70,8 @@ class RecorderConfig:
         min_free_bytes: stop when free disk space falls below this.
         disk_check_interval_s: how often free space is checked.
         rig_yaml: rig file text stored in the session.
+        chunk_compression: MCAP only: ``"lz4"``, ``"zstd"`` or ``"none"``; None: LZ4 for raw
+            images, none for encoded ones.
     """
 
     out_path: Path
@@ -84,6 +86,7 @@ class RecorderConfig:
     min_free_bytes: int = 2 * 1024**3
     disk_check_interval_s: float = 1.0
     rig_yaml: str | None = None
+    chunk_compression: str | None = None
 
     def __post_init__(self) -> None:
         if self.duration_s is not None and self.duration_s <= 0:
@@ -384,6 +387,7 @@ class Recorder:
                 png_compression=cfg.png_compression,
                 jpeg_quality=cfg.jpeg_quality,
                 min_free_bytes=cfg.min_free_bytes,
+                chunk_compression=cfg.chunk_compression,
                 handle_signals=False,
             )
         except BaseException:

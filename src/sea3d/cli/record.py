@@ -43,6 +43,11 @@ def register(sub: Any) -> None:
         "png: lossless, about 5x the CPU; jpeg: lossy; raw: sensor_msgs/Image in LZ4 chunks "
         "(MCAP only)",
     )
+    rec.add_argument(
+        "--chunk-compression",
+        choices=("lz4", "zstd", "none"),
+        help="MCAP chunk compression (default: lz4 for raw images, none for encoded ones)",
+    )
     rec.add_argument("--png-compression", type=int, default=1, help="zlib level 0..9 (default 1)")
     rec.add_argument("--jpeg-quality", type=int, default=95, help="0..100 (default 95)")
     rec.add_argument("--queue", type=int, default=16, help="frames buffered before dropping")
@@ -182,6 +187,7 @@ def _record(args: argparse.Namespace) -> int:
         block_when_full=args.block,
         min_free_bytes=int(args.min_free_gb * 1e9),
         rig_yaml=rig_yaml,
+        chunk_compression=args.chunk_compression,
     )
     recorder = Recorder(config, sources)
     server = None
