@@ -617,11 +617,16 @@ def verify_session(path: str | os.PathLike[str], *, name_unit: str = "ns") -> di
     collector = _WarningCollector()
     io_logger = logging.getLogger("sea3d.io")
     io_logger.addHandler(collector)
-    # The verdict must not depend on the caller's logging set-up: let warnings reach the
-    # collector even where the application only logs errors.
-    old_level = io_logger.level
+    # The verdict must not depend on the caller's logging set-up: warnings reach the collector
+    # even where the application logs only errors or called logging.disable, and only the
+    # collector (they come back in "problems").
+    old_level, old_propagate = io_logger.level, io_logger.propagate
+    old_disable = logging.root.manager.disable
     if io_logger.getEffectiveLevel() > logging.WARNING:
         io_logger.setLevel(logging.WARNING)
+    io_logger.propagate = False
+    if old_disable >= logging.WARNING:
+        logging.disable(logging.NOTSET)
     problems: list[str] = []
     records: dict[str, int] = {}
     frames: list[dict[str, Any]] = []
@@ -669,6 +674,9 @@ def verify_session(path: str | os.PathLike[str], *, name_unit: str = "ns") -> di
     finally:
         io_logger.removeHandler(collector)
         io_logger.setLevel(old_level)
+        io_logger.propagate = old_propagate
+        if old_disable >= logging.WARNING:
+            logging.disable(old_disable)
     seen: set[str] = set()
     unique = []
     for msg in collector.messages + problems:

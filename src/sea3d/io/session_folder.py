@@ -488,12 +488,14 @@ class FolderSessionReader(SessionReader):
         stamps: list[int] = []
         rows: list[list[float]] = []
         stream = name.removesuffix(".csv")
+        with_crc = False  # set by a header with the crc32 column: then every line has one
         with open(path, encoding="ascii", errors="replace") as f:
             for lineno, line in enumerate(f, start=1):
                 text = line.strip()
                 if not text:
                     continue
                 if lineno == 1 and not text[0].isdigit():
+                    with_crc = text.replace(" ", "") == columns + ",crc32"
                     if text.replace(" ", "") not in (columns, columns + ",crc32"):
                         _log.warning(
                             "%s: header %r differs from %r; reading columns by position",
@@ -506,11 +508,14 @@ class FolderSessionReader(SessionReader):
                 try:
                     if len(parts) == ncols + 1:
                         body, _, crc = text.rpartition(",")
-                        if len(crc) != 8 or int(crc, 16) != zlib.crc32(body.encode()):
+                        if crc != f"{zlib.crc32(body.encode()):08x}":  # as written
                             raise ValueError("damaged (CRC-32 mismatch)")
                         parts = parts[:-1]
-                    elif len(parts) != ncols:
-                        raise ValueError(f"{len(parts)} fields, expected {ncols} (+ crc32)")
+                    elif len(parts) != ncols or with_crc:
+                        raise ValueError(
+                            f"{len(parts)} fields, expected {ncols}"
+                            + (" + crc32" if with_crc else "")
+                        )
                     t = int(parts[0])
                     vals = [float(p) for p in parts[1:]]
                 except ValueError as err:

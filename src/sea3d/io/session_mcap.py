@@ -96,7 +96,7 @@ _OP_SUMMARY_OFFSET, _OP_DATA_END = 0x0E, 0x0F
 _MESSAGE_HEAD = struct.Struct("<BQHIQQ")  # opcode, length, channel, sequence, log, publish
 _CHUNK_HEAD = struct.Struct("<BQQQQI")  # opcode, length, start, end, uncompressed size, crc
 # What parsing a damaged record can raise (mcap's readers raise EndOfFile, a McapError).
-_PARSE_ERRORS = (struct.error, ValueError, UnicodeDecodeError, EOFError, McapError)
+_PARSE_ERRORS = (struct.error, ValueError, UnicodeDecodeError, EOFError, OverflowError, McapError)
 # A chunk's records are decompressed into memory: refuse absurd sizes (a damaged header)
 # instead of allocating them. Our chunks are a few MiB.
 MAX_CHUNK_BYTES = 1 << 30
