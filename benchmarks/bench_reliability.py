@@ -604,23 +604,69 @@ def drill_monitor(clients: int, per: int) -> list[str]:
         monitor._CrowdServer.request_queue_size = backlog
         try:
             server = monitor.MonitorServer(provider, "127.0.0.1", 0).start()  # loopback only
+            import resource
+
+            r0 = resource.getrusage(resource.RUSAGE_SELF)
             argv = [sys.executable, "-c", _CROWD, "127.0.0.1", str(server.port)]
             done = subprocess.run(
                 [*argv, str(clients), str(per)], capture_output=True, text=True, timeout=300
             )
+            r1 = resource.getrusage(resource.RUSAGE_SELF)
             server.stop()
         finally:
             monitor._CrowdServer.request_queue_size = old
             provider.stop.set()
         results = _json.loads(done.stdout)
+        cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
         lat = np.array([r[1] for r in results])
         failed = sum(1 for r in results if not r[0])
         lines.append(
             f"  {label:<28} backlog {backlog:>5}: {len(results)} requests, p50 "
             f"{np.percentile(lat, 50):.3f} s, p99 {np.percentile(lat, 99):.3f} s, max "
-            f"{lat.max():.3f} s, {failed} failed"
+            f"{lat.max():.3f} s, {failed} failed; server CPU {cpu * 1e3 / len(results):.2f} "
+            f"ms per request ({cpu / 2:.2f} s for all {len(results)} on two idle cores)"
         )
     return lines
+
+
+def run_file_drills(scratch: Path, rng: np.random.Generator, q: int) -> None:
+    path = scratch / "s.mcap"
+    write_session(path, "mcap")
+    data = path.read_bytes()
+    print(f"session: {len(data)} bytes, {len(chunk_regions(data))} chunks, {N_PAIRS} pairs\n")
+    header = (
+        f"{'drill':<46}{'cases':>7}{'clear':>8}{'traceback':>11}{'wrong':>7}{'lost':>7}"
+        f"{'verify saw':>12}"
+    )
+    print(header)
+    print("-" * len(header))
+    tallies = [
+        (drill_cuts(data, scratch, step=13 * q), True),
+        (drill_flips(data, scratch, 2000 // q, 1, rng), True),
+        (drill_flips(data, scratch, 500 // q, 8, rng), True),
+        (drill_folder(scratch, 300 // q, rng), True),
+        (drill_rig_values(), False),
+        (drill_rig_text(2000 // q, rng), False),
+        (drill_images(300 // q, rng), False),
+    ]
+    killed, worst_s = drill_sigkill(scratch, max(20 // q, 3), rng)
+    tallies.append((killed, False))
+    examples = []
+    for tally, detect in tallies:
+        print(tally.row(detect))
+        examples += [f"{tally.name}: {e}" for e in tally.examples[:3]]
+    print(
+        "(clear: the case ended in a one-line sea3d error somewhere; wrong: a value handed "
+        "out that was never written; lost: records of intact chunks not read back (cuts, "
+        "single flips) or frames the recorder had reported written (SIGKILL); verify saw: "
+        "cases where session verify reported a problem)"
+    )
+    print(
+        f"SIGKILL: at most {worst_s:.2f} s of frames lost per kill (captured but still in "
+        "the open chunk or the encoder queue; chunks close every 1 s)"
+    )
+    for e in examples:
+        print("  example:", e)
 
 
 def main() -> None:
@@ -629,6 +675,11 @@ def main() -> None:
     )
     ap.add_argument("--quick", action="store_true", help="fewer cases")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--drills",
+        default="files,disk,monitor",
+        help="comma list of files (MCAP, folder, rig, image, SIGKILL drills), disk, monitor",
+    )
     args = ap.parse_args()
     logging.disable(logging.CRITICAL)  # thousands of expected warnings
     rng = np.random.default_rng(args.seed)
@@ -639,49 +690,17 @@ def main() -> None:
     )
     scratch = Path(tempfile.mkdtemp(prefix="sea3d_drills_"))
     try:
-        path = scratch / "s.mcap"
-        write_session(path, "mcap")
-        data = path.read_bytes()
-        print(f"session: {len(data)} bytes, {len(chunk_regions(data))} chunks, {N_PAIRS} pairs\n")
-        header = (
-            f"{'drill':<46}{'cases':>7}{'clear':>8}{'traceback':>11}{'wrong':>7}{'lost':>7}"
-            f"{'verify saw':>12}"
-        )
-        print(header)
-        print("-" * len(header))
-        tallies = [
-            (drill_cuts(data, scratch, step=13 * q), True),
-            (drill_flips(data, scratch, 2000 // q, 1, rng), True),
-            (drill_flips(data, scratch, 500 // q, 8, rng), True),
-            (drill_folder(scratch, 300 // q, rng), True),
-            (drill_rig_values(), False),
-            (drill_rig_text(2000 // q, rng), False),
-            (drill_images(300 // q, rng), False),
-        ]
-        killed, worst_s = drill_sigkill(scratch, max(20 // q, 3), rng)
-        tallies.append((killed, False))
-        examples = []
-        for tally, detect in tallies:
-            print(tally.row(detect))
-            examples += [f"{tally.name}: {e}" for e in tally.examples[:3]]
-        print(
-            "(clear: the case ended in a one-line sea3d error somewhere; wrong: a value handed "
-            "out that was never written; lost: records of intact chunks not read back (cuts, "
-            "single flips) or frames the recorder had reported written (SIGKILL); verify saw: "
-            "cases where session verify reported a problem)"
-        )
-        print(
-            f"SIGKILL: at most {worst_s:.2f} s of frames lost per kill (captured but still in "
-            "the open chunk or the encoder queue; chunks close every 1 s)"
-        )
-        for e in examples:
-            print("  example:", e)
-        print("\ndisk drills:")
-        for line in drill_disk(scratch):
-            print(line)
-        print("\nmonitor, 200 concurrent clients x 3 requests on 127.0.0.1:")
-        for line in drill_monitor(200, 3):
-            print(line)
+        chosen = set(args.drills.split(","))
+        if "files" in chosen:
+            run_file_drills(scratch, rng, q)
+        if "disk" in chosen:
+            print("\ndisk drills:")
+            for line in drill_disk(scratch):
+                print(line)
+        if "monitor" in chosen:
+            print("\nmonitor, 200 concurrent clients x 3 requests on 127.0.0.1:")
+            for line in drill_monitor(200, 3):
+                print(line)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
 

@@ -310,7 +310,7 @@ def rig_from_dict(data: Any, source: str = "<dict>") -> StereoRig:
     if fmt != FORMAT_NAME:
         raise r.fail("format", f"expected {FORMAT_NAME!r}, got {_short(fmt)}")
     version = data.get("version")
-    if version != FORMAT_VERSION:
+    if isinstance(version, bool) or version != FORMAT_VERSION:  # YAML's true is not 1
         raise r.fail(
             "version",
             f"unsupported version {_short(version)} (this sea3d reads {FORMAT_VERSION})",
