@@ -528,6 +528,7 @@ class SessionReader(ABC):
         self.skipped: dict[str, int] = {}
         self._rig: str | None = None
         self._rig_problem: str | None = None
+        self._rig_checked = False
 
     # -- layout-specific -----------------------------------------------------------------
     @property
@@ -538,13 +539,30 @@ class SessionReader(ABC):
             SessionError: a rig is stored but cannot be used (damaged, not UTF-8 text), so
                 that it is never mistaken for "no rig" or passed on as good.
         """
+        self._check_rig()
         if self._rig_problem is not None:
             raise SessionError(self._rig_problem)
         return self._rig
 
+    def _check_rig(self) -> None:
+        """A stored rig must parse as a rig (an empty or cut rig.yaml is damage, not a rig)."""
+        if self._rig is None or self._rig_checked:
+            return
+        self._rig_checked = True
+        from sea3d.errors import RigFileError
+        from sea3d.io.rig_file import rig_from_yaml
+
+        try:
+            rig_from_yaml(self._rig, f"{self.path} (stored rig.yaml)")
+        except RigFileError as err:
+            self._rig_problem = f"the stored rig cannot be used: {err}"
+            self.problems.append(self._rig_problem)
+            _log.warning("%s", self._rig_problem)
+
     @property
     def rig_status(self) -> str:
         """``"yes"``, ``"no"`` or ``"damaged: <why>"`` (never raises)."""
+        self._check_rig()
         if self._rig_problem is not None:
             return f"damaged: {self._rig_problem}"
         return "yes" if self._rig is not None else "no"
@@ -781,8 +799,8 @@ class SessionReader(ABC):
             "format": self.format,
             "size_bytes": self.size_bytes(),
             "duration_s": (max(lasts) - min(firsts)) * 1e-9 if firsts else 0.0,
-            "rig": self._rig is not None and self._rig_problem is None,
             "rig_status": self.rig_status,
+            "rig": self._rig is not None and self._rig_problem is None,
             "streams": streams,
             "pairs": {
                 "count": len(match),
