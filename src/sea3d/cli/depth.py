@@ -19,21 +19,16 @@ _ENGINES = ("sea3d", "sea3d-gpu", "opencv", "opencv-hh", "opencv-3way")
 
 
 def _read_image(path: str) -> Any:
-    import cv2
-
-    from sea3d.errors import StereoError
+    from sea3d.errors import SessionError, StereoError
+    from sea3d.io.session_common import read_image_file
 
     p = Path(path)
     if not p.is_file():
         raise StereoError(f"image not found: {p}")
-    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise StereoError(f"cannot read image {p}")
-    if img.ndim == 3 and img.shape[2] == 4:
-        img = img[..., :3]
-    if img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-    return img
+    try:  # refuses cut files (cv2.imread returns a cut JPEG half grey)
+        return read_image_file(p)
+    except SessionError as err:
+        raise StereoError(str(err)) from err
 
 
 def _engine_config(args: argparse.Namespace) -> Any:

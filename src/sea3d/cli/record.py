@@ -37,9 +37,21 @@ def register(sub: Any) -> None:
     rec.add_argument("--format", choices=("mcap", "folder"), help="default: from --out")
     rec.add_argument("--duration", type=float, help="seconds to record (default: until stopped)")
     rec.add_argument("--rig", help="rig.yaml stored with the session (and its capture settings)")
-    rec.add_argument("--image-encoding", choices=("png", "jpeg", "raw"), default="png")
+    rec.add_argument(
+        "--image-encoding",
+        choices=("jxl", "png", "jpeg", "raw"),
+        default="jxl",
+        help="jxl: JPEG XL lossless (default; 2 x 30 fps at 1080p on 2 cores, about 120 GB/h); "
+        "png: lossless, about 5x the CPU; jpeg: lossy; raw: sensor_msgs/Image in LZ4 chunks "
+        "(MCAP only)",
+    )
+    rec.add_argument(
+        "--chunk-compression",
+        choices=("lz4", "zstd", "none"),
+        help="MCAP chunk compression (default: lz4 for raw images, none for encoded ones)",
+    )
     rec.add_argument("--png-compression", type=int, default=1, help="zlib level 0..9 (default 1)")
-    rec.add_argument("--jpeg-quality", type=int, default=95)
+    rec.add_argument("--jpeg-quality", type=int, default=95, help="0..100 (default 95)")
     rec.add_argument("--queue", type=int, default=16, help="frames buffered before dropping")
     rec.add_argument("--encoders", type=int, default=2, help="encoder threads")
     rec.add_argument(
@@ -146,14 +158,13 @@ def _print_summary(summary: Any, as_json: bool) -> None:
 def _record(args: argparse.Namespace) -> int:
     from sea3d.capture.recorder import Recorder, RecorderConfig
     from sea3d.capture.spec import open_source
-    from sea3d.errors import ConfigError
 
     rig_yaml = None
     if args.rig:
-        try:
-            rig_yaml = Path(args.rig).read_text(encoding="utf-8")
-        except OSError as err:
-            raise ConfigError(f"cannot read rig file {args.rig}: {err}") from err
+        from sea3d.io.rig_file import read_rig_text, rig_from_yaml
+
+        rig_yaml = read_rig_text(args.rig)  # size-limited, decoded, clear errors
+        rig_from_yaml(rig_yaml, args.rig)  # a rig that cannot be used is refused before recording
     if args.sync:
         from sea3d.capture.v4l2_sync import PAPER_SYNC, configure_sync, sync_settings_from_rig_yaml
 
@@ -185,6 +196,7 @@ def _record(args: argparse.Namespace) -> int:
         block_when_full=args.block,
         min_free_bytes=int(args.min_free_gb * 1e9),
         rig_yaml=rig_yaml,
+        chunk_compression=args.chunk_compression,
     )
     recorder = Recorder(config, sources)
     server = None
