@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from sea3d.stereo import _sgm_kernels as K
 from sea3d.stereo._images import check_pair, to_grey_float
+from sea3d.stereo._simd import LANES
 from sea3d.stereo.filters import fill_holes, median_nan, remove_speckles
 from sea3d.stereo.types import DisparityResult, SgmConfig
 
@@ -37,6 +38,10 @@ _SUBPIXEL = {"none": 0, "parabola": 1, "equiangular": 2}
 # Each direction is walked forward and backward, so 4 directions make the 8 paths.
 _DIRECTIONS_8 = ((0, 1), (1, 0), (1, 1), (1, -1))
 _DIRECTIONS_16 = (*_DIRECTIONS_8, (1, 2), (1, -2), (2, 1), (2, -1))
+# scanlines walked in lockstep by one thread: neighbouring rows for horizontal paths (few, so
+# their cost rows stream from memory side by side), columns for the others
+_ROW_GROUP = 8
+_COLUMN_GROUP = 64
 
 
 def choose_pyramid_levels(height: int, width: int, num_disparities: int, config: SgmConfig) -> int:
@@ -70,40 +75,49 @@ def _level_search(
     h, w = gl.shape
     t0 = time.perf_counter()
     if coarse is None:
-        lo, n = K.full_band(h, w, num_disp)
+        chunks = -(-num_disp // LANES)
+        lo = np.zeros((h, w), np.int32)
+        nch = np.full((h, w), chunks, np.int32)
+        none = np.zeros((h, w), np.bool_)
     else:
-        lo, n = K.band_from_coarse(
-            coarse, h, w, num_disp, config.band_margin_px, config.band_max_px,
+        lo, nch, none = K.band_from_coarse(
+            coarse, h, w, num_disp, config.band_max_px // LANES, config.band_margin_px,
             config.band_radius_px,
         )
-    k_max = int(n.max())
-    offs = K.band_offsets(n)
+    offs = K.band_offsets(nch)
+    k_band = int(nch.max()) * LANES
     t1 = time.perf_counter()
     hh, hw = config.census_height_px // 2, config.census_width_px // 2
     cl = K.census_transform(gl, hh, hw)
     cr = K.census_transform(gr, hh, hw)
-    cost = K.band_costs(cl, cr, lo, n, offs)
+    cost = K.band_costs(cl, cr, lo, nch, offs, num_disp)
     t2 = time.perf_counter()
-    total = np.zeros(cost.shape[0], np.uint16)
+    total = np.empty(cost.shape[0], np.int16)
     paths = config.paths if coarse is None else config.band_paths
     dirs = {4: _DIRECTIONS_8[:2], 8: _DIRECTIONS_8, 16: _DIRECTIONS_16}[paths]
-    threads = numba.get_num_threads()
-    guide = np.clip(gl + 0.5, 0, 255).astype(np.uint8)
+    guide = np.clip(gl + 0.5, 0, 255).astype(np.uint8).reshape(-1)
+    lof = lo.reshape(-1)
+    ncf = nch.reshape(-1)
     lut = K.p2_table(config.p1, config.p2, config.p2_edge_tau)
+    first = True
     for dy, dx in dirs:
-        starts = K.scanline_starts(h, w, dy, dx, threads)
-        K.aggregate_lines(cost, lo, n, offs, k_max, guide, config.p1, lut, total, starts, dy, dx)
+        for p0, so, si, n_outer, n_inner, s in K.path_sweeps(h, w, dy, dx):
+            group = _ROW_GROUP if dy == 0 else _COLUMN_GROUP
+            K.sweep(cost, lof, ncf, offs, guide, total, config.p1, lut, p0, so, si, n_outer,
+                    n_inner, s, group, not first)
+            first = False
     del cost
     t3 = time.perf_counter()
     disp, conf = K.select_disparity(
-        total, lo, n, offs, config.uniqueness, config.lr_max_diff_px, _SUBPIXEL[config.subpixel]
+        total, lo, nch, offs, none, num_disp, config.uniqueness, config.lr_max_diff_px,
+        _SUBPIXEL[config.subpixel],
     )
     K.invalidate_left_border(disp, 16, 1.0)
     t4 = time.perf_counter()
     for key, val in (("band_s", t1 - t0), ("cost_s", t2 - t1), ("aggregate_s", t3 - t2),
                      ("select_s", t4 - t3)):
         timings[key] = timings.get(key, 0.0) + val
-    return disp, conf, k_max
+    return disp, conf, k_band
 
 
 def match_sgm(left: np.ndarray, right: np.ndarray, config: SgmConfig) -> DisparityResult:
@@ -148,9 +162,9 @@ def _match_sgm(left: np.ndarray, right: np.ndarray, config: SgmConfig) -> Dispar
     for lev in range(levels, -1, -1):
         a, b = pyramid[lev]
         nd = min(-(-num_disp // (1 << lev)), a.shape[1] - 1)
-        disp, conf, k_max = _level_search(a, b, nd, coarse, config, timings)
-        log.debug("level %d: %dx%d, %d disparities, band <= %d", lev, a.shape[1], a.shape[0],
-                  nd, k_max)
+        disp, conf, k_band = _level_search(a, b, nd, coarse, config, timings)
+        log.debug("level %d: %dx%d, %d disparities, band %d", lev, a.shape[1], a.shape[0],
+                  nd, k_band)
         t0 = time.perf_counter()
         if lev == 0 and config.refine_iterations > 0:
             r = config.refine_window_px // 2

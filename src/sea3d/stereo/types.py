@@ -63,7 +63,9 @@ class SgmConfig:
     band_margin_px: int = 2
     """Coarse-to-fine: extra disparities searched on each side of the coarse estimate."""
     band_max_px: int = 48
-    """Coarse-to-fine: widest per-pixel search band, disparities."""
+    """Coarse-to-fine: widest per-pixel search band, disparities (a multiple of 16). Bands
+    come in chunks of 16 centred on the range of the coarse disparities around the pixel; where
+    that range is wider than this, on the coarse disparity at the pixel itself."""
     band_paths: Literal[4, 8, 16] = 4
     """Coarse-to-fine: paths aggregated on the banded (finer) levels. The coarsest level
     (and a full search) always uses ``paths``; within a narrow band around the coarse answer
@@ -97,8 +99,8 @@ class SgmConfig:
                 "census window too large for 64-bit signatures: "
                 f"{self.census_width_px}x{self.census_height_px}"
             )
-        if not (0 < self.p1 < self.p2 < 4000):
-            raise ConfigError(f"need 0 < p1 < p2 < 4000, got p1={self.p1}, p2={self.p2}")
+        if not (0 < self.p1 < self.p2 <= 1500):
+            raise ConfigError(f"need 0 < p1 < p2 <= 1500, got p1={self.p1}, p2={self.p2}")
         if self.paths not in (8, 16):
             raise ConfigError(f"paths must be 8 or 16, got {self.paths}")
         if self.band_paths not in (4, 8, 16):
@@ -107,9 +109,10 @@ class SgmConfig:
             raise ConfigError(f"unknown subpixel mode {self.subpixel!r}")
         if self.pyramid_levels is not None and not (0 <= self.pyramid_levels <= 6):
             raise ConfigError(f"pyramid_levels must be in 0..6, got {self.pyramid_levels}")
-        if self.band_max_px < 2 * self.band_margin_px + 3 or self.band_margin_px < 0:
+        if self.band_max_px < 16 or self.band_max_px % 16 or self.band_margin_px < 0:
             raise ConfigError(
-                f"band_max_px ({self.band_max_px}) must exceed 2 * band_margin_px + 2"
+                f"band_max_px must be a positive multiple of 16, got {self.band_max_px}; "
+                f"band_margin_px must be >= 0, got {self.band_margin_px}"
             )
         if self.p2_edge_tau <= 0 or self.uniqueness < 0:
             raise ConfigError("p2_edge_tau must be > 0 and uniqueness >= 0")
