@@ -37,6 +37,7 @@ from sea3d.stereo._simd import (
     path_step16_add,
     path_step16_set,
     right_scatter16,
+    window_sums16,
 )
 
 INVALID_COST = 255
@@ -432,44 +433,62 @@ def band_from_coarse(
 
 
 @njit(parallel=True, cache=True)
+def _padded_rows(img: np.ndarray, stride: int) -> np.ndarray:
+    """``img`` (H, W) as flat rows of ``stride >= W`` entries, each row's last value repeated."""
+    h, w = img.shape
+    out = np.empty(h * stride, np.float32)
+    for y in prange(h):
+        for x in range(w):
+            out[y * stride + x] = img[y, x]
+        for x in range(w, stride):
+            out[y * stride + x] = img[y, w - 1]
+    return out
+
+
+@njit(parallel=True, cache=True)
 def refine_subpixel(
     left: np.ndarray,
     right: np.ndarray,
     disp: np.ndarray,
-    grad_x: np.ndarray,
     grad_y: np.ndarray,
     half_h: int,
     half_w: int,
     iterations: int,
     max_step: float,
+    inv_gamma: float,
+    row_step: int,
 ) -> np.ndarray:
     """Refine disparities by direct image alignment, removing the cost-curve fit's bias.
 
-    For each valid pixel, the window ``(2*half_h+1) x (2*half_w+1)`` of the left image is
-    modelled as ``L(x, y) = a * R(x - d - gx (x - x0) - gy (y - y0)) + b``: gain ``a`` and
-    offset ``b`` absorb brightness changes between the views, the disparity gradient
-    ``(gx, gy)`` (from the current map, ``grad_x``/``grad_y``) lets the window follow slanted
-    surfaces, and ``R`` is interpolated linearly along the row. Starting from ``a = 1, b = 0``,
-    ``a``, ``b`` and ``d`` are updated by ``iterations`` Gauss-Newton steps. Updates that move
-    ``d`` by more than ``max_step`` pixels, windows leaving the image, or texture-less windows
-    keep the input value.
+    For each valid pixel, the window ``(2*half_h+1) x (2*half_w+1)`` (``half_w <= 7``) of the
+    left image is modelled as ``L(x, y) = a * R(x - d - gy (y - y0)) + b``: gain ``a`` and offset
+    ``b`` absorb brightness changes between the views, the vertical disparity slope ``gy``
+    (from the current map, ``grad_y``) lets the window follow surfaces that recede upwards, and
+    ``R`` is interpolated linearly along the row; every ``row_step``-th window row is read.
+    Window pixels are weighted by their likeness to the centre, Tukey's biweight
+    ``(1 - t^2)^2`` of ``t = (L - L0) * inv_gamma`` (0 for ``|t| >= 1``; ``inv_gamma = 0``
+    weighs all alike), so windows straddling an edge lean on the centre's side. Starting from
+    ``a = 1, b = 0``, ``a``, ``b`` and ``d`` are updated by ``iterations`` Gauss-Newton steps
+    (:func:`window_sums16` forms the normal equations, 16 lanes per window row). Updates that
+    move ``d`` by more than ``max_step`` pixels, windows leaving the image, or texture-less
+    windows keep the input.
 
     ``left``, ``right`` (H, W) float32 images; ``disp`` (H, W) float32, NaN invalid;
-    ``grad_x``, ``grad_y`` (H, W) float32 px/px (NaN treated as 0). Returns a new map.
+    ``grad_y`` (H, W) float32 px/px (NaN treated as 0). Returns a new map.
     """
     h, w = left.shape
+    stride = w + 2 * LANES
+    lp = _padded_rows(left, stride)
+    rp = _padded_rows(right, stride)
     out = disp.copy()
-    for y in prange(h):
-        if y < half_h or y >= h - half_h:
-            continue
+    n_px = np.float32(((2 * half_h) // row_step + 1) * (2 * half_w + 1))
+    for y in prange(half_h, h - half_h):
+        sums = np.empty(9, np.float32)
         for x in range(half_w, w - half_w):
             d0 = disp[y, x]
             if d0 != d0:
                 continue
-            gx = grad_x[y, x]
             gy = grad_y[y, x]
-            if gx != gx or abs(gx) > 0.5:
-                gx = np.float32(0.0)
             if gy != gy or abs(gy) > 0.5:
                 gy = np.float32(0.0)
             d = np.float32(d0)
@@ -477,41 +496,26 @@ def refine_subpixel(
             b = np.float32(0.0)
             ok = True
             for _ in range(iterations):
-                reach = half_w + 1.0 + abs(gx) * half_w + abs(gy) * half_h
+                reach = half_w + 1.0 + abs(gy) * half_h
                 if x - d - reach < 0.0 or x - d + reach > w - 1.001:
                     ok = False
                     break
-                h00 = h01 = h02 = h12 = h22 = np.float32(0.0)
-                g0 = g1 = g2 = np.float32(0.0)
-                for j in range(-half_h, half_h + 1):
-                    rrow = right[y + j]
-                    lrow = left[y + j]
-                    # the row's shift; the horizontal slant only stretches the window slightly,
-                    # so the fractional part is shared by the row (cheap, vectorisable)
-                    x0 = x - half_w - d - gy * j
-                    i0 = int(x0)
-                    f = x0 - i0
-                    for i in range(2 * half_w + 1):
-                        k = i0 + i + int(np.floor(0.5 - gx * (i - half_w)))
-                        r0 = rrow[k]
-                        grad = rrow[k + 1] - r0
-                        rv = r0 + f * grad
-                        jd = a * grad
-                        res = lrow[x - half_w + i] - a * rv - b
-                        h00 += rv * rv
-                        h01 += rv
-                        h02 -= rv * jd
-                        h12 -= jd
-                        h22 += jd * jd
-                        g0 += rv * res
-                        g1 += res
-                        g2 -= jd * res
-                h11 = np.float32((2 * half_h + 1) * (2 * half_w + 1))
+                window_sums16(lp, rp, stride, x, y, d, gy, half_h, half_w, a, b, left[y, x],
+                              inv_gamma, row_step, sums, 0)
+                h00 = sums[0]
+                h01 = sums[1]
+                h02 = -sums[2]
+                h11 = sums[3]
+                h12 = -sums[4]
+                h22 = sums[5]
+                g0 = sums[6]
+                g1 = sums[7]
+                g2 = -sums[8]
                 c0 = h11 * h22 - h12 * h12
                 c1 = h01 * h22 - h12 * h02
                 c2 = h01 * h12 - h11 * h02
                 det = h00 * c0 - h01 * c1 + h02 * c2
-                if abs(det) < 1e-6 * h11 * h11 * h11 or h22 < 1e-3 * h11:
+                if abs(det) < 1e-6 * h11 * h11 * h11 or h22 < 1e-3 * h11 or h11 < 0.1 * n_px:
                     ok = False
                     break
                 da = (g0 * c0 - h01 * (g1 * h22 - h12 * g2) + h02 * (g1 * h12 - h11 * g2)) / det

@@ -27,6 +27,7 @@ __all__ = [
     "path_step16_add",
     "path_step16_set",
     "right_scatter16",
+    "window_sums16",
 ]
 
 LANES = 16
@@ -220,5 +221,111 @@ def right_scatter16(typingctx: Any, rbest: Any, rdisp: Any, i_right: Any, total:
         dvec = builder.sub(_splat16(builder, builder.add(d0, ir.Constant(d0.type, LANES - 1))),
                            _lane_ids())
         _store(builder, builder.select(better, dvec, _load(builder, pd, _V16)), pd)
+
+    return sig, codegen
+
+
+_F32 = ir.FloatType()
+_VF = ir.VectorType(_F32, LANES)
+
+
+@intrinsic
+def window_sums16(typingctx: Any, left: Any, right: Any, stride: Any, x: Any, y: Any,
+                  d: Any, gy: Any, half_h: Any, half_w: Any, gain: Any, offset: Any,
+                  centre: Any, inv_gamma: Any, row_step: Any, out: Any, i_out: Any) -> Any:
+    """The nine sums of one Gauss-Newton step of window alignment (see ``refine_subpixel``).
+
+    ``left``/``right`` are flat float32 images with rows ``stride`` apart; the window is
+    ``(2*half_h+1) x (2*half_w+1)`` (width at most 15) around ``(x, y)``, of which rows
+    ``-half_h, -half_h + row_step, ...`` are read. Row ``j`` of the right window starts at
+    ``x - half_w - d - gy * j``, read with linear interpolation, and each pixel is weighted by
+    Tukey's biweight ``(1 - t^2)^2`` of ``t = (L - centre) * inv_gamma`` (0 for ``|t| >= 1``).
+    With ``rv`` the interpolated right value, ``jd = gain * dR/dx`` and
+    ``res = L - gain * rv - offset``, writes the sums over the window of ``w rv^2, w rv,
+    w rv jd, w, w jd, w jd^2, w rv res, w res, w jd res`` to ``out[i_out : i_out + 9]``. The
+    caller keeps every read (``x - half_w + 16`` and the right window plus 17) inside the rows.
+    """
+    sig = types.void(left, right, stride, x, y, d, gy, half_h, half_w, gain, offset, centre,
+                     inv_gamma, row_step, out, i_out)
+
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> None:
+        (lf, rf, stride_, x_, y_, d_, gy_, hh_, hw_, a_, b_, lc_, ig_, step_, of, io) = args
+        lty, rty, oty = signature.args[0], signature.args[1], signature.args[14]
+        ldata = context.make_array(lty)(context, builder, lf).data
+        rdata = context.make_array(rty)(context, builder, rf).data
+
+        def fsplat(v: Any) -> Any:
+            vec = builder.insert_element(ir.Constant(_VF, ir.Undefined), v,
+                                         ir.Constant(ir.IntType(32), 0))
+            return builder.shuffle_vector(
+                vec, ir.Constant(_VF, ir.Undefined),
+                ir.Constant(ir.VectorType(ir.IntType(32), LANES), [0] * LANES))
+
+        def to_f32(v: Any, ty: Any) -> Any:
+            return context.cast(builder, v, ty, types.float32)
+
+        st = signature.args
+        d32, gy32 = to_f32(d_, st[5]), to_f32(gy_, st[6])
+        a32, b32 = to_f32(a_, st[9]), to_f32(b_, st[10])
+        lc32, ig32 = to_f32(lc_, st[11]), to_f32(ig_, st[12])
+        width = builder.add(builder.mul(hw_, ir.Constant(hw_.type, 2)), ir.Constant(hw_.type, 1))
+        lane_f = ir.Constant(ir.VectorType(ir.IntType(32), LANES), list(range(LANES)))
+        width32 = builder.trunc(width, ir.IntType(32))
+        wsplat = builder.insert_element(ir.Constant(ir.VectorType(ir.IntType(32), LANES),
+                                                    ir.Undefined), width32,
+                                        ir.Constant(ir.IntType(32), 0))
+        wsplat = builder.shuffle_vector(
+            wsplat, ir.Constant(ir.VectorType(ir.IntType(32), LANES), ir.Undefined),
+            ir.Constant(ir.VectorType(ir.IntType(32), LANES), [0] * LANES))
+        inside = builder.icmp_signed("<", lane_f, wsplat)
+        zero = ir.Constant(_VF, [0.0] * LANES)
+        accs = []
+        for _ in range(9):
+            slot = cgutils.alloca_once(builder, _VF)
+            builder.store(zero, slot)
+            accs.append(slot)
+        floor_fn = cgutils.get_or_insert_function(builder.module,
+                                                  ir.FunctionType(_F32, [_F32]),
+                                                  "llvm.floor.f32")
+        x0 = builder.sub(x_, hw_)
+        start = builder.sub(ir.Constant(hh_.type, 0), hh_)
+        stop = builder.add(hh_, ir.Constant(hh_.type, 1))
+        one_v = ir.Constant(_VF, [1.0] * LANES)
+        with cgutils.for_range_slice(builder, start, stop, step_,
+                                     intp=hh_.type) as (j, _):
+            row = builder.mul(builder.add(y_, j), stride_)
+            shift = builder.fsub(builder.fsub(builder.sitofp(x0, _F32), d32),
+                                 builder.fmul(gy32, builder.sitofp(j, _F32)))
+            fl = builder.call(floor_fn, [shift])
+            frac = builder.fsub(shift, fl)
+            i0 = builder.add(row, builder.fptosi(fl, row.type))
+            r0 = _load(builder, builder.gep(rdata, [i0]), _VF)
+            r1 = _load(builder, builder.gep(rdata, [builder.add(i0, ir.Constant(i0.type, 1))]),
+                       _VF)
+            lv = _load(builder, builder.gep(ldata, [builder.add(row, x0)]), _VF)
+            grad = builder.fsub(r1, r0)
+            rv = builder.fadd(r0, builder.fmul(fsplat(frac), grad))
+            t = builder.fmul(builder.fsub(lv, fsplat(lc32)), fsplat(ig32))
+            wt = builder.fsub(one_v, builder.fmul(t, t))  # Tukey's biweight (1 - t^2)^2
+            wt = builder.fmul(wt, wt)
+            keep = builder.and_(inside, builder.fcmp_ordered("<", builder.fmul(t, t), one_v))
+            wt = builder.select(keep, wt, zero)
+            jd = builder.fmul(fsplat(a32), grad)
+            res = builder.fsub(builder.fsub(lv, builder.fmul(fsplat(a32), rv)), fsplat(b32))
+            wrv = builder.fmul(wt, rv)
+            wjd = builder.fmul(wt, jd)
+            terms = (builder.fmul(wrv, rv), wrv, builder.fmul(wrv, jd), wt, wjd,
+                     builder.fmul(wjd, jd), builder.fmul(wrv, res), builder.fmul(wt, res),
+                     builder.fmul(wjd, res))
+            for slot, term in zip(accs, terms, strict=True):
+                builder.store(builder.fadd(builder.load(slot), term), slot)
+        red = cgutils.get_or_insert_function(builder.module,
+                                             ir.FunctionType(_F32, [_F32, _VF]),
+                                             "llvm.vector.reduce.fadd.v16f32")
+        odata = context.make_array(oty)(context, builder, of).data
+        for k, slot in enumerate(accs):
+            total = builder.call(red, [ir.Constant(_F32, 0.0), builder.load(slot)],
+                                 fastmath=("reassoc",))
+            builder.store(total, builder.gep(odata, [builder.add(io, ir.Constant(io.type, k))]))
 
     return sig, codegen

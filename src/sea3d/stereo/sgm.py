@@ -88,8 +88,14 @@ def _level_search(
     k_band = int(nch.max()) * LANES
     t1 = time.perf_counter()
     hh, hw = config.census_height_px // 2, config.census_width_px // 2
-    cl = K.census_transform(gl, hh, hw)
-    cr = K.census_transform(gr, hh, hw)
+    if config.census_presmooth_px > 0:
+        sigma = config.census_presmooth_px
+        gl_c = np.asarray(cv2.GaussianBlur(gl, (0, 0), sigma), dtype=np.float32)
+        gr_c = np.asarray(cv2.GaussianBlur(gr, (0, 0), sigma), dtype=np.float32)
+    else:
+        gl_c, gr_c = gl, gr
+    cl = K.census_transform(gl_c, hh, hw)
+    cr = K.census_transform(gr_c, hh, hw)
     cost = K.band_costs(cl, cr, lo, nch, offs, num_disp)
     t2 = time.perf_counter()
     total = np.empty(cost.shape[0], np.int16)
@@ -168,8 +174,11 @@ def _match_sgm(left: np.ndarray, right: np.ndarray, config: SgmConfig) -> Dispar
         t0 = time.perf_counter()
         if lev == 0 and config.refine_iterations > 0:
             r = config.refine_window_px // 2
-            gx, gy = K.disparity_gradients(median_nan(disp, 3), 2)
-            disp = K.refine_subpixel(a, b, disp, gx, gy, r, r, config.refine_iterations, 0.5)
+            _, gy = K.disparity_gradients(median_nan(disp, 3), 2)
+            c = config.refine_weight_cutoff
+            inv_gamma = 1.0 / c if c > 0 else 0.0
+            disp = K.refine_subpixel(a, b, disp, gy, r, r, config.refine_iterations, 0.5,
+                                     inv_gamma, config.refine_row_step)
             timings["refine_s"] = time.perf_counter() - t0
             t0 = time.perf_counter()
         if config.median_px > 1:
