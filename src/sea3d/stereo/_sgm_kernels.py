@@ -33,6 +33,7 @@ from sea3d.stereo._simd import (
     LANES,
     argmin16,
     census_cost16,
+    load_at,
     min_outside16,
     path_step16_add,
     path_step16_set,
@@ -139,19 +140,25 @@ def _sweep_block(
     extent = np.zeros(2 * nb, np.int64)  # candidates written into each row
     mins = np.zeros(nb, np.int64)
     alive = np.zeros(nb, np.bool_)
+    back = so + s * si  # pixel index step back to the predecessor
     for o in range(n_outer):
         i_first = b0 + s * o
+        # the slots of this step that lie inside the image
+        j0 = min(max(0, -i_first), nb)
+        j1 = max(min(nb, n_inner - i_first), j0)
+        if s != 0:
+            for j in range(0, j0):
+                alive[j] = False
+            for j in range(j1, nb):
+                alive[j] = False
         par = o & 1
         rd = (1 - par) * nb * ll + pad
         wr = par * nb * ll + pad
-        for j in range(nb):
-            i = i_first + j
-            if i < 0 or i >= n_inner:
-                alive[j] = False
-                continue
-            p = p0 + o * so + i * si
-            cb = offs[p]
-            kp = ncf[p] * LANES
+        p_row = p0 + o * so + i_first * si
+        for j in range(j0, j1):
+            p = p_row + j * si
+            cb = load_at(offs, p)
+            kp = load_at(ncf, p) * LANES
             sw = wr + j * ll
             if not alive[j]:
                 # path start: L = C
@@ -166,25 +173,27 @@ def _sweep_block(
                     m = min(m, int(v))
                 alive[j] = True
             else:
-                q = p - so - s * si
-                off = min(max(lof[p] - lof[q], -k_max - 1), k_max + 1)
-                pe = p2_lut[abs(np.int32(gf[p]) - np.int32(gf[q]))]
+                q = p - back
+                off = min(max(load_at(lof, p) - load_at(lof, q), -k_max - 1), k_max + 1)
+                pe = load_at(p2_lut, abs(np.int32(load_at(gf, p)) - np.int32(load_at(gf, q))))
                 mq = mins[j]
                 # the predecessor's entries, read ``off`` entries along when the band moved
                 ip = rd + j * ll + off - 1
-                m = _INF
-                for c in range(0, kp, LANES):
-                    if accumulate:
-                        r = path_step16_add(state, ip + c, cf, cb + c, sw + c, tf, cb + c, p1,
-                                            mq + pe, mq)
-                    else:
-                        r = path_step16_set(state, ip + c, cf, cb + c, sw + c, tf, cb + c, p1,
-                                            mq + pe, mq)
-                    m = min(m, r)
+                if accumulate:
+                    m = path_step16_add(state, ip, cf, cb, sw, tf, cb, p1, mq + pe, mq)
+                    for c in range(LANES, kp, LANES):
+                        m = min(m, path_step16_add(state, ip + c, cf, cb + c, sw + c, tf,
+                                                   cb + c, p1, mq + pe, mq))
+                else:
+                    m = path_step16_set(state, ip, cf, cb, sw, tf, cb, p1, mq + pe, mq)
+                    for c in range(LANES, kp, LANES):
+                        m = min(m, path_step16_set(state, ip + c, cf, cb + c, sw + c, tf,
+                                                   cb + c, p1, mq + pe, mq))
             mins[j] = m
             e = par * nb + j
-            for k in range(kp, extent[e]):  # a wider band was here two steps ago
-                state[sw + k] = _INF
+            if extent[e] > kp:  # a wider band was here two steps ago
+                for k in range(kp, extent[e]):
+                    state[sw + k] = _INF
             extent[e] = kp
 
 

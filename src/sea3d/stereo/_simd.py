@@ -23,6 +23,7 @@ __all__ = [
     "LANES",
     "argmin16",
     "census_cost16",
+    "load_at",
     "min_outside16",
     "path_step16_add",
     "path_step16_set",
@@ -327,5 +328,19 @@ def window_sums16(typingctx: Any, left: Any, right: Any, stride: Any, x: Any, y:
             total = builder.call(red, [ir.Constant(_F32, 0.0), builder.load(slot)],
                                  fastmath=("reassoc",))
             builder.store(total, builder.gep(odata, [builder.add(io, ir.Constant(io.type, k))]))
+
+    return sig, codegen
+
+
+@intrinsic
+def load_at(typingctx: Any, array: Any, index: Any) -> Any:
+    """``array[index]`` for a 1-D array without numba's negative-index wrap-around (the
+    caller guarantees ``0 <= index < len(array)``); it keeps per-pixel address arithmetic
+    short in the innermost loops."""
+    sig = array.dtype(array, index)
+
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+        ary, idx = args
+        return builder.load(_elem_ptr(context, builder, signature.args[0], ary, idx))
 
     return sig, codegen
