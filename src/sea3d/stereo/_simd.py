@@ -262,6 +262,21 @@ def window_sums16(typingctx: Any, left: Any, right: Any, stride: Any, x: Any, y:
                 vec, ir.Constant(_VF, ir.Undefined),
                 ir.Constant(ir.VectorType(ir.IntType(32), LANES), [0] * LANES))
 
+        def fm(x: Any, y: Any) -> Any:  # products and sums may fuse into FMAs
+            r = builder.fmul(x, y)
+            r.flags.append("contract")
+            return r
+
+        def fa(x: Any, y: Any) -> Any:
+            r = builder.fadd(x, y)
+            r.flags.append("contract")
+            return r
+
+        def fs(x: Any, y: Any) -> Any:
+            r = builder.fsub(x, y)
+            r.flags.append("contract")
+            return r
+
         def to_f32(v: Any, ty: Any) -> Any:
             return context.cast(builder, v, ty, types.float32)
 
@@ -304,22 +319,23 @@ def window_sums16(typingctx: Any, left: Any, right: Any, stride: Any, x: Any, y:
             r1 = _load(builder, builder.gep(rdata, [builder.add(i0, ir.Constant(i0.type, 1))]),
                        _VF)
             lv = _load(builder, builder.gep(ldata, [builder.add(row, x0)]), _VF)
-            grad = builder.fsub(r1, r0)
-            rv = builder.fadd(r0, builder.fmul(fsplat(frac), grad))
-            t = builder.fmul(builder.fsub(lv, fsplat(lc32)), fsplat(ig32))
-            wt = builder.fsub(one_v, builder.fmul(t, t))  # Tukey's biweight (1 - t^2)^2
-            wt = builder.fmul(wt, wt)
-            keep = builder.and_(inside, builder.fcmp_ordered("<", builder.fmul(t, t), one_v))
+            grad = fs(r1, r0)
+            rv = fa(r0, fm(fsplat(frac), grad))
+            t = fm(fs(lv, fsplat(lc32)), fsplat(ig32))
+            tt = fm(t, t)
+            wt = fs(one_v, tt)  # Tukey's biweight (1 - t^2)^2
+            wt = fm(wt, wt)
+            keep = builder.and_(inside, builder.fcmp_ordered("<", tt, one_v))
             wt = builder.select(keep, wt, zero)
-            jd = builder.fmul(fsplat(a32), grad)
-            res = builder.fsub(builder.fsub(lv, builder.fmul(fsplat(a32), rv)), fsplat(b32))
-            wrv = builder.fmul(wt, rv)
-            wjd = builder.fmul(wt, jd)
-            terms = (builder.fmul(wrv, rv), wrv, builder.fmul(wrv, jd), wt, wjd,
-                     builder.fmul(wjd, jd), builder.fmul(wrv, res), builder.fmul(wt, res),
-                     builder.fmul(wjd, res))
-            for slot, term in zip(accs, terms, strict=True):
-                builder.store(builder.fadd(builder.load(slot), term), slot)
+            jd = fm(fsplat(a32), grad)
+            res = fs(fs(lv, fm(fsplat(a32), rv)), fsplat(b32))
+            wrv = fm(wt, rv)
+            wjd = fm(wt, jd)
+            terms = ((wrv, rv), (wrv, None), (wrv, jd), (wt, None), (wjd, None), (wjd, jd),
+                     (wrv, res), (wt, res), (wjd, res))
+            for slot, (u, v) in zip(accs, terms, strict=True):
+                acc = builder.load(slot)
+                builder.store(fa(acc, u if v is None else fm(u, v)), slot)
         red = cgutils.get_or_insert_function(builder.module,
                                              ir.FunctionType(_F32, [_F32, _VF]),
                                              "llvm.vector.reduce.fadd.v16f32")
