@@ -85,11 +85,11 @@ def board_reference_disparity(
         StereoError: fewer than 4 corners, or lists of different lengths.
     """
     cl = np.asarray(corners_left, dtype=np.float64).reshape(-1, 2)
-    cr = np.asarray(corners_right, dtype=np.float64).reshape(-1, 2)
+    cr: NDArray[np.float64] = np.asarray(corners_right, dtype=np.float64).reshape(-1, 2)
     if len(cl) != len(cr) or len(cl) < 4:
         raise StereoError(f"need the same >= 4 corners in both views, got {len(cl)} and {len(cr)}")
     if np.abs(cl[:, 1] - cr[::-1, 1]).mean() < np.abs(cl[:, 1] - cr[:, 1]).mean():
-        cr = cr[::-1]
+        cr = np.ascontiguousarray(cr[::-1])
     d = cl[:, 0] - cr[:, 0]
     a_mat = np.column_stack([cl[:, 0], cl[:, 1], np.ones(len(cl))])
     coef, *_ = np.linalg.lstsq(a_mat, d, rcond=None)
@@ -106,7 +106,9 @@ def board_reference_disparity(
                           fit_rms_px=fit_rms, row_rms_px=row_rms, n_corners=len(cl))
 
 
-def relative_depth_errors(disparity_px: np.ndarray, reference: BoardDisparity) -> NDArray[np.float64]:
+def relative_depth_errors(
+    disparity_px: np.ndarray, reference: BoardDisparity
+) -> NDArray[np.float64]:
     """``|Z - Z_ref| / Z_ref = |d_ref / d - 1|`` on the board's pixels, in board-pixel order;
     inf where the estimate is missing or not positive."""
     d = np.asarray(disparity_px, dtype=np.float64)[reference.mask]
@@ -172,8 +174,9 @@ def rectified_board_set(
     intr = []
     rms = []
     for corners in per_cam:
-        err, k, dist, _, _ = cv2.calibrateCamera([obj] * len(corners), corners, (w, h), None,
-                                                 None, flags=flags)
+        err, k, dist, _, _ = cv2.calibrateCamera(  # type: ignore[call-overload]
+            [obj] * len(corners), corners, (w, h), None, None, flags=flags
+        )
         intr.append((k, dist))
         rms.append(float(err))
     (k1, d1), (k2, d2) = intr

@@ -33,6 +33,7 @@ __all__ = [
     "compute_depth",
     "depth_to_disparity",
     "disparity_to_depth",
+    "disparity_to_points",
     "max_disparity_for_depth",
     "triangulate_disparity",
 ]
@@ -139,6 +140,38 @@ def triangulate_disparity(
     return points, depth, mask
 
 
+def disparity_to_points(
+    maps: RectifyMaps, disparity_px: np.ndarray, *, max_gap_m: float = 0.01
+) -> tuple[F64, F64, NDArray[np.bool_]]:
+    """Metric points of a rectified left disparity map, for any rig.
+
+    Pinhole rigs: ``z = f B / d`` along the rectified left axis, back-projected through the
+    rectified pinhole and rotated into the left camera's own frame (``R_rect_left_left^T``).
+    Refractive rigs: :func:`triangulate_disparity` with the true rays.
+
+    Returns:
+        ``points_left`` (N, 3) metres in the left camera frame, ``depth_rect`` (N,) metres along
+        the rectified left z axis, and the (H, W) bool mask of the N pixels (points in
+        ``np.nonzero`` order of the mask).
+
+    Raises:
+        StereoError: a disparity map of the wrong size, or a refractive rig without its rig.
+    """
+    d = np.asarray(disparity_px)
+    if d.shape != (maps.height, maps.width):
+        raise StereoError(f"disparity {d.shape} does not match the rig {maps.height}x{maps.width}")
+    if maps.refractive:
+        return triangulate_disparity(maps, d, max_gap_m=max_gap_m)
+    depth = disparity_to_depth(d, maps.focal_px, maps.baseline_m)
+    mask = np.isfinite(depth)
+    v, u = np.nonzero(mask)
+    z = depth[v, u].astype(np.float64)
+    f = maps.focal_px
+    pts_rect = np.stack([(u - maps.cx_px) * z / f, (v - maps.cy_px) * z / f, z], axis=1)
+    points = pts_rect @ maps.R_rect_left_left  # R^T applied row-wise: rect -> left frame
+    return points, z, mask
+
+
 @dataclass(frozen=True, kw_only=True, eq=False)
 class DepthResult:
     """Depth of one stereo pair.
@@ -190,18 +223,9 @@ def compute_depth(
     t2 = time.perf_counter()
     disp = res.disparity_px
     h, w = disp.shape
-    if maps.refractive:
-        points, z, mask = triangulate_disparity(maps, disp)
-        depth: F32 = np.full((h, w), np.nan, np.float32)
-        depth[mask] = z
-    else:
-        depth = disparity_to_depth(disp, maps.focal_px, maps.baseline_m)
-        mask = np.isfinite(depth)
-        v, u = np.nonzero(mask)
-        z = depth[v, u].astype(np.float64)
-        f = maps.focal_px
-        pts_rect = np.stack([(u - maps.cx_px) * z / f, (v - maps.cy_px) * z / f, z], axis=1)
-        points = pts_rect @ maps.R_rect_left_left  # R^T applied row-wise: rect -> left frame
+    points, z, mask = disparity_to_points(maps, disp)
+    depth: F32 = np.full((h, w), np.nan, np.float32)
+    depth[mask] = z
     if max_depth_m is not None:
         with np.errstate(invalid="ignore"):
             far = depth > max_depth_m
