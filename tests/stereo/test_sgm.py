@@ -175,3 +175,30 @@ def test_left_border_pixels_whose_match_is_off_the_image_are_invalid_not_wrong()
     finite = np.isfinite(border)
     assert np.all(np.abs(border[finite] - 20.0) < 2.0)
     assert finite.mean() < 0.1
+
+
+@pytest.mark.parametrize(
+    ("engine", "cv_mode"),
+    [("opencv", cv2.StereoSGBM_MODE_SGBM), ("opencv-hh", cv2.StereoSGBM_MODE_HH),
+     ("opencv-3way", cv2.StereoSGBM_MODE_SGBM_3WAY)],
+)
+def test_opencv_engine_names_select_their_modes(engine: str, cv_mode: int) -> None:
+    # each name must run its own OpenCV mode (3WAY and HH differ on this pair): compare with
+    # cv2.StereoSGBM in that mode directly
+    rng = np.random.default_rng(1)
+    left, right, _ = _slanted_pair(rng)
+    cfg = make_config(engine, 31)
+    ours = match(left, right, cfg).disparity_px
+    w = cfg.block_size_px  # type: ignore[union-attr]
+    raw = cv2.StereoSGBM_create(0, 32, w, P1=8 * w * w, P2=32 * w * w, disp12MaxDiff=1,
+                                preFilterCap=63, uniquenessRatio=10, speckleWindowSize=100,
+                                speckleRange=2, mode=cv_mode).compute(left, right)
+    ref = np.where(raw < 0, np.nan, raw / 16.0)
+    np.testing.assert_array_equal(np.isfinite(ours), np.isfinite(ref))
+    np.testing.assert_allclose(ours, ref, equal_nan=True)
+    others = {cv2.StereoSGBM_MODE_SGBM, cv2.StereoSGBM_MODE_HH, cv2.StereoSGBM_MODE_SGBM_3WAY}
+    for other in others - {cv_mode}:
+        alt = cv2.StereoSGBM_create(0, 32, w, P1=8 * w * w, P2=32 * w * w, disp12MaxDiff=1,
+                                    preFilterCap=63, uniquenessRatio=10, speckleWindowSize=100,
+                                    speckleRange=2, mode=other).compute(left, right)
+        assert not np.array_equal(raw, alt)
