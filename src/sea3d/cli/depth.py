@@ -18,6 +18,45 @@ __all__ = ["register"]
 _ENGINES = ("sea3d", "sea3d-gpu", "opencv", "opencv-hh", "opencv-3way")
 
 
+def _positive_int(text: str) -> int:
+    """argparse type: an integer > 0 (so bad values fail before any work)."""
+    try:
+        value = int(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from err
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {value}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from err
+    if not (value > 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return value
+
+
+def _check_range(max_disparity: int, width: int, engine: str, what: str) -> None:
+    """Refuse a ``--max-disparity`` the engine cannot search in an image ``width`` wide."""
+    from sea3d.errors import StereoError
+
+    opencv = engine.startswith("opencv")
+    n = max_disparity + 1
+    if opencv:
+        n = -(-n // 16) * 16  # OpenCV searches whole multiples of 16
+    if n >= width if opencv else n > width:
+        top = (width - 1) // 16 * 16 - 1 if opencv else width - 1
+        note = f"; OpenCV rounds the range up to {n} disparities" if opencv else ""
+        raise StereoError(
+            f"--max-disparity {max_disparity} is too wide for {what} ({width} px wide{note}): "
+            f"use at most {top}"
+        )
+
+
 def _read_image(path: str) -> Any:
     import cv2
 
@@ -62,6 +101,7 @@ def _cmd_stereo(args: argparse.Namespace) -> int:
     chain = FilterChain(parse_filter_chain(args.filters)) if args.filters else None
     left = _read_image(args.left)
     right = _read_image(args.right)
+    _check_range(args.max_disparity, int(left.shape[1]), args.engine, args.left)
     compile_s = _warm_up(args.engine)
     result = match(left, right, config)
     disp = result.disparity_px
@@ -150,6 +190,8 @@ def _cmd_depth_session(args: argparse.Namespace) -> int:
         n_pairs = len(match.left_index)
         if n_pairs == 0:
             raise StereoError(f"{args.session}: no stereo pairs to process")
+        if args.max_disparity is not None:
+            _check_range(args.max_disparity, rig.width, args.engine, "the rig's images")
         maps = rectify_rig(rig, depth_range_m=(args.min_depth, args.max_depth))
         max_d = args.max_disparity or max_disparity_for_depth(maps, args.min_depth)
         config = make_config(args.engine, max_d)
@@ -228,6 +270,8 @@ def _cmd_depth(args: argparse.Namespace) -> int:
             f"need 0 < --min-depth < --max-depth, got {args.min_depth} and {args.max_depth}"
         )
     rig = load_rig(args.rig)
+    if args.max_disparity is not None:
+        _check_range(args.max_disparity, rig.width, args.engine, f"the rig {args.rig}")
     left = _read_image(args.left)
     right = _read_image(args.right)
     for name, img, path in (("left", left, args.left), ("right", right, args.right)):
@@ -292,7 +336,7 @@ def register(sub: Any) -> None:
     p.add_argument("right", help="right image (rectified)")
     p.add_argument(
         "--max-disparity",
-        type=int,
+        type=_positive_int,
         required=True,
         metavar="N",
         help="largest disparity searched, pixels (range 0..N)",
@@ -338,21 +382,21 @@ def register(sub: Any) -> None:
     d.add_argument("--engine", choices=_ENGINES, default="sea3d", help="matching engine")
     d.add_argument(
         "--max-disparity",
-        type=int,
+        type=_positive_int,
         default=None,
         metavar="N",
         help="largest disparity searched (default: from --min-depth)",
     )
     d.add_argument(
         "--min-depth",
-        type=float,
+        type=_positive_float,
         default=0.5,
         metavar="M",
         help="nearest depth to resolve, metres (sets the disparity range)",
     )
     d.add_argument(
         "--max-depth",
-        type=float,
+        type=_positive_float,
         default=10.0,
         metavar="M",
         help="farthest depth kept, metres (refractive rectification range too)",
@@ -372,12 +416,15 @@ def register_eval(esub: Any) -> None:
     ed.add_argument("ground_truth", metavar="GT", help="ground-truth disparity")
     ed.add_argument(
         "--scale",
-        type=float,
+        type=_positive_float,
         default=None,
         help="GT integer images store d * scale (Middlebury: 16, 8 or 4)",
     )
     ed.add_argument(
-        "--est-scale", type=float, default=None, help="the same for an integer estimate image"
+        "--est-scale",
+        type=_positive_float,
+        default=None,
+        help="the same for an integer estimate image",
     )
     ed.add_argument("--json", action="store_true", help="print the figures as JSON")
     ed.set_defaults(handler=_cmd_eval_disparity)
