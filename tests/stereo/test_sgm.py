@@ -172,9 +172,14 @@ def test_left_border_pixels_whose_match_is_off_the_image_are_invalid_not_wrong()
     res = match(left, right, SgmConfig(max_disparity_px=47))
     d = res.disparity_px
     border = d[:, :18]  # x < d_true: the right image does not see these points
-    finite = np.isfinite(border)
-    assert np.all(np.abs(border[finite] - 20.0) < 2.0)
-    assert finite.mean() < 0.1
+    matched = res.measured[:, :18]
+    assert np.all(np.abs(border[matched] - 20.0) < 2.0)
+    assert matched.mean() < 0.1
+    # the default dense output fills them from their neighbour, marked with confidence 0
+    assert np.isfinite(border).all()
+    assert np.all(res.confidence[:, :18][~matched] == 0)
+    sparse = match(left, right, SgmConfig(max_disparity_px=47, fill_max_px=0))
+    np.testing.assert_array_equal(np.isfinite(sparse.disparity_px), res.measured)
 
 
 @pytest.mark.parametrize(

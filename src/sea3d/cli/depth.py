@@ -81,6 +81,8 @@ def _engine_config(args: argparse.Namespace) -> Any:
     overrides: dict[str, Any] = {}
     if args.engine == "sea3d" and getattr(args, "paths", None):
         overrides["paths"] = args.paths
+    if args.engine == "sea3d" and getattr(args, "no_fill", False):
+        overrides["fill_max_px"] = 0
     return make_config(args.engine, args.max_disparity, **overrides)
 
 
@@ -113,7 +115,11 @@ def _cmd_stereo(args: argparse.Namespace) -> int:
     write_disparity(args.output, disp)
     import numpy as np
 
+    if args.confidence:
+        conf = np.where(np.isfinite(disp), result.confidence, np.float32(0.0))
+        write_disparity(args.confidence, conf.astype(np.float32))
     valid_fraction = float(np.isfinite(disp).mean())
+    measured_fraction = float(result.measured.mean())
     if args.json:
         out = {
             "engine": result.engine,
@@ -121,6 +127,8 @@ def _cmd_stereo(args: argparse.Namespace) -> int:
             "filter_s": filter_s,
             "compile_s": compile_s,
             "valid_fraction": valid_fraction,
+            "measured_fraction": measured_fraction,
+            "confidence": str(args.confidence) if args.confidence else None,
             "width": int(disp.shape[1]),
             "height": int(disp.shape[0]),
             "max_disparity_px": args.max_disparity,
@@ -130,7 +138,8 @@ def _cmd_stereo(args: argparse.Namespace) -> int:
         print(json.dumps(out, indent=2))
     else:
         print(
-            f"{args.output}: {disp.shape[1]}x{disp.shape[0]}, {100 * valid_fraction:.1f} % valid, "
+            f"{args.output}: {disp.shape[1]}x{disp.shape[0]}, {100 * valid_fraction:.1f} % valid "
+            f"({100 * measured_fraction:.1f} % matched, the rest filled), "
             f"matched in {result.timings_s['match_s']:.3f} s ({result.engine})"
         )
     return 0
@@ -209,7 +218,8 @@ def _cmd_depth_session(args: argparse.Namespace) -> int:
                         f"{args.session}: frame {pair.t_ns} is {pair.left.shape[1]}x"
                         f"{pair.left.shape[0]} but the rig is {rig.width}x{rig.height}"
                     )
-                res = compute_depth(maps, pair.left, pair.right, config, max_depth_m=args.max_depth)
+                res = compute_depth(maps, pair.left, pair.right, config, max_depth_m=args.max_depth,
+                                    min_confidence=args.min_confidence)
                 write_depth_png_mm(out / "depth" / f"{pair.t_ns}.png", res.depth_m)
                 if args.points:
                     write_ply(out / "cloud" / f"{pair.t_ns}.ply", res.points_left, res.colors_rgb)
@@ -286,7 +296,8 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     max_d = args.max_disparity or max_disparity_for_depth(maps, args.min_depth)
     config = make_config(args.engine, max_d)
     compile_s = _warm_up(args.engine)
-    res = compute_depth(maps, left, right, config, max_depth_m=args.max_depth)
+    res = compute_depth(maps, left, right, config, max_depth_m=args.max_depth,
+                        min_confidence=args.min_confidence)
     write_depth(args.output, res.depth_m)
     if args.points:
         write_ply(args.points, res.points_left, res.colors_rgb)
@@ -347,6 +358,17 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--filters", default="", help='post-filter chain, e.g. "median:size_px=3,speckle,wls"'
     )
+    p.add_argument(
+        "--confidence",
+        metavar="PATH",
+        help="also write the confidence map (.pfm, .npy or .tiff; 0 = filled or invalid)",
+    )
+    p.add_argument(
+        "--no-fill",
+        action="store_true",
+        help="sea3d engine: leave unmatched pixels NaN (default: dense, filled from the "
+        "background neighbour, with confidence 0)",
+    )
     p.add_argument("--json", action="store_true", help="print timings and figures as JSON")
     p.set_defaults(handler=_cmd_stereo)
 
@@ -400,6 +422,14 @@ def register(sub: Any) -> None:
         default=10.0,
         metavar="M",
         help="farthest depth kept, metres (refractive rectification range too)",
+    )
+    d.add_argument(
+        "--min-confidence",
+        type=float,
+        default=1e-6,
+        metavar="C",
+        help="drop matches below this confidence (0..1) from depth and points (default: drop "
+        "only the filled, unmatched pixels)",
     )
     d.add_argument("--json", action="store_true", help="print timings and figures as JSON")
     d.set_defaults(handler=_cmd_depth)

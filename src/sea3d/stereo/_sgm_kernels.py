@@ -313,7 +313,8 @@ def select_disparity(
                 disp[y, x] = nan
                 continue
             dint[x] = lo_p + kb
-            conf[y, x] = 1.0 if second >= _BIG else 1.0 - best / max(second, 1)
+            # > 0 on every matched pixel: confidence 0 marks filled ones
+            conf[y, x] = 1.0 if second >= _BIG else max(1.0 - best / max(second, 1), 1e-6)
             delta = 0.0
             if subpixel > 0 and 0 < kb < n_valid - 1:
                 cm = float(total[cb + kb - 1])

@@ -178,7 +178,9 @@ class DepthResult:
 
     Attributes:
         depth_m: (H, W) float32 metres along the rectified left z axis, NaN invalid.
-        disparity_px: (H, W) float32 rectified left disparity, NaN invalid.
+        disparity_px: (H, W) float32 rectified left disparity, NaN invalid (dense for sea3d's
+            engine: it includes the filled pixels that ``depth_m`` leaves out).
+        confidence: (H, W) float32 matching confidence, 0 where filled or invalid.
         points_left: (N, 3) float64 metres in the left camera's own frame.
         colors_rgb: (N, 3) uint8 colours of the points (rectified left image).
         rect_left: the rectified left image.
@@ -193,6 +195,7 @@ class DepthResult:
     rect_left: np.ndarray
     maps: RectifyMaps
     timings_s: dict[str, float] = field(default_factory=dict)
+    confidence: F32 | None = None
 
 
 def compute_depth(
@@ -202,16 +205,22 @@ def compute_depth(
     config: EngineConfig,
     *,
     max_depth_m: float | None = None,
+    min_confidence: float = 1e-6,
 ) -> DepthResult:
     """Rectify a raw pair, match it, and turn the disparity into metric depth and points.
 
     Pinhole rigs use ``z = f B / d``; refractive rigs triangulate with the refracted rays.
+    Depth and points keep only what 3D fusion should see: pixels the engine matched with a
+    confidence of at least ``min_confidence`` (the default drops the filled, unmatched pixels
+    of sea3d's dense disparity; ``DepthResult.disparity_px`` keeps them).
 
     Args:
         maps: from :func:`sea3d.rectify.rectify_rig`.
         left, right: raw images (H, W) or (H, W, 3) RGB, the rig's size.
         config: matching engine config (its range is in rectified pixels).
         max_depth_m: depths beyond this are set invalid (None keeps all).
+        min_confidence: matched pixels below this confidence get no depth (0 keeps filled
+            pixels too).
 
     Raises:
         RectifyError: image size differs from the rig's. StereoError: invalid images.
@@ -223,7 +232,8 @@ def compute_depth(
     t2 = time.perf_counter()
     disp = res.disparity_px
     h, w = disp.shape
-    points, z, mask = disparity_to_points(maps, disp)
+    keep = res.confidence >= min_confidence if min_confidence > 0 else np.isfinite(disp)
+    points, z, mask = disparity_to_points(maps, np.where(keep, disp, np.nan))
     depth: F32 = np.full((h, w), np.nan, np.float32)
     depth[mask] = z
     if max_depth_m is not None:
@@ -243,5 +253,5 @@ def compute_depth(
                "depth_s": t3 - t2}
     return DepthResult(depth_m=depth, disparity_px=disp, points_left=points,
                        colors_rgb=np.ascontiguousarray(colors, dtype=np.uint8), rect_left=rl,
-                       maps=maps, timings_s=timings)
+                       maps=maps, timings_s=timings, confidence=res.confidence)
 

@@ -191,10 +191,11 @@ def _match_sgm(left: np.ndarray, right: np.ndarray, config: SgmConfig) -> Dispar
         coarse = disp
     assert coarse is not None and conf is not None
     disp = coarse
-    if config.fill_max_px > 0:
+    fill = w if config.fill_max_px is None else config.fill_max_px
+    if fill > 0:
         t0 = time.perf_counter()
         conf = np.where(np.isfinite(disp), conf, np.float32(0.0)).astype(np.float32)
-        disp = fill_holes(disp, config.fill_max_px)
+        disp = fill_holes(disp, fill)
         timings["post_s"] += time.perf_counter() - t0
     disp[disp > config.max_disparity_px] = config.max_disparity_px
     conf = np.where(np.isfinite(disp), conf, np.float32(0.0)).astype(np.float32)

@@ -95,9 +95,11 @@ class SgmConfig:
     """Speckle removal: largest connected blob (pixels) that is removed; 0 disables."""
     speckle_range_px: float = 2.0
     """Speckle removal: disparity step that separates blobs, pixels."""
-    fill_max_px: int = 0
-    """Fill row-wise runs of up to this many invalid pixels with the background neighbour
-    (occlusion filling); 0 disables."""
+    fill_max_px: int | None = None
+    """Fill invalid pixels along rows with the farther (background) of their two valid
+    neighbours, as suits occlusions: ``None`` (default) fills every hole, so the disparity is
+    dense; ``N`` fills runs of up to ``N`` pixels; 0 leaves every invalid pixel NaN. Filled
+    pixels get confidence 0, so users who fuse 3D can drop them (``sea3d depth`` does)."""
 
     def __post_init__(self) -> None:
         _check_common(self.max_disparity_px)
@@ -131,6 +133,8 @@ class SgmConfig:
             )
         if self.census_presmooth_px < 0 or self.refine_weight_cutoff < 0:
             raise ConfigError("census_presmooth_px and refine_weight_cutoff must be >= 0")
+        if self.fill_max_px is not None and self.fill_max_px < 0:
+            raise ConfigError(f"fill_max_px must be None or >= 0, got {self.fill_max_px}")
         if self.refine_row_step < 1:
             raise ConfigError(f"refine_row_step must be >= 1, got {self.refine_row_step}")
         if self.p2_edge_tau <= 0 or self.uniqueness < 0:
@@ -185,8 +189,8 @@ class DisparityResult:
 
     Attributes:
         disparity_px: ``(H, W)`` float32, left view, pixels; NaN where invalid.
-        confidence: ``(H, W)`` float32 in [0, 1]; 0 where invalid. Engines without a
-            confidence measure give 1 on valid pixels.
+        confidence: ``(H, W)`` float32 in [0, 1]; 0 where invalid or filled (not matched).
+            Engines without a confidence measure give 1 on valid pixels.
         timings_s: wall-clock seconds per stage; ``match_s`` is the whole matching call
             without start-up (JIT compilation) and file I/O.
         engine: engine name, ``"sea3d"`` or ``"opencv"``.
@@ -196,6 +200,11 @@ class DisparityResult:
     confidence: NDArray[np.float32]
     timings_s: dict[str, float] = field(default_factory=dict)
     engine: str = ""
+
+    @property
+    def measured(self) -> NDArray[np.bool_]:
+        """``(H, W)`` bool: pixels matched, not filled (valid with confidence > 0)."""
+        return self.valid & (self.confidence > 0)
 
     @property
     def valid(self) -> NDArray[np.bool_]:
