@@ -38,6 +38,7 @@ from sea3d.stereo._simd import (
     path_step16_add,
     path_step16_set,
     right_scatter16,
+    select16,
     window_sums16,
 )
 
@@ -105,24 +106,32 @@ def band_costs(
     ``x >= 16 * nch - 1``, and ``lo = 0`` elsewhere.
     """
     h, w = census_l.shape
+    lof = lo.reshape(-1)
+    ncf = nch.reshape(-1)
     k_max = int(nch.max()) * LANES
     cost = np.empty(offs[-1], np.uint8)
+    # the right rows reversed, so each band reads increasing addresses; padded at the end
+    stride = w + k_max
+    rev = np.zeros(h * stride, np.uint64)
     for y in prange(h):
-        # the right row reversed, so each band reads increasing addresses; padded at the end
-        rev = np.zeros(w + k_max, np.uint64)
         for j in range(w):
-            rev[j] = census_r[y, w - 1 - j]
+            rev[y * stride + j] = census_r[y, w - 1 - j]
+    for y in prange(h):
+        row = y * stride + w - 1
         for x in range(w):
-            lo_p = lo[y, x]
-            kp = nch[y, x] * LANES
-            cb = offs[y * w + x]
+            p = y * w + x
+            lo_p = load_at(lof, p)
+            kp = load_at(ncf, p) * LANES
+            cb = load_at(offs, p)
             cl = census_l[y, x]
-            start = w - 1 - x + lo_p
-            for c in range(0, kp, LANES):
+            start = row - x + lo_p
+            census_cost16(rev, start, cl, cost, cb)
+            for c in range(LANES, kp, LANES):
                 census_cost16(rev, start + c, cl, cost, cb + c)
             top = min(x, num_disp - 1) - lo_p  # last valid k
-            for k in range(max(top + 1, 0), kp):
-                cost[cb + k] = INVALID_COST
+            if top < kp - 1:
+                for k in range(max(top + 1, 0), kp):
+                    cost[cb + k] = INVALID_COST
     return cost
 
 
@@ -286,24 +295,32 @@ def select_disparity(
             if n_valid <= 0 or none[y, x]:
                 disp[y, x] = nan
                 continue
-            best = _BIG
-            kb = 0
-            for c in range(0, kp, LANES):
-                nv = n_valid - c
-                if nv <= 0:
-                    break
-                r = argmin16(total, cb + c, nv)
-                if r // 32 < best:
-                    best = r // 32
-                    kb = c + r % 32
-                right_scatter16(rbest, rdisp, k_max + x - lo_p - c - (LANES - 1), total,
-                                cb + c, nv, lo_p + c)
-            second = _BIG
-            for c in range(0, kp, LANES):
-                nv = n_valid - c
-                if nv <= 0:
-                    break
-                second = min(second, min_outside16(total, cb + c, nv, kb - 1 - c, kb + 1 - c))
+            if kp == LANES:  # one chunk: one fused vector step
+                r = select16(total, cb, n_valid, rbest, rdisp, k_max + x - lo_p - (LANES - 1),
+                             lo_p)
+                best = r % 32768
+                second = (r // 32768) % 32768
+                kb = r // (32768 * 32768)
+            else:
+                best = _BIG
+                kb = 0
+                for c in range(0, kp, LANES):
+                    nv = n_valid - c
+                    if nv <= 0:
+                        break
+                    r = argmin16(total, cb + c, nv)
+                    if r // 32 < best:
+                        best = r // 32
+                        kb = c + r % 32
+                    right_scatter16(rbest, rdisp, k_max + x - lo_p - c - (LANES - 1), total,
+                                    cb + c, nv, lo_p + c)
+                second = _BIG
+                for c in range(0, kp, LANES):
+                    nv = n_valid - c
+                    if nv <= 0:
+                        break
+                    second = min(second,
+                                 min_outside16(total, cb + c, nv, kb - 1 - c, kb + 1 - c))
             # a winner against the right image's left edge, with the band reaching it: the
             # true match may lie outside the right image
             if lo_p + n_valid - 1 == x and lo_p + kb >= x - 1:
@@ -418,6 +435,23 @@ def band_from_coarse(
                 mx = max(mx, rmax[yy, xc])
             wmin[yc, xc] = mn
             wmax[yc, xc] = mx
+    # each coarse cell's band start and width (its 2x2 fine pixels share them)
+    c_start = np.empty((hc, wc), np.int32)
+    c_low = np.empty((hc, wc), np.int32)
+    c_n = np.empty((hc, wc), np.int32)
+    for yc in prange(hc):
+        for xc in range(wc):
+            a = int(np.floor(2.0 * wmin[yc, xc])) - margin
+            b = int(np.ceil(2.0 * wmax[yc, xc])) + margin
+            width = b - a + 1
+            n = min((width + LANES - 1) // LANES, max_chunks)
+            kp = n * LANES
+            if width <= kp:
+                c_start[yc, xc] = a - (kp - width) // 2
+            else:
+                c_start[yc, xc] = int(np.round(cmin[yc, xc] + cmax[yc, xc])) - kp // 2
+            c_low[yc, xc] = max(a, 0)
+            c_n[yc, xc] = n
     lo = np.empty((h, w), np.int32)
     nch = np.empty((h, w), np.int32)
     none = np.zeros((h, w), np.bool_)
@@ -425,19 +459,11 @@ def band_from_coarse(
         yc = min(y // 2, hc - 1)
         for x in range(w):
             xc = min(x // 2, wc - 1)
-            a = int(np.floor(2.0 * wmin[yc, xc])) - margin
-            b = int(np.ceil(2.0 * wmax[yc, xc])) + margin
-            width = b - a + 1
-            n = min((width + LANES - 1) // LANES, max_chunks)
-            kp = n * LANES
-            if width <= kp:
-                start = a - (kp - width) // 2
-            else:
-                start = int(np.round(cmin[yc, xc] + cmax[yc, xc])) - kp // 2
+            n = c_n[yc, xc]
             top = min(num_disp - 1, x)  # largest disparity with a match inside the right image
-            if max(a, 0) > top:
+            if c_low[yc, xc] > top:
                 none[y, x] = True
-            lo[y, x] = max(min(start, top - kp + 1), 0)
+            lo[y, x] = max(min(c_start[yc, xc], top - n * LANES + 1), 0)
             nch[y, x] = n
     return lo, nch, none
 
@@ -491,7 +517,7 @@ def refine_subpixel(
     lp = _padded_rows(left, stride)
     rp = _padded_rows(right, stride)
     out = disp.copy()
-    n_px = np.float32(((2 * half_h) // row_step + 1) * (2 * half_w + 1))
+    n_px = np.float32((2 * (half_h // row_step) + 1) * (2 * half_w + 1))
     for y in prange(half_h, h - half_h):
         sums = np.empty(9, np.float32)
         for x in range(half_w, w - half_w):

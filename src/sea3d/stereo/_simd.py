@@ -28,6 +28,7 @@ __all__ = [
     "path_step16_add",
     "path_step16_set",
     "right_scatter16",
+    "select16",
     "window_sums16",
 ]
 
@@ -238,7 +239,7 @@ def window_sums16(typingctx: Any, left: Any, right: Any, stride: Any, x: Any, y:
 
     ``left``/``right`` are flat float32 images with rows ``stride`` apart; the window is
     ``(2*half_h+1) x (2*half_w+1)`` (width at most 15) around ``(x, y)``, of which rows
-    ``-half_h, -half_h + row_step, ...`` are read. Row ``j`` of the right window starts at
+    ``-m s, ..., 0, ..., m s`` are read (``s = row_step``, ``m = half_h // s``). Row ``j`` of the right window starts at
     ``x - half_w - d - gy * j``, read with linear interpolation, and each pixel is weighted by
     Tukey's biweight ``(1 - t^2)^2`` of ``t = (L - centre) * inv_gamma`` (0 for ``|t| >= 1``).
     With ``rv`` the interpolated right value, ``jd = gain * dR/dx`` and
@@ -304,8 +305,10 @@ def window_sums16(typingctx: Any, left: Any, right: Any, stride: Any, x: Any, y:
                                                   ir.FunctionType(_F32, [_F32]),
                                                   "llvm.floor.f32")
         x0 = builder.sub(x_, hw_)
-        start = builder.sub(ir.Constant(hh_.type, 0), hh_)
-        stop = builder.add(hh_, ir.Constant(hh_.type, 1))
+        # rows -m s .. m s with m = half_h // s: symmetric about the centre row
+        reach = builder.mul(builder.sdiv(hh_, step_), step_)
+        start = builder.sub(ir.Constant(hh_.type, 0), reach)
+        stop = builder.add(reach, ir.Constant(hh_.type, 1))
         one_v = ir.Constant(_VF, [1.0] * LANES)
         with cgutils.for_range_slice(builder, start, stop, step_,
                                      intp=hh_.type) as (j, _):
@@ -358,5 +361,52 @@ def load_at(typingctx: Any, array: Any, index: Any) -> Any:
     def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
         ary, idx = args
         return builder.load(_elem_ptr(context, builder, signature.args[0], ary, idx))
+
+    return sig, codegen
+
+
+@intrinsic
+def select16(typingctx: Any, total: Any, i_total: Any, n_valid: Any, rbest: Any, rdisp: Any,
+             i_right: Any, d_first: Any) -> Any:
+    """Winner, runner-up and right-view update of a pixel with a single chunk of candidates.
+
+    Combines :func:`argmin16`, :func:`min_outside16` (outside the winner +- 1) and
+    :func:`right_scatter16` on one load: returns ``best + 32768 * (second + 32768 * k)`` with
+    ``k`` the winner's index (int64; 32767 stands for "none")."""
+    sig = types.int64(total, i_total, n_valid, rbest, rdisp, i_right, d_first)
+
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+        tf, it, nv, rb, rd, ir_, d0 = args
+        v = _masked(builder, _load(builder, _elem_ptr(context, builder, signature.args[0], tf,
+                                                      it), _V16), nv)
+        best = _reduce_min(builder, v)
+        eq = builder.icmp_signed("==", v, _splat16(builder, builder.sext(best, _I64)))
+        bits = builder.bitcast(eq, ir.IntType(LANES))
+        cttz = cgutils.get_or_insert_function(
+            builder.module, ir.FunctionType(ir.IntType(LANES), [ir.IntType(LANES), ir.IntType(1)]),
+            f"llvm.cttz.i{LANES}",
+        )
+        k16 = builder.call(cttz, [bits, ir.Constant(ir.IntType(1), 0)])
+        k = builder.zext(k16, _I64)
+        ids = _lane_ids()
+        kk = _splat16(builder, k)
+        near = builder.and_(
+            builder.icmp_signed(">=", ids, builder.sub(kk, ir.Constant(_V16, [1] * LANES))),
+            builder.icmp_signed("<=", ids, builder.add(kk, ir.Constant(_V16, [1] * LANES))),
+        )
+        second = _reduce_min(builder, builder.select(near, ir.Constant(_V16, [32767] * LANES), v))
+        rev = ir.Constant(ir.VectorType(ir.IntType(32), LANES), list(range(LANES - 1, -1, -1)))
+        vr = builder.shuffle_vector(v, ir.Constant(_V16, ir.Undefined), rev)
+        pb = _elem_ptr(context, builder, signature.args[3], rb, ir_)
+        pd = _elem_ptr(context, builder, signature.args[4], rd, ir_)
+        old = _load(builder, pb, _V16)
+        better = builder.icmp_signed("<", vr, old)
+        _store(builder, builder.select(better, vr, old), pb)
+        dvec = builder.sub(_splat16(builder, builder.add(d0, ir.Constant(d0.type, LANES - 1))),
+                           ids)
+        _store(builder, builder.select(better, dvec, _load(builder, pd, _V16)), pd)
+        c32k = ir.Constant(_I64, 32768)
+        packed = builder.add(builder.sext(second, _I64), builder.mul(k, c32k))
+        return builder.add(builder.sext(best, _I64), builder.mul(packed, c32k))
 
     return sig, codegen
