@@ -239,8 +239,9 @@ def window_sums16(typingctx: Any, left: Any, right: Any, stride: Any, x: Any, y:
 
     ``left``/``right`` are flat float32 images with rows ``stride`` apart; the window is
     ``(2*half_h+1) x (2*half_w+1)`` (width at most 15) around ``(x, y)``, of which rows
-    ``-m s, ..., 0, ..., m s`` are read (``s = row_step``, ``m = half_h // s``). Row ``j`` of the right window starts at
-    ``x - half_w - d - gy * j``, read with linear interpolation, and each pixel is weighted by
+    ``-m s, ..., 0, ..., m s`` are read (``s = row_step``, ``m = half_h // s``). Row ``j`` of
+    the right window starts at ``x - half_w - d - gy * j``, read with linear interpolation, and
+    each pixel is weighted by
     Tukey's biweight ``(1 - t^2)^2`` of ``t = (L - centre) * inv_gamma`` (0 for ``|t| >= 1``).
     With ``rv`` the interpolated right value, ``jd = gain * dR/dx`` and
     ``res = L - gain * rv - offset``, writes the sums over the window of ``w rv^2, w rv,
