@@ -569,22 +569,6 @@ def refine_subpixel(
 
 
 @njit(parallel=True, cache=True)
-def disparity_gradients(disp: np.ndarray, r: int) -> tuple[np.ndarray, np.ndarray]:
-    """Disparity slope per pixel (px/px) by central differences over ``r`` pixels, NaN where
-    either neighbour is invalid. Returns ``(grad_x, grad_y)`` (H, W) float32."""
-    h, w = disp.shape
-    gx = np.full((h, w), np.nan, np.float32)
-    gy = np.full((h, w), np.nan, np.float32)
-    for y in prange(h):
-        for x in range(w):
-            if r <= x < w - r:
-                gx[y, x] = (disp[y, x + r] - disp[y, x - r]) / (2 * r)
-            if r <= y < h - r:
-                gy[y, x] = (disp[y + r, x] - disp[y - r, x]) / (2 * r)
-    return gx, gy
-
-
-@njit(parallel=True, cache=True)
 def invalidate_left_border(disp: np.ndarray, reach: int, tolerance: float) -> None:
     """Invalidate left-border pixels whose neighbourhood says their match is off the image.
 

@@ -44,6 +44,7 @@ _DIRECTIONS_16 = (*_DIRECTIONS_8, (1, 2), (1, -2), (2, 1), (2, -1))
 # long inner loop amortising each step's set-up), but at least 64
 _ROW_GROUP = 8
 _COLUMN_GROUP_MIN = 64
+_SLOPE_HALF_WIDTH_PX = 4  # columns either side in the refinement's vertical-slope fit
 
 
 def choose_pyramid_levels(height: int, width: int, num_disparities: int, config: SgmConfig) -> int:
@@ -154,6 +155,30 @@ def match_sgm(left: np.ndarray, right: np.ndarray, config: SgmConfig) -> Dispari
         numba.set_parallel_chunksize(previous_chunk)
 
 
+def _vertical_slope(disp: NDArray[np.float32], half_h: int, half_w: int) -> NDArray[np.float32]:
+    """Least-squares slope of the disparity along rows, px/px, over a ``(2 half_h + 1) x
+    (2 half_w + 1)`` window of valid pixels (NaN where the window holds too few): the vertical
+    tilt the alignment refinement lets its window follow. Measured steadier than central
+    differences of a median-filtered map (fronto-parallel planes at 3-5 m: 0.39/0.61 %
+    against 0.57/0.82 % depth error) at the same accuracy on receding sea floors."""
+    v = np.isfinite(disp).astype(np.float32)
+    d = np.where(v > 0, disp, 0.0).astype(np.float32)
+    ramp = np.arange(-half_h, half_h + 1, dtype=np.float32)
+    ones_y = np.ones(2 * half_h + 1, np.float32)
+    ones_x = np.ones(2 * half_w + 1, np.float32)
+    def f(img: np.ndarray, ky: np.ndarray) -> np.ndarray:
+        return np.asarray(cv2.sepFilter2D(img, cv2.CV_32F, ones_x, ky,
+                                          borderType=cv2.BORDER_CONSTANT))
+    s1, sj, sjj = f(v, ones_y), f(v, ramp), f(v, ramp * ramp)
+    sd, sjd = f(d, ones_y), f(d, ramp)
+    den = s1 * sjj - sj * sj
+    with np.errstate(all="ignore"):
+        gy = (s1 * sjd - sj * sd) / den
+    gy[~(den > 1e-3)] = np.nan
+    out: NDArray[np.float32] = gy.astype(np.float32)
+    return out
+
+
 def _match_sgm(left: np.ndarray, right: np.ndarray, config: SgmConfig) -> DisparityResult:
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
@@ -177,7 +202,8 @@ def _match_sgm(left: np.ndarray, right: np.ndarray, config: SgmConfig) -> Dispar
         t0 = time.perf_counter()
         if lev == 0 and config.refine_iterations > 0:
             r = config.refine_window_px // 2
-            _, gy = K.disparity_gradients(median_nan(disp, 3), 2)
+            reach = (r // config.refine_row_step) * config.refine_row_step
+            gy = _vertical_slope(disp, reach, _SLOPE_HALF_WIDTH_PX)
             c = config.refine_weight_cutoff
             inv_gamma = 1.0 / c if c > 0 else 0.0
             disp = K.refine_subpixel(a, b, disp, gy, r, r, config.refine_iterations, 0.5,

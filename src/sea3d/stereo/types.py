@@ -86,7 +86,7 @@ class SgmConfig:
     """The refinement reads every this many rows of its window, symmetrically about the centre
     (15 px window, step 3: rows -6, -3, 0, 3, 6): the same reach for a third of the work,
     measured within 0.003 px EPE of reading every row on Middlebury and the coastal pairs."""
-    refine_weight_cutoff: float = 25.0
+    refine_weight_cutoff: float = 40.0
     """Window pixels in the refinement weigh ``(1 - (dI / c)^2)^2`` (Tukey's biweight of their
     grey-level difference ``dI`` to the centre, 0 beyond ``c``), so a window straddling an
     edge leans on the centre's side; 0 weighs all alike."""
