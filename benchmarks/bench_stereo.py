@@ -447,19 +447,88 @@ def main() -> None:
             )
             mem[engine] = json.loads(out.stdout.strip().splitlines()[-1])
 
-    print(f"\n{'engine':14s} {'median s':>9s} {'min s':>7s} {'time/sea3d':>11s} "
-          f"{'CPU s':>6s} {'peak RSS MB':>12s} {'bad-2 %':>8s} {'density %':>10s}")
+    load_after = " ".join(f"{x:.2f}" for x in os.getloadavg())
+    print(f"\n{'engine':14s} {'wall s':>7s} {'min s':>7s} {'CPU s':>6s} {'wall/3WAY':>10s} "
+          f"{'CPU/3WAY':>9s} {'peak RSS MB':>12s} {'bad-2 %':>8s} {'density %':>10s}")
     for engine in ENGINES:
         m = disparity_metrics(last[engine].disparity_px, gt)
-        print(f"{engine:14s} {med[engine]:9.3f} {min(times[engine]):7.3f} "
-              f"{med[engine] / med['sea3d']:10.2f}x {med_cpu[engine]:6.2f} "
+        print(f"{engine:14s} {med[engine]:7.3f} {min(times[engine]):7.3f} "
+              f"{med_cpu[engine]:6.2f} {med[engine] / med['opencv-3way']:9.2f}x "
+              f"{med_cpu[engine] / med_cpu['opencv-3way']:8.2f}x "
               f"{mem[engine]['peak_rss_mb']:12.0f} {m.bad_2:8.2f} {m.density:10.1f}")
-    print(f"load average before the runs: {load}")
-    print(f"\nsea3d is {med['opencv-sgbm'] / med['sea3d']:.2f}x as fast as MODE_SGBM and "
-          f"{med['opencv-3way'] / med['sea3d']:.2f}x as fast as MODE_SGBM_3WAY "
-          f"(medians of {args.repeats}).")
+    res0 = last["sea3d"]
+    mm = disparity_metrics(np.where(res0.measured, res0.disparity_px, np.nan), gt)
+    print(f"{'  matched only':14s} {'':7s} {'':7s} {'':6s} {'':10s} {'':9s} {'':12s} "
+          f"{mm.bad_2:8.3f} {mm.density:10.1f}   (sea3d without its filled pixels)")
+    print(f"load average (1, 5, 15 min) before the runs: {load}; after: {load_after}")
+    r_wall = med["sea3d"] / med["opencv-3way"]
+    r_cpu = med_cpu["sea3d"] / med_cpu["opencv-3way"]
+    print(f"\nsea3d against MODE_SGBM_3WAY (medians of {args.repeats}, interleaved): wall "
+          f"{r_wall:.2f}x, CPU {r_cpu:.2f}x; "
+          f"against MODE_SGBM: wall {med['sea3d'] / med['opencv-sgbm']:.2f}x, CPU "
+          f"{med_cpu['sea3d'] / med_cpu['opencv-sgbm']:.2f}x")
     stages = {k: round(v, 3) for k, v in last["sea3d"].timings_s.items()}
-    print(f"sea3d stages (last run, s): {stages}")
+    print(f"sea3d stages (last run, wall s): {stages}")
+    bandwidth_floor(left, right, med_cpu["sea3d"])
+
+
+def _copy_bandwidth_gbs(mbytes: int = 256, repeats: int = 7) -> tuple[float, float]:
+    """Best copy (read + write counted) and read-only bandwidth of this machine, GB/s, with
+    numpy on one thread (a STREAM-like copy of ``mbytes`` and a sum over it)."""
+    a = np.ones(mbytes * 2**20 // 8)
+    b = np.empty_like(a)
+    copy, read = [], []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        np.copyto(b, a)
+        copy.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        np.add.reduce(a)
+        read.append(time.perf_counter() - t0)
+    return 2 * a.nbytes / min(copy) / 1e9, a.nbytes / min(read) / 1e9
+
+
+def bandwidth_floor(left: np.ndarray, right: np.ndarray, cpu_s: float) -> None:
+    """Bytes the SGM kernels move through their volumes, and the time that takes at this
+    machine's measured bandwidth: the floor under sea3d's matching time."""
+    from sea3d.stereo import _sgm_kernels as K
+    from sea3d.stereo import match
+
+    counts = {"cost": 0, "sweep_set": 0, "sweep_add": 0, "select": 0}
+    orig = (K.band_costs, K.sweep, K.select_disparity)
+
+    def costs(*a: object) -> np.ndarray:
+        out = orig[0](*a)  # type: ignore[arg-type]
+        counts["cost"] += out.size
+        return out
+
+    def sweep(*a: object) -> None:
+        counts["sweep_add" if a[-1] else "sweep_set"] += a[0].size  # type: ignore[attr-defined]
+        orig[1](*a)  # type: ignore[arg-type]
+
+    def select(*a: object) -> object:
+        counts["select"] += a[0].size  # type: ignore[attr-defined]
+        return orig[2](*a)  # type: ignore[arg-type]
+
+    K.band_costs, K.sweep, K.select_disparity = costs, sweep, select  # type: ignore[assignment]
+    try:
+        match(left, right, _config("sea3d"))  # type: ignore[arg-type]
+    finally:
+        K.band_costs, K.sweep, K.select_disparity = orig  # type: ignore[assignment]
+    # per cell: costs written (1 B); a sweep reads the cost (1 B) and writes the int16 total
+    # (2 B), or reads and writes it (4 B); the selection reads the total (2 B)
+    volume = (counts["cost"] + 3 * counts["sweep_set"] + 5 * counts["sweep_add"]
+              + 2 * counts["select"])
+    h, w = left.shape[:2]
+    copy_gbs, read_gbs = _copy_bandwidth_gbs()
+    floor_s = volume / (copy_gbs * 1e9)
+    print(f"\nmemory-bandwidth floor: the kernels move {volume / 1e6:.0f} MB through their "
+          f"cost and sum volumes ({counts['cost'] / 1e6:.1f} M cells searched over all levels; "
+          f"{volume / counts['cost']:.1f} B per searched cell, {volume / (h * w * 256):.2f} B per "
+          f"pixel and disparity of the 0..255 range); this machine copies {copy_gbs:.1f} GB/s "
+          f"(read+write) and reads {read_gbs:.1f} GB/s on one thread now, so moving them takes "
+          f"{1000 * floor_s:.0f} ms: {100 * floor_s / cpu_s:.0f} % of sea3d's {cpu_s:.2f} "
+          f"CPU-s (the rest is compute: census, path steps, refinement)")
 
 
 if __name__ == "__main__":
