@@ -98,7 +98,7 @@ def _speed_one(left: np.ndarray, right: np.ndarray, repeats: int, gpu: bool = Tr
     print(f"{w}x{h}, 256 disparities, median of {repeats} (CPU engines: {max(1, repeats // 2)}"
           f"); load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}:")
     if not gpu:
-        print(f"  sea3d CPU SGM         {t_cpu:8.3f} s  ratio CPU/3WAY {t_cpu / t_ocv3:.3f}")
+        print(f"  sea3d CPU SGM         {t_cpu:8.3f} s  wall ratio sea3d/3WAY {t_cpu / t_ocv3:.3f}")
         print(f"  OpenCV MODE_SGBM      {t_ocv:8.3f} s")
         print(f"  OpenCV SGBM_3WAY      {t_ocv3:8.3f} s")
         return
