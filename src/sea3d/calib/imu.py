@@ -10,7 +10,8 @@ The offset is found first from the rotation-free speeds ``|omega|`` (cross-corre
 ``[-max_offset_s, max_offset_s]``, refined by a parabola), the rotation then in closed form
 (orthogonal Procrustes, Kabsch/Umeyama, on mean-free rates), and all three are refined together
 by robust least squares (scipy, soft-L1). The rotation needs motion about at least two axes;
-the result's status says when it lacked them.
+the result's status says when it lacked them (the rotation's standard deviation, from the
+Gauss-Newton covariance, above ``max_rotation_sigma_deg``).
 
 The translation of ``T_left_imu`` cannot be seen from rotations; the rig's own (or zero) stays.
 """
@@ -58,6 +59,8 @@ class CameraImuCalibration:
         correlation: normalised cross-correlation of the speeds at the chosen offset (0..1).
         samples: camera rate samples used.
         excitation_radps: (3,) singular values of the camera rates (motion about each axis).
+        rotation_sigma_deg: largest standard deviation of the rotation (about any axis).
+        time_offset_sigma_s: standard deviation of the offset.
     """
 
     status: CameraImuStatus
@@ -68,6 +71,8 @@ class CameraImuCalibration:
     correlation: float
     samples: int
     excitation_radps: F64
+    rotation_sigma_deg: float = float("nan")
+    time_offset_sigma_s: float = float("nan")
 
     def as_dict(self) -> dict[str, object]:
         """Plain values for JSON."""
@@ -80,6 +85,8 @@ class CameraImuCalibration:
             "correlation": self.correlation,
             "samples": self.samples,
             "excitation_radps": self.excitation_radps.tolist(),
+            "rotation_sigma_deg": self.rotation_sigma_deg,
+            "time_offset_sigma_s": self.time_offset_sigma_s,
         }
 
 
@@ -132,6 +139,7 @@ def estimate_camera_imu(
     max_offset_s: float = 0.5,
     R_cam_imu_guess: F64 | None = None,
     valid: NDArray[np.bool_] | None = None,
+    max_rotation_sigma_deg: float = 0.5,
 ) -> CameraImuCalibration:
     """Estimate ``R_cam_imu``, the time offset and the gyro bias (see the module docstring).
 
@@ -143,6 +151,8 @@ def estimate_camera_imu(
         max_offset_s: the offset searched, ``[-max, +max]``.
         R_cam_imu_guess: a starting rotation (skips the closed form when given).
         valid: (N,) frames whose orientation is trustworthy (e.g. odometry status tracking).
+        max_rotation_sigma_deg: a rotation less certain than this (about its worst axis) is
+            reported as ``WEAK_EXCITATION``.
 
     Returns:
         :class:`CameraImuCalibration` (a status, never an exception, for data that will not do).
@@ -244,7 +254,17 @@ def estimate_camera_imu(
     R_final = Rotation.from_rotvec(x[:3]).as_matrix() @ R0
     res = residual(x).reshape(-1, 3)
     rms = float(np.sqrt(np.mean(np.sum(res**2, axis=1))))
-    weak = bool(sv[1] < 0.05 * max(sv[0], 1e-12) or sv[1] < 1e-3)
+    # standard deviations from the Gauss-Newton covariance at the solution
+    J = sol.jac
+    dof = max(J.shape[0] - J.shape[1], 1)
+    s2 = float(np.sum(sol.fun**2)) / dof
+    try:
+        cov = np.linalg.inv(J.T @ J) * s2
+        sig = np.sqrt(np.clip(np.diag(cov), 0, None))
+    except np.linalg.LinAlgError:
+        sig = np.full(7, np.inf)
+    rot_sigma_deg = float(np.degrees(np.max(sig[:3])))
+    weak = bool(rot_sigma_deg > max_rotation_sigma_deg)
     status = CameraImuStatus.WEAK_EXCITATION if weak else CameraImuStatus.OK
     return CameraImuCalibration(
         status=status,
@@ -255,4 +275,6 @@ def estimate_camera_imu(
         correlation=float(corr[best]),
         samples=int(t_mid.size),
         excitation_radps=sv,
+        rotation_sigma_deg=rot_sigma_deg,
+        time_offset_sigma_s=float(sig[3]),
     )

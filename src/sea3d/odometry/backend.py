@@ -117,6 +117,7 @@ class SmootherBackend:
         params.findUnusedFactorSlots = True
         self.smoother = gtsam.IncrementalFixedLagSmoother(lag_s, params)
         self.lag_s = lag_s
+        self.failed = False
         self.keyframes: list[int] = []
         self.times_s: dict[int, float] = {}
         self.estimate = gtsam.Values()
@@ -245,12 +246,18 @@ class SmootherBackend:
         for j, _ in observations:
             stamps[_L(j)] = t_s
         self._stereo_factors(graph, k, observations)
+        if self.failed:
+            raise SmootherFailure("the smoother failed before; its segment must end")
         try:
             self.smoother.update(graph, values, stamps)  # type: ignore[arg-type]
             for _ in range(extra_iterations):
                 self.smoother.update()
             self.estimate = self.smoother.calculateEstimate()
-        except RuntimeError as err:  # gtsam's IndeterminantLinearSystem, Cheirality, ...
+        except (RuntimeError, IndexError, ValueError) as err:
+            # gtsam's IndeterminantLinearSystem, Cheirality, ...; a failed update leaves the
+            # smoother's Bayes tree unusable (later updates raise IndexError), so the segment
+            # that owns it must end
+            self.failed = True
             raise SmootherFailure(str(err)) from err
         self.keyframes.append(k)
         self.times_s[k] = t_s

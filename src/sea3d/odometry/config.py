@@ -59,7 +59,7 @@ class OdometryConfig:
     # ---- back end
     smoother_lag_s: float = 3.0
     """Fixed-lag smoother window, seconds: cost per keyframe stays bounded over hours."""
-    pixel_sigma_px: float = 0.7
+    pixel_sigma_px: float = 0.5
     """Standard deviation of a stereo measurement (left u, right u, v), pixels."""
     huber_k: float = 1.345
     """Huber threshold of the stereo factors, in standard deviations."""
@@ -94,19 +94,21 @@ class OdometryConfig:
     """Keyframes closer in time than this (same segment) are not loop candidates, seconds."""
     loop_min_score: float = 0.05
     """Smallest bag-of-words similarity of a loop candidate (0..1)."""
-    loop_candidates: int = 3
+    loop_candidates: int = 10
     """Candidates geometrically verified per keyframe."""
-    loop_min_inliers: int = 35
+    loop_min_inliers: int = 25
     """PnP RANSAC inliers needed to accept a loop."""
     loop_cooldown_keyframes: int = 3
     """Keyframes after an accepted loop before the next search."""
-    pose_graph_rotation_sigma_rad: float = 0.002
-    """Odometry edge of the pose graph: rotation standard deviation per edge."""
-    pose_graph_translation_sigma_m: float = 0.005
-    """Odometry edge of the pose graph: translation standard deviation per edge."""
-    loop_rotation_sigma_rad: float = 0.01
+    pose_graph_rotation_sigma_rad: float = 0.001
+    """Odometry edge of the pose graph: rotation standard deviation at rest."""
+    pose_graph_translation_sigma_m: float = 0.002
+    """Odometry edge of the pose graph: translation standard deviation at rest."""
+    pose_graph_drift_per_m: float = 0.02
+    """Odometry edge deviations grow by this per metre (and radian) moved (1-2 % RPE)."""
+    loop_rotation_sigma_rad: float = 0.005
     """Loop edge: rotation standard deviation."""
-    loop_translation_sigma_m: float = 0.02
+    loop_translation_sigma_m: float = 0.01
     """Loop edge: translation standard deviation."""
     # ---- RGB-D
     rgbd_depth_noise_m_at_1m: float = 0.003

@@ -132,7 +132,7 @@ def track_klt(
     if n == 0:
         return np.zeros((0, 2)), np.zeros(0, bool)
     win = (config.klt_window_px, config.klt_window_px)
-    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 30, 0.01)
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 40, 0.001)
     p0 = prev_uv.astype(np.float32).reshape(-1, 1, 2)
     seed = p0.copy() if guess_uv is None else guess_uv.astype(np.float32).reshape(-1, 1, 2)
     p1, st, _ = cv2.calcOpticalFlowPyrLK(
@@ -220,7 +220,7 @@ def stereo_points(
             guess = pl.copy()
             guess[:, 0, 0] -= d_seed[idx].astype(np.float32)
             win = (config.stereo_window_px, config.stereo_window_px)
-            crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 30, 0.01)
+            crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 40, 0.001)
             pr, st, _ = cv2.calcOpticalFlowPyrLK(
                 left,
                 right,

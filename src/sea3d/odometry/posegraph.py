@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -34,15 +35,31 @@ class PoseGraph:
     """Keyframe pose graph.
 
     Attributes:
-        rotation_sigma_rad, translation_sigma_m: odometry edge standard deviations.
+        rotation_sigma_rad, translation_sigma_m: odometry edge standard deviations at rest.
+        drift_per_m: growth of the odometry edge deviations per metre (and radian) moved.
         loop_rotation_sigma_rad, loop_translation_sigma_m: loop edge standard deviations.
+        loop_kernel: Cauchy threshold of the loop edges, in standard deviations.
     """
 
-    rotation_sigma_rad: float = 0.002
-    translation_sigma_m: float = 0.005
-    loop_rotation_sigma_rad: float = 0.01
-    loop_translation_sigma_m: float = 0.02
+    rotation_sigma_rad: float = 0.001
+    translation_sigma_m: float = 0.002
+    drift_per_m: float = 0.02
+    loop_rotation_sigma_rad: float = 0.005
+    loop_translation_sigma_m: float = 0.01
+    loop_kernel: float = 3.0
     loops: list[_Loop] = field(default_factory=list)
+
+    def _edge_noise(self, rel: F64) -> Any:
+        """Odometry edge noise that grows with the edge's motion: ``sigma_t = a + d * dist``,
+        ``sigma_r = a_r + d * (angle + dist / 1 m)`` (drift per metre ``d``)."""
+        import gtsam
+
+        dist = float(np.linalg.norm(rel[:3, 3]))
+        c = (float(np.trace(rel[:3, :3])) - 1.0) / 2.0
+        angle = float(np.arccos(np.clip(c, -1.0, 1.0)))
+        st = self.translation_sigma_m + self.drift_per_m * dist
+        sr = self.rotation_sigma_rad + self.drift_per_m * (angle + dist)
+        return gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sr] * 3, [st] * 3])
 
     def add_loop(self, a: int, b: int, T_a_b: F64) -> None:
         """A loop edge: keyframe ``b``'s pose in keyframe ``a``'s frame."""
@@ -68,11 +85,8 @@ class PoseGraph:
 
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
-        odo = gtsam.noiseModel.Diagonal.Sigmas(
-            np.r_[[self.rotation_sigma_rad] * 3, [self.translation_sigma_m] * 3]
-        )
         loop_noise = gtsam.noiseModel.Robust.Create(
-            gtsam.noiseModel.mEstimator.Cauchy.Create(1.0),
+            gtsam.noiseModel.mEstimator.Cauchy.Create(self.loop_kernel),
             gtsam.noiseModel.Diagonal.Sigmas(
                 np.r_[[self.loop_rotation_sigma_rad] * 3, [self.loop_translation_sigma_m] * 3]
             ),
@@ -92,7 +106,7 @@ class PoseGraph:
             else:
                 p = prev_of[s]
                 rel = np.linalg.inv(odometry[p]) @ odometry[k]
-                graph.add(gtsam.BetweenFactorPose3(p, k, gtsam.Pose3(rel), odo))
+                graph.add(gtsam.BetweenFactorPose3(p, k, gtsam.Pose3(rel), self._edge_noise(rel)))
             prev_of[s] = k
         for lp in self.loops:
             if lp.a in odometry and lp.b in odometry:

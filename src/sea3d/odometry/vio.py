@@ -159,6 +159,7 @@ class StereoInertialOdometry:
         self._graph = PoseGraph(
             rotation_sigma_rad=self.config.pose_graph_rotation_sigma_rad,
             translation_sigma_m=self.config.pose_graph_translation_sigma_m,
+            drift_per_m=self.config.pose_graph_drift_per_m,
             loop_rotation_sigma_rad=self.config.loop_rotation_sigma_rad,
             loop_translation_sigma_m=self.config.loop_translation_sigma_m,
         )
@@ -617,6 +618,7 @@ class StereoInertialOdometry:
             and pred is not None
             and seg.backend.inertial
             and seg.imu_link_ok
+            and inl.size < 3 * c.min_inliers  # a well-supported PnP pose is trusted as it is
         ):
             dtr = float(np.linalg.norm(T_odom[:3, 3] - pred[:3, 3]))
             drot = _rotation_angle(T_odom[:3, :3].T @ pred[:3, :3])
@@ -830,9 +832,6 @@ class StereoInertialOdometry:
         seg.last_T_odom, seg.last_t_ns = pred, int(t_ns)
         uv, P, meas = self._new_features(grey, right, depth, np.zeros((0, 2)), c.max_features)
         if uv.shape[0] >= max(2 * c.min_inliers, 30):
-            seg.track_uv = uv
-            seg.track_ids = np.zeros(0, np.int64)
-            seg.track_X = np.zeros((0, 3))
             # a keyframe tied to the last one by the IMU factor alone, with fresh landmarks
             est = self._keyframe_fresh(seg, t_ns, grey, depth, pred, uv, P, meas, info)
             if est is not None:
@@ -876,9 +875,12 @@ class StereoInertialOdometry:
                 preintegrated=seg.pim,
             )
         except SmootherFailure as err:
+            # the smoother is unusable after a failed update: end the segment (a new one starts
+            # from the IMU prediction, to be joined by a later loop closure)
             self._next_kf -= 1
-            log.debug("re-acquisition keyframe failed: %s", err)
-            return None
+            self._continuity_world = seg.correction @ T_odom
+            self._end_segment(f"smoother failed on re-acquisition: {err}", t_ns)
+            return self._estimate(t_ns, None, TrackingStatus.LOST, None, info=info)
         seg.state = be.state(k)
         seg.pim = be.new_preintegration(seg.state.accel_bias_mps2, seg.state.gyro_bias_radps)
         for q, Tb in be.window_poses().items():
