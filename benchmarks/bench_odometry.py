@@ -17,8 +17,10 @@ reference in the same run.
 Depth for the simulated dives is computed once per frame with ``sea3d.stereo.depth.
 compute_depth`` (engine ``--engine``, default OpenCV SGBM for speed: the odometry only seeds
 its left-right matches with the depth map and triangulates them itself) and cached as float16
-next to the sessions. ATE uses a private Umeyama helper (``sea3d.eval.trajectory`` replaces it
-at merge). Run (long: render the sessions first, with ``nice``):
+next to the sessions. ATE (RMSE after an SE3 alignment) and RPE (drift per metre of path) come
+from ``sea3d.eval.trajectory``. ``--frames N`` also accepts a session whose render was stopped
+early, when it holds at least N frames (said in the output). Run (long: render the sessions
+first, with ``nice``):
 
     nice python benchmarks/odometry_sessions.py
     nice python benchmarks/bench_odometry.py [--cache /tmp/sea3d_cache/odometry] [--only NAME]
@@ -46,25 +48,22 @@ DATA = Path(os.environ.get("SEA3D_TEST_DATA", Path(__file__).resolve().parents[1
 
 
 # ------------------------------------------------------------------------------ metrics
-def umeyama(est: np.ndarray, gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rigid least-squares alignment (Umeyama 1991): ``R, t`` with ``gt ~ R est + t``."""
-    ma, mb = est.mean(0), gt.mean(0)
-    U, _, Vt = np.linalg.svd((est - ma).T @ (gt - mb))
-    D = np.eye(3)
-    D[2, 2] = np.sign(np.linalg.det(Vt.T @ U.T))
-    R = Vt.T @ D @ U.T
-    return R, mb - R @ ma
+def metrics(t_ns: np.ndarray, T: np.ndarray, gt_t_ns: np.ndarray, gt_T: np.ndarray,
+            rpe_m: float = 1.0) -> dict:
+    """ATE (SE3 Umeyama alignment) and RPE per ``rpe_m`` of path, by ``sea3d.eval.trajectory``
+    (its figures equal evo's on the stored res files)."""
+    from sea3d.eval.trajectory import evaluate_trajectory
 
-
-def ate_m(est_xyz: np.ndarray, gt_xyz: np.ndarray) -> float:
-    """ATE RMSE after SE3 alignment, metres."""
-    R, t = umeyama(est_xyz, gt_xyz)
-    e = est_xyz @ R.T + t - gt_xyz
-    return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
-
-
-def path_m(xyz: np.ndarray) -> float:
-    return float(np.linalg.norm(np.diff(xyz, axis=0), axis=1).sum())
+    m = evaluate_trajectory(np.asarray(t_ns, np.int64), T, np.asarray(gt_t_ns, np.int64), gt_T,
+                            align="se3", max_diff_s=0.001, rpe_deltas_m=[rpe_m])
+    rpe = m.rpe[0] if m.rpe else None
+    return {
+        "path_m": m.path_length_m, "ate_m": m.ate_rmse_m,
+        "ate_pct": 100 * m.ate_rmse_m / m.path_length_m if m.path_length_m > 0 else float("nan"),
+        "ate_max_m": m.ate_m.max,
+        "rpe_pct": rpe.drift_pct if rpe else float("nan"),
+        "rpe_deg": rpe.rotation_deg.rmse if rpe else float("nan"),
+    }
 
 
 def peak_rss_mb() -> float:
@@ -76,7 +75,15 @@ def _depth_dir(cache: Path, name: str, engine: str) -> Path:
     return session_dir(cache, name) / f"depth_{engine}"
 
 
-def prepare_depth(cache: Path, name: str, engine: str) -> None:
+def rendered_frames(cache: Path, name: str) -> int:
+    """Frames with both images in a (possibly unfinished) rendered session."""
+    root = session_dir(cache, name) / "session"
+    if not root.is_dir():
+        return 0
+    return min(len(list((root / side).glob("*.png"))) for side in ("left", "right"))
+
+
+def prepare_depth(cache: Path, name: str, engine: str, limit: int | None = None) -> None:
     """Compute and cache the depth of every frame of a rendered session (resumable)."""
     from tqdm import tqdm
 
@@ -91,12 +98,15 @@ def prepare_depth(cache: Path, name: str, engine: str) -> None:
         rig = rig_from_yaml(s.rig_yaml or "")
         maps = rectify_rig(rig)
         observer = Observer(maps, ObserveConfig(engine=engine))
-        stamps = s.stamps("left")
+        stamps = s.stamps("left")[:limit]
         todo = [t for t in stamps.tolist() if not (out / f"{t}.npy").is_file()]
         if not todo:
             return
         done = set(stamps.tolist()) - set(todo)
+        want = set(stamps.tolist())
         for pair in tqdm(s.pairs(), total=len(stamps), desc=f"depth {name}", unit="frame"):
+            if pair.t_ns not in want:
+                break
             if pair.t_ns in done:
                 continue
             obs = observer.observe(pair.t_ns, pair.left, pair.right)
@@ -110,7 +120,7 @@ def _observations(cache: Path, name: str, engine: str, use_imu: bool, limit: int
     depth + IMU chunks), and the rig, maps, stamps and ground truth."""
     from sea3d.io.rig_file import rig_from_yaml
     from sea3d.io.session import open_session
-    from sea3d.io.trajectory_tum import read_tum
+    from sea3d.io.trajectory_files import read_trajectory
     from sea3d.odometry.observe import imu_chunks
     from sea3d.odometry.types import FrameObservation
     from sea3d.rectify import rectify_images, rectify_rig
@@ -122,7 +132,8 @@ def _observations(cache: Path, name: str, engine: str, use_imu: bool, limit: int
     imu = reader.imu()
     stamps = reader.stamps("left")[:limit]
     chunks = imu_chunks(stamps, imu.t_ns, imu.accel_mps2, imu.gyro_radps)
-    gt_t, gt_T = read_tum(root / "gt" / "poses_left.tum")
+    gt = read_trajectory(root / "gt" / "poses_left.tum")
+    gt_t, gt_T = gt.t_ns, gt.T_world_x
     depth_dir = _depth_dir(cache, name, engine)
     K = np.asarray(maps.P_left[:3, :3], dtype=np.float64)
 
@@ -157,10 +168,6 @@ def run_sea3d(cache: Path, name: str, engine: str, use_imu: bool, limit: int | N
         statuses.append(est.status)
     reader.close()
     t, T = odo.trajectory()
-    gt_idx = np.searchsorted(np.round(gt_t * 1e9).astype(np.int64), t)
-    gt_xyz = gt_T[gt_idx, :3, 3]
-    ate = ate_m(T[:, :3, 3], gt_xyz)
-    path = path_m(gt_xyz)
     n = len(statuses)
     q = max(n // 6, 1)
     return {
@@ -169,7 +176,7 @@ def run_sea3d(cache: Path, name: str, engine: str, use_imu: bool, limit: int | N
         "lost": sum(s is TrackingStatus.LOST for s in statuses),
         "not_tracking": sum(s not in (TrackingStatus.TRACKING, TrackingStatus.RELOCALISED)
                             for s in statuses),
-        "loops": odo.loop_closures, "path_m": path, "ate_m": ate, "ate_pct": 100 * ate / path,
+        "loops": odo.loop_closures, **metrics(t, T, gt_t, gt_T),
         "ms_wall": 1e3 * float(np.mean(step_wall)), "ms_cpu": 1e3 * float(np.mean(step_cpu)),
         "ms_cpu_first": 1e3 * float(np.mean(step_cpu[:q])),
         "ms_cpu_last": 1e3 * float(np.mean(step_cpu[-q:])),
@@ -217,16 +224,43 @@ def run_open3d(cache: Path, name: str, engine: str, limit: int | None) -> dict:
     R1[:3, :3] = maps.R_rect_left_left
     T_left = T_rect @ R1  # T_world_left = T_world_rect @ T_rect_left
     t = stamps[: len(T_left)]
-    gt_idx = np.searchsorted(np.round(gt_t * 1e9).astype(np.int64), t)
-    gt_xyz = gt_T[gt_idx, :3, 3]
-    ate = ate_m(T_left[:, :3, 3], gt_xyz)
-    path = path_m(gt_xyz)
     return {
         "name": name, "method": "Open3D f2f RGB-D", "frames": len(T_left), "keyframes": 0,
-        "lost": fails, "not_tracking": fails, "loops": 0, "path_m": path, "ate_m": ate,
-        "ate_pct": 100 * ate / path, "ms_wall": 1e3 * float(np.mean(wall)),
+        "lost": fails, "not_tracking": fails, "loops": 0, **metrics(t, T_left, gt_t, gt_T),
+        "ms_wall": 1e3 * float(np.mean(wall)),
         "ms_cpu": 1e3 * float(np.mean(cpu)), "peak_rss_mb": peak_rss_mb(),
     }
+
+
+def _open3d_chain(greys: list, depths: list, K_rect: np.ndarray, R_rect_left_left: np.ndarray
+                  ) -> np.ndarray:
+    """Open3D frame-to-frame Hybrid RGB-D odometry chained over rectified frames: ``T_world_left``
+    per frame (the paper's method)."""
+    import open3d as o3d
+
+    from sea3d.odometry.frontend import to_grey
+
+    K = o3d.core.Tensor(np.asarray(K_rect, np.float64), dtype=o3d.core.Dtype.Float64)
+    T = [np.eye(4)]
+    prev = None
+    for g, d in zip(greys, depths, strict=True):
+        colour = np.ascontiguousarray(np.repeat(to_grey(g)[..., None], 3, axis=2))
+        cur = o3d.t.geometry.RGBDImage(
+            o3d.t.geometry.Image(colour),
+            o3d.t.geometry.Image(np.nan_to_num(d, nan=0.0).astype(np.float32)))
+        if prev is not None:
+            try:
+                r = o3d.t.pipelines.odometry.rgbd_odometry_multi_scale(
+                    cur, prev, K, o3d.core.Tensor(np.eye(4)), 1.0, 8.0,
+                    method=o3d.t.pipelines.odometry.Method.Hybrid)
+                step = r.transformation.numpy()
+            except RuntimeError:
+                step = np.eye(4)
+            T.append(T[-1] @ step)
+        prev = cur
+    R1 = np.eye(4)
+    R1[:3, :3] = R_rect_left_left
+    return np.stack(T) @ R1
 
 
 def _child(args: argparse.Namespace, what: str, name: str) -> dict:
@@ -243,21 +277,27 @@ def _row(r: dict) -> None:
     print(
         f"  {r['method']:<20}{r['frames']:>7}{r['keyframes']:>6}{r['not_tracking']:>6}"
         f"{r['loops']:>6}{r['path_m']:>8.1f}{r['ate_m'] * 100:>9.2f}{r['ate_pct']:>8.3f}"
-        f"{r['ms_wall']:>9.1f}{r['ms_cpu']:>8.1f}{r['peak_rss_mb']:>9.0f}"
+        f"{r['rpe_pct']:>8.2f}{r['rpe_deg']:>8.2f}{r['ms_wall']:>9.1f}{r['ms_cpu']:>8.1f}{r['peak_rss_mb']:>9.0f}"
     )
 
 
 def bench_sessions(args: argparse.Namespace) -> None:
     names = [args.only] if args.only else list(SESSIONS)
     for name in names:
-        if not is_ready(args.cache, name):
-            print(f"\n{name}: not rendered in {args.cache}; run benchmarks/odometry_sessions.py")
+        rendered = rendered_frames(args.cache, name)
+        partial = not is_ready(args.cache, name)
+        if partial and not (args.frames and rendered >= args.frames):
+            print(f"\n{name}: not rendered in {args.cache} ({rendered} frames there); run "
+                  "benchmarks/odometry_sessions.py, or pass --frames N up to that")
             continue
-        prepare_depth(args.cache, name, args.engine)
-        print(f"\n{name} ({SESSIONS[name].frames} frames, {SESSIONS[name].port} ports, depth "
-              f"{args.engine}):")
+        n_frames = args.frames or SESSIONS[name].frames
+        prepare_depth(args.cache, name, args.engine, n_frames)
+        note = f", first {n_frames} of a render stopped at {rendered}" if partial else ""
+        print(f"\n{name} ({n_frames} frames, {SESSIONS[name].port} ports, depth "
+              f"{args.engine}{note}):")
         print(f"  {'method':<20}{'frames':>7}{'kf':>6}{'!trk':>6}{'loops':>6}{'path m':>8}"
-              f"{'ATE cm':>9}{'ATE %':>8}{'ms wall':>9}{'ms cpu':>8}{'peak MB':>9}")
+              f"{'ATE cm':>9}{'ATE %':>8}{'RPE %':>8}{'RPE deg':>8}{'ms wall':>9}{'ms cpu':>8}"
+              f"{'peak MB':>9}")
         results = [_child(args, "vio", name), _child(args, "vo", name)]
         if not args.no_reference:
             results.append(_child(args, "open3d", name))
@@ -316,17 +356,19 @@ def bench_chess(args: argparse.Namespace) -> None:
                       / len(cols)))
         ref = np.stack(T)
     assert ref is not None
-    a_ours = ate_m(ours.T_world_left[:, :3, 3], gt[:, :3, 3])
-    a_ref = ate_m(ref[:, :3, 3], gt[:, :3, 3])
+    idx_t = np.arange(len(gt), dtype=np.int64) * 10**9  # frames paired by index
+    m_ours = metrics(idx_t, ours.T_world_left, idx_t, gt, rpe_m=0.1)
+    m_ref = metrics(idx_t, ref, idx_t, gt, rpe_m=0.1)
+    a_ours, a_ref = m_ours["ate_m"], m_ref["ate_m"]
     w_o, c_o = (statistics.median(x) for x in zip(*ours_t, strict=True))
     w_r, c_r = (statistics.median(x) for x in zip(*ref_t, strict=True))
-    print(f"\n7-Scenes chess, {len(cols)} frames, path {path_m(gt[:, :3, 3]):.3f} m "
-          f"(medians of {args.repeat} runs):")
-    print(f"  {'method':<34}{'ATE cm':>9}{'ms wall':>9}{'ms cpu':>8}")
-    print(f"  {'sea3d RGB-D (keyframes, BA, loops)':<34}{a_ours * 100:>9.2f}{w_o * 1e3:>9.1f}"
-          f"{c_o * 1e3:>8.1f}")
-    print(f"  {'Open3D rgbd_odometry_multi_scale':<34}{a_ref * 100:>9.2f}{w_r * 1e3:>9.1f}"
-          f"{c_r * 1e3:>8.1f}")
+    print(f"\n7-Scenes chess, {len(cols)} frames, path {m_ours['path_m']:.3f} m "
+          f"(medians of {args.repeat} runs; RPE per 0.1 m):")
+    print(f"  {'method':<34}{'ATE cm':>9}{'RPE %':>8}{'RPE deg':>8}{'ms wall':>9}{'ms cpu':>8}")
+    for label, m, w, c in (("sea3d RGB-D (keyframes, BA, loops)", m_ours, w_o, c_o),
+                           ("Open3D rgbd_odometry_multi_scale", m_ref, w_r, c_r)):
+        print(f"  {label:<34}{m['ate_m'] * 100:>9.2f}{m['rpe_pct']:>8.2f}{m['rpe_deg']:>8.2f}"
+              f"{w * 1e3:>9.1f}{c * 1e3:>8.1f}")
     print(f"  ratio sea3d/Open3D: ATE {a_ours / a_ref:.3f}, wall {w_o / w_r:.2f}, "
           f"CPU {c_o / c_r:.2f}  (sea3d: {ours.summary['keyframes']} keyframes, "
           f"{ours.summary['loop_closures']} loops)")
@@ -356,15 +398,21 @@ def bench_euroc(args: argparse.Namespace) -> None:
     gt_move = np.linalg.inv(G_left[0]) @ G_left[-1]
     print(f"\nEuRoC V1_01 micro: {len(obs)} frames ({(seq.t_ns[-1] - seq.t_ns[0]) * 1e-9:.2f} s, "
           f"still); ground truth moves {np.linalg.norm(gt_move[:3, 3]) * 1e3:.2f} mm")
-    print(f"  {'method':<20}{'drift mm':>10}{'rel err mm':>12}{'rot err deg':>12}"
+    print(f"  {'method':<20}{'ATE mm':>8}{'drift mm':>10}{'rel err mm':>12}{'rot err deg':>12}"
           f"{'tilt err deg':>13}{'ms cpu':>8}")
-    for use_imu in (True, False):
-        odo = create_odometry(seq.rig, maps, use_imu=use_imu)
+    for method in ("vio", "vo", "open3d"):
+        use_imu = method == "vio"
         c0 = time.process_time()
-        for o in obs:
-            odo.step(o)
+        if method == "open3d":
+            T = _open3d_chain([o.rect_left for o in obs], [o.depth_m for o in obs],
+                              np.asarray(maps.P_left[:3, :3]), maps.R_rect_left_left)
+        else:
+            odo = create_odometry(seq.rig, maps, use_imu=use_imu)
+            for o in obs:
+                odo.step(o)
+            _, T = odo.trajectory()
         cpu = (time.process_time() - c0) / len(obs)
-        _, T = odo.trajectory()
+        ate = metrics(seq.t_ns, T, seq.t_ns, G_left)["ate_m"]
         move = np.linalg.inv(T[0]) @ T[-1]
         err = np.linalg.inv(gt_move) @ move
         rot = np.degrees(np.arccos(np.clip((np.trace(err[:3, :3]) - 1) / 2, -1, 1)))
@@ -374,8 +422,9 @@ def bench_euroc(args: argparse.Namespace) -> None:
             g_ours = (T[0] @ seq.rig.imu.T_left_imu)[:3, :3].T @ np.array([0, 0, 1.0])
             g_gt = G[0, :3, :3].T @ np.array([0, 0, 1.0])
             tilt = np.degrees(np.arccos(np.clip(g_ours @ g_gt, -1, 1)))
-        name = "sea3d stereo+IMU" if use_imu else "sea3d stereo"
-        print(f"  {name:<20}{np.linalg.norm(move[:3, 3]) * 1e3:>10.2f}"
+        name = {"vio": "sea3d stereo+IMU", "vo": "sea3d stereo", "open3d": "Open3D f2f RGB-D"}[
+            method]
+        print(f"  {name:<20}{ate * 1e3:>8.2f}{np.linalg.norm(move[:3, 3]) * 1e3:>10.2f}"
               f"{np.linalg.norm(err[:3, 3]) * 1e3:>12.2f}{rot:>12.3f}{tilt:>13.2f}"
               f"{cpu * 1e3:>8.1f}")
 

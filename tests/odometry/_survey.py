@@ -138,21 +138,3 @@ def make_sim_survey(out: Path) -> SimSurvey:
         maps=maps,
         observations=obs,
     )
-
-
-def umeyama_ate_m(est_xyz: np.ndarray, gt_xyz: np.ndarray) -> float:
-    """ATE RMSE after a least-squares rigid (SE3) alignment (Umeyama 1991), metres.
-
-    A minimal private helper for these tests; replace by ``sea3d.eval.trajectory`` at merge.
-    """
-    ma, mb = est_xyz.mean(0), gt_xyz.mean(0)
-    U, _, Vt = np.linalg.svd((est_xyz - ma).T @ (gt_xyz - mb))
-    D = np.eye(3)
-    D[2, 2] = np.sign(np.linalg.det(Vt.T @ U.T))
-    R = Vt.T @ D @ U.T
-    err = est_xyz @ R.T + (mb - R @ ma) - gt_xyz
-    return float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
-
-
-def path_length(xyz: np.ndarray) -> float:
-    return float(np.linalg.norm(np.diff(xyz, axis=0), axis=1).sum())

@@ -13,7 +13,7 @@ from odometry._survey import PLANTED_OFFSET_S
 from sea3d.cli import main as sea3d_main
 from sea3d.geometry.se3 import R_to_rotvec
 from sea3d.io.rig_file import save_rig
-from sea3d.io.trajectory_tum import read_tum
+from sea3d.io.trajectory_files import read_trajectory
 
 CLI_FRAMES = 30
 # calibrate imu on the 12 s orbit: visual odometry orientations (about 0.3 deg per 0.5 s) and
@@ -50,8 +50,9 @@ def test_odometry_of_a_session_writes_one_pose_per_frame(sim_survey, tmp_path, c
     for key in ("frames", "keyframes", "frames_lost", "loop_closures", "path_length_m", "seconds"):
         assert key in s
     assert s["frames"] == CLI_FRAMES and s["frames_lost"] == 0 and s["imu"] is True
-    t, T = read_tum(traj)
-    np.testing.assert_allclose(t, sim_survey.gt_t_ns[:CLI_FRAMES] * 1e-9, atol=1e-9)
+    traj_file = read_trajectory(traj)
+    t, T = traj_file.t_ns, traj_file.T_world_x
+    np.testing.assert_array_equal(t, sim_survey.gt_t_ns[:CLI_FRAMES])  # exact ns stamps
     assert T.shape == (CLI_FRAMES, 4, 4)
     gt = sim_survey.gt_T_world_left[:CLI_FRAMES, :3, 3]
     assert s["path_length_m"] == pytest.approx(
@@ -145,8 +146,7 @@ def test_rgbd_files_give_one_pose_per_frame_with_index_times(data_dir, tmp_path,
     ]
     assert sea3d_main(argv) == 0
     assert _json(capsys)["frames"] == 8
-    t, _ = read_tum(out)
-    np.testing.assert_array_equal(t, np.arange(8.0))
+    np.testing.assert_array_equal(read_trajectory(out).t_ns, np.arange(8) * 10**9)
     (tmp_path / "frame-000007.depth.png").unlink()
     assert sea3d_main(argv) == 2
     assert "--color matches 8 files but --depth 7" in capsys.readouterr().err

@@ -99,11 +99,11 @@ def _write_status(path: Path, run: Any) -> None:
 
 
 def _report(args: argparse.Namespace, run: Any) -> int:
-    from sea3d.io.trajectory_tum import write_tum
+    from sea3d.io.trajectory_files import write_tum
 
     write_tum(
         args.output,
-        run.t_ns * 1e-9,
+        run.t_ns,
         run.T_world_left,
         header="t tx ty tz qx qy qz qw (T_world_left; t in seconds)",
     )

@@ -108,6 +108,10 @@ def register(sub: Any) -> None:
     conv.add_argument("--size", type=image_size, metavar="WxH", help="image size if IN lacks it")
     conv.set_defaults(handler=_convert)
 
+    from sea3d.cli.rig_plan import register_plan
+
+    register_plan(rsub)
+
 
 def _mm(values: list[float] | None) -> tuple[float, float, float] | None:
     return None if values is None else (values[0] * 1e-3, values[1] * 1e-3, values[2] * 1e-3)

@@ -1,4 +1,4 @@
-"""EuRoC folders and TUM trajectory files."""
+"""EuRoC folders (TUM files are io.trajectory_files', tested in test_trajectory_files)."""
 
 from __future__ import annotations
 
@@ -8,24 +8,9 @@ import numpy as np
 import pytest
 
 from sea3d.errors import SessionError
-from sea3d.geometry.se3 import make_T, rotvec_to_R
 from sea3d.io.euroc import is_euroc, read_euroc
-from sea3d.io.trajectory_tum import read_tum, write_tum
 
 EUROC = "vio/euroc_v101_micro"
-TUM_TOL = 1e-9  # 9 decimals in the file
-
-
-def test_tum_round_trip(tmp_path: Path, rng) -> None:
-    T = np.stack([make_T(rotvec_to_R(rng.normal(0, 1, 3)), rng.normal(0, 5, 3)) for _ in range(20)])
-    t = np.cumsum(rng.uniform(0.01, 0.2, 20)) + 1.4e9
-    path = write_tum(tmp_path / "x" / "traj.tum", t, T)
-    t2, T2 = read_tum(path)
-    np.testing.assert_allclose(t2, t, atol=1e-6)
-    np.testing.assert_allclose(T2, T, atol=TUM_TOL * 10)
-    (tmp_path / "bad.tum").write_text("0 1 2 3\n")
-    with pytest.raises(SessionError, match="expected 8 numbers"):
-        read_tum(tmp_path / "bad.tum")
 
 
 @pytest.mark.data
