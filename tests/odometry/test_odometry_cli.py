@@ -17,7 +17,7 @@ from sea3d.io.trajectory_files import read_trajectory
 
 CLI_FRAMES = 30
 # calibrate imu on the 12 s orbit: visual odometry orientations (about 0.3 deg per 0.5 s) and
-# the MTi gyro; measured within 0.2 deg and 1 ms of the truth
+# the MTi gyro; measured 0.5-1.0 deg (its own sigma: 0.3 deg) and under 1 ms from the truth
 CALIB_ROTATION_TOL_DEG = 1.0
 CALIB_OFFSET_TOL_S = 0.005
 
@@ -92,6 +92,7 @@ def test_session_without_rig_or_imu(sim_survey, tmp_path, capsys) -> None:
     assert s["frames"] == 15 and s["frames_lost"] == 0
 
 
+@pytest.mark.slow
 def test_calibrate_imu_finds_the_mounting_and_the_planted_offset(
     sim_survey, tmp_path, capsys
 ) -> None:

@@ -29,6 +29,9 @@ from sea3d.odometry.stereo_geometry import RectifiedStereo
 __all__ = ["KeyframeState", "SmootherBackend", "SmootherFailure"]
 
 log = logging.getLogger(__name__)
+
+LANDMARK_PRIOR_SIGMA_M = 50.0
+"""Standard deviation of the weak prior on each new landmark (see ``add_keyframe``), metres."""
 F64 = NDArray[np.float64]
 
 
@@ -241,8 +244,16 @@ class SmootherBackend:
                         _V(k), values.atVector(_V(k)), gtsam.noiseModel.Isotropic.Sigma(3, 1.0)
                     )
                 )
+        # A stereo factor whose point falls behind the camera gives gtsam zero Jacobians (no
+        # cheirality exception), which left a landmark seen only that way undetermined and the
+        # whole update failing ("indeterminate linear system near l..."). A weak prior (metres,
+        # against sub-millimetre to centimetre stereo information) keeps every new landmark
+        # determined without pulling it measurably.
+        lm_prior = gtsam.noiseModel.Isotropic.Sigma(3, LANDMARK_PRIOR_SIGMA_M)
         for j, X in new_landmarks.items():
-            values.insert(_L(j), np.asarray(X, dtype=np.float64))
+            Xj = np.asarray(X, dtype=np.float64)
+            values.insert(_L(j), Xj)
+            graph.add(gtsam.PriorFactorPoint3(_L(j), Xj, lm_prior))
         for j, _ in observations:
             stamps[_L(j)] = t_s
         self._stereo_factors(graph, k, observations)
