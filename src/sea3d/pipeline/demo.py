@@ -123,7 +123,7 @@ def run_demo(
     from sea3d.pipeline.report import write_process_report
     from sea3d.refraction.presets import paper_rig
     from sea3d.sim import builtin_scene, load_scene, scale_rig
-    from sea3d.sim.survey import SurveyConfig, simulate_survey
+    from sea3d.sim.survey import SurveyConfig, simulate_survey, with_survey_sensors
 
     def step(msg: str) -> None:
         log.debug(msg)
@@ -155,10 +155,12 @@ def run_demo(
     )
     t0 = time.perf_counter()
     bar = bars("dive", config.frames) if bars is not None else None
-    with SessionWriter(session, format="folder", rig_yaml=rig_to_yaml(rig)) as writer:
-        simulate_survey(scene, rig, SurveyConfig(frames=config.frames, water=config.water,
-                                                 seed=config.seed),
-                        writer, session / "gt", progress=bar.update if bar else None)
+    survey = SurveyConfig(frames=config.frames, water=config.water, seed=config.seed)
+    # the session's rig describes the simulated IMU (and echosounder), so the odometry uses it
+    session_rig = with_survey_sensors(rig, survey)
+    with SessionWriter(session, format="folder", rig_yaml=rig_to_yaml(session_rig)) as writer:
+        simulate_survey(scene, rig, survey, writer, session / "gt",
+                        progress=bar.update if bar else None)
     if bar is not None:
         bar.close()
     timings["simulate_s"] = time.perf_counter() - t0
