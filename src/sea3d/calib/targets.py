@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 import logging
 import re
 from dataclasses import dataclass, field
@@ -41,6 +42,7 @@ __all__ = [
     "BoardSpec",
     "Detection",
     "DetectionStatus",
+    "corner_convention_offset_px",
     "detect_board",
     "load_board",
     "parse_board",
@@ -53,7 +55,6 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 _KINDS = ("checkerboard", "charuco", "apriltag", "aruco")
-_ARUCO_TO_CENTRE_PX = 0.5
 _LENGTH_RE = re.compile(r"^\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(mm|cm|m|in)\s*$")
 _UNIT_M = {"mm": 1e-3, "cm": 1e-2, "m": 1.0, "in": 0.0254}
 
@@ -498,14 +499,93 @@ def _canonical_checker_order(uv: FloatArray, pattern: tuple[int, int]) -> FloatA
     return grid.reshape(-1, 2).copy()
 
 
+def _refinement_of(board: BoardSpec) -> str:
+    """Which OpenCV corner detector and refinement :func:`detect_board` uses for ``board``:
+    ``"charuco"``, ``"apriltag"`` (tag corners, AprilTag refinement) or ``"subpix"`` (tag
+    corners, ``cornerSubPix`` refinement)."""
+    if board.kind == "charuco":
+        return "charuco"
+    return "apriltag" if board.dictionary.upper().startswith("DICT_APRILTAG") else "subpix"
+
+
 def _detect_markers(gray: NDArray[np.uint8], board: BoardSpec) -> tuple[Any, Any]:
     params = cv2.aruco.DetectorParameters()
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
-    if board.dictionary.upper().startswith("DICT_APRILTAG"):
+    if _refinement_of(board) == "apriltag":
         params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_APRILTAG
     detector = cv2.aruco.ArucoDetector(_aruco_dictionary(board.dictionary), params)
     corners, ids, _ = detector.detectMarkers(gray)
     return corners, ids
+
+
+# Boards drawn by render_board to find the pixel convention of OpenCV's corners (see
+# corner_convention_offset_px); their corners are known exactly.
+_PROBE_BOARDS = {"charuco": ("charuco:4x5:25mm:18mm:DICT_5X5_100", 2400.0),
+                 "apriltag": ("apriltag:2x2:30mm:40mm", 2500.0),
+                 "subpix": ("aruco:2x2:30mm:40mm:DICT_4X4_50", 2500.0)}
+
+
+def _version_offset_px(refinement: str) -> float:
+    """The convention as measured on OpenCV 4.10-4.14 (docs/calibration.md), by version."""
+    if refinement == "subpix":
+        return 0.0
+    if refinement == "charuco":
+        major, minor = (int(v) for v in cv2.__version__.split(".")[:2])
+        return 0.5 if (major, minor) < (4, 14) else 0.0
+    return 0.5
+
+
+@functools.cache
+def corner_convention_offset_px(refinement: str) -> float:
+    """How far OpenCV's marker-based corners are from sea3d's pixel-centre convention.
+
+    OpenCV's ArUco and ChArUco detectors have returned corners in the pixel-edge convention
+    (integer coordinates at pixel corners, +0.5 px against ours) or in the pixel-centre one,
+    depending on the version (ChArUco changed in 4.14) and on the corner refinement
+    (``cornerSubPix`` refinement gives pixel centres). This detects the convention at run time:
+    a board with known corners is drawn by :func:`render_board`, detected once per process
+    with the same detector settings, and the median offset is rounded to the nearest half
+    pixel. Should that detection fail, the offsets measured on OpenCV 4.10-4.14 are used.
+
+    Args:
+        refinement: ``"charuco"``, ``"apriltag"`` or ``"subpix"`` (see :func:`detect_board`).
+
+    Returns:
+        The offset in pixels (0.0 or 0.5 on every version seen) to subtract from OpenCV's
+        corners, both axes.
+    """
+    spec, px_per_m = _PROBE_BOARDS[refinement]
+    board = parse_board(spec)
+    margin_px = 40
+    img = cv2.copyMakeBorder(render_board(board, px_per_m=px_per_m), margin_px, margin_px,
+                             margin_px, margin_px, cv2.BORDER_CONSTANT, value=255)
+    ids, pts = board.object_points()
+    ox, oy = board_origin_offset_m(board)
+    expected = (pts[:, :2] + [ox, oy]) * px_per_m + margin_px - 0.5
+    lookup = {int(i): k for k, i in enumerate(ids)}
+    found: list[FloatArray] = []
+    if refinement == "charuco":
+        ch_corners, ch_ids, _, _ = cv2.aruco.CharucoDetector(board._charuco_board()).detectBoard(
+            img)
+        if ch_ids is not None:
+            found = [c - expected[lookup[int(i)]]
+                     for c, i in zip(ch_corners.reshape(-1, 2), ch_ids.ravel(), strict=True)]
+    else:
+        corners, marker_ids = _detect_markers(img, board)
+        if marker_ids is not None:
+            for quad, mid in zip(corners, marker_ids.ravel(), strict=True):
+                found += [quad.reshape(4, 2)[k] - expected[lookup[4 * int(mid) + k]]
+                          for k in range(4)]
+    if len(found) < 8:
+        offset = _version_offset_px(refinement)
+        log.warning("could not measure OpenCV %s's %s corner convention on a drawn board; "
+                    "assuming %.1f px", cv2.__version__, refinement, offset)
+        return offset
+    median = np.median(np.asarray(found), axis=0)
+    offset = round(float(np.mean(median)) * 2.0) / 2.0
+    log.debug("OpenCV %s %s corners: median offset (%.3f, %.3f) px against pixel centres; "
+              "shifting by -%.1f px", cv2.__version__, refinement, median[0], median[1], offset)
+    return offset
 
 
 def detect_board(image: NDArray[Any], board: BoardSpec, *, min_corners: int = 0,
@@ -570,10 +650,10 @@ def detect_board(image: NDArray[Any], board: BoardSpec, *, min_corners: int = 0,
         ids = np.asarray(id_list, dtype=np.int64)
         uv = np.asarray(uv_list, dtype=np.float64)
         n_markers = len(marker_ids)
-    # OpenCV's ArUco and ChArUco corners use the pixel-edge convention (the top-left corner of
-    # the top-left pixel is 0, 0); ours puts pixel centres on integers. Measured on rendered
-    # boards: +0.50 px in both axes against findChessboardCorners on the same renderer.
-    uv = uv - _ARUCO_TO_CENTRE_PX
+    # Ours puts pixel centres on integers. Depending on the OpenCV version and the corner
+    # refinement, ArUco and ChArUco corners come in that convention or in the pixel-edge one
+    # (the top-left corner of the top-left pixel at 0, 0): measured once per process.
+    uv = uv - corner_convention_offset_px(_refinement_of(board))
     order = np.argsort(ids, kind="stable")
     ids, uv = ids[order], uv[order]
     # Tags can be seen twice if ids repeat; keep the first of each id.
