@@ -557,8 +557,9 @@ def corner_convention_offset_px(refinement: str) -> float:
     spec, px_per_m = _PROBE_BOARDS[refinement]
     board = parse_board(spec)
     margin_px = 40
-    img = cv2.copyMakeBorder(render_board(board, px_per_m=px_per_m), margin_px, margin_px,
-                             margin_px, margin_px, cv2.BORDER_CONSTANT, value=255)
+    img = np.asarray(cv2.copyMakeBorder(render_board(board, px_per_m=px_per_m), margin_px,
+                                        margin_px, margin_px, margin_px, cv2.BORDER_CONSTANT,
+                                        value=255), dtype=np.uint8)
     ids, pts = board.object_points()
     ox, oy = board_origin_offset_m(board)
     expected = (pts[:, :2] + [ox, oy]) * px_per_m + margin_px - 0.5
