@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 
 from sea3d.cli import main
+from sea3d.sim.survey import read_gt_depth
 
 # The depth PNGs are on the rectified grid and the ground truth on the raw one, so this test
 # compares the scene's median depth: a correct pipeline agrees to a few percent (rectification
@@ -46,7 +47,7 @@ def test_depth_over_a_session_matches_ground_truth(tmp_path, capsys):
     for png in depth_files:
         est_mm = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
         assert est_mm.dtype == np.uint16
-        gt = np.load(gt_dir / f"{png.stem}.npy")
+        gt = read_gt_depth(gt_dir / f"{png.stem}.tiff")
         # The PNG is on the rectified grid; compare medians of the scene depth, which a scale
         # error would shift (per-pixel checks are in tests/stereo and tests/pipeline).
         est = est_mm[est_mm > 0] / 1000.0
