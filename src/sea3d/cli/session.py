@@ -7,6 +7,8 @@ import json
 import sys
 from typing import Any
 
+from sea3d.cli._args import plural
+
 __all__ = ["register"]
 
 
@@ -117,7 +119,7 @@ def _verify(args: argparse.Namespace) -> int:
         sys.stdout.write("\n")
     else:
         counts = ", ".join(f"{v} {k}" for k, v in report["records"].items())
-        print(f"{args.path}: {counts} readable; {len(report['problems'])} problems")
+        print(f"{args.path}: {counts} readable; {plural(len(report['problems']), 'problem')}")
         for msg in report["problems"]:
             print(f"  {msg}")
     return 0 if report["ok"] else 1
