@@ -37,6 +37,7 @@ from sea3d.calib.targets import Detection
 from sea3d.errors import CalibrationError, ConfigError
 from sea3d.geometry.pinhole import PinholeCamera
 from sea3d.geometry.rig import StereoRig
+from sea3d.geometry.se3 import invert_T
 
 __all__ = [
     "CalibrationStatus",
@@ -706,6 +707,13 @@ def calibrate_stereo(left: Sequence[Detection], right: Sequence[Detection],
                                  message=f"OpenCV calibration failed: {err.msg}",
                                  views_rejected=tuple(rejected), detections=dets, config=cfg)
     timings["fit"] = time.perf_counter() - t0
+    T_right_left0 = np.eye(4)
+    T_right_left0[:3, :3], T_right_left0[:3, 3] = fit.R, fit.T
+    swapped = swapped_message(invert_T(T_right_left0))
+    if swapped:
+        return StereoCalibration(status=CalibrationStatus.FAILED, message=swapped,
+                                 views_rejected=tuple(rejected), detections=dets, config=cfg,
+                                 guidance=(swapped,), timings_s=timings)
     t0 = time.perf_counter()
     n_usable = len(pairs)
     max_reject = math.floor(cfg.max_rejected_fraction * n_usable)
@@ -797,13 +805,12 @@ def calibrate_stereo(left: Sequence[Detection], right: Sequence[Detection],
     T_right_left[:3, 3] = fit.T
     T_left_right: FloatArray = np.asarray(np.linalg.inv(T_right_left), dtype=np.float64)
     rms = _rms(np.concatenate([res_l, res_r]))
-    swapped = swapped_message(T_left_right)
     result = StereoCalibration(
-        status=CalibrationStatus.FAILED if swapped else CalibrationStatus.OK,
-        message=swapped or f"calibrated from {_plural(len(pairs), 'pair')} of {len(left)}",
+        status=CalibrationStatus.OK,
+        message=f"calibrated from {_plural(len(pairs), 'pair')} of {len(left)}",
         left=cam_l, right=cam_r, T_left_right=T_left_right, rms_px=rms, holdout_px=holdout_px,
         views=tuple(views), views_rejected=tuple(rejected), detections=dets, config=cfg)
-    verdict, guidance = assess(result) if not swapped else ("not trusted", [swapped])
+    verdict, guidance = assess(result)
     timings["total"] = time.perf_counter() - t_start
     return dataclasses.replace(result, verdict=verdict, guidance=tuple(guidance),
                                timings_s=timings)

@@ -508,8 +508,9 @@ def _is_x_corner(gray: NDArray[np.uint8], point: FloatArray, radius_px: float,
     sign = vals > 0.5 * (lo + hi)
     changes = int(np.count_nonzero(sign != np.roll(sign, 1)))
     half = len(vals) // 2
-    symmetric = float(np.corrcoef(vals[:half], vals[half:])[0, 1])
-    return changes == 4 and symmetric > 0.5
+    if changes != 4 or np.std(vals[:half]) == 0 or np.std(vals[half:]) == 0:
+        return False
+    return float(np.corrcoef(vals[:half], vals[half:])[0, 1]) > 0.5
 
 
 def grid_continues(gray: NDArray[np.uint8], uv: FloatArray,
