@@ -816,6 +816,9 @@ def calibrate_stereo(left: Sequence[Detection], right: Sequence[Detection],
                                timings_s=timings)
 
 
+_TIE_FRACTION = 0.02
+
+
 def calibrate_stereo_best(candidates: Mapping[str, tuple[Sequence[Detection],
                                                          Sequence[Detection]]],
                           config: StereoCalibConfig | None = None) -> StereoCalibration:
@@ -830,7 +833,7 @@ def calibrate_stereo_best(candidates: Mapping[str, tuple[Sequence[Detection],
     leave-one-pair-out holdout error does: each pair is predicted by a calibration that never
     saw it. The detectors are compared on the pairs that every one of them used (so a detector
     is not favoured for having left the hard views out); with fewer than 3 such pairs, on
-    their own holdout errors.
+    their own holdout errors. Within 2 % of the lowest error, the earliest candidate wins.
 
     Args:
         candidates: ``{detector name: (left detections, right detections)}``, in order of
@@ -872,7 +875,10 @@ def calibrate_stereo_best(candidates: Mapping[str, tuple[Sequence[Detection],
     else:
         scores = {n: r.holdout_px for n, r in usable.items()}
     order = list(candidates)
-    chosen = min(scores, key=lambda n: (scores[n], order.index(n)))
+    best = min(scores.values())
+    # Within 2 % of the best the earlier candidate wins: differences that small are noise, and
+    # the preferred detector usually finds the board in more images.
+    chosen = next(n for n in order if n in scores and scores[n] <= best * (1 + _TIE_FRACTION))
     trials = []
     for name in candidates:
         if name in results:
@@ -889,6 +895,8 @@ def calibrate_stereo_best(candidates: Mapping[str, tuple[Sequence[Detection],
              else "on the pairs each used")
     reason = (f"{chosen}: holdout error {scores[chosen]:.3f} px {where}"
               + (f", against {', '.join(others)}" if others else "")
+              + (f" (within {_TIE_FRACTION:.0%} of the lowest: the preferred detector is kept)"
+                 if scores[chosen] > best else "")
               + (f"; {', '.join(sorted(errors))} could not calibrate" if errors else ""))
     failed = [n for n in results if n not in usable]
     if failed:
