@@ -75,3 +75,48 @@ def test_look_at_points_z_at_the_target_and_y_down():
     np.testing.assert_allclose(T[:3, 1], [0.0, 0.0, -1.0], atol=1e-12)
     with pytest.raises(GeometryError, match="parallel"):
         look_at([0.0, 0.0, 0.0], [0.0, 0.0, 1.0])
+
+
+def test_check_T_accepts_rounding_and_refuses_what_is_not_rigid(rng):
+    T = _random_T(rng)
+    # Rounding of a few 1e-9 (a transform read from text, composed a few times) is fine ...
+    noisy = T + np.r_[rng.normal(0.0, 2e-9, (3, 4)), np.zeros((1, 4))]
+    np.testing.assert_array_equal(check_T(noisy, "T_a_b"), noisy)
+    assert check_T(T.tolist()).dtype == np.float64
+    # ... a mirror, a scaled rotation, a bad last row, NaN are not, and the message says which.
+    mirror = T.copy()
+    mirror[:3, 0] *= -1.0
+    with pytest.raises(GeometryError, match="T_a_b's rotation block is not a proper rotation"):
+        check_T(mirror, "T_a_b")
+    with pytest.raises(GeometryError, match="rotation"):
+        check_T(make_T(1.001 * T[:3, :3], T[:3, 3]))
+    last = T.copy()
+    last[3, 2] = 0.1
+    with pytest.raises(GeometryError, match=r"T must end with the row \[0, 0, 0, 1\], got"):
+        check_T(last)
+    bad = T.copy()
+    bad[1, 3] = np.nan
+    with pytest.raises(GeometryError, match="T has non-finite values"):
+        check_T(bad)
+
+
+def test_make_T_places_R_and_t_and_refuses_other_shapes():
+    R = rotvec_to_R([0.1, -0.2, 0.3])
+    T = make_T(R, [[1.0], [2.0], [3.0]])
+    np.testing.assert_array_equal(T[:3, :3], R)
+    np.testing.assert_array_equal(T[:3, 3], [1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(T[3], [0.0, 0.0, 0.0, 1.0])
+    with pytest.raises(GeometryError, match=r"make_T needs R \(3, 3\) and t \(3,\)"):
+        make_T(R, [1.0, 2.0])
+    with pytest.raises(GeometryError, match="make_T needs"):
+        make_T(np.eye(2), [1.0, 2.0, 3.0])
+    with pytest.raises(GeometryError, match="invert_T needs a 4x4 matrix"):
+        invert_T(np.eye(3))
+
+
+def test_compose_of_none_one_and_three_transforms(rng):
+    A, B, C = (_random_T(rng) for _ in range(3))
+    np.testing.assert_array_equal(compose(), np.eye(4))
+    np.testing.assert_allclose(compose(A), A, atol=0)
+    np.testing.assert_allclose(compose(A.tolist(), B, C), A @ B @ C, atol=1e-12)
+    np.testing.assert_allclose(invert_T(compose(A, B)), invert_T(B) @ invert_T(A), atol=1e-12)
