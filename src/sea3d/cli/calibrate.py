@@ -53,7 +53,9 @@ def register(sub: Any) -> None:
     port = csub.add_parser("port", help="refractive dome/flat-port calibration from in-water "
                                         "board images and an in-air rig")
     port.add_argument("--rig", required=True, metavar="RIG", help="in-air rig (pinhole)")
-    port.add_argument("--port", choices=["dome", "flat"], required=True)
+    port.add_argument("--port", choices=["dome", "flat"], required=True,
+                      help="the housings' ports: dome (fits each dome's centre) or flat (fits "
+                           "each port's normal and distance)")
     port.add_argument("--inner-radius-mm", type=float, default=31.25, help="dome inner radius")
     port.add_argument("--thickness-mm", type=float, help="glass thickness (dome 3.1, flat 10)")
     port.add_argument("--n-glass", type=float, default=1.492, help="glass index (acrylic)")

@@ -17,14 +17,47 @@ def register(sub: Any) -> None:
         "demo",
         help="simulate an underwater pair, compute refraction-corrected depth, write a report",
     )
-    p.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder")
-    p.add_argument("--scene", default="lake", help="lake, tank, reef or a scene YAML")
-    p.add_argument("--water", default="coastal", choices=["none", "clear", "coastal", "turbid"])
-    p.add_argument("--port", default="dome", choices=["dome", "flat", "none"])
-    p.add_argument("--engine", default="sea3d", choices=["sea3d", "sea3d-gpu", "opencv"])
-    p.add_argument("--size", type=image_size, default=(1920, 1080), metavar="WxH")
-    p.add_argument("--max-disparity", type=int, default=256, help="at 1920 px width")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)"
+    )
+    p.add_argument(
+        "--scene", default="lake", help="lake, tank, reef or a scene YAML file (default lake)"
+    )
+    p.add_argument(
+        "--water",
+        default="coastal",
+        choices=["none", "clear", "coastal", "turbid"],
+        help="water between the cameras and the scene; none = clean images (default coastal)",
+    )
+    p.add_argument(
+        "--port",
+        default="dome",
+        choices=["dome", "flat", "none"],
+        help="camera housings of the paper's rig: dome or flat ports, or none (default dome)",
+    )
+    p.add_argument(
+        "--engine",
+        default="sea3d",
+        choices=["sea3d", "sea3d-gpu", "opencv"],
+        help="stereo matcher: sea3d's own (CPU), its GPU version, or OpenCV's SGBM "
+        "(default sea3d)",
+    )
+    p.add_argument(
+        "--size",
+        type=image_size,
+        default=(1920, 1080),
+        metavar="WxH",
+        help="image size to simulate and process (default 1920x1080; 960x540 is quicker)",
+    )
+    p.add_argument(
+        "--max-disparity",
+        type=int,
+        default=256,
+        metavar="PX",
+        help="disparity search range in pixels at 1920 px width, scaled with --size "
+        "(default 256)",
+    )
+    p.add_argument("--seed", type=int, default=0, metavar="N", help="noise seed (default 0)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(handler=_run)
 
