@@ -19,6 +19,8 @@ modules at a time. The figures are in docs/testing.md.
 from __future__ import annotations
 
 import argparse
+import ast
+import difflib
 import json
 import os
 import shutil
@@ -91,9 +93,24 @@ def survivors(work: Path) -> list[str]:
     return names
 
 
-def show(work: Path, name: str) -> str:
-    return subprocess.run([sys.executable, "-m", "mutmut", "show", name], cwd=work,
-                          check=False, capture_output=True, text=True).stdout
+def show(work: Path, name: str, cache: dict[Path, dict[str, str]]) -> str:
+    """The diff of one mutant against the original function, read from the mutated source
+    mutmut wrote (as ``mutmut show`` does, without starting mutmut for each)."""
+    module, _, func = name.rpartition(".")
+    path = work / "mutants" / "src" / Path(*module.split(".")).with_suffix(".py")
+    if path not in cache:
+        text = path.read_text()
+        cache[path] = {node.name: ast.get_source_segment(text, node) or ""
+                       for node in ast.walk(ast.parse(text))
+                       if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef)}
+    funcs = cache[path]
+    orig = funcs.get(func.rsplit("__mutmut_", 1)[0] + "__mutmut_orig", "")
+    mutant = funcs.get(func, "")
+    lines = difflib.unified_diff(orig.replace("__mutmut_orig", "").splitlines(),
+                                 mutant.replace(func[func.rfind("__mutmut_"):], "").splitlines(),
+                                 str(path.relative_to(work / "mutants")),
+                                 str(path.relative_to(work / "mutants")), n=2, lineterm="")
+    return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -124,9 +141,10 @@ def main(argv: list[str] | None = None) -> int:
         minutes = (time.perf_counter() - t0) / 60
         st = stats(work)
         names = survivors(work)
+        cache: dict[Path, dict[str, str]] = {}
         with (args.out / f"{module}.txt").open("w") as fh:
             for name in names:
-                fh.write(f"# {name}\n{show(work, name.split()[0])}\n")
+                fh.write(f"# {name}\n{show(work, name.split()[0], cache)}\n\n")
         killed, surv = st.get("killed", 0), st.get("survived", 0)
         untested, timeout = st.get("no_tests", 0), st.get("timeout", 0)
         scored = killed + surv + untested + timeout
