@@ -5,11 +5,12 @@
    and the extrinsics in water. 20 views at 0.5-2.5 m, tilted up to 40 degrees, 1920x1080.
 2. The simulator (``sea3d.sim.render_calibration_set``): in-water pairs through the paper's
    domes (centres (-0.54, 0.58, 2.10) and (1.5, -2.0, -1.0) mm), 95 mm squares at 0.5-2.5 m,
-   rendered and detected as ``sea3d calibrate port`` detects them (sector-based corners refined
-   by cornerSubPix), then calibrated three ways: the extrinsics with both ports held at their
-   own fits (no joint step), everything jointly (the default), and jointly with the in-air
-   focal length 1 % off and ``refine_focal``. The joint step's effect on the extrinsics' z
-   (coupled to the domes' axial offsets) shows in the first two.
+   rendered and detected by every checkerboard detector (their corners' error against the
+   true projections is printed), then calibrated: jointly (the default) from each detector's
+   corners; from the sector-based corners (what ``sea3d calibrate port`` uses) also with both
+   ports held at their own fits (no joint step: the joint step's effect on the extrinsics' z,
+   coupled to the domes' axial offsets) and jointly with the in-air focal length 1 % off and
+   ``refine_focal``.
 
     PYTHONPATH=src python benchmarks/bench_port_sim.py [--views 20] [--size 1920x1080]
         [--no-render]
@@ -29,7 +30,12 @@ import numpy as np
 
 from sea3d.calib.port import PortCalibConfig, calibrate_port, calibrate_port_rig
 from sea3d.calib.synthetic import board_poses, synthetic_detections
-from sea3d.calib.targets import Detection, detect_board, parse_board
+from sea3d.calib.targets import (
+    CHECKER_DETECTORS,
+    Detection,
+    detect_checkerboard_all,
+    parse_board,
+)
 from sea3d.geometry.pinhole import PinholeCamera
 from sea3d.geometry.rig import StereoRig
 from sea3d.refraction import DomePort, DomePortCamera, FlatPort, FlatPortCamera
@@ -41,8 +47,8 @@ DOME = {"inner_radius_m": 31.25e-3, "thickness_m": 3.1e-3}
 NOISE_PX = 0.15
 
 
-def mm(v: Any) -> str:
-    return "(" + ", ".join(f"{x * 1e3:+.3f}" for x in np.ravel(v)) + ") mm"
+def mm(v: Any, sign: bool = True) -> str:
+    return "(" + ", ".join(f"{x * 1e3:{'+' if sign else ''}.3f}" for x in np.ravel(v)) + ") mm"
 
 
 def pinhole(size: tuple[int, int], focal_scale: float = 1.0) -> PinholeCamera:
@@ -67,7 +73,7 @@ def projected_section(size: tuple[int, int]) -> None:
         truth = DomePortCamera(pinhole(size), DomePort(center_m=np.asarray(centre), **DOME))
         res = calibrate_port(synthetic(truth, rng), truth.pinhole, start)
         print(f"  dome at {mm(centre)}: error {mm(res.dome_center_m - np.asarray(centre))}, "
-              f"std {mm(res.dome_center_std_m)}, RMS {res.rms_px:.3f} px")
+              f"std {mm(res.dome_center_std_m, False)}, RMS {res.rms_px:.3f} px")
     rng = np.random.default_rng(0)
     truth = DomePortCamera(pinhole(size), DomePort(center_m=np.asarray(PAPER_CENTER_M), **DOME))
     res = calibrate_port(synthetic(truth, rng), pinhole(size, 1.01), start,
@@ -113,7 +119,7 @@ def report_rig(label: str, res: Any, truth: StereoRig, fx_true: float | None = N
     for side, r, cam in (("left", res.left, truth.left), ("right", res.right, truth.right)):
         err = r.dome_center_m - np.asarray(cam.port.center_m)
         line = (f"     {side} dome error {mm(err)} (max {np.max(np.abs(err)) * 1e3:.3f} mm), "
-                f"std {mm(r.dome_center_std_m)}")
+                f"std {mm(r.dome_center_std_m, False)}")
         if fx_true is not None and r.camera is not None:
             line += f", fx error {100 * (r.camera.pinhole.fx / fx_true - 1):+.4f} %"
         print(line)
@@ -135,19 +141,30 @@ def rendered_section(views: int, size: tuple[int, int]) -> None:
     t_render = time.perf_counter() - t0
     board = parse_board(spec)
     t0 = time.perf_counter()
-    left = [detect_board(im, board, checker_detector="sector+subpix").with_name(f"left{k:02d}")
-            for k, im in enumerate(cal.lefts)]
-    right = [detect_board(im, board, checker_detector="sector+subpix").with_name(f"right{k:02d}")
-             for k, im in enumerate(cal.rights)]
+    found_l = [detect_checkerboard_all(im, board) for im in cal.lefts]
+    found_r = [detect_checkerboard_all(im, board) for im in cal.rights]
     t_detect = time.perf_counter() - t0
+    dets = {name: ([f[name].with_name(f"left{k:02d}") for k, f in enumerate(found_l)],
+                   [f[name].with_name(f"right{k:02d}") for k, f in enumerate(found_r)])
+            for name in CHECKER_DETECTORS}
+    left, right = dets["sector"]  # what 'sea3d calibrate port' uses
     print(f"\n2. the simulator: {views} in-water pairs at {size[0]}x{size[1]} through the "
-          f"paper's domes (rendered in {t_render:.0f} s, detected in {t_detect:.0f} s: "
+          f"paper's domes (rendered in {t_render:.0f} s, every detector in {t_detect:.0f} s: "
           f"{sum(d.ok for d in left)}/{views} left, {sum(d.ok for d in right)}/{views} right)")
     start = DomePort(center_m=np.zeros(3), **DOME)
     air = paper_rig("none", size_px=size)
-    for label, cfg in (("  extrinsics with both ports fixed (no joint step)",
-                        PortCalibConfig(joint_refinement=False)),
-                       ("  joint refinement (the default)", PortCalibConfig())):
+    for name, (dl, dr) in dets.items():
+        truth_uv = [rig.left.project(board.object_points()[1] @ T[:3, :3].T + T[:3, 3])[0]
+                    for T in cal.T_left_board]
+        errs = [d.corners_px - t if np.linalg.norm(d.corners_px[0] - t[0]) < np.linalg.norm(
+            d.corners_px[-1] - t[0]) else d.corners_px[::-1] - t
+                for d, t in zip(dl, truth_uv, strict=True) if d.ok]
+        corner_rms = float(np.sqrt(np.mean(np.sum(np.concatenate(errs) ** 2, axis=1))))
+        res = calibrate_port_rig(air, start, start, dl, dr)
+        report_rig(f"  {name} corners (left corners {corner_rms:.3f} px RMS from the truth), "
+                   f"joint", res, rig)
+    for label, cfg in (("  sector corners, extrinsics with both ports fixed (no joint step)",
+                        PortCalibConfig(joint_refinement=False)),):
         t0 = time.perf_counter()
         res = calibrate_port_rig(air, start, start, left, right, cfg)
         report_rig(f"{label} [{time.perf_counter() - t0:.0f} s]", res, rig)
@@ -157,7 +174,8 @@ def rendered_section(views: int, size: tuple[int, int]) -> None:
     res = calibrate_port_rig(air_off, start, start, left, right,
                              PortCalibConfig(refine_focal=True))
     fx_true = pinhole(size).fx
-    report_rig(f"  in-air focal length 1 % off, refine_focal [{time.perf_counter() - t0:.0f} s]",
+    report_rig(f"  sector corners, in-air focal length 1 % off, refine_focal "
+               f"[{time.perf_counter() - t0:.0f} s]",
                res, rig, fx_true=fx_true)
 
 

@@ -190,12 +190,14 @@ def render_report(result: StereoCalibration, *, sample_pair: tuple[NDArray[Any],
             f"</td><td>{e(t.status)}</td><td class=n>{_num(t.rms_px)}</td>"
             f"<td class=n>{_num(t.holdout_px)}</td><td class=n>{_num(t.common_holdout_px)}"
             f"</td><td class=n>{t.pairs_used}</td></tr>" for t in result.detector_trials)
-        parts.append("<h2>Corner detector</h2><p>Every checkerboard detector was tried; the one "
-                     "whose calibration predicts held-out pairs best is kept (the RMS on a "
-                     f"detector's own corners does not tell). {e(result.detector_reason)}.</p>"
-                     "<table><tr><th>detector</th><th>status</th><th>RMS px</th>"
-                     "<th>holdout px</th><th>holdout on common pairs px</th><th>pairs</th></tr>"
-                     + rows_d + "</table>")
+        how = ("Every checkerboard detector was tried; the one whose calibration predicts "
+               "held-out pairs best is kept (the RMS on a detector's own corners does not "
+               "tell). " if result.detector_trials else "Corners: ")
+        parts.append(f"<h2>Corner detector</h2><p>{how}{e(result.detector_reason)}.</p>")
+        if rows_d:
+            parts.append("<table><tr><th>detector</th><th>status</th><th>RMS px</th>"
+                         "<th>holdout px</th><th>holdout on common pairs px</th><th>pairs</th>"
+                         "</tr>" + rows_d + "</table>")
     if result.left is not None and result.right is not None:
         L, R = result.left, result.right
         rows = [("RMS, both cameras", f"{result.rms_px:.3f} px"),

@@ -4,6 +4,7 @@ port calibration."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import glob
 import json
 import logging
@@ -83,7 +84,7 @@ def _add_pair_inputs(p: argparse.ArgumentParser) -> None:
                                            "accurate", "fast"], default="auto",
                    help="checkerboards: auto (default) = run every detector and keep the one "
                         "whose calibration has the lowest holdout error (calibrate port: "
-                        "sector+subpix); sector = OpenCV's sector-based detector (about 0.3 s "
+                        "sector); sector = OpenCV's sector-based detector (about 0.3 s "
                         "per 640x480 image, 1.5 s at 1920x1080; alias accurate); sector+subpix "
                         "= its corners refined by cornerSubPix; classic = findChessboardCorners "
                         "+ cornerSubPix (10 ms; alias fast)")
@@ -234,8 +235,14 @@ def _stereo(args: argparse.Namespace) -> int:
     left_paths, right_paths = _expand(args.left, "left"), _expand(args.right, "right")
     _pair_paths(left_paths, right_paths)
     quiet = bool(args.json)
-    left = _detect_all(left_paths, board, quiet, args.detector)
-    right = _detect_all(right_paths, board, quiet, args.detector)
+    detector = _DETECTOR_ALIASES.get(args.detector, args.detector)
+    reason = f"{detector}, named with --detector {args.detector}"
+    if detector == "auto" and args.no_holdout:
+        detector = "sector+subpix"
+        reason = ("sector+subpix, the default: with --no-holdout there is no holdout error to "
+                  "choose a detector by")
+    left = _detect_all(left_paths, board, quiet, detector)
+    right = _detect_all(right_paths, board, quiet, detector)
     cfg = StereoCalibConfig(distortion=args.distortion, min_views=args.min_views,
                             reject_outliers=not args.no_reject, holdout=not args.no_holdout,
                             opencv_start=args.opencv_start)
@@ -245,6 +252,8 @@ def _stereo(args: argparse.Namespace) -> int:
             result = calibrate_stereo_best({n: (left[n], right[n]) for n in left}, cfg)
         else:
             result = calibrate_stereo(left[first], right[first], cfg)
+            if board.kind == "checkerboard":
+                result = dataclasses.replace(result, detector=detector, detector_reason=reason)
     except CalibrationError as err:
         raise CalibrationError(f"{err}{_size_hint(left_paths, left[first], board)}") from err
     if args.report:
@@ -304,9 +313,10 @@ def _port(args: argparse.Namespace) -> int:
     left_paths, right_paths = _expand(args.left, "left"), _expand(args.right, "right")
     _pair_paths(left_paths, right_paths)
     quiet = bool(args.json)
-    # No holdout error for port fits to choose by: 'auto' means the sector-based corners
-    # refined by cornerSubPix, the best or close to it on every set measured.
-    detector = "sector+subpix" if args.detector == "auto" else args.detector
+    # No holdout error for port fits to choose by: 'auto' means the sector-based corners,
+    # which recover the simulator's domes best (benchmarks/bench_port_sim.py: refining them
+    # by cornerSubPix moved the axial dome offsets by 0.3-0.4 mm).
+    detector = "sector" if args.detector == "auto" else args.detector
     left = next(iter(_detect_all(left_paths, board, quiet, detector).values()))
     right = next(iter(_detect_all(right_paths, board, quiet, detector).values()))
     ports: list[DomePort | FlatPort] = []
