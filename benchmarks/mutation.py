@@ -5,7 +5,10 @@ files and running only the tests that cover it (mutmut maps each mutated functio
 that call it, and runs those), then prints per module: mutants made, killed, survived, not
 covered by any test, timed out, and the survival rate
 ``(survived + not covered) / (killed + survived + not covered + timed out)``.
-The survivors (with their diffs) go to ``--out`` for reading.
+The survivors (with their diffs) go to ``--out`` for reading. Mutants that mutmut calls
+"suspicious" (its worker died by a signal) are run again in a plain pytest process and
+counted as killed or survived by that run (see :func:`recheck`). ``--recheck-only`` scores
+new tests against the last run's mutants without a new mutmut run.
 
 numba kernels (``_kernels.py``) are not mutated: mutmut's trampolines cannot be compiled.
 
@@ -82,15 +85,50 @@ def stats(work: Path) -> dict[str, int]:
     return data
 
 
-def survivors(work: Path) -> list[str]:
+def results(work: Path) -> dict[str, str]:
+    """``{mutant: status}`` for every mutant mutmut did not kill."""
     out = subprocess.run([sys.executable, "-m", "mutmut", "results"], cwd=work, check=False,
                          capture_output=True, text=True).stdout
-    names = []
+    found = {}
     for line in out.splitlines():
         name, _, status = line.strip().rpartition(":")
-        if name and status.strip() in ("survived", "no tests"):
-            names.append(f"{name.strip()}  [{status.strip()}]")
-    return names
+        if name:
+            found[name.strip()] = status.strip()
+    return found
+
+
+def recheck(work: Path, names: list[str], env: dict[str, str], timeout_s: float,
+            every_test: bool = False) -> dict[str, str]:
+    """Run the tests of each "suspicious" mutant again, outside mutmut's fork server.
+
+    Under mutmut 3.8 the worker that runs a mutant is killed by SIGTERM (exit -15, counted as
+    "suspicious") after tests that use OpenCV or numba kernels have run, whether they passed or
+    failed (measured on ``PinholeCamera.project``: a mutant that fails the tests run by hand
+    and an equivalent one that passes them both came back -15). Here each such mutant is run
+    as mutmut would (its mutated source first on the path, ``MUTANT_UNDER_TEST`` naming it,
+    only the tests that call its function, or with ``every_test`` all of the module's tests)
+    in a plain pytest process: exit 0 is a survivor, 1 a kill.
+    """
+    stats_path = work / "mutants" / "mutmut-stats.json"
+    by_func: dict[str, list[str]] = {}
+    if stats_path.is_file():
+        by_func = json.loads(stats_path.read_text()).get("tests_by_mangled_function_name", {})
+    module_tests = MODULES[next(m for m in MODULES if (work.name == m.replace(".", "_")))][1]
+    out = {}
+    for name in names:
+        tests = [] if every_test else sorted(by_func.get(name.partition("__mutmut_")[0], []))
+        tests = tests or module_tests
+        run_env = dict(env, MUTANT_UNDER_TEST=name, PYTHONPATH=str(work / "mutants" / "src"))
+        try:
+            rc = subprocess.run([sys.executable, "-m", "pytest", *PYTEST_ARGS, *tests],
+                                cwd=work / "mutants", env=run_env, check=False,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                timeout=timeout_s).returncode
+        except subprocess.TimeoutExpired:
+            out[name] = "timeout"
+            continue
+        out[name] = {0: "survived", 1: "killed", 5: "no tests"}.get(rc, "suspicious")
+    return out
 
 
 def show(work: Path, name: str, cache: dict[Path, dict[str, str]]) -> str:
@@ -121,6 +159,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-children", type=int, default=2)
     parser.add_argument("--timeout-s", type=float, default=4 * 3600.0,
                         help="stop a module's run after this long (its counts so far are kept)")
+    parser.add_argument("--recheck-only", action="store_true",
+                        help="no new mutmut run: take the last run's mutants in --scratch, copy "
+                             "today's tests into it and run every mutant that was not killed "
+                             "again (what new tests kill, with the source unchanged)")
+    parser.add_argument("--no-recheck", action="store_true",
+                        help="leave mutmut's 'suspicious' verdicts as they are")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ)
@@ -128,37 +172,63 @@ def main(argv: list[str] | None = None) -> int:
     env["OMP_WAIT_POLICY"] = "PASSIVE"
     rows = []
     for module in args.modules:
-        work = prepare(module, args.scratch)
         t0 = time.perf_counter()
-        print(f"== {module}: mutmut run in {work}", flush=True)
-        try:
-            subprocess.run([sys.executable, "-m", "mutmut", "run", "--max-children",
-                            str(args.max_children)], cwd=work, env=env, check=False,
-                           timeout=args.timeout_s, stdout=subprocess.DEVNULL)
-            finished = True
-        except subprocess.TimeoutExpired:
-            finished = False
-        minutes = (time.perf_counter() - t0) / 60
+        finished = True
+        if args.recheck_only:
+            work = args.scratch / module.replace(".", "_")
+            if not (work / "mutants").is_dir():
+                print(f"== {module}: no earlier run in {work}; skipped", flush=True)
+                continue
+            shutil.rmtree(work / "mutants" / "tests")
+            shutil.copytree(ROOT / "tests", work / "mutants" / "tests",
+                            ignore=shutil.ignore_patterns("__pycache__"))
+            print(f"== {module}: rechecking the last run's unkilled mutants with today's "
+                  f"tests", flush=True)
+        else:
+            work = prepare(module, args.scratch)
+            print(f"== {module}: mutmut run in {work}", flush=True)
+            try:
+                subprocess.run([sys.executable, "-m", "mutmut", "run", "--max-children",
+                                str(args.max_children)], cwd=work, env=env, check=False,
+                               timeout=args.timeout_s, stdout=subprocess.DEVNULL)
+            except subprocess.TimeoutExpired:
+                finished = False
         st = stats(work)
-        names = survivors(work)
+        status = results(work)
+        if args.recheck_only:
+            todo = [n for n, v in status.items() if v in ("survived", "no tests", "suspicious")]
+        else:
+            todo = [n for n, v in status.items() if v == "suspicious"]
+        if not args.no_recheck and todo:
+            # New tests are not in mutmut's map of which tests call which function: with
+            # --recheck-only every one of the module's tests runs.
+            status.update(recheck(work, todo, env, timeout_s=300.0,
+                                  every_test=args.recheck_only))
+        minutes = (time.perf_counter() - t0) / 60
+        count = {k: sum(v == k for v in status.values())
+                 for k in ("survived", "no tests", "suspicious", "timeout", "not checked")}
+        total = int(st.get("total", len(status)))
+        killed = total - sum(count.values())
+        names = [n for n, v in status.items() if v in ("survived", "no tests")]
         cache: dict[Path, dict[str, str]] = {}
         with (args.out / f"{module}.txt").open("w") as fh:
             for name in names:
-                fh.write(f"# {name}\n{show(work, name.split()[0], cache)}\n\n")
-        killed, surv = st.get("killed", 0), st.get("survived", 0)
-        untested, timeout = st.get("no_tests", 0), st.get("timeout", 0)
-        scored = killed + surv + untested + timeout
+                fh.write(f"# {name}  [{status[name]}]\n{show(work, name, cache)}\n\n")
+        surv, untested = count["survived"], count["no tests"]
+        scored = killed + surv + untested + count["timeout"]
         rate = (surv + untested) / scored if scored else float("nan")
-        rows.append((module, st.get("total", 0), killed, surv, untested, timeout, rate, minutes,
-                     finished))
-        print(f"   {st}  ({minutes:.0f} min{'' if finished else ', stopped at the time limit'})",
+        rows.append((module, total, killed, surv, untested, count["timeout"],
+                     count["suspicious"] + count["not checked"], rate, minutes, finished))
+        print(f"   {count} ({minutes:.0f} min{'' if finished else ', stopped at the time limit'})",
               flush=True)
     print(f"\n{'module':<14}{'mutants':>8}{'killed':>8}{'survived':>9}{'no tests':>9}"
-          f"{'timeout':>8}{'survival':>9}{'minutes':>8}")
-    for module, total, killed, surv, untested, timeout, rate, minutes, finished in rows:
-        print(f"{module:<14}{total:8d}{killed:8d}{surv:9d}{untested:9d}{timeout:8d}"
+          f"{'timeout':>8}{'unscored':>9}{'survival':>9}{'minutes':>8}")
+    for module, total, killed, surv, untested, timeout, unscored, rate, minutes, finished in rows:
+        print(f"{module:<14}{total:8d}{killed:8d}{surv:9d}{untested:9d}{timeout:8d}{unscored:9d}"
               f"{100 * rate:8.1f}%{minutes:8.0f}{'' if finished else ' (partial)'}")
-    print(f"\nsurvivors with their diffs: {args.out}/<module>.txt")
+    print(f"\nsurvival = (survived + no tests) / (killed + survived + no tests + timeout); "
+          f"unscored: still suspicious or never run. Survivors with their diffs: "
+          f"{args.out}/<module>.txt")
     return 0
 
 
