@@ -97,38 +97,57 @@ def results(work: Path) -> dict[str, str]:
     return found
 
 
-def recheck(work: Path, names: list[str], env: dict[str, str], timeout_s: float,
-            every_test: bool = False) -> dict[str, str]:
-    """Run the tests of each "suspicious" mutant again, outside mutmut's fork server.
+# Runs in the scratch's mutants/ folder with its mutated source first on the path: imports
+# the heavy modules once, then forks one child per mutant that names it in MUTANT_UNDER_TEST
+# (mutmut's trampolines read it at every call) and runs pytest; prints {mutant: exit code}.
+_FORK_RUNNER = r"""
+import json, os, sys
+import numpy, scipy.spatial.transform, cv2, pytest  # noqa: F401
+import sea3d.geometry  # noqa: F401
+jobs = json.loads(sys.stdin.read())
+out = {}
+for name, args in jobs:
+    pid = os.fork()
+    if pid == 0:
+        os.environ["MUTANT_UNDER_TEST"] = name
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, 1)
+        os.dup2(null, 2)
+        os._exit(int(pytest.main(args)))
+    out[name] = os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1])
+print(json.dumps(out))
+"""
+
+
+def recheck(work: Path, names: list[str], env: dict[str, str], every_test: bool = False
+            ) -> dict[str, str]:
+    """Run the tests of each given mutant again, outside mutmut's fork server.
 
     Under mutmut 3.8 the worker that runs a mutant is killed by SIGTERM (exit -15, counted as
     "suspicious") after tests that use OpenCV or numba kernels have run, whether they passed or
     failed (measured on ``PinholeCamera.project``: a mutant that fails the tests run by hand
-    and an equivalent one that passes them both came back -15). Here each such mutant is run
-    as mutmut would (its mutated source first on the path, ``MUTANT_UNDER_TEST`` naming it,
-    only the tests that call its function, or with ``every_test`` all of the module's tests)
-    in a plain pytest process: exit 0 is a survivor, 1 a kill.
+    and an equivalent one that passes them both came back -15). Here each mutant is run as
+    mutmut would (its mutated source first on the path, ``MUTANT_UNDER_TEST`` naming it, only
+    the tests that call its function, or with ``every_test`` all of the module's tests) in a
+    forked plain pytest: exit 0 is a survivor, 1 a kill.
     """
     stats_path = work / "mutants" / "mutmut-stats.json"
     by_func: dict[str, list[str]] = {}
     if stats_path.is_file():
         by_func = json.loads(stats_path.read_text()).get("tests_by_mangled_function_name", {})
-    module_tests = MODULES[next(m for m in MODULES if (work.name == m.replace(".", "_")))][1]
-    out = {}
+    module_tests = MODULES[next(m for m in MODULES if work.name == m.replace(".", "_"))][1]
+    jobs = []
     for name in names:
         tests = [] if every_test else sorted(by_func.get(name.partition("__mutmut_")[0], []))
-        tests = tests or module_tests
-        run_env = dict(env, MUTANT_UNDER_TEST=name, PYTHONPATH=str(work / "mutants" / "src"))
-        try:
-            rc = subprocess.run([sys.executable, "-m", "pytest", *PYTEST_ARGS, *tests],
-                                cwd=work / "mutants", env=run_env, check=False,
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                                timeout=timeout_s).returncode
-        except subprocess.TimeoutExpired:
-            out[name] = "timeout"
-            continue
-        out[name] = {0: "survived", 1: "killed", 5: "no tests"}.get(rc, "suspicious")
-    return out
+        jobs.append((name, [*PYTEST_ARGS, *(tests or module_tests)]))
+    run_env = dict(env, PYTHONPATH=str(work / "mutants" / "src"))
+    run_env.pop("MUTANT_UNDER_TEST", None)
+    proc = subprocess.run([sys.executable, "-c", _FORK_RUNNER], cwd=work / "mutants",
+                          env=run_env, input=json.dumps(jobs), capture_output=True, text=True,
+                          check=False)
+    codes: dict[str, int] = json.loads(proc.stdout.strip().splitlines()[-1]) if proc.stdout else {}
+    return {n: {0: "survived", 1: "killed", 5: "no tests"}.get(codes.get(n, -1), "suspicious")
+            for n in names}
 
 
 def show(work: Path, name: str, cache: dict[Path, dict[str, str]]) -> str:
@@ -159,10 +178,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-children", type=int, default=2)
     parser.add_argument("--timeout-s", type=float, default=4 * 3600.0,
                         help="stop a module's run after this long (its counts so far are kept)")
+    parser.add_argument("--no-run", action="store_true",
+                        help="no new mutmut run: score the last run in --scratch (its "
+                             "'suspicious' mutants rechecked)")
     parser.add_argument("--recheck-only", action="store_true",
                         help="no new mutmut run: take the last run's mutants in --scratch, copy "
                              "today's tests into it and run every mutant that was not killed "
                              "again (what new tests kill, with the source unchanged)")
+    parser.add_argument("--only", type=Path, metavar="SURVIVORS_TXT",
+                        help="with --recheck-only: run only the mutants listed in an earlier "
+                             "run's survivors file (--out/<module>.txt), the rest keep their "
+                             "verdict")
     parser.add_argument("--no-recheck", action="store_true",
                         help="leave mutmut's 'suspicious' verdicts as they are")
     args = parser.parse_args(argv)
@@ -174,16 +200,18 @@ def main(argv: list[str] | None = None) -> int:
     for module in args.modules:
         t0 = time.perf_counter()
         finished = True
-        if args.recheck_only:
+        if args.recheck_only or args.no_run:
             work = args.scratch / module.replace(".", "_")
             if not (work / "mutants").is_dir():
                 print(f"== {module}: no earlier run in {work}; skipped", flush=True)
                 continue
-            shutil.rmtree(work / "mutants" / "tests")
-            shutil.copytree(ROOT / "tests", work / "mutants" / "tests",
-                            ignore=shutil.ignore_patterns("__pycache__"))
-            print(f"== {module}: rechecking the last run's unkilled mutants with today's "
-                  f"tests", flush=True)
+            if args.recheck_only:
+                shutil.rmtree(work / "mutants" / "tests")
+                shutil.copytree(ROOT / "tests", work / "mutants" / "tests",
+                                ignore=shutil.ignore_patterns("__pycache__"))
+            print(f"== {module}: the last run in {work}"
+                  + (", its unkilled mutants run again with today's tests"
+                     if args.recheck_only else ""), flush=True)
         else:
             work = prepare(module, args.scratch)
             print(f"== {module}: mutmut run in {work}", flush=True)
@@ -195,15 +223,21 @@ def main(argv: list[str] | None = None) -> int:
                 finished = False
         st = stats(work)
         status = results(work)
-        if args.recheck_only:
+        if args.recheck_only and args.only is not None:
+            listed = {line[2:].split()[0] for line in args.only.read_text().splitlines()
+                      if line.startswith("# ")}
+            for n, v in status.items():
+                if v == "suspicious" and n not in listed:
+                    status[n] = "killed"  # rechecked as killed by the earlier run
+            todo = sorted(listed & set(status))
+        elif args.recheck_only:
             todo = [n for n, v in status.items() if v in ("survived", "no tests", "suspicious")]
         else:
             todo = [n for n, v in status.items() if v == "suspicious"]
         if not args.no_recheck and todo:
             # New tests are not in mutmut's map of which tests call which function: with
             # --recheck-only every one of the module's tests runs.
-            status.update(recheck(work, todo, env, timeout_s=300.0,
-                                  every_test=args.recheck_only))
+            status.update(recheck(work, todo, env, every_test=args.recheck_only))
         minutes = (time.perf_counter() - t0) / 60
         count = {k: sum(v == k for v in status.values())
                  for k in ("survived", "no tests", "suspicious", "timeout", "not checked")}
