@@ -189,6 +189,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="with --recheck-only: run only the mutants listed in an earlier "
                              "run's survivors file (--out/<module>.txt), the rest keep their "
                              "verdict")
+    parser.add_argument("--match", nargs="+", metavar="TEXT",
+                        help="with --only: run again only the mutants whose names contain one "
+                             "of these (e.g. se3 triangulate); the others keep their verdict")
     parser.add_argument("--no-recheck", action="store_true",
                         help="leave mutmut's 'suspicious' verdicts as they are")
     args = parser.parse_args(argv)
@@ -224,12 +227,14 @@ def main(argv: list[str] | None = None) -> int:
         st = stats(work)
         status = results(work)
         if args.recheck_only and args.only is not None:
-            listed = {line[2:].split()[0] for line in args.only.read_text().splitlines()
-                      if line.startswith("# ")}
+            listed = dict(line[2:].rsplit("  [", 1) for line in args.only.read_text().splitlines()
+                          if line.startswith("# "))
             for n, v in status.items():
-                if v == "suspicious" and n not in listed:
-                    status[n] = "killed"  # rechecked as killed by the earlier run
-            todo = sorted(listed & set(status))
+                # the earlier run's verdicts: listed ones survived, other suspicious were killed
+                status[n] = listed[n].rstrip("]") if n in listed else (
+                    "killed" if v == "suspicious" else v)
+            todo = sorted(n for n in listed if n in status
+                          and (not args.match or any(m in n for m in args.match)))
         elif args.recheck_only:
             todo = [n for n, v in status.items() if v in ("survived", "no tests", "suspicious")]
         else:
