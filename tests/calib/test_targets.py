@@ -14,7 +14,9 @@ from sea3d.calib.printable import PT_PER_M, board_pdf, paper_size_mm
 from sea3d.calib.targets import (
     BoardSpec,
     DetectionStatus,
+    _version_offset_px,
     board_origin_offset_m,
+    corner_convention_offset_px,
     detect_board,
     diagnose_checkerboard_size,
     load_board,
@@ -133,6 +135,23 @@ def test_rendered_charuco_and_tag_grid_are_detected_with_ids() -> None:
     assert det.status is DetectionStatus.DETECTED and len(det) == 24
     expected = _expected_px(tags, det.points_board_m, 3000.0, 0.01)
     assert np.linalg.norm(det.corners_px - expected, axis=1).max() < RENDERED_TAG_CORNER_TOL_PX
+    # ArUco dictionaries use cornerSubPix refinement, whose corners are already pixel-centred
+    # (OpenCV 4.10-4.14): a fixed half-pixel shift put them 0.71 px off.
+    aruco = parse_board("aruco:3x2:40mm:50mm:DICT_4X4_50")
+    img = render_board(aruco, px_per_m=3000.0, margin_m=0.01)
+    det = detect_board(img, aruco)
+    assert det.status is DetectionStatus.DETECTED and len(det) == 24
+    expected = _expected_px(aruco, det.points_board_m, 3000.0, 0.01)
+    assert np.linalg.norm(det.corners_px - expected, axis=1).max() < RENDERED_CORNER_TOL_PX
+
+
+@pytest.mark.parametrize("refinement", ["charuco", "apriltag", "subpix"])
+def test_corner_convention_measured_at_run_time_matches_the_table_of_known_versions(
+        refinement: str) -> None:
+    # The run-time measurement is what detection uses; the table (OpenCV 4.10-4.14, measured
+    # in docs/calibration.md) is its fallback. Disagreement means a new OpenCV changed the
+    # convention again: detection is still right, but the table and the docs need a line.
+    assert corner_convention_offset_px(refinement) == _version_offset_px(refinement)
 
 
 def test_missing_and_wrong_size_boards_get_a_status_not_an_exception() -> None:

@@ -18,6 +18,7 @@ from sea3d.cli import main
 from sea3d.geometry.rig import StereoRig
 from sea3d.io.rig_file import rig_from_yaml, save_rig
 from sea3d.io.session import open_session
+from sea3d.sim.survey import gt_depth_path, read_gt_depth
 
 # Median |z - z_gt| / z_gt of the points. Measured at 480x270 on this scene: 0.14 % with the
 # ports corrected, 2.48 % with them ignored (both frames).
@@ -32,7 +33,7 @@ def _median_rel_errors(out, gt_dir, rig) -> list[float]:
         pts = np.asarray(o3d.io.read_point_cloud(str(ply)).points, dtype=np.float64)
         assert len(pts) > 50_000
         pts = pts[::POINT_STRIDE]
-        gt = np.load(gt_dir / f"{ply.stem}.npy")
+        gt = read_gt_depth(gt_depth_path(gt_dir, int(ply.stem)))
         uv = np.rint(project(rig.left, pts)).astype(int)
         inside = ((uv[:, 0] >= 0) & (uv[:, 0] < gt.shape[1]) & (uv[:, 1] >= 0)
                   & (uv[:, 1] < gt.shape[0]))

@@ -75,3 +75,34 @@ def test_bad_parameters_raise_clear_errors():
         cam.project(np.zeros((4, 2)))
     with pytest.raises(GeometryError, match=r"\(N, 2\)"):
         cam.unproject(np.zeros((4, 3)))
+
+
+def test_from_K_and_with_dist_keep_every_parameter():
+    K = [[1100.0, 0.0, 958.3], [0.0, 1090.0, 541.2], [0.0, 0.0, 1.0]]
+    dist = [-0.1, 0.02, 1e-4, -2e-4, 0.003]
+    cam = PinholeCamera.from_K(K, 1920, 1080, dist)
+    assert (cam.fx, cam.fy, cam.cx, cam.cy) == (1100.0, 1090.0, 958.3, 541.2)
+    assert (cam.width, cam.height) == (1920, 1080)
+    np.testing.assert_array_equal(cam.K, K)
+    np.testing.assert_array_equal(cam.dist, dist)
+    assert PinholeCamera.from_K(K, 1920, 1080).dist.size == 0
+    other = cam.with_dist([0.05, -0.01, 0.0, 0.0])
+    assert (other.fx, other.fy, other.cx, other.cy, other.width, other.height) == (
+        1100.0, 1090.0, 958.3, 541.2, 1920, 1080)
+    np.testing.assert_array_equal(other.dist, [0.05, -0.01, 0.0, 0.0])
+    np.testing.assert_array_equal(cam.dist, dist)  # the original is unchanged
+    with pytest.raises(CameraModelError, match=r"camera matrix must be 3x3, got shape \(2, 3\)"):
+        PinholeCamera.from_K(np.zeros((2, 3)), 640, 480)
+    for bad_row in ([0.0, 0.0, 2.0], [1e-3, 0.0, 1.0], [0.0, 1e-3, 1.0]):
+        with pytest.raises(CameraModelError, match=r"last row \[0, 0, 1\]"):
+            PinholeCamera.from_K([K[0], K[1], bad_row], 1920, 1080)
+
+
+def test_rays_at_distances_per_ray_or_one_for_all():
+    from sea3d.geometry.camera import Rays
+
+    rays = Rays(origins=np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]),
+                directions=np.array([[0.0, 0.0, 1.0], [0.0, 0.6, 0.8]]))
+    np.testing.assert_allclose(rays.at(np.array([2.0, 5.0])), [[0.0, 0.0, 2.0], [1.0, 3.0, 4.0]])
+    np.testing.assert_allclose(rays.at(5.0), [[0.0, 0.0, 5.0], [1.0, 3.0, 4.0]])
+    np.testing.assert_allclose(rays.at([1, 1]), [[0.0, 0.0, 1.0], [1.0, 0.6, 0.8]])

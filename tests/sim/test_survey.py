@@ -8,12 +8,19 @@ import numpy as np
 import pytest
 
 from sea3d.cli import main as sea3d_main
+from sea3d.errors import SimulationError
 from sea3d.io.rig_file import rig_to_yaml
 from sea3d.io.session import SessionWriter, open_session
 from sea3d.refraction.presets import paper_rig
 from sea3d.sim.motion import Mount, Orbit
 from sea3d.sim.scene import builtin_scene
-from sea3d.sim.survey import SurveyConfig, scale_rig, simulate_survey
+from sea3d.sim.survey import (
+    SurveyConfig,
+    read_gt_depth,
+    scale_rig,
+    simulate_survey,
+    write_gt_depth,
+)
 
 SONAR_REL_TOL = 0.03  # 0.5 % range noise, 3 sigma plus beam footprint on a bumpy floor
 TUM_TOL_M = 1e-8
@@ -36,7 +43,7 @@ def test_simulated_session_reads_back_with_all_streams(tmp_path: Path, fmt: str)
     assert pairs[0].left.shape == (54, 96, 3)
     assert len(imu) == 41 and imu.t_ns[-1] == 200_000_000  # 200 Hz over 0.2 s
     assert len(sonar) == 3
-    depth = np.load(gt / "depth" / "100000000.npy")
+    depth = read_gt_depth(gt / "depth" / "100000000.tiff")
     assert depth.dtype == np.float32 and depth.shape == (54, 96) and np.isfinite(depth).any()
     tum = np.loadtxt(gt / "poses_left.tum")
     np.testing.assert_allclose(tum[:, 1:4], result.T_world_left[:, :3, 3], atol=TUM_TOL_M)
@@ -123,6 +130,11 @@ def test_cli_calibration_writes_images_and_true_board_poses(tmp_path: Path) -> N
         len(list((out / "left").glob("*.png"))) == 2
         and len(list((out / "right").glob("*.png"))) == 2
     )
+    # Rendered in air: the true rig has no ports (it had the paper's domes before the fix).
+    from sea3d.io.rig_file import load_rig
+
+    true_rig = load_rig(out / "rig_true.yaml")
+    assert not hasattr(true_rig.left, "port") and not hasattr(true_rig.right, "port")
 
 
 def test_cli_rejects_a_missing_output_and_unknown_scene(tmp_path: Path) -> None:
@@ -163,4 +175,56 @@ def test_cli_survey_with_a_rig_file_writes_a_folder_session(tmp_path: Path) -> N
         stored = s.rig_yaml
     assert stored is not None and "96" in stored
     assert load_rig(rig_path).width == 1920  # the input file is untouched
-    assert len(list((out / "gt" / "depth").glob("*.npy"))) == 2
+    assert len(list((out / "gt" / "depth").glob("*.tiff"))) == 2
+
+
+def test_ground_truth_depth_is_stored_bit_for_bit_and_smaller_than_npy(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    # A rough surface (the lake's sand is no smoother) with holes where nothing is hit.
+    v, u = np.mgrid[0:120, 0:160]
+    depth = (1.5 + 0.002 * u + 0.01 * np.sin(v / 7.0) + 1e-4 * rng.standard_normal(v.shape))
+    depth = depth.astype(np.float32)
+    depth[:10, :40] = np.nan
+    path = tmp_path / "d.tiff"
+    write_gt_depth(path, depth)
+    back = read_gt_depth(path)
+    assert back.dtype == np.float32 and np.array_equal(back, depth, equal_nan=True)
+    assert path.stat().st_size < 0.8 * depth.nbytes
+    with pytest.raises(SimulationError, match="cannot read"):
+        read_gt_depth(tmp_path / "missing.tiff")
+
+
+def test_cli_one_frame_survey_with_imu_noise_writes_one_of_each(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "one.mcap"
+    argv = ["sim", "--frames", "1", "--size", "64x36", "--supersample", "1", "--out", str(out)]
+    assert sea3d_main(argv) == 0
+    printed = capsys.readouterr().out
+    # The cost is said before the run starts, and counts read as English.
+    assert "simulating 1 stereo pair of lake" in printed and "of ground truth" in printed
+    assert "1 stereo frame, 1 IMU sample and 1 echosounder sample" in printed
+    with open_session(out) as s:
+        assert len(list(s.pairs())) == 1 and len(s.imu()) == 1
+    assert len(list((tmp_path / "one_gt" / "depth").glob("*.tiff"))) == 1
+
+
+def test_cli_refuses_a_run_the_disk_cannot_hold_and_cleans_up_a_failed_start(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    import shutil
+
+    import sea3d.sim.survey as survey
+
+    out = tmp_path / "big.mcap"
+    usage = shutil.disk_usage(tmp_path)
+    monkeypatch.setattr(shutil, "disk_usage", lambda _p: usage._replace(free=10_000_000))
+    assert sea3d_main(["sim", "--frames", "300", "--out", str(out)]) == 2
+    assert "the run needs about 3.1 GB but" in capsys.readouterr().err
+    assert not out.exists()
+    monkeypatch.undo()
+
+    def broken(*_a: object, **_k: object) -> None:
+        raise SimulationError("broken before the first frame")
+
+    monkeypatch.setattr(survey, "simulate_survey", broken)
+    assert sea3d_main(["sim", "--frames", "2", "--size", "64x36", "--out", str(out)]) == 2
+    assert not out.exists() and not (tmp_path / "big_gt").exists()

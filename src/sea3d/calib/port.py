@@ -38,12 +38,14 @@ from sea3d.errors import CalibrationError, ConfigError, RefractionError
 from sea3d.geometry.camera import CameraModel
 from sea3d.geometry.pinhole import PinholeCamera
 from sea3d.geometry.rig import StereoRig
+from sea3d.geometry.se3 import invert_T
 from sea3d.refraction import DomePort, DomePortCamera, FlatPort, FlatPortCamera
 
 __all__ = [
     "PortCalibConfig",
     "PortCalibration",
     "PortRigCalibration",
+    "assess_port",
     "calibrate_port",
     "calibrate_port_rig",
 ]
@@ -123,6 +125,7 @@ class PortCalibration:
         rms_px: reprojection RMS over all used corners, pixels.
         per_view_rms_px: ``(m,)`` reprojection RMS of each used view.
         residuals_px: ``(N, 2)`` projected minus detected, all used corners in view order.
+        corners_px: ``(N, 2)`` the detected corners of the used views, in the same order.
         T_cam_board: ``(m, 4, 4)`` board poses in the camera frame (metres).
         views: names of the used views.
         views_rejected: ``(name, reason)`` of the views left out.
@@ -143,6 +146,7 @@ class PortCalibration:
     rms_px: float = math.nan
     per_view_rms_px: FloatArray = field(default_factory=lambda: np.zeros(0))
     residuals_px: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    corners_px: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
     T_cam_board: FloatArray = field(default_factory=lambda: np.zeros((0, 4, 4)))
     views: tuple[str, ...] = ()
     views_rejected: tuple[tuple[str, str], ...] = ()
@@ -192,7 +196,10 @@ class PortRigCalibration:
         T_left_right_std: ``(6,)`` standard deviations of the extrinsics (rotation vector, rad;
             translation, m).
         views: names ``(left, right)`` of the pairs used for the extrinsics.
-        views_rejected: ``(left, right, reason)`` of the pairs left out of the extrinsics.
+        per_pair_rms_px: ``(len(views),)`` stereo reprojection RMS of each used pair.
+        views_rejected: ``(left, right, reason)`` of every pair left out of the extrinsics:
+            unreadable images, boards not found, views left out of a port fit, pairs whose
+            two images disagree.
     """
 
     status: PortStatus
@@ -203,6 +210,7 @@ class PortRigCalibration:
     rms_px: float = math.nan
     T_left_right_std: FloatArray = field(default_factory=lambda: np.full(6, np.nan))
     views: tuple[tuple[str, str], ...] = ()
+    per_pair_rms_px: FloatArray = field(default_factory=lambda: np.zeros(0))
     views_rejected: tuple[tuple[str, str, str], ...] = ()
 
     @property
@@ -229,6 +237,8 @@ class PortRigCalibration:
                 "T_left_right": self.T_left_right.tolist(),
                 "T_left_right_std": [float(v) for v in self.T_left_right_std],
                 "views_used": len(self.views),
+                "views": [{"left": a, "right": b, "rms_px": float(r)}
+                          for (a, b), r in zip(self.views, self.per_pair_rms_px, strict=False)],
                 "views_rejected": [{"left": a, "right": b, "reason": r}
                                    for a, b, r in self.views_rejected],
                 "left": self.left.to_dict(), "right": self.right.to_dict()}
@@ -519,7 +529,9 @@ def calibrate_port(detections: Sequence[Detection], pinhole: PinholeCamera,
     cov = _covariance(sol.jac, res)
     std = np.sqrt(np.clip(np.diag(cov)[:n_theta], 0, None))
     common: dict[str, Any] = {"rms_px": rms, "per_view_rms_px": per_view,
-                              "residuals_px": res.reshape(-1, 2), "T_cam_board": poses,
+                              "residuals_px": res.reshape(-1, 2),
+                              "corners_px": np.concatenate([v.uv for v in views]),
+                              "T_cam_board": poses,
                               "views": tuple(v.name for v in views),
                               "iterations": sol.iterations, "initial_rms_px": initial_rms}
     if not sol.converged:
@@ -540,7 +552,7 @@ def calibrate_port(detections: Sequence[Detection], pinhole: PinholeCamera,
     kw: dict[str, Any] = dict(common)
     kw.update(_port_fields(cam, port, theta, std, with_focal=cfg.refine_focal))
     message = (f"converged in {sol.iterations} steps: RMS {rms:.3f} px (pinhole start "
-               f"{initial_rms:.3f} px) over {len(views)} views")
+               f"{initial_rms:.3f} px) over {_plural(len(views), 'view')}")
     log.info("port calibration %s", message)
     return PortCalibration(status=PortStatus.OK, message=message, camera=cam,
                            views_rejected=tuple(rejected), **kw)
@@ -722,9 +734,16 @@ def calibrate_port_rig(air_rig: StereoRig, left_port: DomePort | FlatPort,
     poses_left: list[FloatArray] = []
     rels: list[FloatArray] = []
     names: list[tuple[str, str]] = []
+    # Every pair the extrinsics cannot use, with the reason of each side.
+    why_l, why_r = dict(res_l.views_rejected), dict(res_r.views_rejected)
+    left_out: list[tuple[str, str, str]] = []
     for i, (dl, dr) in enumerate(zip(left, right, strict=True)):
         nl, nr = dl.name or f"image[{i}]", dr.name or f"image[{i}]"
         if nl not in idx_l or nr not in idx_r:
+            reasons = [f"{side} image: {why.get(n, 'not used by its port fit')}"
+                       for side, n, idx, why in (("left", nl, idx_l, why_l),
+                                                 ("right", nr, idx_r, why_r)) if n not in idx]
+            left_out.append((nl, nr, "; ".join(reasons)))
             continue
         Tl = res_l.T_cam_board[idx_l[nl]]
         Tr = res_r.T_cam_board[idx_r[nr]]
@@ -736,9 +755,16 @@ def calibrate_port_rig(air_rig: StereoRig, left_port: DomePort | FlatPort,
         names.append((nl, nr))
     if len(pairs) < max(1, cfg.min_views):
         return PortRigCalibration(status=PortStatus.FAILED,
-                                  message=f"only {len(pairs)} pairs have the board in both "
-                                          f"images", left=res_l, right=res_r)
+                                  message=f"only {_plural(len(pairs), 'pair')} "
+                                          f"{'has' if len(pairs) == 1 else 'have'} the board "
+                                          f"in both images", left=res_l, right=res_r,
+                                  views_rejected=tuple(left_out))
     T0 = _T(np.median(np.asarray(rels), axis=0))
+    swapped = _swapped_against_air(T0, air_rig.T_left_right)
+    if swapped:
+        return PortRigCalibration(status=PortStatus.FAILED, message=swapped, left=res_l,
+                                  right=res_r, T_left_right=invert_T(T0),
+                                  views=tuple(names), views_rejected=tuple(left_out))
     models = []
     for pin, port, res in ((pins[0], left_port, res_l), (pins[1], right_port, res_r)):
         theta = _port_params(res.camera) if res.camera is not None else _port_params(port)
@@ -749,8 +775,8 @@ def calibrate_port_rig(air_rig: StereoRig, left_port: DomePort | FlatPort,
     # First the extrinsics with both ports fixed (robust start, outlier pairs), then everything
     # jointly so that the dome centres' uncertainty enters the extrinsics' and vice versa.
     fit = _stereo_in_water(models[0], models[1], pairs, poses_left, T0, cfg, refine_ports=False)
-    rejected: list[tuple[str, str, str]] = []
-    max_reject = math.floor(cfg.max_rejected_fraction * len(pairs))
+    rejected: list[tuple[str, str, str]] = list(left_out)
+    max_reject = len(left_out) + math.floor(cfg.max_rejected_fraction * len(pairs))
     while cfg.reject_outliers and fit["converged"]:
         per_pair = fit["per_pair_rms_px"]
         thr, med, mad = _robust_limit(per_pair, cfg)
@@ -791,10 +817,29 @@ def calibrate_port_rig(air_rig: StereoRig, left_port: DomePort | FlatPort,
                                                   f"range: {err}", left=res_l, right=res_r)
     return PortRigCalibration(
         status=PortStatus.OK,
-        message=f"both ports and the extrinsics calibrated from {len(pairs)} pairs "
-                f"(stereo RMS {rms:.3f} px{', refined jointly' if joint else ''})",
+        message=f"both ports and the extrinsics calibrated from {_plural(len(pairs), 'pair')} "
+                f"of {len(left)} (stereo RMS {rms:.3f} px{', refined jointly' if joint else ''})",
         left=res_l, right=res_r, T_left_right=T_left_right, rms_px=rms,
-        T_left_right_std=fit["std"][:6], views=tuple(names), views_rejected=tuple(rejected))
+        T_left_right_std=fit["std"][:6], views=tuple(names),
+        per_pair_rms_px=np.asarray(fit["per_pair_rms_px"], dtype=np.float64),
+        views_rejected=tuple(rejected))
+
+
+def _plural(n: int, noun: str) -> str:
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
+def _swapped_against_air(T_right_left_water: FloatArray, T_left_right_air: FloatArray) -> str:
+    """A one-line explanation when the in-water images put the right camera on the other side
+    of the left one than the in-air rig does (left and right exchanged), else ``""``."""
+    t_water = -T_right_left_water[:3, :3].T @ T_right_left_water[:3, 3]  # right centre in left
+    t_air = np.asarray(T_left_right_air)[:3, 3]
+    axis = int(np.argmax(np.abs(t_air)))
+    if t_air[axis] * t_water[axis] >= 0 or abs(t_water[axis]) < 0.5 * np.linalg.norm(t_water):
+        return ""
+    return (f"left and right look swapped: in water the camera of the right images sits at "
+            f"{'xyz'[axis]} = {t_water[axis] * 1e3:.1f} mm in the left camera frame, in the "
+            f"in-air rig at {t_air[axis] * 1e3:.1f} mm; exchange the left and right images")
 
 
 def _with_joint(res: PortCalibration, model: _PortModel, theta: FloatArray, std: FloatArray,
@@ -821,3 +866,59 @@ def _port_fields(cam: Any, port: DomePort | FlatPort, theta: FloatArray, std: Fl
         kw["focal_scale"] = float(theta[3])
         kw["focal_scale_std"] = float(std[3])
     return kw
+
+
+def assess_port(result: PortRigCalibration) -> tuple[str, list[str]]:
+    """Plain-words guidance for a port calibration: how far to trust it and what to capture.
+
+    Returns:
+        ``(verdict, sentences)``; verdict is ``"trusted"``, ``"usable with care"`` or
+        ``"not trusted"`` (as for stereo calibration).
+    """
+    if not result.ok:
+        return "not trusted", [f"Port calibration failed: {result.message}"]
+    notes: list[str] = []
+    severity = 0
+    n = len(result.views)
+    if n < 10:
+        notes.append(f"Only {_plural(n, 'pair')} {'was' if n == 1 else 'were'} used; capture "
+                     f"15-25 in-water pairs for a reliable port calibration.")
+        severity = max(severity, 1)
+    for side, r in (("left", result.left), ("right", result.right)):
+        if len(r.T_cam_board):
+            dist = np.linalg.norm(r.T_cam_board[:, :3, 3], axis=1)
+            if dist.max() < 2.0 * dist.min():
+                notes.append(
+                    f"The {side} camera saw the board at {dist.min():.2f}-{dist.max():.2f} m "
+                    f"only; the dome centre's position along the optical axis is fixed by "
+                    f"views at several ranges: add some at two to three times the distance.")
+                severity = max(severity, 1)
+        if np.isfinite(r.dome_center_std_m).all():
+            worst_mm = float(np.max(r.dome_center_std_m)) * 1e3
+            if worst_mm > 0.2:
+                notes.append(f"The {side} dome centre is uncertain (standard deviation up to "
+                             f"{worst_mm:.2f} mm); add views at several ranges and tilts.")
+                severity = max(severity, 2 if worst_mm > 1.0 else 1)
+        if r.rms_px > 1.0:
+            notes.append(f"The {side} camera's RMS through the port is {r.rms_px:.2f} px; check "
+                         f"the port geometry and indices, the in-air intrinsics and focus.")
+            severity = max(severity, 2 if r.rms_px > 2.0 else 1)
+    per_camera = max(result.left.rms_px, result.right.rms_px)
+    if math.isfinite(result.rms_px) and result.rms_px > 1.5 * per_camera and (
+            result.rms_px > 0.3):
+        notes.append(f"The stereo RMS ({result.rms_px:.2f} px) is well above each camera's "
+                     f"({per_camera:.2f} px): the two images of some pairs disagree (taken at "
+                     f"different times?) or the in-air extrinsics do not hold.")
+        severity = max(severity, 1)
+    if result.views_rejected:
+        k = len(result.views_rejected)
+        notes.append(f"{_plural(k, 'pair')} {'was' if k == 1 else 'were'} left out; the "
+                     f"reasons are listed with the views.")
+    verdict = ("trusted", "usable with care", "not trusted")[severity]
+    head = {"trusted": "The port calibration can be trusted: low error through the port "
+                       "models and well-determined port parameters.",
+            "usable with care": "The port calibration is usable, but the points below would "
+                                "make it more reliable.",
+            "not trusted": "Do not trust this port calibration yet; fix the points below and "
+                           "recalibrate."}[verdict]
+    return verdict, [head, *notes]

@@ -17,10 +17,11 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d.calib.port import PortRigCalibration, assess_port
 from sea3d.calib.stereo import StereoCalibration
 from sea3d.errors import CalibrationError
 
-__all__ = ["rectified_pair", "render_report"]
+__all__ = ["rectified_pair", "render_port_report", "render_report"]
 
 _CSS = """
 body{font-family:system-ui,sans-serif;margin:2em;max-width:1200px;color:#222}
@@ -54,17 +55,25 @@ def _canvas(size: tuple[int, int], max_width: int = 800) -> tuple[NDArray[np.uin
 def _residual_image(result: StereoCalibration, side: str, gain: float) -> NDArray[np.uint8]:
     cam = result.left if side == "left" else result.right
     assert cam is not None
-    img, s = _canvas(cam.image_size)
-    for v in result.views:
-        uv = v.corners_left_px if side == "left" else v.corners_right_px
-        res = v.residuals_left_px if side == "left" else v.residuals_right_px
-        for (u, vv), (du, dv) in zip(uv, res, strict=True):
-            p0 = (round(u * s), round(vv * s))
-            p1 = (round((u + gain * du) * s), round((vv + gain * dv) * s))
-            cv2.circle(img, p0, 1, (120, 120, 120), -1)
-            cv2.line(img, p0, p1, (200, 30, 30), 1, cv2.LINE_AA)
-    cv2.putText(img, f"{side}: residuals x{gain:g}", (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.55,
-                (0, 0, 0), 1, cv2.LINE_AA)
+    corners = [v.corners_left_px if side == "left" else v.corners_right_px
+               for v in result.views]
+    residuals = [v.residuals_left_px if side == "left" else v.residuals_right_px
+                 for v in result.views]
+    return _arrows(cam.image_size, np.concatenate(corners) if corners else np.zeros((0, 2)),
+                   np.concatenate(residuals) if residuals else np.zeros((0, 2)), gain,
+                   f"{side}: residuals x{gain:g}")
+
+
+def _arrows(size: tuple[int, int], uv: NDArray[Any], res: NDArray[Any], gain: float,
+            label: str) -> NDArray[np.uint8]:
+    """Corners (grey) and their residuals (red arrows, magnified ``gain`` times)."""
+    img, s = _canvas(size)
+    for (u, vv), (du, dv) in zip(uv, res, strict=True):
+        p0 = (round(u * s), round(vv * s))
+        p1 = (round((u + gain * du) * s), round((vv + gain * dv) * s))
+        cv2.circle(img, p0, 1, (120, 120, 120), -1)
+        cv2.line(img, p0, p1, (200, 30, 30), 1, cv2.LINE_AA)
+    cv2.putText(img, label, (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (0, 0, 0), 1, cv2.LINE_AA)
     return img
 
 
@@ -175,7 +184,21 @@ def render_report(result: StereoCalibration, *, sample_pair: tuple[NDArray[Any],
     parts.append(f"<p class='verdict {cls}'>Verdict: {e(result.verdict)}</p>")
     parts.append("<ul>" + "".join(f"<li>{e(g)}</li>" for g in result.guidance) + "</ul>")
     parts.append(f"<p>{e(result.message)}</p>")
-    if result.ok and result.left is not None and result.right is not None:
+    if result.detector:
+        rows_d = "".join(
+            f"<tr><td>{e(t.detector)}{' (chosen)' if t.detector == result.detector else ''}"
+            f"</td><td>{e(t.status)}</td><td class=n>{_num(t.rms_px)}</td>"
+            f"<td class=n>{_num(t.holdout_px)}</td><td class=n>{_num(t.common_holdout_px)}"
+            f"</td><td class=n>{t.pairs_used}</td></tr>" for t in result.detector_trials)
+        how = ("Every checkerboard detector was tried; the one whose calibration predicts "
+               "held-out pairs best is kept (the RMS on a detector's own corners does not "
+               "tell). " if result.detector_trials else "Corners: ")
+        parts.append(f"<h2>Corner detector</h2><p>{how}{e(result.detector_reason)}.</p>")
+        if rows_d:
+            parts.append("<table><tr><th>detector</th><th>status</th><th>RMS px</th>"
+                         "<th>holdout px</th><th>holdout on common pairs px</th><th>pairs</th>"
+                         "</tr>" + rows_d + "</table>")
+    if result.left is not None and result.right is not None:
         L, R = result.left, result.right
         rows = [("RMS, both cameras", f"{result.rms_px:.3f} px"),
                 ("Holdout (leave one pair out)", f"{result.holdout_px:.3f} px"),
@@ -210,7 +233,7 @@ def render_report(result: StereoCalibration, *, sample_pair: tuple[NDArray[Any],
                          f"<tr><td>{e(r.left)}</td><td>{e(r.right)}</td>"
                          f"<td class=bad>{e(r.reason)}</td></tr>"
                          for r in result.views_rejected) + "</table>")
-    if result.ok and result.left is not None:
+    if result.left is not None and result.right is not None:
         gain = residual_gain or (8.0 / max(result.rms_px, 1e-3))
         gain = float(f"{gain:.2g}")
         parts.append("<h2>Residual vectors</h2><p>Detected corners (grey) and their "
@@ -244,3 +267,124 @@ def render_report(result: StereoCalibration, *, sample_pair: tuple[NDArray[Any],
                      + "</table>")
     parts.append("</body></html>")
     return "\n".join(parts)
+
+
+def _num(x: float, fmt: str = ".3f") -> str:
+    return format(x, fmt) if math.isfinite(x) else "-"
+
+
+def render_port_report(result: PortRigCalibration, *, title: str = "sea3d port calibration",
+                       residual_gain: float | None = None) -> str:
+    """The port calibration report as one HTML document.
+
+    Sections: verdict and guidance (:func:`sea3d.calib.port.assess_port`), summary (stereo
+    RMS, baseline, extrinsics with standard deviations), each camera's port (dome centre or
+    flat-port normal and distance, with standard deviations), per-view errors through the
+    refractive model, the rejected views and their reasons, and residual vectors through each
+    camera's port model.
+
+    Args:
+        result: the port calibration (a failed one gives a short report with the reasons).
+        title: page title.
+        residual_gain: scale of the residual arrows (default: 8 px for the RMS).
+
+    Returns:
+        The HTML text (UTF-8, self-contained).
+    """
+    e = html.escape
+    verdict, guidance = assess_port(result)
+    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{e(title)}</title>"
+             f"<style>{_CSS}</style></head><body><h1>{e(title)}</h1>"]
+    cls = {"trusted": "trusted", "usable with care": "care"}.get(verdict, "not")
+    parts.append(f"<p class='verdict {cls}'>Verdict: {e(verdict)}</p>")
+    parts.append("<ul>" + "".join(f"<li>{e(g)}</li>" for g in guidance) + "</ul>")
+    parts.append(f"<p>{e(result.message)}</p>")
+    t = result.T_left_right[:3, 3] * 1e3
+    std = result.T_left_right_std
+    rows = [("Stereo RMS through both port models", f"{_num(result.rms_px)} px"),
+            ("Baseline", f"{np.linalg.norm(t):.2f} mm"),
+            ("Right camera centre in the left frame",
+             f"({t[0]:.2f}, {t[1]:.2f}, {t[2]:.2f}) mm +- ("
+             + ", ".join(_num(v * 1e3, ".3f") for v in std[3:6]) + ") mm"),
+            ("Rotation std (rotation vector)",
+             "(" + ", ".join(_num(v * 1e3, ".3f") for v in std[:3]) + ") mrad"),
+            ("Pairs used / left out", f"{len(result.views)} / {len(result.views_rejected)}")]
+    parts.append("<h2>Summary</h2><table>" + "".join(
+        f"<tr><th>{e(k)}</th><td>{e(v)}</td></tr>" for k, v in rows) + "</table>")
+    parts.append("<h2>Ports</h2><table><tr><th>camera</th><th>port</th><th>estimate</th>"
+                 "<th>standard deviation</th><th>RMS px</th><th>pinhole start RMS px</th>"
+                 "<th>focal scale</th><th>views</th></tr>")
+    for side, r in (("left", result.left), ("right", result.right)):
+        if np.isfinite(r.dome_center_m).all():
+            c, sd = r.dome_center_m * 1e3, r.dome_center_std_m * 1e3
+            kind = "dome centre"
+            est = f"({c[0]:.3f}, {c[1]:.3f}, {c[2]:.3f}) mm"
+            unc = "(" + ", ".join(_num(v) for v in sd) + ") mm"
+        else:
+            kind = "flat port"
+            n = r.normal
+            est = (f"normal ({n[0]:.5f}, {n[1]:.5f}, {n[2]:.5f}), distance "
+                   f"{r.distance_m * 1e3:.3f} mm")
+            unc = (f"normal x/y {_num(r.port_std[0], '.2e')} / {_num(r.port_std[1], '.2e')}, "
+                   f"distance {_num(r.port_std[2] * 1e3)} mm")
+        scale = (f"{r.focal_scale:.5f} +- {r.focal_scale_std:.5f}" if r.focal_scale_std
+                 else "1 (fixed)")
+        parts.append(f"<tr><td>{side}</td><td>{kind}</td><td>{e(est)}</td><td>{e(unc)}</td>"
+                     f"<td class=n>{_num(r.rms_px)}</td><td class=n>{_num(r.initial_rms_px)}"
+                     f"</td><td>{e(scale)}</td><td class=n>{len(r.views)}</td></tr>")
+    parts.append("</table><p>Standard deviations are from the fit's covariance "
+                 "(sigma^2 (J^T J)^-1): they hold when the corners' errors are random; a "
+                 "model error (wrong indices, thickness or in-air intrinsics) is not in them."
+                 "</p>")
+    # Per-view errors: each camera's fit through its port, and the stereo fit per pair.
+    rms_l = dict(zip(result.left.views, result.left.per_view_rms_px, strict=False))
+    rms_r = dict(zip(result.right.views, result.right.per_view_rms_px, strict=False))
+    dist_l = {n: float(np.linalg.norm(T[:3, 3]))
+              for n, T in zip(result.left.views, result.left.T_cam_board, strict=False)}
+    rows_v = [(a, b, rms_l.get(a, math.nan), rms_r.get(b, math.nan), float(r_pair),
+               dist_l.get(a, math.nan))
+              for (a, b), r_pair in zip(result.views, result.per_pair_rms_px, strict=False)]
+    if rows_v:
+        vmax = max([max(x for x in row[2:5] if math.isfinite(x)) for row in rows_v] + [1e-9])
+        parts.append("<h2>Per-view errors</h2><p>Reprojection RMS through the refractive "
+                     "model: each camera's port fit, and the stereo fit of the pair.</p>"
+                     "<table><tr><th>left</th><th>right</th><th>left px</th><th>right px</th>"
+                     "<th>stereo px</th><th>distance m</th></tr>")
+        for a, b, rl, rr, rp, d in rows_v:
+            parts.append(
+                f"<tr><td>{e(a)}</td><td>{e(b)}</td>"
+                f"<td class=n>{_num(rl)} {_bar(rl, vmax, '#4c72b0')}</td>"
+                f"<td class=n>{_num(rr)} {_bar(rr, vmax, '#55a868')}</td>"
+                f"<td class=n>{_num(rp)} {_bar(rp, vmax, '#c44e52')}</td>"
+                f"<td class=n>{_num(d)}</td></tr>")
+        parts.append("</table>")
+    rejected = list(result.views_rejected)
+    for side, r in (("left", result.left), ("right", result.right)):
+        listed = {a if side == "left" else b for a, b, _ in result.views_rejected}
+        rejected += [(n, "", f"{side} port fit: {why}") if side == "left"
+                     else ("", n, f"{side} port fit: {why}")
+                     for n, why in r.views_rejected if n not in listed]
+    if rejected:
+        parts.append("<h2>Rejected views</h2><table><tr><th>left</th><th>right</th>"
+                     "<th>reason</th></tr>" + "".join(
+                         f"<tr><td>{e(a)}</td><td>{e(b)}</td><td class=bad>{e(why)}</td></tr>"
+                         for a, b, why in rejected) + "</table>")
+    cams = [(side, r) for side, r in (("left", result.left), ("right", result.right))
+            if r.camera is not None and len(r.corners_px) == len(r.residuals_px) > 0]
+    if cams:
+        rms = max(r.rms_px for _, r in cams)
+        gain = float(f"{residual_gain or (8.0 / max(rms, 1e-3)):.2g}")
+        parts.append("<h2>Residual vectors through the port</h2><p>Detected corners (grey) and "
+                     f"their reprojection errors through each camera's port model (red), "
+                     f"magnified {gain:g} times. Errors that point the same way in a region "
+                     "mean a model error there (port geometry, indices, distortion); random "
+                     "directions are detection noise.</p><div class=figs>")
+        for side, r in cams:
+            assert r.camera is not None
+            size = (r.camera.width, r.camera.height)
+            fig = _arrows(size, r.corners_px, r.residuals_px, gain, f"{side}: residuals x{gain:g}")
+            parts.append(f"<div>{_png(fig)}</div>")
+        parts.append("</div>")
+    parts.append("</body></html>")
+    return "\n".join(parts)
+

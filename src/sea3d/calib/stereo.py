@@ -22,7 +22,7 @@ import enum
 import logging
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -37,15 +37,18 @@ from sea3d.calib.targets import Detection
 from sea3d.errors import CalibrationError, ConfigError
 from sea3d.geometry.pinhole import PinholeCamera
 from sea3d.geometry.rig import StereoRig
+from sea3d.geometry.se3 import invert_T
 
 __all__ = [
     "CalibrationStatus",
     "CameraCalibration",
+    "DetectorTrial",
     "RejectedView",
     "StereoCalibConfig",
     "StereoCalibration",
     "ViewStats",
     "calibrate_stereo",
+    "calibrate_stereo_best",
     "opencv_reference_stereo",
 ]
 
@@ -198,6 +201,39 @@ class ViewStats:
         return math.sqrt(0.5 * (self.rms_left_px**2 + self.rms_right_px**2))
 
 
+@dataclass(frozen=True, kw_only=True)
+class DetectorTrial:
+    """One checkerboard detector tried by :func:`calibrate_stereo_best`.
+
+    Attributes:
+        detector: its name (:data:`sea3d.calib.targets.CHECKER_DETECTORS`).
+        status: ``"ok"``, ``"failed"`` or ``"error"`` (too few pairs, ...).
+        message: the calibration's message.
+        rms_px: reprojection RMS of its calibration (on its own corners), pixels.
+        holdout_px: its leave-one-pair-out error over the pairs it used, pixels.
+        common_holdout_px: its leave-one-pair-out error over the pairs every detector used
+            (what the choice compares), pixels.
+        pairs_used: pairs its calibration used.
+    """
+
+    detector: str
+    status: str
+    message: str = ""
+    rms_px: float = math.nan
+    holdout_px: float = math.nan
+    common_holdout_px: float = math.nan
+    pairs_used: int = 0
+
+    def to_dict(self) -> dict[str, Any]:
+        def num(x: float) -> float | None:
+            return float(x) if math.isfinite(x) else None
+
+        return {"detector": self.detector, "status": self.status, "message": self.message,
+                "rms_px": num(self.rms_px), "holdout_px": num(self.holdout_px),
+                "common_holdout_px": num(self.common_holdout_px),
+                "pairs_used": self.pairs_used}
+
+
 @dataclass(frozen=True, kw_only=True, eq=False)
 class StereoCalibration:
     """Result of :func:`calibrate_stereo`.
@@ -219,6 +255,10 @@ class StereoCalibration:
         config: the settings used.
         timings_s: seconds per stage: ``fit`` (mono + joint refinement), ``rejection``
             (refits after rejections), ``opencv_start``, ``holdout``, ``total``.
+        detector: the checkerboard detector whose corners were used, when
+            :func:`calibrate_stereo_best` chose it (empty otherwise).
+        detector_reason: why it was chosen, in words.
+        detector_trials: every detector tried, with its errors.
     """
 
     status: CalibrationStatus
@@ -235,6 +275,9 @@ class StereoCalibration:
     verdict: str = "not trusted"
     config: StereoCalibConfig = field(default_factory=StereoCalibConfig)
     timings_s: dict[str, float] = field(default_factory=dict)
+    detector: str = ""
+    detector_reason: str = ""
+    detector_trials: tuple[DetectorTrial, ...] = ()
 
     @property
     def ok(self) -> bool:
@@ -280,6 +323,9 @@ class StereoCalibration:
                              "rms_right_px": v.rms_right_px, "holdout_px": num(v.holdout_px),
                              "distance_m": v.distance_m, "tilt_deg": v.tilt_deg}
                             for v in self.views]
+        if self.detector:
+            out["detector"] = {"chosen": self.detector, "reason": self.detector_reason,
+                               "trials": [t.to_dict() for t in self.detector_trials]}
         out["detections"] = [{"image": n, "status": s, "message": m}
                              for n, s, m in self.detections]
         return out
@@ -649,7 +695,7 @@ def calibrate_stereo(left: Sequence[Detection], right: Sequence[Detection],
         missing += [d.name or str(i) for i, d in enumerate(right) if not d.ok][:4]
         raise CalibrationError(
             f"the board was found in {found_l} of {len(left)} left and {found_r} of "
-            f"{len(right)} right images, giving {len(pairs)} usable pairs; at least "
+            f"{len(right)} right images, giving {_plural(len(pairs), 'usable pair')}; at least "
             f"{cfg.min_views} are needed (not found in: {', '.join(missing) or '-'})")
     flags = _DISTORTION_FLAGS[cfg.distortion]
     timings: dict[str, float] = {}
@@ -661,6 +707,13 @@ def calibrate_stereo(left: Sequence[Detection], right: Sequence[Detection],
                                  message=f"OpenCV calibration failed: {err.msg}",
                                  views_rejected=tuple(rejected), detections=dets, config=cfg)
     timings["fit"] = time.perf_counter() - t0
+    T_right_left0 = np.eye(4)
+    T_right_left0[:3, :3], T_right_left0[:3, 3] = fit.R, fit.T
+    swapped = swapped_message(invert_T(T_right_left0))
+    if swapped:
+        return StereoCalibration(status=CalibrationStatus.FAILED, message=swapped,
+                                 views_rejected=tuple(rejected), detections=dets, config=cfg,
+                                 guidance=(swapped,), timings_s=timings)
     t0 = time.perf_counter()
     n_usable = len(pairs)
     max_reject = math.floor(cfg.max_rejected_fraction * n_usable)
@@ -754,13 +807,127 @@ def calibrate_stereo(left: Sequence[Detection], right: Sequence[Detection],
     rms = _rms(np.concatenate([res_l, res_r]))
     result = StereoCalibration(
         status=CalibrationStatus.OK,
-        message=f"calibrated from {len(pairs)} of {len(left)} pairs",
+        message=f"calibrated from {_plural(len(pairs), 'pair')} of {len(left)}",
         left=cam_l, right=cam_r, T_left_right=T_left_right, rms_px=rms, holdout_px=holdout_px,
         views=tuple(views), views_rejected=tuple(rejected), detections=dets, config=cfg)
     verdict, guidance = assess(result)
     timings["total"] = time.perf_counter() - t_start
     return dataclasses.replace(result, verdict=verdict, guidance=tuple(guidance),
                                timings_s=timings)
+
+
+_TIE_FRACTION = 0.02
+
+
+def calibrate_stereo_best(candidates: Mapping[str, tuple[Sequence[Detection],
+                                                         Sequence[Detection]]],
+                          config: StereoCalibConfig | None = None) -> StereoCalibration:
+    """Calibrate with the corners of each checkerboard detector and keep the one whose
+    calibration predicts held-out views best.
+
+    Which detector gives the most accurate calibration depends on the images (blur, contrast,
+    square size in pixels): on OpenCV's 9x6 set the classic detector's corners refined by
+    ``cornerSubPix`` beat the sector-based detector's, on other sets the reverse (see
+    ``docs/calibration.md``). The RMS on a detector's own corners does not tell: a detector
+    whose errors the model can absorb gets a low RMS and a poor calibration. The
+    leave-one-pair-out holdout error does: each pair is predicted by a calibration that never
+    saw it. The detectors are compared on the pairs that every one of them used (so a detector
+    is not favoured for having left the hard views out); with fewer than 3 such pairs, on
+    their own holdout errors. Within 2 % of the lowest error, the earliest candidate wins.
+
+    Args:
+        candidates: ``{detector name: (left detections, right detections)}``, in order of
+            preference (the first wins ties); names appear in messages.
+        config: settings; the holdout error is computed whatever ``config.holdout`` says.
+
+    Returns:
+        The chosen detector's :class:`StereoCalibration`, with ``detector``,
+        ``detector_reason`` and ``detector_trials`` filled in.
+
+    Raises:
+        CalibrationError: no candidates, or none of them can be calibrated (the first
+            candidate's error is raised).
+    """
+    if not candidates:
+        raise CalibrationError("no detections to calibrate from")
+    cfg = dataclasses.replace(config or StereoCalibConfig(), holdout=True)
+    results: dict[str, StereoCalibration] = {}
+    errors: dict[str, CalibrationError] = {}
+    for name, (left, right) in candidates.items():
+        try:
+            results[name] = calibrate_stereo(left, right, cfg)
+        except CalibrationError as err:
+            errors[name] = err
+            log.info("detector %s: %s", name, err)
+    usable = {n: r for n, r in results.items() if r.ok and math.isfinite(r.holdout_px)}
+    if not results:
+        raise next(iter(errors.values()))
+    if not usable:
+        first = next(iter(results.values()))
+        return first
+    per_pair = {n: {(v.left, v.right): v.holdout_px for v in r.views
+                    if math.isfinite(v.holdout_px)} for n, r in usable.items()}
+    common = set.intersection(*(set(d) for d in per_pair.values()))
+    n_common = len(common)
+    if n_common >= 3:
+        scores = {n: math.sqrt(float(np.mean([d[k] ** 2 for k in sorted(common)])))
+                  for n, d in per_pair.items()}
+    else:
+        scores = {n: r.holdout_px for n, r in usable.items()}
+    order = list(candidates)
+    best = min(scores.values())
+    # Within 2 % of the best the earlier candidate wins: differences that small are noise, and
+    # the preferred detector usually finds the board in more images.
+    chosen = next(n for n in order if n in scores and scores[n] <= best * (1 + _TIE_FRACTION))
+    trials = []
+    for name in candidates:
+        if name in results:
+            r = results[name]
+            trials.append(DetectorTrial(
+                detector=name, status=str(r.status), message=r.message, rms_px=r.rms_px,
+                holdout_px=r.holdout_px, common_holdout_px=scores.get(name, math.nan)
+                if n_common >= 3 else math.nan, pairs_used=len(r.views)))
+        else:
+            trials.append(DetectorTrial(detector=name, status="error",
+                                        message=str(errors[name])))
+    others = [f"{scores[n]:.3f} px with {n}" for n in order if n in scores and n != chosen]
+    where = (f"on the {n_common} pairs every detector used" if n_common >= 3
+             else "on the pairs each used")
+    reason = (f"{chosen}: holdout error {scores[chosen]:.3f} px {where}"
+              + (f", against {', '.join(others)}" if others else "")
+              + (f" (within {_TIE_FRACTION:.0%} of the lowest: the preferred detector is kept)"
+                 if scores[chosen] > best else "")
+              + (f"; {', '.join(sorted(errors))} could not calibrate" if errors else ""))
+    failed = [n for n in results if n not in usable]
+    if failed:
+        reason += f"; {', '.join(failed)} failed"
+    log.info("detector chosen: %s", reason)
+    return dataclasses.replace(results[chosen], detector=chosen, detector_reason=reason,
+                               detector_trials=tuple(trials))
+
+
+def _plural(n: int, noun: str) -> str:
+    """``1 pair``, ``2 pairs``."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
+def swapped_message(T_left_right: FloatArray) -> str:
+    """A one-line explanation when the calibrated right camera sits to the left of the left
+    camera (the images named left are the right camera's), else ``""``.
+
+    sea3d's left camera is the one whose image shows a point further right (disparity
+    ``u_left - u_right >= 0``): the right camera's centre has a positive x in the left frame.
+    A baseline mostly along -x means the two sides were exchanged (as in the StereoPi set's
+    upstream names, ``MAPPING.csv``); rigs with a mostly vertical baseline are not judged.
+    """
+    t = np.asarray(T_left_right, dtype=np.float64)[:3, 3]
+    norm = float(np.linalg.norm(t))
+    if norm == 0 or t[0] >= 0 or abs(float(t[0])) < 0.7 * norm:
+        return ""
+    return (f"left and right look swapped: the camera of the right images sits "
+            f"{abs(float(t[0])) * 1e3:.1f} mm to the left of the left one (its centre at x = "
+            f"{float(t[0]) * 1e3:.1f} mm in the left camera frame); exchange the left and right "
+            f"images")
 
 
 _REGION_NAMES = {(0, 0): "top-left", (0, 1): "top", (0, 2): "top-right",
@@ -791,8 +958,8 @@ def assess(result: StereoCalibration) -> tuple[str, list[str]]:
     severity = 0  # 0 trusted, 1 care, 2 not trusted
     n = len(result.views)
     if n < 10:
-        notes.append(f"Only {n} pairs were used; capture 15-25 pairs for a reliable "
-                     f"calibration.")
+        notes.append(f"Only {_plural(n, 'pair')} {'was' if n == 1 else 'were'} used; capture "
+                     f"15-25 pairs for a reliable calibration.")
         severity = max(severity, 1)
     worst_cov = min(result.left.coverage, result.right.coverage)
     regions = sorted(set(_empty_regions(result.left.coverage_counts))
@@ -831,8 +998,9 @@ def assess(result: StereoCalibration) -> tuple[str, list[str]]:
                          f"RMS; more varied views would make the result steadier.")
             severity = max(severity, 1)
     if result.views_rejected:
-        notes.append(f"{len(result.views_rejected)} pairs were left out; their reasons are "
-                     f"listed with the views.")
+        n_out = len(result.views_rejected)
+        notes.append(f"{_plural(n_out, 'pair')} {'was' if n_out == 1 else 'were'} left out; "
+                     f"the reasons are listed with the views.")
     verdict = ("trusted", "usable with care", "not trusted")[severity]
     head = {"trusted": "The calibration can be trusted: low error on held-out views and good "
                        "coverage.",

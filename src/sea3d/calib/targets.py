@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 import logging
 import re
 from dataclasses import dataclass, field
@@ -38,10 +39,14 @@ from numpy.typing import NDArray
 from sea3d.errors import ConfigError
 
 __all__ = [
+    "CHECKER_DETECTORS",
     "BoardSpec",
     "Detection",
     "DetectionStatus",
+    "corner_convention_offset_px",
     "detect_board",
+    "detect_checkerboard_all",
+    "grid_continues",
     "load_board",
     "parse_board",
     "render_board",
@@ -53,7 +58,6 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 _KINDS = ("checkerboard", "charuco", "apriltag", "aruco")
-_ARUCO_TO_CENTRE_PX = 0.5
 _LENGTH_RE = re.compile(r"^\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(mm|cm|m|in)\s*$")
 _UNIT_M = {"mm": 1e-3, "cm": 1e-2, "m": 1.0, "in": 0.0254}
 
@@ -445,42 +449,219 @@ def _to_gray(image: NDArray[Any]) -> NDArray[np.uint8]:
     return np.ascontiguousarray(img)
 
 
-def _detect_checkerboard(gray: NDArray[np.uint8], board: BoardSpec, use_sb: bool,
-                         size: tuple[int, int]) -> Detection:
+#: Checkerboard corner detectors (``detect_board(..., checker_detector=...)``):
+#: ``sector``: OpenCV's sector-based detector (``findChessboardCornersSB``, accuracy flag);
+#: ``sector+subpix``: the same corners refined by ``cornerSubPix``; ``classic``:
+#: ``findChessboardCorners`` + ``cornerSubPix``. The sector-based ones fall back to the classic
+#: detector where they find nothing. Which is best depends on the images (docs/calibration.md):
+#: ``sea3d calibrate`` tries them all and keeps the one with the lowest holdout error.
+CHECKER_DETECTORS = ("sector+subpix", "sector", "classic")
+
+
+def _subpix_window(uv: FloatArray, pattern: tuple[int, int]) -> int:
+    """``cornerSubPix`` half-window: 0.4 of the smallest corner spacing, 2..11 px."""
+    grid = uv.reshape(pattern[1], pattern[0], 2)
+    step = float(min(np.linalg.norm(np.diff(grid, axis=1), axis=2).min(),
+                     np.linalg.norm(np.diff(grid, axis=0), axis=2).min()))
+    return int(np.clip(step * 0.4, 2, 11))
+
+
+def _subpix(gray: NDArray[np.uint8], uv: FloatArray, pattern: tuple[int, int]) -> FloatArray:
+    win = _subpix_window(uv, pattern)
+    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3)
+    out = cv2.cornerSubPix(gray, uv.reshape(-1, 1, 2).astype(np.float32), (win, win), (-1, -1),
+                           criteria)
+    return np.asarray(out, dtype=np.float64).reshape(-1, 2)
+
+
+def _find_classic(gray: NDArray[np.uint8], pattern: tuple[int, int]) -> FloatArray | None:
+    flags = (cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+             | cv2.CALIB_CB_FAST_CHECK)
+    found, c = cv2.findChessboardCorners(gray, pattern, flags=flags)
+    if not found:
+        found, c = cv2.findChessboardCorners(
+            gray, pattern, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
+    return np.asarray(c, dtype=np.float64).reshape(-1, 2) if found else None
+
+
+def _find_sector(gray: NDArray[np.uint8], pattern: tuple[int, int]) -> FloatArray | None:
+    flags = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_ACCURACY
+    found, c = cv2.findChessboardCornersSB(gray, pattern, flags=flags)
+    return np.asarray(c, dtype=np.float64).reshape(-1, 2) if found else None
+
+
+def _is_x_corner(gray: NDArray[np.uint8], point: FloatArray, radius_px: float,
+                 min_contrast: float) -> bool:
+    """Whether a checkerboard corner (an X-junction of four squares) lies at ``point``.
+
+    On a circle around an X-junction the grey level changes sign four times and is point-
+    symmetric (the squares facing each other have one colour); at the corner of a board's
+    outer square against its white margin it changes twice and is not symmetric.
+    """
+    angles = np.linspace(0.0, 2.0 * np.pi, 32, endpoint=False)
+    xs = (point[0] + radius_px * np.cos(angles)).astype(np.float32).reshape(1, -1)
+    ys = (point[1] + radius_px * np.sin(angles)).astype(np.float32).reshape(1, -1)
+    vals = cv2.remap(gray, xs, ys, cv2.INTER_LINEAR).astype(np.float64).ravel()
+    lo, hi = float(vals.min()), float(vals.max())
+    if hi - lo < min_contrast:
+        return False
+    sign = vals > 0.5 * (lo + hi)
+    changes = int(np.count_nonzero(sign != np.roll(sign, 1)))
+    half = len(vals) // 2
+    if changes != 4 or np.std(vals[:half]) == 0 or np.std(vals[half:]) == 0:
+        return False
+    return float(np.corrcoef(vals[:half], vals[half:])[0, 1]) > 0.5
+
+
+def grid_continues(gray: NDArray[np.uint8], uv: FloatArray,
+                   pattern: tuple[int, int]) -> list[str]:
+    """Sides past which a detected checkerboard grid continues: a sub-grid of a larger board.
+
+    For each side of the detected grid, the corners one step beyond its outermost corner line
+    are predicted through a homography fitted to the three outermost lines, refined with
+    ``cornerSubPix`` and tested for an X-junction (:func:`_is_x_corner`). On a board of the
+    asked size those points lie on the board's outer edge, against its white margin; if most
+    of them are X-junctions, the squares go on, the board has more corners than asked for,
+    and which sub-grid was found is ambiguous (the classic detector finds an 8x6 grid on 11
+    of 12 images of a 9x6 board, starting at either end; the sector-based one finds none).
+
+    Args:
+        gray: the image searched.
+        uv: ``(nx * ny, 2)`` detected corners in OpenCV's row-major order.
+        pattern: ``(nx, ny)`` inner corners.
+
+    Returns:
+        The sides (``"left"``, ``"right"``, ``"top"``, ``"bottom"`` of the grid's own order)
+        past which the squares go on; empty for a board of the asked size. Sides whose
+        predicted corners leave the image are not tested.
+    """
+    nx, ny = pattern
+    if nx < 3 or ny < 3:
+        return []
+    grid = uv.reshape(ny, nx, 2)
+    h, w = gray.shape
+    # The board's own contrast: the grey levels at its corners' surroundings.
+    contrast = float(np.percentile(gray, 95) - np.percentile(gray, 5))
+    sides = []
+    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 1e-2)
+    for name, lines in (("left", grid[:, :3][:, ::-1]), ("right", grid[:, -3:]),
+                        ("top", grid[:3].transpose(1, 0, 2)[:, ::-1]),
+                        ("bottom", grid[-3:].transpose(1, 0, 2))):
+        # lines: (n_along, 3, 2): along the side, then three corner lines towards the edge.
+        n_along = lines.shape[0]
+        a, b = np.mgrid[0:n_along, 0:3]
+        src = np.stack([b.ravel(), a.ravel()], axis=1).astype(np.float64)
+        H, _ = cv2.findHomography(src, lines.reshape(-1, 2).astype(np.float64))
+        if H is None:
+            continue
+        step = float(np.median(np.linalg.norm(np.diff(lines, axis=1), axis=2)))
+        beyond = np.stack([np.full(n_along, 3.0), np.arange(n_along, dtype=np.float64)], 1)
+        pred = cv2.perspectiveTransform(beyond.reshape(-1, 1, 2), H).reshape(-1, 2)
+        margin = step + 2
+        inside = ((pred[:, 0] > margin) & (pred[:, 0] < w - 1 - margin) & (pred[:, 1] > margin)
+                  & (pred[:, 1] < h - 1 - margin))
+        if inside.mean() < 0.75 or step < 6:
+            continue
+        win = max(2, round(0.3 * step))
+        refined = cv2.cornerSubPix(gray, pred.reshape(-1, 1, 2).astype(np.float32), (win, win),
+                                   (-1, -1), criteria).reshape(-1, 2).astype(np.float64)
+        near = np.linalg.norm(refined - pred, axis=1) < 0.35 * step
+        hits = sum(bool(inside[k] and near[k])
+                   and _is_x_corner(gray, refined[k], 0.3 * step, 0.25 * contrast)
+                   for k in range(n_along))
+        if hits < 0.6 * n_along:
+            continue
+        # X-junctions also appear where a narrow margin meets a dark background (a hand, a
+        # shirt): the squares beyond them must alternate too, against the outer squares.
+        c2 = lines[:, 2]
+        c3 = np.where(near[:, None], refined, pred)
+        mid2, mid3 = 0.5 * (c2[:-1] + c2[1:]), 0.5 * (c3[:-1] + c3[1:])
+        squares = _patch_means(gray, 0.5 * (mid2 + mid3), 0.15 * step)
+        past = _patch_means(gray, mid3 + 0.5 * (mid3 - mid2), 0.15 * step)
+        if squares is None or past is None or np.std(past) < 1e-6 or np.std(squares) < 1e-6:
+            continue
+        swing_squares = float(np.mean(np.abs(np.diff(squares))))
+        swing_past = float(np.mean(np.abs(np.diff(past))))
+        if (float(np.corrcoef(squares, past)[0, 1]) < -0.75
+                and swing_past > 0.25 * swing_squares):
+            sides.append(name)
+    return sides
+
+
+def _patch_means(gray: NDArray[np.uint8], points: FloatArray, radius_px: float
+                 ) -> FloatArray | None:
+    """Mean grey level in a square patch around each of ``points`` ``(K, 2)``; None when a
+    patch leaves the image."""
+    h, w = gray.shape
+    r = max(1, round(radius_px))
+    if len(points) < 2 or not np.isfinite(points).all() or points.min() < r + 1 or (
+            points[:, 0].max() > w - r - 2) or points[:, 1].max() > h - r - 2:
+        return None
+    return np.array([float(gray[round(y) - r:round(y) + r + 1,
+                                round(x) - r:round(x) + r + 1].mean()) for x, y in points])
+
+
+def _detect_checkerboard(gray: NDArray[np.uint8], board: BoardSpec, detector: str,
+                         size: tuple[int, int], found: dict[str, Any] | None = None
+                         ) -> Detection:
+    """One checkerboard detector; ``found`` caches the raw sector/classic corners across
+    detectors of the same image."""
     pattern = board.corner_grid
-    corners = None
+    cache: dict[str, Any] = {} if found is None else found
+    uv = None
     how = ""
-    if use_sb:
-        flags = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_ACCURACY
-        found, c = cv2.findChessboardCornersSB(gray, pattern, flags=flags)
-        if found:
-            corners, how = c, "sector-based detector"
-    if corners is None:
-        flags = (cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
-                 | cv2.CALIB_CB_FAST_CHECK)
-        found, c = cv2.findChessboardCorners(gray, pattern, flags=flags)
-        if not found:
-            found, c = cv2.findChessboardCorners(
-                gray, pattern, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
-        if found:
-            # Window from the corner spacing: half the smallest neighbour distance, 2..11 px.
-            c2 = c.reshape(-1, 2)
-            step = np.linalg.norm(np.diff(c2.reshape(pattern[1], pattern[0], 2), axis=1),
-                                  axis=2).min()
-            win = int(np.clip(step * 0.4, 2, 11))
-            criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3)
-            corners = cv2.cornerSubPix(gray, c.astype(np.float32), (win, win), (-1, -1),
-                                       criteria)
-            how = f"classic detector + cornerSubPix ({win}x{win})"
-    if corners is None:
+    if detector in ("sector", "sector+subpix"):
+        if "sector" not in cache:
+            cache["sector"] = _find_sector(gray, pattern)
+        if cache["sector"] is not None:
+            uv = cache["sector"]
+            how = "sector-based detector"
+            if detector == "sector+subpix":
+                uv = _subpix(gray, uv, pattern)
+                how += f" + cornerSubPix ({_subpix_window(cache['sector'], pattern)} px)"
+    if uv is None:
+        if "classic" not in cache:
+            cache["classic"] = _find_classic(gray, pattern)
+        if cache["classic"] is not None:
+            uv = _subpix(gray, cache["classic"], pattern)
+            how = (f"classic detector + cornerSubPix "
+                   f"({_subpix_window(cache['classic'], pattern)} px)")
+    if uv is None:
         return _empty(DetectionStatus.NOT_FOUND, size,
                       f"no {pattern[0]}x{pattern[1]} checkerboard found")
-    uv: FloatArray = _canonical_checker_order(corners.reshape(-1, 2).astype(np.float64),
-                                              pattern)
+    # The sector-based detector refuses a grid inside a larger board by itself (it finds none
+    # of 12 views of a 9x6 board asked for 8x6); the classic one finds them (11 of 12).
+    sides = grid_continues(gray, uv, pattern) if how.startswith("classic") else []
+    if sides:
+        return _empty(DetectionStatus.WRONG_SIZE, size,
+                      f"found {pattern[0]}x{pattern[1]} corners, but the squares go on past "
+                      f"its {' and '.join(sides)} side: the board has more inner corners, and "
+                      f"which part of it was found is ambiguous")
+    uv = _canonical_checker_order(uv, pattern)
     ids, pts = board.object_points()
     return Detection(status=DetectionStatus.DETECTED, corners_px=uv, ids=ids,
                      points_board_m=pts, image_size=size,
                      message=f"{len(uv)} corners ({how})", ambiguous_order=True)
+
+
+def detect_checkerboard_all(image: NDArray[Any], board: BoardSpec) -> dict[str, Detection]:
+    """Every checkerboard detector of :data:`CHECKER_DETECTORS` on one image, sharing work (the
+    sector-based and the classic search run once each).
+
+    Returns:
+        ``{detector: Detection}``.
+    """
+    img = np.asarray(image)
+    if board.kind != "checkerboard":
+        raise ConfigError(f"detect_checkerboard_all needs a checkerboard, not {board.kind}")
+    if img.size == 0 or img.ndim not in (2, 3):
+        bad = _empty(DetectionStatus.UNREADABLE, (0, 0), f"not an image (shape {img.shape})")
+        return dict.fromkeys(CHECKER_DETECTORS, bad)
+    size = (int(img.shape[1]), int(img.shape[0]))
+    gray = _to_gray(img)
+    found: dict[str, Any] = {}
+    return {name: _detect_checkerboard(gray, board, name, size, found)
+            for name in CHECKER_DETECTORS}
 
 
 def _canonical_checker_order(uv: FloatArray, pattern: tuple[int, int]) -> FloatArray:
@@ -498,24 +679,107 @@ def _canonical_checker_order(uv: FloatArray, pattern: tuple[int, int]) -> FloatA
     return grid.reshape(-1, 2).copy()
 
 
+def _refinement_of(board: BoardSpec) -> str:
+    """Which OpenCV corner detector and refinement :func:`detect_board` uses for ``board``:
+    ``"charuco"``, ``"apriltag"`` (tag corners, AprilTag refinement) or ``"subpix"`` (tag
+    corners, ``cornerSubPix`` refinement)."""
+    if board.kind == "charuco":
+        return "charuco"
+    return "apriltag" if board.dictionary.upper().startswith("DICT_APRILTAG") else "subpix"
+
+
 def _detect_markers(gray: NDArray[np.uint8], board: BoardSpec) -> tuple[Any, Any]:
     params = cv2.aruco.DetectorParameters()
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
-    if board.dictionary.upper().startswith("DICT_APRILTAG"):
+    if _refinement_of(board) == "apriltag":
         params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_APRILTAG
     detector = cv2.aruco.ArucoDetector(_aruco_dictionary(board.dictionary), params)
     corners, ids, _ = detector.detectMarkers(gray)
     return corners, ids
 
 
+# Boards drawn by render_board to find the pixel convention of OpenCV's corners (see
+# corner_convention_offset_px); their corners are known exactly.
+_PROBE_BOARDS = {"charuco": ("charuco:4x5:25mm:18mm:DICT_5X5_100", 2400.0),
+                 "apriltag": ("apriltag:2x2:30mm:40mm", 2500.0),
+                 "subpix": ("aruco:2x2:30mm:40mm:DICT_4X4_50", 2500.0)}
+
+
+def _version_offset_px(refinement: str) -> float:
+    """The convention as measured on OpenCV 4.10-4.14 (docs/calibration.md), by version."""
+    if refinement == "subpix":
+        return 0.0
+    if refinement == "charuco":
+        major, minor = (int(v) for v in cv2.__version__.split(".")[:2])
+        return 0.5 if (major, minor) < (4, 14) else 0.0
+    return 0.5
+
+
+@functools.cache
+def corner_convention_offset_px(refinement: str) -> float:
+    """How far OpenCV's marker-based corners are from sea3d's pixel-centre convention.
+
+    OpenCV's ArUco and ChArUco detectors have returned corners in the pixel-edge convention
+    (integer coordinates at pixel corners, +0.5 px against ours) or in the pixel-centre one,
+    depending on the version (ChArUco changed in 4.14) and on the corner refinement
+    (``cornerSubPix`` refinement gives pixel centres). This detects the convention at run time:
+    a board with known corners is drawn by :func:`render_board`, detected once per process
+    with the same detector settings, and the median offset is rounded to the nearest half
+    pixel. Should that detection fail, the offsets measured on OpenCV 4.10-4.14 are used.
+
+    Args:
+        refinement: ``"charuco"``, ``"apriltag"`` or ``"subpix"`` (see :func:`detect_board`).
+
+    Returns:
+        The offset in pixels (0.0 or 0.5 on every version seen) to subtract from OpenCV's
+        corners, both axes.
+    """
+    spec, px_per_m = _PROBE_BOARDS[refinement]
+    board = parse_board(spec)
+    margin_px = 40
+    img = np.asarray(cv2.copyMakeBorder(render_board(board, px_per_m=px_per_m), margin_px,
+                                        margin_px, margin_px, margin_px, cv2.BORDER_CONSTANT,
+                                        value=255), dtype=np.uint8)
+    ids, pts = board.object_points()
+    ox, oy = board_origin_offset_m(board)
+    expected = (pts[:, :2] + [ox, oy]) * px_per_m + margin_px - 0.5
+    lookup = {int(i): k for k, i in enumerate(ids)}
+    found: list[FloatArray] = []
+    if refinement == "charuco":
+        ch_corners, ch_ids, _, _ = cv2.aruco.CharucoDetector(board._charuco_board()).detectBoard(
+            img)
+        if ch_ids is not None:
+            found = [c - expected[lookup[int(i)]]
+                     for c, i in zip(ch_corners.reshape(-1, 2), ch_ids.ravel(), strict=True)]
+    else:
+        corners, marker_ids = _detect_markers(img, board)
+        if marker_ids is not None:
+            for quad, mid in zip(corners, marker_ids.ravel(), strict=True):
+                found += [quad.reshape(4, 2)[k] - expected[lookup[4 * int(mid) + k]]
+                          for k in range(4)]
+    if len(found) < 8:
+        offset = _version_offset_px(refinement)
+        log.warning("could not measure OpenCV %s's %s corner convention on a drawn board; "
+                    "assuming %.1f px", cv2.__version__, refinement, offset)
+        return offset
+    median = np.median(np.asarray(found), axis=0)
+    offset = round(float(np.mean(median)) * 2.0) / 2.0
+    log.debug("OpenCV %s %s corners: median offset (%.3f, %.3f) px against pixel centres; "
+              "shifting by -%.1f px", cv2.__version__, refinement, median[0], median[1], offset)
+    return offset
+
+
 def detect_board(image: NDArray[Any], board: BoardSpec, *, min_corners: int = 0,
-                 use_sector_based: bool = True) -> Detection:
+                 use_sector_based: bool = True, checker_detector: str | None = None
+                 ) -> Detection:
     """Find ``board`` in one image.
 
     Checkerboards use OpenCV's sector-based detector (``findChessboardCornersSB``, with its
-    accuracy flag), falling back to ``findChessboardCorners`` + ``cornerSubPix``; ChArUco uses
-    ``cv2.aruco.CharucoDetector``; tag grids use ``cv2.aruco.ArucoDetector`` (AprilTag 36h11
-    via ``DICT_APRILTAG_36h11``, with AprilTag corner refinement).
+    accuracy flag), falling back to ``findChessboardCorners`` + ``cornerSubPix`` (see
+    :data:`CHECKER_DETECTORS` for the choices); a grid whose squares go on past its side (a
+    sub-grid of a larger board) is refused as ``WRONG_SIZE`` (:func:`grid_continues`).
+    ChArUco uses ``cv2.aruco.CharucoDetector``; tag grids use ``cv2.aruco.ArucoDetector``
+    (AprilTag 36h11 via ``DICT_APRILTAG_36h11``, with AprilTag corner refinement).
 
     Args:
         image: ``(H, W)`` or ``(H, W, 3)`` RGB (or ``(H, W, 4)`` RGBA) image, uint8, uint16 or
@@ -523,7 +787,10 @@ def detect_board(image: NDArray[Any], board: BoardSpec, *, min_corners: int = 0,
         board: the board to look for.
         min_corners: ChArUco and tag grids: fewer corners than this is ``PARTIAL`` (default:
             6 corners for ChArUco, one whole tag for grids). Checkerboards are all or nothing.
-        use_sector_based: checkerboards: try ``findChessboardCornersSB`` first.
+        use_sector_based: checkerboards: try ``findChessboardCornersSB`` first (``sector``;
+            False: ``classic``).
+        checker_detector: checkerboards: one of :data:`CHECKER_DETECTORS` (overrides
+            ``use_sector_based``).
 
     Returns:
         A :class:`Detection`; ``status`` says what was found, corners sorted by id.
@@ -534,7 +801,11 @@ def detect_board(image: NDArray[Any], board: BoardSpec, *, min_corners: int = 0,
     size = (int(img.shape[1]), int(img.shape[0]))
     gray = _to_gray(img)
     if board.kind == "checkerboard":
-        return _detect_checkerboard(gray, board, use_sector_based, size)
+        checker = checker_detector or ("sector" if use_sector_based else "classic")
+        if checker not in CHECKER_DETECTORS:
+            raise ConfigError(f"checker_detector must be one of {CHECKER_DETECTORS}; got "
+                              f"{checker!r}")
+        return _detect_checkerboard(gray, board, checker, size)
     ids: IntArray
     uv: FloatArray
     all_ids, all_pts = board.object_points()
@@ -570,10 +841,10 @@ def detect_board(image: NDArray[Any], board: BoardSpec, *, min_corners: int = 0,
         ids = np.asarray(id_list, dtype=np.int64)
         uv = np.asarray(uv_list, dtype=np.float64)
         n_markers = len(marker_ids)
-    # OpenCV's ArUco and ChArUco corners use the pixel-edge convention (the top-left corner of
-    # the top-left pixel is 0, 0); ours puts pixel centres on integers. Measured on rendered
-    # boards: +0.50 px in both axes against findChessboardCorners on the same renderer.
-    uv = uv - _ARUCO_TO_CENTRE_PX
+    # Ours puts pixel centres on integers. Depending on the OpenCV version and the corner
+    # refinement, ArUco and ChArUco corners come in that convention or in the pixel-edge one
+    # (the top-left corner of the top-left pixel at 0, 0): measured once per process.
+    uv = uv - corner_convention_offset_px(_refinement_of(board))
     order = np.argsort(ids, kind="stable")
     ids, uv = ids[order], uv[order]
     # Tags can be seen twice if ids repeat; keep the first of each id.
@@ -588,12 +859,18 @@ def detect_board(image: NDArray[Any], board: BoardSpec, *, min_corners: int = 0,
 
 def diagnose_checkerboard_size(image: NDArray[Any], board: BoardSpec,
                                max_delta: int = 2) -> tuple[int, int] | None:
-    """Look for a checkerboard of other inner-corner counts near ``board``'s.
+    """Find the inner-corner counts of the checkerboard an image holds, when they are not
+    ``board``'s.
 
-    Used to explain a failed detection ("found 8x6 -- did you mean checkerboard:8x6?").
+    Used to explain a failed detection ("holds 9x6 -- did you mean checkerboard:9x6?"). First
+    the sector-based detector is asked for any board of at least 3x3 corners (OpenCV's
+    ``CALIB_CB_LARGER``), which finds the whole board; then the classic detector tries counts
+    within ``max_delta`` of ``board``'s, larger boards first (a smaller count would only find a
+    part of the board).
 
     Returns:
-        ``(cols, rows)`` of a checkerboard found in the image, or None.
+        ``(cols, rows)`` of a checkerboard found in the image (in ``board``'s orientation:
+        the larger count first if ``board.cols >= board.rows``), or None.
     """
     if board.kind != "checkerboard":
         return None
@@ -602,19 +879,25 @@ def diagnose_checkerboard_size(image: NDArray[Any], board: BoardSpec,
     if max(gray.shape) > 1000:
         scale = 1000.0 / max(gray.shape)
         gray = cv2.resize(gray, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+    found, _corners, meta = cv2.findChessboardCornersSBWithMeta(
+        gray, (3, 3), cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_LARGER)
+    if found and meta is not None:
+        a, b = sorted(int(v) for v in np.asarray(meta).shape[:2])
+        counts = (b, a) if board.cols >= board.rows else (a, b)
+        if counts != (board.cols, board.rows):
+            return counts
     candidates = []
     for dc in range(-max_delta, max_delta + 1):
         for dr in range(-max_delta, max_delta + 1):
             c, r = board.cols + dc, board.rows + dr
             if (dc, dr) != (0, 0) and c >= 3 and r >= 3:
-                candidates.append((abs(dc) + abs(dr), c, r))
-    for _, c, r in sorted(candidates):
-        for pattern in ((c, r),):
-            found, _ = cv2.findChessboardCorners(
-                gray, pattern, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_FAST_CHECK
-                | cv2.CALIB_CB_NORMALIZE_IMAGE)
-            if found:
-                return pattern
+                candidates.append((abs(dc) + abs(dr), -c * r, c, r))
+    for _, _, c, r in sorted(candidates):
+        ok, _ = cv2.findChessboardCorners(
+            gray, (c, r), flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_FAST_CHECK
+            | cv2.CALIB_CB_NORMALIZE_IMAGE)
+        if ok:
+            return c, r
     return None
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-__all__ = ["image_size"]
+__all__ = ["image_size", "plural"]
 
 
 def image_size(text: str) -> tuple[int, int]:
@@ -16,3 +16,8 @@ def image_size(text: str) -> tuple[int, int]:
     if w <= 0 or h <= 0:
         raise argparse.ArgumentTypeError(f"image size must be positive, got {text!r}")
     return w, h
+
+
+def plural(n: int, noun: str, nouns: str | None = None) -> str:
+    """``1 pair``, ``2 pairs``, ``0 pairs`` (``nouns`` for irregular plurals)."""
+    return f"{n} {noun}" if n == 1 else f"{n} {nouns or noun + 's'}"

@@ -4,6 +4,7 @@ port calibration."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import glob
 import json
 import logging
@@ -57,7 +58,9 @@ def register(sub: Any) -> None:
     port = csub.add_parser("port", help="refractive dome/flat-port calibration from in-water "
                                         "board images and an in-air rig")
     port.add_argument("--rig", required=True, metavar="RIG", help="in-air rig (pinhole)")
-    port.add_argument("--port", choices=["dome", "flat"], required=True)
+    port.add_argument("--port", choices=["dome", "flat"], required=True,
+                      help="the housings' ports: dome (fits each dome's centre) or flat (fits "
+                           "each port's normal and distance)")
     port.add_argument("--inner-radius-mm", type=float, default=31.25, help="dome inner radius")
     port.add_argument("--thickness-mm", type=float, help="glass thickness (dome 3.1, flat 10)")
     port.add_argument("--n-glass", type=float, default=1.492, help="glass index (acrylic)")
@@ -70,6 +73,9 @@ def register(sub: Any) -> None:
     _add_pair_inputs(port)
     port.add_argument("-o", "--output", required=True, metavar="RIG", help="rig file to write")
     port.add_argument("--json", action="store_true", help="print the result as JSON")
+    port.add_argument("--report", metavar="HTML", help="write an HTML report: verdict and "
+                      "guidance, the ports with their uncertainty, per-view errors, residuals "
+                      "through the port models, rejected views")
     port.set_defaults(handler=_port)
 
 
@@ -78,10 +84,14 @@ def _add_pair_inputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("--right", required=True, metavar="GLOB", help="right images")
     p.add_argument("--board", required=True, metavar="BOARD",
                    help="board spec (checkerboard:9x6:25mm ...) or board file")
-    p.add_argument("--detector", choices=["accurate", "fast"], default="accurate",
-                   help="checkerboards: accurate = OpenCV's sector-based detector (about 0.3 s "
-                        "per 640x480 image, 1.5 s at 1920x1080); fast = findChessboardCorners + "
-                        "cornerSubPix (10 ms, larger corner errors)")
+    p.add_argument("--detector", choices=["auto", "sector+subpix", "sector", "classic",
+                                           "accurate", "fast"], default="auto",
+                   help="checkerboards: auto (default) = run every detector and keep the one "
+                        "whose calibration has the lowest holdout error (calibrate port: "
+                        "sector); sector = OpenCV's sector-based detector (about 0.3 s "
+                        "per 640x480 image, 1.5 s at 1920x1080; alias accurate); sector+subpix "
+                        "= its corners refined by cornerSubPix; classic = findChessboardCorners "
+                        "+ cornerSubPix (10 ms; alias fast)")
 
 
 # ---------------------------------------------------------------------- helpers
@@ -113,28 +123,47 @@ def _load_image(path: Path) -> Any:
     return img
 
 
-def _detect_all(paths: list[Path], board: Any, quiet: bool, detector: str = "accurate"
-                ) -> list[Any]:
+_DETECTOR_ALIASES = {"accurate": "sector", "fast": "classic"}
+
+
+def _unreadable(path: Path) -> Any:
+    import numpy as np
+
+    from sea3d.calib.targets import Detection, DetectionStatus
+
+    return Detection(status=DetectionStatus.UNREADABLE, corners_px=np.zeros((0, 2)),
+                     ids=np.zeros(0, np.int64), points_board_m=np.zeros((0, 3)),
+                     image_size=(0, 0), message="cannot read the image", name=path.name)
+
+
+def _detect_all(paths: list[Path], board: Any, quiet: bool, detector: str = "auto"
+                ) -> dict[str, list[Any]]:
+    """Detections of every image, per checkerboard detector (``{"": [...]}`` for other boards
+    and for one named detector)."""
     from tqdm import tqdm
 
-    from sea3d.calib.targets import Detection, DetectionStatus, detect_board
+    from sea3d.calib.targets import CHECKER_DETECTORS, detect_board, detect_checkerboard_all
 
-    out = []
+    detector = _DETECTOR_ALIASES.get(detector, detector)
+    every = detector == "auto" and board.kind == "checkerboard"
+    names = list(CHECKER_DETECTORS) if every else [detector]
+    out: dict[str, list[Any]] = {n: [] for n in names}
     for path in tqdm(paths, desc="detecting", unit="img", disable=quiet or not sys.stderr.isatty(),
                      file=sys.stderr):
         img = _load_image(path)
         if img is None:
-            import numpy as np
-
-            out.append(Detection(status=DetectionStatus.UNREADABLE, corners_px=np.zeros((0, 2)),
-                                 ids=np.zeros(0, np.int64), points_board_m=np.zeros((0, 3)),
-                                 image_size=(0, 0), message="cannot read the image",
-                                 name=path.name))
+            for n in names:
+                out[n].append(_unreadable(path))
             continue
-        det = detect_board(img, board, use_sector_based=detector == "accurate").with_name(
-            path.name)
-        log.debug("%s: %s (%s)", path.name, det.status, det.message)
-        out.append(det)
+        if every:
+            found = detect_checkerboard_all(img, board)
+            for n in names:
+                out[n].append(found[n].with_name(path.name))
+        else:
+            checker = None if detector == "auto" or board.kind != "checkerboard" else detector
+            out[detector].append(detect_board(img, board, checker_detector=checker).with_name(
+                path.name))
+        log.debug("%s: %s", path.name, out[names[0]][-1].message)
     return out
 
 
@@ -202,7 +231,7 @@ def _board(args: argparse.Namespace) -> int:
 
 
 def _stereo(args: argparse.Namespace) -> int:
-    from sea3d.calib.stereo import StereoCalibConfig, calibrate_stereo
+    from sea3d.calib.stereo import StereoCalibConfig, calibrate_stereo, calibrate_stereo_best
     from sea3d.calib.targets import parse_board
     from sea3d.io.rig_file import save_rig
 
@@ -210,20 +239,32 @@ def _stereo(args: argparse.Namespace) -> int:
     left_paths, right_paths = _expand(args.left, "left"), _expand(args.right, "right")
     _pair_paths(left_paths, right_paths)
     quiet = bool(args.json)
-    left = _detect_all(left_paths, board, quiet, args.detector)
-    right = _detect_all(right_paths, board, quiet, args.detector)
+    detector = _DETECTOR_ALIASES.get(args.detector, args.detector)
+    reason = f"{detector}, named with --detector {args.detector}"
+    if detector == "auto" and args.no_holdout:
+        detector = "sector+subpix"
+        reason = ("sector+subpix, the default: with --no-holdout there is no holdout error to "
+                  "choose a detector by")
+    left = _detect_all(left_paths, board, quiet, detector)
+    right = _detect_all(right_paths, board, quiet, detector)
     cfg = StereoCalibConfig(distortion=args.distortion, min_views=args.min_views,
                             reject_outliers=not args.no_reject, holdout=not args.no_holdout,
                             opencv_start=args.opencv_start)
+    first = next(iter(left))
     try:
-        result = calibrate_stereo(left, right, cfg)
+        if len(left) > 1:
+            result = calibrate_stereo_best({n: (left[n], right[n]) for n in left}, cfg)
+        else:
+            result = calibrate_stereo(left[first], right[first], cfg)
+            if board.kind == "checkerboard":
+                result = dataclasses.replace(result, detector=detector, detector_reason=reason)
     except CalibrationError as err:
-        raise CalibrationError(f"{err}{_size_hint(left_paths, left, board)}") from err
+        raise CalibrationError(f"{err}{_size_hint(left_paths, left[first], board)}") from err
     if args.report:
         from sea3d.calib.report import render_report
 
         sample = None
-        if result.ok and result.views:
+        if result.left is not None and result.views:
             names = {p.name: p for p in left_paths + right_paths}
             li, ri = _load_image(names[result.views[0].left]), _load_image(
                 names[result.views[0].right])
@@ -244,8 +285,12 @@ def _stereo(args: argparse.Namespace) -> int:
 def _print_stereo(result: Any, args: argparse.Namespace) -> None:
     if not result.ok:
         print(f"calibration failed: {result.message}")
+        if args.report:
+            print(f"  report: {args.report}")
         return
     print(f"{result.message}; wrote {args.output}")
+    if result.detector:
+        print(f"  detector: {result.detector_reason}")
     print(f"  RMS {result.rms_px:.3f} px (left {result.left.rms_px:.3f}, right "
           f"{result.right.rms_px:.3f}), holdout {result.holdout_px:.3f} px")
     print(f"  baseline {result.baseline_m * 1e3:.2f} mm; coverage left "
@@ -272,8 +317,12 @@ def _port(args: argparse.Namespace) -> int:
     left_paths, right_paths = _expand(args.left, "left"), _expand(args.right, "right")
     _pair_paths(left_paths, right_paths)
     quiet = bool(args.json)
-    left = _detect_all(left_paths, board, quiet, args.detector)
-    right = _detect_all(right_paths, board, quiet, args.detector)
+    # No holdout error for port fits to choose by: 'auto' means the sector-based corners,
+    # which recover the simulator's domes best (benchmarks/bench_port_sim.py: refining them
+    # by cornerSubPix moved the axial dome offsets by 0.3-0.4 mm).
+    detector = "sector" if args.detector == "auto" else args.detector
+    left = next(iter(_detect_all(left_paths, board, quiet, detector).values()))
+    right = next(iter(_detect_all(right_paths, board, quiet, detector).values()))
     ports: list[DomePort | FlatPort] = []
     for _ in range(2):
         if args.port == "dome":
@@ -289,10 +338,24 @@ def _port(args: argparse.Namespace) -> int:
     result = calibrate_port_rig(air, ports[0], ports[1], left, right, cfg)
     if result.ok:
         save_rig(result.rig, args.output)
+    if args.report:
+        from sea3d.calib.report import render_port_report
+
+        Path(args.report).write_text(render_port_report(result), encoding="utf-8")
     if args.json:
         json.dump(result.to_dict(), sys.stdout, indent=2)
         print()
-    elif not result.ok:
+    else:
+        _print_port(result, args)
+    return 0 if result.ok else 1
+
+
+def _print_port(result: Any, args: argparse.Namespace) -> None:
+    import numpy as np
+
+    from sea3d.calib.port import assess_port
+
+    if not result.ok:
         print(f"port calibration failed: {result.message}")
     else:
         print(f"{result.message}; wrote {args.output}")
@@ -307,4 +370,12 @@ def _port(args: argparse.Namespace) -> int:
             if args.refine_focal and r.camera is not None:
                 print(f"    fx {r.camera.pinhole.fx:.2f} px (scale {r.focal_scale:.5f} +- "
                       f"{r.focal_scale_std:.5f})")
-    return 0 if result.ok else 1
+    for a, b, why in result.views_rejected:
+        print(f"  rejected {a} / {b}: {why}")
+    if result.ok:
+        verdict, guidance = assess_port(result)
+        print(f"  verdict: {verdict}")
+        for g in guidance[1:]:
+            print(f"  - {g}")
+    if args.report:
+        print(f"  report: {args.report}")

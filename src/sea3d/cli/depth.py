@@ -13,6 +13,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from sea3d.cli._args import plural
+
 __all__ = ["register"]
 
 _ENGINES = ("sea3d", "sea3d-gpu", "opencv", "opencv-hh", "opencv-3way")
@@ -238,9 +240,10 @@ def _cmd_depth_session(args: argparse.Namespace) -> int:
         print(json.dumps(summary, indent=2))
     else:
         print(
-            f"{done} pairs -> {out}/depth/<t_ns>.png (uint16 mm, 0 invalid)"
+            f"{plural(done, 'pair')} -> {out}/depth/<t_ns>.png (uint16 mm, 0 invalid)"
             + (f" and {out}/cloud/<t_ns>.ply" if args.points else "")
-            + f"; {match.unpaired_left} left and {match.unpaired_right} right frames unpaired"
+            + f"; {match.unpaired_left} left and {plural(match.unpaired_right, 'right frame')} "
+            "unpaired"
         )
     return 0
 
@@ -324,7 +327,8 @@ def _cmd_depth(args: argparse.Namespace) -> int:
         print(
             f"{args.output}: {100 * valid_fraction:.1f} % valid, median depth "
             f"{summary['median_depth_m'] or float('nan'):.3f} m"
-            + (f", {len(res.points_left)} points -> {args.points}" if args.points else "")
+            + (f", {plural(len(res.points_left), 'point')} -> {args.points}"
+               if args.points else "")
             + (" (refraction-corrected)" if maps.refractive else "")
         )
     return 0

@@ -334,9 +334,13 @@ def _project(args: argparse.Namespace) -> int:
 
 
 def _convert(args: argparse.Namespace) -> int:
+    from sea3d.errors import RigFileError
     from sea3d.io.rig_file import load_rig, save_rig
 
     rig = load_rig(args.input, extrinsics=args.extrinsics, image_size=args.size)
-    out = save_rig(rig, args.output, format=args.format)
+    try:
+        out = save_rig(rig, args.output, format=args.format)
+    except RigFileError as err:
+        raise RigFileError(f"{err} (--format sea3d, opencv, colmap or json)") from err
     print(f"wrote {out}")
     return 0

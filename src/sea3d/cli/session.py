@@ -7,6 +7,8 @@ import json
 import sys
 from typing import Any
 
+from sea3d.cli._args import plural
+
 __all__ = ["register"]
 
 
@@ -104,10 +106,6 @@ def _info(args: argparse.Namespace) -> int:
     return 0
 
 
-def _plural(n: int, word: str) -> str:
-    return f"{n} {word}" if n == 1 else f"{n} {word}s"
-
-
 def _convert(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -134,7 +132,7 @@ def _convert(args: argparse.Namespace) -> int:
     parts = ", ".join(f"{v} {k}" for k, v in report.items())
     line = f"wrote {args.output}: {parts}"
     if skipped:
-        line += f"; skipped {_plural(skipped, 'damaged record')}"
+        line += f"; skipped {plural(skipped, 'damaged record')}"
     print(line)
     for msg in problems:
         print(f"  {msg}")
@@ -151,7 +149,7 @@ def _verify(args: argparse.Namespace) -> int:
     else:
         counts = ", ".join(f"{v} {k}" for k, v in report["records"].items())
         n = len(report["problems"])
-        print(f"{args.path}: {counts} readable; " + (_plural(n, "problem") if n else "no problems"))
+        print(f"{args.path}: {counts} readable; " + (plural(n, "problem") if n else "no problems"))
         for chunk in report["damaged_chunks"]:
             print(
                 f"  damaged chunk at byte {chunk['offset']}: t_ns {chunk['start_ns']}.."

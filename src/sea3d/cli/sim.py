@@ -24,15 +24,26 @@ def register(sub: Any) -> None:
     p = sub.add_parser(
         "sim",
         help="simulate an underwater stereo session (or a calibration set) with ground truth",
+        usage="sea3d sim [options]                  (a survey session)\n"
+        "       sea3d sim calibration [options]      (a calibration set; see its --help)",
         description="Render a synthetic stereo session through the rig's camera models (pinhole, "
-        "dome or flat port), with IMU and echosounder, and write it with ground truth in gt/.",
+        "dome or flat port), with IMU and echosounder, and write it with ground truth in gt/. "
+        "Before it starts it prints what the run will write and roughly how long it takes, and "
+        "refuses to start when the disk cannot hold it.",
     )
     p.add_argument(
         "--scene", default="lake", help="built-in scene (tank, lake, reef) or a scene YAML file"
     )
-    p.add_argument("--rig", type=Path, help="rig file (default: the paper's rig with dome ports)")
-    p.add_argument("--frames", type=int, default=300, help="stereo frames (default 300)")
-    p.add_argument("--fps", type=float, default=10.0, help="camera rate (default 10)")
+    p.add_argument(
+        "--rig",
+        type=Path,
+        metavar="RIG",
+        help="rig file (default: the paper's rig with dome ports)",
+    )
+    p.add_argument(
+        "--frames", type=int, default=300, metavar="N", help="stereo frames (default 300)"
+    )
+    p.add_argument("--fps", type=float, default=10.0, metavar="HZ", help="camera rate (default 10)")
     p.add_argument(
         "--water",
         default="coastal",
@@ -45,30 +56,41 @@ def register(sub: Any) -> None:
         choices=["lawnmower", "orbit", "handheld"],
         help="vehicle motion (default lawnmower)",
     )
-    p.add_argument("--out", type=Path, help="output: an .mcap file or a folder")
+    p.add_argument("--out", type=Path, metavar="PATH", help="output: an .mcap file or a folder")
     p.add_argument(
         "--format", choices=["mcap", "folder"], help="session layout (default from --out)"
     )
-    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    p.add_argument("--seed", type=int, default=0, metavar="N", help="noise seed (default 0)")
     p.add_argument(
         "--size",
         type=image_size,
+        metavar="WxH",
         help="render at WxH instead of the rig's size (intrinsics scaled)",
     )
     p.add_argument(
-        "--supersample", type=int, default=2, help="rays per pixel along each axis (default 2)"
+        "--supersample",
+        type=int,
+        default=2,
+        metavar="N",
+        help="rays per pixel along each axis at edges (default 2)",
     )
     p.add_argument("--no-imu-noise", action="store_true", help="exact IMU readings")
     p.add_argument(
         "--gt",
         type=Path,
+        metavar="DIR",
         help="ground-truth folder (default: gt/ inside a folder session, "
         "<name>_gt/ next to an .mcap file)",
     )
     p.set_defaults(handler=_run_survey)
-    ssub = p.add_subparsers(dest="sim_command", metavar="SUBCOMMAND")
+    ssub = p.add_subparsers(
+        dest="sim_command",
+        title="optional subcommand",
+        description="without one, sea3d sim simulates a survey session",
+    )
     c = ssub.add_parser(
         "calibration",
+        prog="sea3d sim calibration",
         help="render a calibration board at varied poses with true poses",
         description="Write left/<t_ns>.png, right/<t_ns>.png and gt/boards.json (list of "
         "{t_ns, T_left_board}); the board frame is at its first inner corner, x along the "
@@ -78,15 +100,19 @@ def register(sub: Any) -> None:
         "--rig",
         type=Path,
         dest="cal_rig",
+        metavar="RIG",
         help="rig file (default: the paper's rig with dome ports)",
     )
     c.add_argument(
         "--board",
         default="checkerboard:9x6:40mm",
+        metavar="BOARD",
         help="board as for 'sea3d calibrate': checkerboard:COLSxROWS:SQUARE (inner corners) or "
         "charuco:COLSxROWS:SQUARE:MARKER[:DICT][:legacy] (squares), or a board .yaml file",
     )
-    c.add_argument("--views", type=int, default=20, help="number of views (default 20)")
+    c.add_argument(
+        "--views", type=int, default=20, metavar="N", help="number of views (default 20)"
+    )
     c.add_argument(
         "--medium",
         choices=["water", "air"],
@@ -109,10 +135,18 @@ def register(sub: Any) -> None:
         help="water effects on the images (default none)",
     )
     c.add_argument(
-        "--size", dest="cal_size", type=image_size, help="render at WxH (intrinsics scaled)"
+        "--size",
+        dest="cal_size",
+        type=image_size,
+        metavar="WxH",
+        help="render at WxH (intrinsics scaled)",
     )
-    c.add_argument("--seed", dest="cal_seed", type=int, default=0, help="pose seed (default 0)")
-    c.add_argument("--out", dest="cal_out", type=Path, required=True, help="output folder")
+    c.add_argument(
+        "--seed", dest="cal_seed", type=int, default=0, metavar="N", help="pose seed (default 0)"
+    )
+    c.add_argument(
+        "--out", dest="cal_out", type=Path, required=True, metavar="DIR", help="output folder"
+    )
     c.set_defaults(handler=_run_calibration)
 
 
@@ -134,6 +168,50 @@ def _progress(total: int, desc: str) -> Any:
     return tqdm(total=total, desc=desc, unit="frame", leave=True)
 
 
+def _size_text(n_bytes: float) -> str:
+    if n_bytes >= 1e9:
+        return f"{n_bytes / 1e9:.1f} GB"
+    return f"{n_bytes / 1e6:.0f} MB" if n_bytes >= 1e6 else f"{n_bytes / 1e3:.0f} kB"
+
+
+def _duration_text(seconds: float) -> str:
+    if seconds < 1:
+        return "under a second"
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def _check_disk(out: Path, gt_dir: Path, need_bytes: float) -> None:
+    """Refuse a run the disk cannot hold (with a 10 % margin)."""
+    import shutil
+
+    for target in {out, gt_dir}:
+        probe = target
+        while not probe.exists() and probe != probe.parent:
+            probe = probe.parent
+        free = shutil.disk_usage(probe).free
+        if need_bytes * 1.1 > free:
+            raise SimulationError(
+                f"the run needs about {_size_text(need_bytes)} but {probe} has "
+                f"{_size_text(free)} free; use fewer --frames or a smaller --size"
+            )
+
+
+def _remove_created(path: Path, existed: bool) -> None:
+    """Remove an output this run created (a session without a single frame, its ground truth)."""
+    import shutil
+
+    if existed or not path.exists():
+        return
+    if path.is_dir():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)
+
+
 def _run_survey(args: argparse.Namespace) -> int:
     if args.out is None:
         raise SimulationError("sea3d sim needs --out (an .mcap file or a folder)")
@@ -142,7 +220,13 @@ def _run_survey(args: argparse.Namespace) -> int:
     from sea3d.io.rig_file import rig_to_yaml
     from sea3d.io.session import SessionWriter, layout_of
     from sea3d.sim.scene import load_scene
-    from sea3d.sim.survey import SurveyConfig, simulate_survey, survey_mount, with_survey_sensors
+    from sea3d.sim.survey import (
+        SurveyConfig,
+        estimate_survey_cost,
+        simulate_survey,
+        survey_mount,
+        with_survey_sensors,
+    )
 
     rig = _load_rig(args.rig, args.size)
     scene = load_scene(args.scene)
@@ -162,35 +246,58 @@ def _run_survey(args: argparse.Namespace) -> int:
         supersample=args.supersample,
         imu_noise=not args.no_imu_noise,
     )
-    _log.info(
-        "simulating %d frames of %s (%s water) at %dx%d into %s",
-        args.frames,
-        scene.name,
-        args.water,
-        rig.width,
-        rig.height,
-        args.out,
+    cost = estimate_survey_cost(rig.width, rig.height, config)
+    _check_disk(args.out, gt_dir, cost.total_bytes)
+    pairs = "pair" if args.frames == 1 else "pairs"
+    print(
+        f"simulating {args.frames} stereo {pairs} of {scene.name} ({args.water} water) at "
+        f"{rig.width}x{rig.height}: about {_size_text(cost.image_bytes)} of images and "
+        f"{_size_text(cost.gt_bytes)} of ground truth, about {_duration_text(cost.seconds)} on "
+        f"two idle cores",
+        flush=True,
     )
     mount = survey_mount(rig, config)
     session_rig = with_survey_sensors(rig, config, mount)  # the IMU and echosounder simulated
-    with (
-        _progress(args.frames, f"sim {scene.name}") as bar,
-        SessionWriter(args.out, format=fmt, rig_yaml=rig_to_yaml(session_rig)) as writer,
-    ):
-        result = simulate_survey(
-            scene, rig, config, writer, gt_dir, mount=mount, progress=bar.update
-        )
+    existed = {path: path.exists() for path in (args.out, gt_dir)}
+    frames_written = 0
+
+    def advance(n: int) -> None:
+        nonlocal frames_written
+        frames_written += n
+        bar.update(n)
+
+    try:
+        with (
+            _progress(args.frames, f"sim {scene.name}") as bar,
+            SessionWriter(args.out, format=fmt, rig_yaml=rig_to_yaml(session_rig)) as writer,
+        ):
+            result = simulate_survey(
+                scene, rig, config, writer, gt_dir, mount=mount, progress=advance
+            )
+    except BaseException:
+        # A run that stops before its first frame leaves nothing behind; once frames are
+        # written, the session and its ground truth are kept (closed properly by the writer).
+        if frames_written == 0:
+            for path, was in existed.items():
+                _remove_created(path, was)
+        raise
     print(
-        f"wrote {len(result.frame_t_ns)} stereo frames, {result.imu_count} IMU and "
-        f"{result.sonar_count} "
-        f"echosounder samples to {args.out}; ground truth in {gt_dir}"
+        f"wrote {_count(len(result.frame_t_ns), 'stereo frame')}, "
+        f"{_count(result.imu_count, 'IMU sample')} and "
+        f"{_count(result.sonar_count, 'echosounder sample')} to {args.out}; ground truth in "
+        f"{gt_dir}"
     )
     return 0
 
 
+def _count(n: int, noun: str) -> str:
+    """``1 pair``, ``2 pairs``."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
 def _run_calibration(args: argparse.Namespace) -> int:
     from sea3d.io.rig_file import rig_to_yaml
-    from sea3d.sim.survey import render_calibration_set, write_calibration_set
+    from sea3d.sim.survey import in_air, render_calibration_set, write_calibration_set
 
     rig = _load_rig(args.cal_rig, args.cal_size)
     with _progress(args.views, "calibration views") as bar:
@@ -205,9 +312,12 @@ def _run_calibration(args: argparse.Namespace) -> int:
             progress=bar.update,
         )
     write_calibration_set(cal, args.cal_out)
-    (args.cal_out / "rig_true.yaml").write_text(rig_to_yaml(rig))
+    # The rig that rendered the images: in air the bare pinholes, without the ports.
+    (args.cal_out / "rig_true.yaml").write_text(
+        rig_to_yaml(in_air(rig) if args.medium == "air" else rig)
+    )
     print(
-        f"wrote {args.views} {args.medium} calibration pairs of {args.board} to {args.cal_out} "
-        f"(true poses in gt/boards.json, true rig in rig_true.yaml)"
+        f"wrote {_count(args.views, args.medium + ' calibration pair')} of {args.board} to "
+        f"{args.cal_out} (true poses in gt/boards.json, true rig in rig_true.yaml)"
     )
     return 0

@@ -55,6 +55,7 @@ import logging
 import math
 import os
 import reprlib
+import secrets
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -974,7 +975,10 @@ def load_rig(
 
 def _atomic_write(path: Path, text: str) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    # Created with mode 0666 less the umask, like any file the user writes (mkstemp's files
+    # are readable by their owner only); O_EXCL keeps the name from being raced.
+    tmp = path.parent / f".{path.name}.{secrets.token_hex(6)}.tmp"
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
     try:
         with os.fdopen(fd, "w") as fh:
             fh.write(text)
@@ -985,6 +989,9 @@ def _atomic_write(path: Path, text: str) -> None:
         raise
 
 
+_EXTENSION_FORMATS = {".yaml": "sea3d", ".yml": "sea3d", ".json": "json", ".txt": "colmap"}
+
+
 def save_rig(
     rig: StereoRig, path: str | os.PathLike[str], *, format: RigFormat | None = None
 ) -> Path:
@@ -993,14 +1000,23 @@ def save_rig(
     ``.yaml``/``.yml`` -> sea3d ``rig.yaml``; ``.json`` -> the same schema as JSON; ``.txt`` ->
     refractive COLMAP parameters; ``format="opencv"`` -> OpenCV FileStorage (MATLAB layout).
     The file is written to a temporary name first and renamed, so a failure never leaves a
-    half-written rig.
+    half-written rig; it gets the usual permissions (0666 less the umask).
+
+    Raises:
+        RigFileError: an extension that names no format (and no ``format``), or an unknown
+            ``format``.
     """
     import json
 
     p = Path(path)
     if format is None:
         ext = p.suffix.lower()
-        format = {".json": "json", ".txt": "colmap"}.get(ext, "sea3d")  # type: ignore[assignment]
+        if ext not in _EXTENSION_FORMATS:
+            raise RigFileError(
+                f"{p}: cannot tell the rig format from the extension {ext or '(none)'!r}; use "
+                f".yaml or .yml (sea3d), .json or .txt (refractive COLMAP), or name the format"
+            )
+        format = _EXTENSION_FORMATS[ext]  # type: ignore[assignment]
     if format == "sea3d":
         text = rig_to_yaml(rig)
     elif format == "json":

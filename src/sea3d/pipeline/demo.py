@@ -238,7 +238,9 @@ def _depth_check(config: DemoConfig, rig: Any, session: Path, out: Path
         t_ns = int(s.stamps("left")[0])
         left = s.image("left", 0, by="index")
         right = s.image("right", 0, by="index")
-    gt_depth = np.load(session / "gt" / "depth" / f"{t_ns}.npy")
+    from sea3d.sim.survey import gt_depth_path, read_gt_depth
+
+    gt_depth = read_gt_depth(gt_depth_path(session / "gt" / "depth", t_ns))
     maps = rectify_rig(rig, depth_range_m=(0.5, 8.0))
     max_disp = _scaled_disparity(config)
     engine_config = make_config(config.engine, max_disp)

@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.geometry.camera import CameraModel
+from sea3d.sim.survey import gt_depth_path, read_gt_depth
 
 __all__ = ["GroundTruth", "find_ground_truth", "observed_surface_points"]
 
@@ -75,10 +76,10 @@ def observed_surface_points(
     uv = np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64)
     rays = camera.unproject(uv)
     for k in range(0, len(t_ns), frame_stride):
-        p = depth_dir / f"{int(t_ns[k])}.npy"
+        p = gt_depth_path(depth_dir, int(t_ns[k]))
         if not p.is_file():
             continue
-        depth = np.load(p)
+        depth = read_gt_depth(p)
         if depth.shape != (camera.height, camera.width):
             log.warning("%s is %s, not the camera's %dx%d; skipped", p, depth.shape,
                         camera.width, camera.height)

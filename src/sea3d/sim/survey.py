@@ -9,8 +9,10 @@
 
 Ground truth on disk (``gt/``, written by :func:`simulate_survey`):
 
-- ``depth/<t_ns>.npy``: left depth, float32 metres along the left camera's z axis, NaN where
-  nothing is hit; ``object_id/<t_ns>.png``: 16-bit object id + 1 (0 = nothing);
+- ``depth/<t_ns>.tiff``: left depth, float32 metres along the left camera's z axis, NaN where
+  nothing is hit, bit for bit (TIFF, deflate with the floating-point predictor: about 2.6 times
+  smaller than ``.npy``; read it with :func:`read_gt_depth`, ``tifffile`` or ``cv2.imread``);
+  ``object_id/<t_ns>.png``: 16-bit object id + 1 (0 = nothing);
 - ``poses_left.tum`` and ``poses_body.tum``: ``t x y z qx qy qz qw`` (t in seconds), poses
   ``T_world_left`` and ``T_world_body``;
 - ``scene.ply``: the scene mesh (world frame, vertex colours);
@@ -312,9 +314,7 @@ def render_calibration_set(
     # Clean calibration images are lit evenly (a diffuse light box), so corners have full contrast.
     imaging = Imaging(ambient=1.0) if water is None or water == "none" else _imaging(water)
     outline = _board_outline(spec)
-    centre_board = np.array(
-        [(cols - 1) * spec.square_m / 2, (rows - 1) * spec.square_m / 2, 0.0]
-    )
+    centre_board = np.array([(cols - 1) * spec.square_m / 2, (rows - 1) * spec.square_m / 2, 0.0])
     T_right_left = invert_T(rig.T_left_right)
     grid = [(i, j) for j in range(4) for i in range(4)]
     lefts, rights, poses_lb, stamps = [], [], [], []
@@ -531,6 +531,119 @@ def default_trajectory(scene: Scene, config: SurveyConfig) -> Trajectory:
     return make_trajectory(kind, duration_s=duration)  # raises for an unknown kind
 
 
+# Ground-truth depth on disk: float32 TIFF, deflate (zlib level 1) with the floating-point
+# predictor (TIFF predictor 3). Lossless; on the lake scene 0.36 of the .npy size at level 1,
+# 0.34 at level 6 for twice the encoding time (benchmarks/bench_sim_storage.py).
+GT_DEPTH_SUFFIX = ".tiff"
+_GT_DEPTH_ZLIB_LEVEL = 1
+
+
+def write_gt_depth(path: Path, depth_m: NDArray[np.float32]) -> None:
+    """Write a ground-truth depth map losslessly (float32 TIFF, deflate + floating-point
+    predictor; NaN kept).
+
+    Args:
+        path: output file (``.tiff``).
+        depth_m: ``(H, W)`` depth, metres, NaN where nothing is hit.
+    """
+    import tifffile
+
+    tifffile.imwrite(
+        path,
+        np.ascontiguousarray(depth_m, dtype=np.float32),
+        compression="zlib",
+        predictor=3,
+        compressionargs={"level": _GT_DEPTH_ZLIB_LEVEL},
+    )
+
+
+def gt_depth_path(depth_dir: str | Path, t_ns: int) -> Path:
+    """The ground-truth depth file of frame ``t_ns`` in a ``gt/depth`` folder: ``<t_ns>.tiff``
+    (lossless, since the simulator stopped writing ``.npy``), else the ``.npy`` of earlier
+    versions (which need not exist: :func:`read_gt_depth` then names the missing file)."""
+    d = Path(depth_dir)
+    tiff, npy = d / f"{int(t_ns)}{GT_DEPTH_SUFFIX}", d / f"{int(t_ns)}.npy"
+    return npy if npy.is_file() and not tiff.is_file() else tiff
+
+
+def read_gt_depth(path: str | Path) -> NDArray[np.float32]:
+    """Read a ground-truth depth map written by :func:`simulate_survey`: ``depth/<t_ns>.tiff``
+    (or the ``.npy`` files of earlier versions).
+
+    Returns:
+        ``(H, W)`` float32 metres, NaN where nothing was hit.
+
+    Raises:
+        SimulationError: the file is missing or not a one-channel float32 depth map.
+    """
+    p = Path(path)
+    try:
+        if p.suffix.lower() == ".npy":
+            depth = np.load(p, allow_pickle=False)
+        else:
+            import tifffile
+
+            depth = tifffile.imread(p)
+    except (OSError, ValueError) as err:
+        raise SimulationError(f"cannot read ground-truth depth {p}: {err}") from err
+    if depth.ndim != 2 or depth.dtype != np.float32:
+        raise SimulationError(
+            f"{p}: expected a 2-D float32 depth map, got {depth.dtype} {depth.shape}"
+        )
+    return np.asarray(depth)
+
+
+@dataclass(frozen=True, kw_only=True)
+class SurveyCost:
+    """What a simulated survey will write and take, estimated before it starts.
+
+    Attributes:
+        image_bytes: the stereo images as lossless PNG (the session writer's default).
+        gt_bytes: the ground truth (depth TIFFs and object-id PNGs).
+        seconds: wall time on two idle cores (more when other work shares them).
+    """
+
+    image_bytes: float
+    gt_bytes: float
+    seconds: float
+
+    @property
+    def total_bytes(self) -> float:
+        return self.image_bytes + self.gt_bytes
+
+
+# Per pixel of one view, measured on the lake scene with benchmarks/bench_sim_storage.py
+# (docs/simulator.md): PNG (zlib level 1) of the images with and without the water model's
+# sensor noise, and the ground truth; wall seconds per pair per pixel on two idle cores
+# (1.5 s per 1920x1080 pair with every effect on, 1.0 s clean: docs/simulator.md, Speed).
+_PNG_BYTES_PER_PX = {"none": 1.25, "clear": 1.75, "coastal": 1.75, "turbid": 1.75}
+_GT_BYTES_PER_PX = 1.5
+_SECONDS_PER_PAIR_PX = {
+    "none": 1.0 / 2.07e6,
+    "clear": 1.5 / 2.07e6,
+    "coastal": 1.5 / 2.07e6,
+    "turbid": 1.5 / 2.07e6,
+}
+
+
+def estimate_survey_cost(
+    width: int, height: int, config: SurveyConfig, *, ground_truth: bool = True
+) -> SurveyCost:
+    """Disk and time a survey of ``config.frames`` stereo frames of ``width x height`` will
+    take (an estimate from the measured rates above; the scene changes it by tens of percent).
+    """
+    px = float(width * height)
+    water = config.water if config.water in _PNG_BYTES_PER_PX else "coastal"
+    return SurveyCost(
+        image_bytes=2 * px * _PNG_BYTES_PER_PX[water] * config.frames,
+        gt_bytes=px * _GT_BYTES_PER_PX * config.frames if ground_truth else 0.0,
+        seconds=px
+        * _SECONDS_PER_PAIR_PX[water]
+        * config.frames
+        * max(1.0, config.supersample / 2.0) ** 0.5,
+    )
+
+
 def _tum_line(t_ns: int, T: FloatArray) -> str:
     q = R_to_quat_wxyz(T[:3, :3])
     x, y, z = T[:3, 3]
@@ -644,13 +757,17 @@ def simulate_survey(
     renderer = Renderer(scene, supersample=config.supersample)
     frame_t = sample_times_ns((config.frames - 1) / config.fps, config.fps)[: config.frames]
     end_ns = int(frame_t[-1])
-    imu_t = sample_times_ns(end_ns * 1e-9, config.imu_rate_hz)
+    # The noise model needs the sample spacing, so it is drawn over at least two samples; only
+    # those up to the last frame are written (one sample for a one-frame survey).
+    imu_t = sample_times_ns(max(end_ns * 1e-9, 1.0 / config.imu_rate_hz), config.imu_rate_hz)
     imu = imu_samples(
         traj,
         imu_t,
         noise=survey_imu_noise(rig) if config.imu_noise else None,
         rng=np.random.default_rng(config.seed + 1),
     )
+    n_imu = int(np.searchsorted(imu_t, end_ns, side="right"))
+    imu_t = imu_t[:n_imu]
     sonar_t = sample_times_ns(end_ns * 1e-9, config.sonar_rate_hz)
     T_wb_sonar = poses(traj, sonar_t.astype(np.float64) * 1e-9) @ mount.T_body_sonar
     hits = renderer.cast(T_wb_sonar[:, :3, 3], -T_wb_sonar[:, :3, 2])
@@ -669,7 +786,9 @@ def simulate_survey(
             o3d.io.write_triangle_mesh(str(gt_dir / "scene.ply"), scene.combined_mesh())  # type: ignore[arg-type]
             np.savetxt(
                 gt_dir / "imu_bias.csv",
-                np.column_stack([imu.t_ns, imu.accel_bias_mps2, imu.gyro_bias_radps]),
+                np.column_stack(
+                    [imu.t_ns[:n_imu], imu.accel_bias_mps2[:n_imu], imu.gyro_bias_radps[:n_imu]]
+                ),
                 delimiter=",",
                 header="t_ns,ba_x,ba_y,ba_z,bg_x,bg_y,bg_z",
                 comments="",
@@ -687,7 +806,8 @@ def simulate_survey(
                 "T_body_left": mount.T_body_left.tolist(),
                 "T_body_sonar": mount.T_body_sonar.tolist(),
                 "imu_noise": config.imu_noise,
-                "depth": "depth/<t_ns>.npy float32 m along the left camera z axis, NaN = no hit",
+                "depth": "depth/<t_ns>.tiff float32 m along the left camera z axis, NaN = no "
+                "hit (TIFF, deflate, floating-point predictor: lossless)",
                 "object_id": "object_id/<t_ns>.png uint16, object index + 1, 0 = no hit",
                 "objects": [o.name for o in scene.objects],
             }
@@ -713,7 +833,7 @@ def simulate_survey(
         rv = renderer.render(rig.right, T_wl[k] @ rig.T_left_right, imaging, time_s=time_s, rng=rng)
         writer.write_stereo(int(t_ns), lv.image, rv.image)
         if gt_dir is not None:
-            np.save(gt_dir / "depth" / f"{int(t_ns)}.npy", lv.gt.depth_m)
+            write_gt_depth(gt_dir / "depth" / f"{int(t_ns)}{GT_DEPTH_SUFFIX}", lv.gt.depth_m)
             cv2.imwrite(
                 str(gt_dir / "object_id" / f"{int(t_ns)}.png"),
                 (lv.gt.object_id + 1).astype(np.uint16),
@@ -730,11 +850,16 @@ def simulate_survey(
 
 
 __all__ += [
+    "SurveyCost",
     "default_trajectory",
+    "estimate_survey_cost",
+    "gt_depth_path",
     "in_air",
+    "read_gt_depth",
     "survey_imu_noise",
     "survey_mount",
     "with_survey_sensors",
     "write_calibration_set",
+    "write_gt_depth",
     "write_tum",
 ]
