@@ -25,6 +25,7 @@ depth in metres (z along the camera axis, NaN invalid).
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -54,7 +55,7 @@ F64 = NDArray[np.float64]
 class CausticConfig:
     """Settings of :func:`remove_caustics`."""
 
-    sigma_px: float = 1.5
+    sigma_px: float = 1.0
     """Gaussian low-pass of the ratio, pixels (ridges are thin: keep it small)."""
     min_frames: int = 3
     """Least number of frames (reference included) that must see a pixel to correct it."""
@@ -207,7 +208,8 @@ def remove_caustics(
         stack.append(np.where(inside, warped, np.nan))
     ys = np.stack(stack, axis=0)
     seen = np.sum(np.isfinite(ys), axis=0).astype(np.int32)
-    with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # pixels no frame saw: NaN, handled
         med = np.nanmedian(ys, axis=0)
         ratio = y_ref / med
     good = (seen >= config.min_frames) & np.isfinite(ratio) & (med > 1e-4)
