@@ -180,7 +180,7 @@ def ciede2000_after_diagonal_gain(
     lin_b = srgb_to_linear(b[m]).astype(np.float64)
     lab_b_all = rgb2lab(b[m][None].astype(np.float64))
     n = lin_a.shape[0]
-    idx = np.linspace(0, n - 1, min(n, _GAIN_SEARCH_PIXELS // 6)).astype(np.int64)
+    idx = np.linspace(0, n - 1, min(n, _GAIN_SEARCH_PIXELS // 12)).astype(np.int64)
     sub_a, sub_lab_b = lin_a[idx], lab_b_all[:, idx]
 
     def cost(log2_g: F64, px: F64 = sub_a, lab_ref: F64 = sub_lab_b) -> float:
@@ -190,7 +190,7 @@ def ciede2000_after_diagonal_gain(
 
     num, den = np.median(lin_b, axis=0), np.median(lin_a, axis=0)
     x0 = np.log2(np.where((num > 1e-6) & (den > 1e-6), num / np.maximum(den, 1e-6), 1.0))
-    res = minimize(cost, x0, method="Powell", options={"xtol": 1e-2, "ftol": 1e-4, "maxfev": 150})
+    res = minimize(cost, x0, method="Powell", options={"xtol": 1e-2, "ftol": 1e-4, "maxfev": 90})
     best = np.asarray(res.x if cost(res.x) <= cost(x0) else x0, dtype=np.float64)
     g = 2.0 ** np.clip(best, -8.0, 8.0)
     return cost(best, lin_a, lab_b_all), (float(g[0]), float(g[1]), float(g[2]))

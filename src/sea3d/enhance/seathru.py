@@ -86,6 +86,8 @@ F64 = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
 _MIN_POINTS = 64
+# Linear luminance below which a pixel counts as black (about 6/255 in sRGB).
+_BLACK = 2e-3
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -94,19 +96,21 @@ class SeathruConfig:
 
     backscatter: bool = True
     """Estimate and remove backscatter (stage 1)."""
-    attenuation: Literal["fit", "fit-scaled", "illuminant", "none"] = "fit"
-    """Stage 2: ``fit`` the range-dependent ``beta_D(z)`` (the paper), divide by the
-    ``illuminant`` map directly, or ``none``."""
+    attenuation: Literal["fit", "fit-scaled", "illuminant", "none"] = "illuminant"
+    """Stage 2: divide by the range-gated ``illuminant`` map (the paper's coarse estimate,
+    Eq. 12-13; measured the most robust, ``docs/enhance.md``), ``fit`` the paper's
+    ``beta_D(z)`` to it (Eq. 14), ``fit-scaled`` (the same with a free per-channel scale of the
+    illuminant instead of ``f``), or ``none``."""
     white_balance: Literal["grey-world", "none"] = "grey-world"
     """Stage 3: grey-world balance of the restored image, or none."""
     exposure: Literal["white-point", "none"] = "white-point"
     """Scale the result so the ``white_point_percentile`` of its brightest channel is 1."""
     holes: Literal["inpaint", "mask"] = "inpaint"
     """Pixels without range: restore with inpainted range, or leave them out (``mask``)."""
-    backscatter_fit: Literal["eq10", "envelope"] = "eq10"
-    """``eq10``: the paper's least-squares fit of Eq. 10 to the dark pixels; ``envelope``: the
-    highest backscatter curve that stays below the dark level of every range bin (for scenes
-    whose darkest pixels are not black)."""
+    backscatter_fit: Literal["eq10", "envelope"] = "envelope"
+    """``envelope``: the highest backscatter curve that stays below the dark level of every
+    range bin (measured robust where the darkest pixels are not black); ``eq10``: the paper's
+    least-squares fit of Eq. 10 to the dark pixels."""
     range_bins: int = 10
     """Range bins for the dark-pixel search (the paper's 10)."""
     dark_percentile: float = 1.0
@@ -132,6 +136,12 @@ class SeathruConfig:
     """Pixels sampled (evenly over the image) for the attenuation fit."""
     encoding: Encoding = "srgb"
     """Encoding of input and output: ``srgb`` (decoded to linear inside) or ``linear``."""
+
+    @classmethod
+    def as_published(cls, **overrides: object) -> SeathruConfig:
+        """Sea-thru as the paper describes it: Eq. 10 backscatter, Eq. 14 ``beta_D(z)`` fit."""
+        kw: dict[str, object] = {"backscatter_fit": "eq10", "attenuation": "fit", **overrides}
+        return cls(**kw)  # type: ignore[arg-type]
 
     def __post_init__(self) -> None:
         if self.attenuation not in ("fit", "fit-scaled", "illuminant", "none"):
@@ -222,7 +232,8 @@ class SeathruResult:
         restored: ``(H, W)`` bool, pixels whose water was removed (with ``holes="mask"``, the
             pixels with range; otherwise all).
         range_filled: ``(H, W)`` bool, pixels whose range was inpainted.
-        status: ``ok``, or ``fallback-grey-world`` when the restoration came out empty (logged).
+        status: ``ok``, or ``fallback-grey-world`` when the restoration came out empty (more
+            than half of the pixels with range turned black; logged).
     """
 
     image: np.ndarray
@@ -375,9 +386,9 @@ def _fit_backscatter(
     if not zs:
         notes.append("backscatter: no populated range bin; constant backscatter")
         zs, vals, wts = [z_all], [rgb_all], [np.ones(z_all.size)]
-    z = np.concatenate(zs)
-    v = np.concatenate(vals)
-    wt = np.concatenate(wts)
+    z: F64 = np.concatenate(zs).astype(np.float64)
+    v: F64 = np.concatenate(vals).astype(np.float64)
+    wt: F64 = np.concatenate(wts).astype(np.float64)
     params = []
     if config.backscatter_fit == "envelope" and len(zs) >= 2:
         zk = np.array([np.median(b) for b in zs])
@@ -741,12 +752,12 @@ def _fit(
 
 
 def _upsample_illuminant(e_work: F32, ok: BoolArray, shape: tuple[int, int]) -> F32:
-    from scipy.ndimage import distance_transform_edt
-
-    near = distance_transform_edt(~ok, return_distances=False, return_indices=True)
-    e = e_work[tuple(near)]
+    """The working-resolution illuminant at full size; pixels outside ``ok`` are filled
+    harmonically in log space."""
+    log_e = np.log(np.maximum(np.where(ok[..., None], e_work, 1.0), 1e-6))
+    filled = np.stack([harmonic_fill(log_e[..., c], ok) for c in range(3)], axis=2)
     h, w = shape
-    return cv2.resize(e.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
+    return np.exp(cv2.resize(filled, (w, h), interpolation=cv2.INTER_LINEAR)).astype(np.float32)
 
 
 def _direct(lin: F32, z: F32, where: BoolArray, model: SeathruModel) -> F32:
@@ -799,12 +810,10 @@ def apply_seathru(
     """
     config = config or SeathruConfig()
     inp = _inputs(image, range_m, config, "image")
-    return _apply(inp, model, config, None)
+    return _apply(inp, model, config)
 
 
-def _apply(
-    inp: _Inputs, model: SeathruModel, config: SeathruConfig, d_lin: F32 | None
-) -> SeathruResult:
+def _apply(inp: _Inputs, model: SeathruModel, config: SeathruConfig) -> SeathruResult:
     h, w = inp.valid.shape
     if config.holes == "inpaint":
         z = _fill_range(inp, config)
@@ -816,18 +825,21 @@ def _apply(
     d = _direct(inp.lin, z, where, model)
     e_full = None
     if model.attenuation_kind == "illuminant":
-        e_work, _z_work, ok, _size = _illuminant(
-            d_lin if d_lin is not None else _direct(inp.lin, inp.z, inp.valid, model), inp, config
-        )
+        # The illuminant map is this image's own, over every pixel that has (filled) range.
+        sat = saturated_mask(from_linear(inp.lin, config.encoding), config.saturation_level)
+        filled_inp = _Inputs(inp.lin, inp.dtype, np.where(where, z, np.nan).astype(np.float32),
+                             where, where & ~sat)
+        e_work, _z_work, ok, _size = _illuminant(d, filled_inp, config)
         e_full = _upsample_illuminant(e_work, ok, (h, w))
     j = _restore(d, z, where, model, config, e_full)
     scale = np.asarray(model.wb_gains, dtype=np.float32) * np.float32(model.exposure_gain)
     out_lin = j * scale
     status = "ok"
     notes = list(model.notes)
-    lum_in = float(luminance(inp.lin)[inp.usable].mean())
-    lum_out = float(luminance(np.clip(out_lin, 0, 1))[inp.usable].mean())
-    if not np.all(np.isfinite(out_lin)) or (lum_in > 1e-2 and lum_out < 1e-3):
+    y_in = luminance(inp.lin)[inp.usable]
+    y_out = luminance(np.clip(out_lin, 0, 1))[inp.usable]
+    blackened = float(np.mean(y_out < _BLACK)) - float(np.mean(y_in < _BLACK))
+    if not np.all(np.isfinite(out_lin)) or blackened > 0.5:
         # The backscatter estimate swallowed the signal (e.g. a flat, featureless view):
         # say so and give the grey-world result rather than a black image.
         status = "fallback-grey-world"
@@ -863,5 +875,5 @@ def seathru(
             empty) range, an image whose pixels with range are all clipped.
     """
     config = config or SeathruConfig()
-    model, inp, d_lin = _fit(image, range_m, config)
-    return _apply(inp, model, config, d_lin)
+    model, inp, _d_lin = _fit(image, range_m, config)
+    return _apply(inp, model, config)
