@@ -13,16 +13,22 @@ Sea-thru inverts it in three stages, each of which can be switched off (:class:`
 
        B_c(z) = B_inf_c (1 - exp(-beta_B_c z)) + J'_c exp(-beta_D'_c z)
 
-   is fitted to them by bounded non-linear least squares (``B_inf, J'`` in [0, 1],
-   ``beta_B, beta_D'`` in [0, 5] 1/m, as in the paper). The second term absorbs the dark
-   pixels' own (non-zero) signal; the backscatter removed is the first,
-   ``D = max(I - B_inf (1 - exp(-beta_B z)), 0)``.
+   is fitted to them by bounded non-linear least squares (``backscatter_fit="eq10"``;
+   ``B_inf, J'`` in [0, 1], ``beta_B, beta_D'`` in [0, 5] 1/m, as in the paper). The second
+   term absorbs the dark pixels' own (non-zero) signal; the backscatter removed is the first,
+   ``D = max(I - B_inf (1 - exp(-beta_B z)), 0)``. Where the darkest pixels are not black
+   (sand, no shadows) that fit lets their signal into ``B_inf``; the default
+   ``backscatter_fit="envelope"`` takes instead the highest ``B_inf (1 - exp(-beta_B z))``
+   that stays at or below the dark level of every bin (backscatter cannot exceed the darkest
+   pixel at its range).
 2. **Attenuation** (Sec. 4.3). The illuminant is the local space average colour of ``D``
    (Ebner's LSAC): the fixed point of ``a(x) = p D(x) + (1 - p) mean_{N(x)} a`` over the
    4-neighbours ``N(x)`` whose range differs from ``z(x)`` by at most
    ``lsac_range_tolerance * z(x)`` (so averages do not cross range edges), solved exactly as one
    sparse linear system at a working resolution of ``work_max_side_px``; ``E = f a`` with
-   ``f = 2`` (Eq. 12-13). Then ``beta_D(z) = a exp(b z) + c exp(d z)`` (Eq. 11) is fitted by
+   ``f = 2`` (Eq. 12-13). The default ``attenuation="illuminant"`` restores ``J = D / E``
+   directly (the illuminant map, filled harmonically where there is no range). With
+   ``attenuation="fit"`` ``beta_D(z) = a exp(b z) + c exp(d z)`` (Eq. 11) is fitted by
    minimising ``|| z - (-log E) / beta_D(z) ||`` (Eq. 14) with ``a, c >= 0``, ``b, d <= 0``.
    Where the scene spans little range this two-term fit is weakly identified: unless it lowers
    the residual by 5 % it is replaced by a constant ``beta_D``. ``J = D exp(beta_D(z) z)``
