@@ -35,6 +35,10 @@ Sea-thru inverts it in three stages, each of which can be switched off (:class:`
    (Eq. 8), the gain capped at ``max_restore_gain``.
 3. **White balance** of ``J`` by grey world (as the paper does), then an exposure that puts the
    ``white_point_percentile`` (99.5th) of the brightest channel at 1.
+4. **Denoising** (ours; ``denoise``): the restoration multiplies the noise of far, attenuated
+   pixels by its gain; the result is blended towards a copy with smoothed chroma (2 px) and
+   luminance (0.8 px) in proportion to the log of the gain applied to the input's noise (fully
+   at 8x).
 
 The range map must be in the image's pixel grid: float32 metres, NaN (or <= 0) where unknown.
 Unknown range is **never treated as far**: the fits use only pixels with range; for the
@@ -130,6 +134,17 @@ class SeathruConfig:
     """Illuminant = ``f`` x local average (the paper's f = 2)."""
     work_max_side_px: int = 400
     """Longer image side at which the LSAC and the range inpainting run."""
+    denoise: bool = True
+    """Smooth the restored image where the restoration amplified it (stage 4): the noise of
+    far, attenuated pixels grows with the gain, chroma noise most."""
+    denoise_chroma_sigma_px: float = 2.0
+    """Gaussian of the chroma (linear RGB minus luminance), pixels."""
+    denoise_luma_sigma_px: float = 0.8
+    """Gaussian of the luminance, pixels."""
+    denoise_full_gain: float = 8.0
+    """Noise gain (largest channel gain of restoration, white balance and exposure) at which
+    the smoothed image fully replaces the restored one (blend weight
+    ``log2(gain) / log2(denoise_full_gain)``, 0 at gain 1)."""
     white_point_percentile: float = 99.5
     """Percentile of the brightest channel mapped to 1 by ``exposure="white-point"``."""
     max_restore_gain: float = 30.0
@@ -168,6 +183,9 @@ class SeathruConfig:
             raise EnhanceError("need work_max_side_px >= 16 and max_restore_gain >= 1")
         if not (50 < self.white_point_percentile <= 100):
             raise EnhanceError("white_point_percentile must be in (50, 100]")
+        if self.denoise_full_gain <= 1 or min(self.denoise_chroma_sigma_px,
+                                              self.denoise_luma_sigma_px) < 0:
+            raise EnhanceError("need denoise_full_gain > 1 and non-negative denoise sigmas")
         if not (0 < self.min_valid_fraction <= 1):
             raise EnhanceError("min_valid_fraction must be in (0, 1]")
 
@@ -738,7 +756,7 @@ def _fit(
         backscatter=bs, attenuation=att, attenuation_kind=kind, range_fit_m=z_span,
         wb_gains=(1.0, 1.0, 1.0), exposure_gain=1.0,
     )
-    j = _restore(d_lin, inp.z, inp.valid, model1, config, e_full)
+    j, _gain = _restore(d_lin, inp.z, inp.valid, model1, config, e_full)
     gains: F64 = np.ones(3)
     if config.white_balance == "grey-world":
         gains = channel_gains([j], p=1.0, masks=[inp.usable], max_gain=config.max_restore_gain)
@@ -779,18 +797,44 @@ def _direct(lin: F32, z: F32, where: BoolArray, model: SeathruModel) -> F32:
 def _restore(
     d_lin: F32, z: F32, where: BoolArray, model: SeathruModel, config: SeathruConfig,
     e_full: F32 | None,
-) -> F32:
-    """``J = D exp(beta_D(z) z)`` (or ``D / E``) on ``where``; elsewhere ``D``."""
+) -> tuple[F32, F32]:
+    """``J = D exp(beta_D(z) z)`` (or ``D / E``) on ``where``; elsewhere ``D``. Also returns
+    the ``(H, W, 3)`` per-channel gain applied to ``D`` (1 elsewhere)."""
     out = d_lin.copy()
+    gain_map = np.ones_like(d_lin)
     if model.attenuation is not None:
         zz = z[where].astype(np.float64)
         gain = np.exp(np.minimum(model.beta_d_per_m(zz) * zz[:, None], 60.0))
         gain = np.minimum(gain, config.max_restore_gain).astype(np.float32)
         out[where] = d_lin[where] * gain
+        gain_map[where] = gain
     elif e_full is not None:
-        e = np.maximum(e_full[where], np.float32(1.0 / config.max_restore_gain))
-        out[where] = d_lin[where] / e
-    return out
+        gain = 1.0 / np.maximum(e_full[where], np.float32(1.0 / config.max_restore_gain))
+        out[where] = d_lin[where] * gain
+        gain_map[where] = gain
+    return out, gain_map
+
+
+def _denoise(out_lin: F32, noise_gain: F32, config: SeathruConfig) -> F32:
+    """Blend towards a smoothed copy (chroma ``sigma_c``, luminance ``sigma_l``) in proportion
+    to the log of the gain the restoration applied to the input's noise, so near,
+    little-amplified pixels keep their detail and far, strongly amplified ones lose their
+    noise."""
+    y_out = luminance(out_lin)
+    g = cv2.GaussianBlur(noise_gain.astype(np.float32), (0, 0), 3.0)
+    w = np.clip(np.log2(np.maximum(g, 1.0)) / np.log2(config.denoise_full_gain), 0.0, 1.0)
+    chroma: F32 = (out_lin - y_out[..., None]).astype(np.float32)
+    if config.denoise_chroma_sigma_px > 0:
+        chroma = np.asarray(
+            cv2.GaussianBlur(chroma, (0, 0), config.denoise_chroma_sigma_px), dtype=np.float32
+        )
+    y_s = (
+        cv2.GaussianBlur(y_out, (0, 0), config.denoise_luma_sigma_px)
+        if config.denoise_luma_sigma_px > 0
+        else y_out
+    )
+    smooth = y_s[..., None] + chroma
+    return (w[..., None] * smooth + (1.0 - w[..., None]) * out_lin).astype(np.float32)
 
 
 def apply_seathru(
@@ -837,9 +881,11 @@ def _apply(inp: _Inputs, model: SeathruModel, config: SeathruConfig) -> SeathruR
                              where, where & ~sat)
         e_work, _z_work, ok, _size = _illuminant(d, filled_inp, config)
         e_full = _upsample_illuminant(e_work, ok, (h, w))
-    j = _restore(d, z, where, model, config, e_full)
+    j, gain = _restore(d, z, where, model, config, e_full)
     scale = np.asarray(model.wb_gains, dtype=np.float32) * np.float32(model.exposure_gain)
     out_lin = j * scale
+    if config.denoise:
+        out_lin = _denoise(out_lin, np.max(gain * scale, axis=2), config)
     status = "ok"
     notes = list(model.notes)
     y_in = luminance(inp.lin)[inp.usable]
