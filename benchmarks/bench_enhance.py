@@ -141,13 +141,17 @@ def section_colour(args: argparse.Namespace) -> None:
         print(f"\n== colour: {case}  (stereo range valid on "
               f"{100 * np.isfinite(sgm_range)[mask].mean():.0f} % of the surface, "
               f"{stereo_s:.1f} s)")
-        print(f"{'method':34s} {'dE00 gain':>9s} {'dE00 diag':>9s} {'J diag':>7s}")
+        print(f"{'method':40s} {'dE00 gain':>9s} {'dE00 diag':>9s} {'J diag':>7s} "
+              f"{'SSIM':>6s} {'PSNR':>6s}")
         for name, img in outs.items():
             g, _ = ciede2000_after_gain(img, p.left_clean, mask)
             d, _ = ciede2000_after_diagonal_gain(img, p.left_clean, mask)
             j, _ = ciede2000_after_diagonal_gain(img, p.left_unattenuated, mask)
-            print(f"{name:34s} {_fmt(g):>9s} {_fmt(d):>9s} {_fmt(j):>7s}", flush=True)
-            rows.append({"case": case, "method": name, "gain": g, "diag": d, "J_diag": j})
+            ssim, psnr = _ssim_psnr(img, p.left_clean, mask)
+            print(f"{name:40s} {_fmt(g):>9s} {_fmt(d):>9s} {_fmt(j):>7s} {ssim:6.3f} "
+                  f"{psnr:6.1f}", flush=True)
+            rows.append({"case": case, "method": name, "gain": g, "diag": d, "J_diag": j,
+                         "ssim": ssim, "psnr_db": psnr})
         if args.pictures and c["scene"] == "lake" and c["water"] == "coastal" and c["lamp"] == 0.0:
             _picture(
                 args.pictures / "enhance_sim_coastal.jpg",
@@ -158,18 +162,32 @@ def section_colour(args: argparse.Namespace) -> None:
     _summary_colour(rows)
 
 
+def _ssim_psnr(img: np.ndarray, ref: np.ndarray, mask: np.ndarray) -> tuple[float, float]:
+    from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+
+    a, b = img.astype(np.float32) / 255.0, ref.astype(np.float32) / 255.0
+    _, smap = structural_similarity(b, a, data_range=1.0, channel_axis=2, full=True)
+    return float(smap.mean(axis=2)[mask].mean()), float(
+        peak_signal_noise_ratio(b[mask], a[mask], data_range=1.0)
+    )
+
+
 def _summary_colour(rows: list[dict[str, Any]]) -> None:
     by: dict[str, dict[str, list[float]]] = {}
     for r in rows:
-        d = by.setdefault(r["method"], {"g": [], "d": [], "j": []})
+        d = by.setdefault(r["method"], {"g": [], "d": [], "j": [], "s": [], "p": []})
         d["g"].append(r["gain"])
         d["d"].append(r["diag"])
         d["j"].append(r["J_diag"])
+        d["s"].append(r["ssim"])
+        d["p"].append(r["psnr_db"])
     print("\n== colour summary: median over scenes, waters and lamp on/off")
-    print(f"{'method':34s} {'dE00 gain':>9s} {'dE00 diag':>9s} {'J diag':>7s}")
+    print(f"{'method':40s} {'dE00 gain':>9s} {'dE00 diag':>9s} {'J diag':>7s} {'SSIM':>6s} "
+          f"{'PSNR':>6s}")
     for m, d in by.items():
-        print(f"{m:34s} {_fmt(statistics.median(d['g'])):>9s} "
-              f"{_fmt(statistics.median(d['d'])):>9s} {_fmt(statistics.median(d['j'])):>7s}")
+        med = {k: statistics.median(v) for k, v in d.items()}
+        print(f"{m:40s} {_fmt(med['g']):>9s} {_fmt(med['d']):>9s} {_fmt(med['j']):>7s} "
+              f"{med['s']:6.3f} {med['p']:6.1f}")
     for name in SEATHRU_VARIANTS:
         s = by.get(f"{name} (stereo range)")
         t = by.get(f"{name} (true range)")
