@@ -126,6 +126,7 @@ def fit_virtual_pinhole(
     *,
     grid_step_px: int = 40,
     n_depths: int = 6,
+    name: str = "camera",
 ) -> tuple[PinholeCamera, VirtualPinholeReport]:
     """Best-fitting pinhole (with 5-term OpenCV distortion) for a refractive camera.
 
@@ -139,6 +140,7 @@ def fit_virtual_pinhole(
         depth_range_m: nearest and farthest working depth along z, metres (0 < near < far).
         grid_step_px: pixel grid spacing.
         n_depths: number of depths sampled.
+        name: how the log line names the camera (``left``, ``right``).
 
     Returns:
         The fitted :class:`PinholeCamera` and its :class:`VirtualPinholeReport`.
@@ -193,8 +195,8 @@ def fit_virtual_pinhole(
         rms_by_depth_px=tuple(float(np.sqrt(np.mean(e**2))) for e in err),
         max_by_depth_px=tuple(float(e.max()) for e in err),
     )
-    log.info("virtual pinhole fx %.1f: residual RMS %.3f px, max %.3f px over %.2f-%.2f m",
-             virtual.fx, report.rms_px, report.max_px, near, far)
+    log.info("virtual pinhole of the %s camera: fx %.1f px, residual RMS %.3f px, max %.3f px "
+             "over %.2f-%.2f m", name, virtual.fx, report.rms_px, report.max_px, near, far)
     return virtual, report
 
 
@@ -232,9 +234,9 @@ def rectify_rig(
     refractive = pin_l is None or pin_r is None
     rep_l = rep_r = None
     if pin_l is None:
-        pin_l, rep_l = fit_virtual_pinhole(rig.left, depth_range_m)
+        pin_l, rep_l = fit_virtual_pinhole(rig.left, depth_range_m, name="left")
     if pin_r is None:
-        pin_r, rep_r = fit_virtual_pinhole(rig.right, depth_range_m)
+        pin_r, rep_r = fit_virtual_pinhole(rig.right, depth_range_m, name="right")
     T_right_left = rig.T_right_left
     R = T_right_left[:3, :3]
     t = T_right_left[:3, 3]
