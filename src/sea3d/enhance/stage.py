@@ -33,6 +33,7 @@ from sea3d.enhance.seathru import SeathruConfig, SeathruModel, depth_to_range, s
 from sea3d.errors import EnhanceError
 
 __all__ = [
+    "PROCESS_ENHANCE",
     "ColourConfig",
     "ColourResult",
     "FeatureEnhanceConfig",
@@ -40,12 +41,44 @@ __all__ = [
     "enhance_for_features",
     "enhance_for_matching",
     "enhance_pair_for_matching",
+    "process_enhance_hook",
     "restore_colours",
+    "restore_colours_with_range",
 ]
 
 _log = logging.getLogger(__name__)
 
 MatchMethod = Literal["none", "grey-world", "shades-of-grey", "red-comp", "clahe", "udcp"]
+
+PROCESS_ENHANCE: dict[str, str | None] = {
+    "none": None,
+    "grey-world": "sea3d.enhance.colour:grey_world",
+    "shades-of-grey": "sea3d.enhance.colour:shades_of_grey",
+    "red-comp": "sea3d.enhance.colour:red_compensation",
+    "clahe": "sea3d.enhance.contrast:clahe",
+    "udcp": "sea3d.enhance.udcp:udcp",
+}
+"""``sea3d process --enhance NAME``: the per-image hook (``module:function``) each name
+stands for, applied by the per-frame stage to the raw images before rectification and
+matching. ``none`` is the measured default (no method lowered SGM bad-2: docs/enhance.md);
+each hook works on one image, so white balances are per image, not shared by the pair."""
+
+
+def process_enhance_hook(name: str) -> str | None:
+    """The hook of a :data:`PROCESS_ENHANCE` name, or ``name`` itself when it is already a
+    ``module:function`` path.
+
+    Raises:
+        EnhanceError: neither a known name nor a ``module:function`` path.
+    """
+    if name in PROCESS_ENHANCE:
+        return PROCESS_ENHANCE[name]
+    if ":" in name:
+        return name
+    raise EnhanceError(
+        f"unknown enhancement {name!r}: use one of {', '.join(PROCESS_ENHANCE)} or "
+        "package.module:function"
+    )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -139,6 +172,10 @@ def enhance_for_features(image: np.ndarray, config: FeatureEnhanceConfig) -> np.
     return clahe(image, clip_limit=config.clahe_clip_limit, tile_grid=config.clahe_tiles)
 
 
+def _wxh(shape: tuple[int, ...]) -> str:
+    return f"{shape[1]}x{shape[0]}" if len(shape) >= 2 else str(shape)
+
+
 def restore_colours(
     image: np.ndarray,
     depth_m: np.ndarray,
@@ -158,20 +195,53 @@ def restore_colours(
         config: :class:`ColourConfig`.
 
     Returns:
-        :class:`ColourResult`; never raises for bad depth or a saturated frame: it falls back
-        as ``config.fallback`` says and reports why.
+        :class:`ColourResult`, as :func:`restore_colours_with_range`.
 
     Raises:
         EnhanceError: only for a malformed image (wrong shape or dtype).
     """
     if not config.enabled:
         return ColourResult(image=image, status="disabled")
+    if np.asarray(depth_m).shape != np.asarray(image).shape[:2]:
+        raise EnhanceError(
+            f"depth is {_wxh(np.asarray(depth_m).shape)} but the image is "
+            f"{_wxh(np.asarray(image).shape)}"
+        )
     range_m = depth_to_range(depth_m, focal_px, fy_px or focal_px, cx_px, cy_px)
+    return restore_colours_with_range(image, range_m, config)
+
+
+def restore_colours_with_range(
+    image: np.ndarray, range_m: np.ndarray, config: ColourConfig
+) -> ColourResult:
+    """Sea-thru of an image with the metric range of its own pixels (e.g. the norms of the
+    stereo points in the camera frame, which are exact through dome and flat ports).
+
+    Args:
+        image: ``(H, W, 3)`` image (a grey ``(H, W)`` image falls back: no colour to restore).
+        range_m: ``(H, W)`` float32 range along the line of sight, metres, NaN invalid.
+        config: :class:`ColourConfig`.
+
+    Returns:
+        :class:`ColourResult`; never raises for bad range or a saturated frame: it falls back
+        as ``config.fallback`` says and reports why.
+
+    Raises:
+        EnhanceError: only for a range map of another size than the image.
+    """
+    if not config.enabled:
+        return ColourResult(image=image, status="disabled")
+    img = np.asarray(image)
+    if np.asarray(range_m).shape != img.shape[:2]:
+        raise EnhanceError(
+            f"range is {_wxh(np.asarray(range_m).shape)} but the image is {_wxh(img.shape)}"
+        )
+    if img.ndim != 3:
+        return ColourResult(image=image, status="fallback-none",
+                            notes=("a grey image has no colour to restore",))
     try:
         res = seathru(image, range_m, config.seathru)
     except EnhanceError as err:
-        if np.asarray(image).ndim != 3 or np.asarray(depth_m).shape != np.asarray(image).shape[:2]:
-            raise
         _log.info("colour restoration fell back: %s", err)
         if config.fallback == "grey-world":
             return ColourResult(
