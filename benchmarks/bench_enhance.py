@@ -48,14 +48,12 @@ from sea3d.enhance import (
     compare_to_reference,
     depth_to_range,
     enhance_image,
-    enhance_pair,
     remove_caustics,
     uciqe,
     uiqm,
 )
 from sea3d.enhance._image import luminance, srgb_to_linear
-from sea3d.enhance.caustics import points_from_depth
-from sea3d.eval import disparity_metrics
+from sea3d.eval.enhance_tasks import correct_feature_matches, stereo_with_enhancement
 from sea3d.geometry.se3 import look_at
 from sea3d.refraction.presets import paper_rig
 from sea3d.sim import Imaging, Renderer, builtin_scene
@@ -210,51 +208,16 @@ def section_stereo(args: argparse.Namespace) -> None:
         print(f"\n== stereo: lake {case}")
         print(f"{'method':16s} {'sea3d bad-2':>11s} {'density':>8s} {'OpenCV bad-2':>12s} "
               f"{'density':>8s}")
-        for m in ("none", "grey-world", "shades-of-grey", "red-comp", "clahe", "udcp"):
-            if m == "none":
-                left, right = p.left, p.right
-            else:
-                left, right = enhance_pair(p.left, p.right, m).images
-            ours = disparity_metrics(match(left, right, SgmConfig(max_disparity_px=max_d))
-                                     .disparity_px, gt)
-            ocv = disparity_metrics(match(left, right, OpenCVSgbmConfig(max_disparity_px=max_d))
-                                    .disparity_px, gt)
+        ours_all = stereo_with_enhancement(p.left, p.right, gt, SgmConfig(max_disparity_px=max_d))
+        ocv_all = stereo_with_enhancement(p.left, p.right, gt,
+                                          OpenCVSgbmConfig(max_disparity_px=max_d))
+        for m, ours in ours_all.items():
+            ocv = ocv_all[m]
             print(f"{m:16s} {ours.bad_2:11.2f} {ours.density:8.1f} {ocv.bad_2:12.2f} "
                   f"{ocv.density:8.1f}", flush=True)
             rows.append({"case": case, "method": m, "sea3d": ours.as_dict(),
                          "opencv": ocv.as_dict()})
     OUT["stereo"] = rows
-
-
-def _sift_correct(
-    a: np.ndarray, b: np.ndarray, depth_a: np.ndarray, cam: Any, T_b_a: np.ndarray,
-    tol_px: float = 3.0,
-) -> tuple[int, int]:
-    """(correct, total) ratio-test SIFT matches from a to b, judged by ground truth."""
-    sift = cv2.SIFT_create(nfeatures=3000)
-    ga = cv2.cvtColor(a, cv2.COLOR_RGB2GRAY)
-    gb = cv2.cvtColor(b, cv2.COLOR_RGB2GRAY)
-    ka, da = sift.detectAndCompute(ga, None)
-    kb, db = sift.detectAndCompute(gb, None)
-    if da is None or db is None or len(ka) < 2 or len(kb) < 2:
-        return 0, 0
-    pairs = cv2.BFMatcher(cv2.NORM_L2).knnMatch(da, db, k=2)
-    good = [m for m, n in (q for q in pairs if len(q) == 2) if m.distance < 0.8 * n.distance]
-    if not good:
-        return 0, 0
-    pts, ok = points_from_depth(cam, depth_a)
-    h, w = depth_a.shape
-    correct = 0
-    for m in good:
-        u, v = ka[m.queryIdx].pt
-        i = round(v) * w + round(u)
-        if not (0 <= i < h * w) or not ok[i]:
-            continue
-        p_b = T_b_a[:3, :3] @ pts[i] + T_b_a[:3, 3]
-        uv, vis = cam.project(p_b[None])
-        if vis[0] and np.hypot(*(uv[0] - np.asarray(kb[m.trainIdx].pt))) <= tol_px:
-            correct += 1
-    return correct, len(good)
 
 
 def section_features(args: argparse.Namespace) -> None:
@@ -309,9 +272,11 @@ def section_features(args: argparse.Namespace) -> None:
         }
         print(f"\n== features: lake {water}, caustics {CAUSTICS}, views 8 cm and 3 s apart")
         for name, (a, b) in variants.items():
-            ok, n = _sift_correct(a, b, depth[2], cam, T_b_a)
-            print(f"{name:32s} correct {ok:5d} of {n:5d} ratio-test matches", flush=True)
-            rows.append({"water": water, "variant": name, "correct": ok, "matches": n})
+            fm = correct_feature_matches(a, b, depth[2], cam, T_b_a, tol_px=3.0)
+            print(f"{name:32s} correct {fm.correct:5d} of {fm.matches:5d} ratio-test matches "
+                  f"({100 * fm.precision:.0f} % of the {fm.judged} with true depth)", flush=True)
+            rows.append({"water": water, "variant": name, "correct": fm.correct,
+                         "matches": fm.matches, "judged": fm.judged})
     OUT["features"] = rows
 
 
