@@ -144,3 +144,48 @@ def test_colour_cast_is_zero_for_grey_and_large_for_blue() -> None:
     blue[..., 1] = 0.3
     assert colour_cast(grey) == pytest.approx(0.0, abs=1e-2)  # D65 white point rounding
     assert colour_cast(blue) > 30.0
+
+
+# Sharma, Wu and Dalal (Color Res. Appl. 30(1), 2005), test data pairs 25 and 31 (inside the
+# sRGB gamut; pair 1 is not): CIEDE2000 1.2644 and 2.0373. The images below are the sRGB
+# encodings of those colours (scikit-image lab2rgb), so the whole chain (sRGB -> D65 CIELAB ->
+# CIEDE2000) must give the published values.
+SHARMA_PAIRS = (
+    ((60.2574, -34.0099, 36.2677), (60.4626, -34.1751, 39.4387), 1.2644),
+    ((22.7233, 20.0904, -46.6940), (23.0331, 14.9730, -42.5619), 2.0373),
+)
+SHARMA_FLOAT_TOL = 1e-3  # float64 sRGB in; the table has 4 decimals
+SSIM_TOL = 1e-6
+
+
+@pytest.mark.parametrize(("lab1", "lab2", "want"), SHARMA_PAIRS)
+def test_ciede2000_of_sharmas_pairs_through_srgb(
+    lab1: tuple[float, ...], lab2: tuple[float, ...], want: float
+) -> None:
+    from skimage.color import lab2rgb
+
+    rgb1 = lab2rgb(np.array([[lab1]]))
+    rgb2 = lab2rgb(np.array([[lab2]]))
+    assert 0.0 < rgb1.min() and rgb1.max() < 1.0 and 0.0 < rgb2.min() and rgb2.max() < 1.0
+    img1 = np.tile(rgb1, (4, 4, 1)).astype(np.float64)
+    img2 = np.tile(rgb2, (4, 4, 1)).astype(np.float64)
+    assert ciede2000(img1, img2) == pytest.approx(want, abs=SHARMA_FLOAT_TOL)
+    # A channel-order mix-up in the chain moves it far away.
+    assert abs(ciede2000(img1[..., ::-1], img2[..., ::-1]) - want) > 0.2
+
+
+def test_ssim_uses_data_range_one_whatever_the_dtype(rng: np.random.Generator) -> None:
+    from skimage.metrics import structural_similarity
+
+    ref = (rng.random((48, 64, 3)) * 80 + 80).astype(np.uint8)  # low contrast: noise shows
+    noisy = np.clip(ref.astype(int) + rng.normal(0, 20, ref.shape), 0, 255).astype(np.uint8)
+    # Our SSIM is the mean of the whole SSIM map (so that a mask can select pixels);
+    # scikit-image's scalar crops the 3-pixel border first.
+    _, smap = structural_similarity(ref / 255.0, noisy / 255.0, data_range=1.0, channel_axis=2,
+                                    full=True)
+    want = float(np.mean(smap))
+    assert 0.5 < want < 0.9  # the noise matters: a wrong data range (255) gives 0.9999
+    got_u8 = compare_to_reference(noisy, ref).ssim
+    got_f = compare_to_reference(noisy.astype(np.float32) / 255, ref.astype(np.float32) / 255)
+    assert got_u8 == pytest.approx(want, abs=SSIM_TOL)
+    assert got_f.ssim == pytest.approx(want, abs=1e-4)  # float32 input
