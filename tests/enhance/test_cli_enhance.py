@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from sea3d.cli import main as sea3d_main
-from sea3d.enhance import grey_world
+from sea3d.enhance import compare_to_reference, grey_world, uciqe, uiqm
 from sea3d.enhance._image import linear_to_srgb
 from sea3d.io.depth_files import read_depth, write_depth_png_mm
 from sea3d.io.session import SessionWriter, open_session
@@ -111,6 +111,13 @@ def test_eval_enhance_prints_full_and_no_reference_figures(
     assert {"psnr_db", "ssim", "ciede2000", "ciede2000_gain", "ciede2000_diag"} <= set(out)
     assert out["ciede2000_diag"] < out["ciede2000"]  # grey world is a diagonal gain
     assert {"uiqm", "uicm", "uism", "uiconm"} <= set(out["uiqm"])
+    assert "uciqe" in out["uciqe"] and out["colour_cast"] > 0
+    # The command reports what the library computes on the files' pixels.
+    want = compare_to_reference(img, grey_world(img))
+    for key in ("psnr_db", "ssim", "ciede2000", "ciede2000_gain", "ciede2000_diag"):
+        assert out[key] == pytest.approx(getattr(want, key), rel=1e-9), key
+    assert out["uiqm"]["uiqm"] == pytest.approx(uiqm(img).uiqm, rel=1e-9)
+    assert out["uciqe"]["uciqe"] == pytest.approx(uciqe(img).uciqe, rel=1e-9)
     assert sea3d_main(["eval", "enhance", str(img_path)]) == 0
     assert "UIQM" in capsys.readouterr().out
     other = _write_rgb(tmp_path / "other.png", img[:45])
