@@ -12,10 +12,11 @@ How ``process`` should call them (the order of the per-frame stages in ``DESIGN.
     colours = restore_colours(rect_l, depth, focal_px, cx_px, cy_px, cfg.colour)
     # colours.image colours the point cloud / TSDF; colours.status goes into the frame report
 
-The defaults follow what ``benchmarks/bench_enhance.py`` measured (``docs/enhance.md``): no
-method lowered SGM bad-2 on simulated underwater pairs, so matching gets the raw images
-(``method="none"``); CLAHE on L* multiplies the correct sparse feature matches under caustics,
-so the feature front end gets it; Sea-thru of the output colours is opt-in.
+The defaults follow what ``benchmarks/bench_enhance.py`` measured (``docs/enhance.md``): on
+simulated underwater pairs no method lowered our SGM's bad-2 by more than a point, and grey
+world, CLAHE and UDCP raised it by 2-5 points in turbid water, so matching gets the raw images
+(``method="none"``); CLAHE on L* gives 1.5-2.2x the correct sparse feature matches under
+caustics, so a feature front end may take it; Sea-thru of the output colours is opt-in.
 """
 
 from __future__ import annotations
@@ -60,7 +61,7 @@ PROCESS_ENHANCE: dict[str, str | None] = {
 }
 """``sea3d process --enhance NAME``: the per-image hook (``module:function``) each name
 stands for, applied by the per-frame stage to the raw images before rectification and
-matching. ``none`` is the measured default (no method lowered SGM bad-2: docs/enhance.md);
+matching. ``none`` is the measured default (none helped our SGM; docs/enhance.md);
 each hook works on one image, so white balances are per image, not shared by the pair."""
 
 
