@@ -142,3 +142,23 @@ def test_udcp_removes_synthetic_haze(rng: np.random.Generator) -> None:
     assert err_out < 0.6 * err_in
     with pytest.raises(EnhanceError, match="odd"):
         udcp(hazy, patch_px=8)
+
+
+U8_PATH_TOL = 1  # codes: the 8-bit table path against the float path, rounded (measured 0)
+
+
+@pytest.mark.parametrize("method", ["grey-world", "shades-of-grey"])
+def test_the_8bit_table_path_gives_the_float_paths_result(
+    rng: np.random.Generator, method: str
+) -> None:
+    a = (rng.random((60, 80, 3)) * np.array([90, 230, 255])).astype(np.uint8)
+    b = (rng.random((60, 80, 3)) * np.array([60, 200, 255])).astype(np.uint8)
+    a[:8] = 255  # clipped pixels must stay out of the statistics on both paths
+    fa, fb = (x.astype(np.float32) / 255 for x in (a, b))
+    fn = grey_world if method == "grey-world" else shades_of_grey
+    for fast, slow in ((fn(a), fn(fa)), *zip(white_balance_pair(a, b, method),
+                                             white_balance_pair(fa, fb, method), strict=True)):
+        assert fast.dtype == np.uint8
+        want = (np.clip(slow, 0, 1) * 255 + 0.5).astype(np.uint8)
+        assert np.abs(fast.astype(int) - want).max() <= U8_PATH_TOL
+        assert not np.array_equal(fast, a)  # it did balance
