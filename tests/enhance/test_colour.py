@@ -144,10 +144,11 @@ def test_udcp_removes_synthetic_haze(rng: np.random.Generator) -> None:
         udcp(hazy, patch_px=8)
 
 
-U8_PATH_TOL = 1  # codes: the 8-bit table path against the float path, rounded (measured 0)
+U8_PATH_TOL = 1  # codes, table path against float path rounded: measured 0 (grey world,
+# shades of grey) and 1 (red compensation: its channel means are float32 on the float path)
 
 
-@pytest.mark.parametrize("method", ["grey-world", "shades-of-grey"])
+@pytest.mark.parametrize("method", ["grey-world", "shades-of-grey", "red-comp"])
 def test_the_8bit_table_path_gives_the_float_paths_result(
     rng: np.random.Generator, method: str
 ) -> None:
@@ -155,10 +156,16 @@ def test_the_8bit_table_path_gives_the_float_paths_result(
     b = (rng.random((60, 80, 3)) * np.array([60, 200, 255])).astype(np.uint8)
     a[:8] = 255  # clipped pixels must stay out of the statistics on both paths
     fa, fb = (x.astype(np.float32) / 255 for x in (a, b))
-    fn = grey_world if method == "grey-world" else shades_of_grey
+    fn = {"grey-world": grey_world, "shades-of-grey": shades_of_grey,
+          "red-comp": red_compensation}[method]
     for fast, slow in ((fn(a), fn(fa)), *zip(white_balance_pair(a, b, method),
                                              white_balance_pair(fa, fb, method), strict=True)):
         assert fast.dtype == np.uint8
         want = (np.clip(slow, 0, 1) * 255 + 0.5).astype(np.uint8)
         assert np.abs(fast.astype(int) - want).max() <= U8_PATH_TOL
         assert not np.array_equal(fast, a)  # it did balance
+    if method == "red-comp":  # blue compensated too (Eq. 5): a second joint table
+        fast = red_compensation(a, blue_alpha=0.5)
+        want = (np.clip(red_compensation(fa, blue_alpha=0.5), 0, 1) * 255 + 0.5).astype(np.uint8)
+        assert np.abs(fast.astype(int) - want).max() <= U8_PATH_TOL
+        assert not np.array_equal(fast, red_compensation(a))

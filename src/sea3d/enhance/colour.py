@@ -128,12 +128,11 @@ def _balance(
     saturation_level: float = 0.98,
     method: str = "grey-world",
 ) -> list[np.ndarray]:
-    if red_alpha == 0 and blue_alpha == 0 and all(
-        isinstance(im, np.ndarray) and im.dtype == np.uint8 and im.ndim == 3
-        and im.shape[2] == 3 and im.size for im in images
-    ):
-        return _balance_u8([np.asarray(im) for im in images], p=p, encoding=encoding,
-                           max_gain=max_gain, saturation_level=saturation_level, method=method)
+    if all(isinstance(im, np.ndarray) and im.dtype == np.uint8 and im.ndim == 3
+           and im.shape[2] == 3 and im.size for im in images):
+        return _balance_u8([np.asarray(im) for im in images], p=p, red_alpha=red_alpha,
+                           blue_alpha=blue_alpha, encoding=encoding, max_gain=max_gain,
+                           saturation_level=saturation_level, method=method)
     prepared = _prepare(images, method)
     encoded = [f for f, _ in prepared]
     masks = [~saturated_mask(f, saturation_level) for f in encoded]
@@ -152,17 +151,21 @@ def _balance_u8(
     images: Sequence[np.ndarray],
     *,
     p: float,
+    red_alpha: float = 0.0,
+    blue_alpha: float = 0.0,
     encoding: Encoding,
     max_gain: float,
     saturation_level: float,
     method: str,
 ) -> list[np.ndarray]:
-    """:func:`_balance` for 8-bit images without compensation, through 256-entry tables.
+    """:func:`_balance` for 8-bit RGB images, through tables.
 
     A gain on linear values maps each 8-bit code to one output code, so the statistics come
     from per-channel histograms of the unclipped pixels and the result from one look-up per
-    channel: the same numbers as the float path (same float32 decode, gain and encode of each
-    code), some 50x faster at 1080p.
+    channel; a compensated channel (red, blue) depends on its own and the green code, so it
+    gets a 256x256 joint histogram and table. The numbers are those of the float path (the
+    same float32 decode, compensation, gain and encode of each code), some 10-30x faster at
+    1080p.
     """
     import cv2
 
@@ -170,9 +173,12 @@ def _balance_u8(
     lin_codes = to_linear(codes, encoding)  # (256,) float32, as the float path decodes
     # Clipped pixels: any channel >= saturation_level, as saturated_mask on v / 255.
     first_clipped = int(np.searchsorted(codes, np.float32(saturation_level), side="left"))
+    comp = {c: a for c, a in ((0, red_alpha), (2, blue_alpha)) if a > 0}
     hist = np.zeros((3, 256), dtype=np.float64)
-    for im in images:
-        im = np.ascontiguousarray(im)
+    joint = {c: np.zeros(65536, dtype=np.float64) for c in comp}
+    flat_idx: list[dict[int, NDArray[np.intp]]] = []
+    imgs = [np.ascontiguousarray(im) for im in images]
+    for im in imgs:
         keep = None
         if first_clipped <= 255:  # 255 where every channel is below the first clipped code
             top = np.full(3, first_clipped - 1, np.uint8)
@@ -180,24 +186,51 @@ def _balance_u8(
                 first_clipped > 0) else np.zeros(im.shape[:2], np.uint8)
         for c in range(3):
             hist[c] += cv2.calcHist([im], [c], keep, [256], [0, 256]).ravel()
+        idx_c: dict[int, NDArray[np.intp]] = {}
+        for c in comp:  # (own code, green code) of every pixel
+            idx = im[..., c].astype(np.intp) * 256 + im[..., 1]
+            idx_c[c] = idx
+            sel = idx if keep is None else idx[keep > 0]
+            joint[c] += np.bincount(sel.ravel(), minlength=65536)
+        flat_idx.append(idx_c)
     n = hist[0].sum()
+    lin_tables: dict[int, F32] = {}
+    if n > 0 and comp:  # Ancuti et al. Eqs. 4-5 on display values, means of unclipped pixels
+        mean = (hist * codes.astype(np.float64)).sum(axis=1) / n
+        own, green = codes[:, None], codes[None, :]
+        for c, a in comp.items():
+            k = np.float32(a * (mean[1] - mean[c]))
+            t = np.clip(own + k * (np.float32(1.0) - own) * green, 0.0, 1.0)
+            lin_tables[c] = to_linear(t.astype(np.float32), encoding)  # (256, 256)
     gains: F64
     if n == 0:
         _log.warning("white balance: no usable pixel (all clipped?); gains left at 1")
         gains = np.ones(3)
     else:
         lin64 = lin_codes.astype(np.float64)
-        if np.isinf(p):
-            norms: F64 = np.array([lin64[np.nonzero(h)[0].max()] for h in hist])
-        else:
-            norms = ((hist * lin64**p).sum(axis=1) / n) ** (1.0 / p)
+        norms: F64 = np.zeros(3)
+        for c in range(3):
+            vals: F64 = lin_tables[c].ravel().astype(np.float64) if c in lin_tables else lin64
+            weights: F64 = joint[c] if c in lin_tables else hist[c]
+            if np.isinf(p):
+                norms[c] = vals[weights > 0].max()
+            else:
+                norms[c] = ((weights * vals**p).sum() / n) ** (1.0 / p)
         gains = _gains_from_norms(norms, max_gain)
     g32 = gains.astype(np.float32)
     _log.debug("%s gains %s", method, g32)
-    lut = from_unit_float(from_linear(lin_codes[:, None] * g32[None, :], encoding),
-                          np.dtype(np.uint8))  # (256, 3): one table per channel
-    lut3 = np.ascontiguousarray(lut.reshape(1, 256, 3))
-    return [cv2.LUT(np.ascontiguousarray(im), lut3) for im in images]
+    u8 = np.dtype(np.uint8)
+    lut = from_unit_float(from_linear(lin_codes[:, None] * g32[None, :], encoding), u8)
+    lut3 = np.ascontiguousarray(lut.reshape(1, 256, 3))  # one table per channel
+    out_tables = {c: from_unit_float(from_linear(t * g32[c], encoding), u8).ravel()
+                  for c, t in lin_tables.items()}
+    out = []
+    for im, idx_c in zip(imgs, flat_idx, strict=True):
+        res = np.asarray(cv2.LUT(im, lut3), np.uint8)
+        for c, table in out_tables.items():
+            res[..., c] = table[idx_c[c]]
+        out.append(res)
+    return out
 
 
 def _gains_from_norms(norms: F64, max_gain: float) -> F64:
