@@ -19,6 +19,9 @@ Sections (``--section``, default all):
   must shrink, SSIM of L* to the input must stay high); pictures for the docs.
 - ``speed``: wall and CPU time per 1920x1080 image for each method, beside OpenCV's xphoto
   grey world and OpenCV's CLAHE on 8-bit L (medians of ``--repeats`` runs).
+- ``process``: ``sea3d process --restore-colours seathru`` on a two-frame simulated coastal
+  survey: the colour cast of raw and restored frames against the clean view, and how closely
+  the fused cloud and mesh follow the restored colours.
 
 Run: ``PYTHONPATH=src nice python benchmarks/bench_enhance.py [--section colour] [--size 480x270]
 [--pictures docs/img]``. Figures go to stdout; ``--json FILE`` keeps them.
@@ -416,6 +419,59 @@ def section_speed(args: argparse.Namespace) -> None:
     OUT["speed"] = rows
 
 
+def _log_chroma(pixels: np.ndarray) -> np.ndarray:
+    m = pixels.reshape(-1, 3).astype(np.float64).mean(axis=0)
+    return np.log(np.array([m[0] / m[1], m[2] / m[1]]))
+
+
+def section_process(args: argparse.Namespace) -> None:
+    """``sea3d process --restore-colours seathru`` on a short simulated coastal survey with clean
+    references: the colour cast of the frames and of the fused cloud and mesh."""
+    import tempfile
+
+    from sea3d.io.rig_file import rig_to_yaml
+    from sea3d.io.session import SessionWriter, open_session
+    from sea3d.pipeline.frame_stage import FrameStageConfig, process_frame
+    from sea3d.pipeline.process import ProcessConfig, run_process
+    from sea3d.sim.survey import SurveyConfig, simulate_survey
+
+    size = (192, 108)  # as tests/enhance/test_process_colours.py
+    rig = paper_rig("none", size_px=size)
+    with tempfile.TemporaryDirectory() as tmp:
+        src, gt = Path(tmp) / "lake", Path(tmp) / "lake_gt"
+        cfg = SurveyConfig(frames=2, water="coastal", supersample=1, clean_reference=True)
+        with SessionWriter(src, format="folder", rig_yaml=rig_to_yaml(rig)) as w:
+            simulate_survey(builtin_scene("lake"), rig, cfg, w, gt)
+        with open_session(src) as s:
+            t0 = int(s.stamps("left")[0])
+            left, right = s.image("left", t0), s.image("right", t0)
+        clean = _read(gt / "clean" / "left" / f"{t0}.png")
+        plain = process_frame(FrameStageConfig(rig_yaml=rig_to_yaml(rig), max_depth_m=8.0), t0,
+                              left, right)
+        rest = process_frame(FrameStageConfig(rig_yaml=rig_to_yaml(rig), max_depth_m=8.0,
+                                              restore_colours="seathru"), t0, left, right)
+        res = run_process(src, ProcessConfig(
+            out_dir=Path(tmp) / "out", workers=0, poses_path=gt / "poses_left.tum",
+            restore_colours="seathru", max_depth_m=8.0, report=False, evaluate=False))
+    has = np.isfinite(rest.depth_m)
+    ref = _log_chroma(clean)
+
+    def cast(px: np.ndarray) -> float:
+        return float(np.abs(_log_chroma(px) - ref).sum())
+
+    want = _log_chroma(rest.colors()[has])
+    print(f"\n== process --restore-colours seathru: lake, coastal, {size[0]}x{size[1]}, frame 0 "
+          f"(depth on {100 * has.mean():.0f} %)")
+    print(f"colour cast |log R/G| + |log B/G| against the clean view: raw "
+          f"{cast(plain.rect_left[has]):.2f}, restored {cast(rest.colors()[has]):.2f}")
+    for name, colors in (("cloud", res.cloud_colors), ("mesh", res.mesh.colors_rgb)):
+        d = np.abs(_log_chroma(np.asarray(colors)) - want).max()
+        print(f"{name}: log chromaticity within {d:.3f} of the restored frame's "
+              f"(raw frame: {np.abs(_log_chroma(plain.rect_left[has]) - want).max():.2f})")
+    OUT["process"] = {"raw_cast": cast(plain.rect_left[has]),
+                      "restored_cast": cast(rest.colors()[has])}
+
+
 def _picture(path: Path, panels: list[np.ndarray], height: int = 160) -> None:
     """Panels side by side, scaled to ``height``, as a small JPEG (kept under 200 KB)."""
     scaled = []
@@ -438,7 +494,7 @@ def _picture(path: Path, panels: list[np.ndarray], height: int = 160) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--section", action="append",
-                    choices=("colour", "stereo", "features", "real", "speed"))
+                    choices=("colour", "stereo", "features", "real", "speed", "process"))
     ap.add_argument("--size", default="480x270", help="simulated image size WxH")
     ap.add_argument("--data", type=Path, default=DATA, help="the shared data folder")
     ap.add_argument("--repeats", type=int, default=3, help="timed runs per method")
@@ -448,9 +504,9 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     w, h = (int(v) for v in args.size.split("x"))
     args.size = (w, h)
-    sections = args.section or ["colour", "stereo", "features", "real", "speed"]
+    sections = args.section or ["colour", "stereo", "features", "real", "speed", "process"]
     funcs = {"colour": section_colour, "stereo": section_stereo, "features": section_features,
-             "real": section_real, "speed": section_speed}
+             "real": section_real, "speed": section_speed, "process": section_process}
     for s in sections:
         t0 = time.perf_counter()
         funcs[s](args)
