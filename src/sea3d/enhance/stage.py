@@ -13,8 +13,8 @@ How ``process`` should call them (the order of the per-frame stages in ``DESIGN.
     # colours.image colours the point cloud / TSDF; colours.status goes into the frame report
 
 The defaults follow what ``benchmarks/bench_enhance.py`` measured (``docs/enhance.md``): on
-simulated underwater pairs no method lowered our SGM's bad-2 by more than a point, and grey
-world, CLAHE and UDCP raised it by 2-5 points in turbid water, so matching gets the raw images
+simulated underwater pairs no method lowered our SGM's bad-2 by more than 0.1 point, and
+every one raised it by 2-5 points in turbid water, so matching gets the raw images
 (``method="none"``); CLAHE on L* gives 1.5-2.2x the correct sparse feature matches under
 caustics, so a feature front end may take it; Sea-thru of the output colours is opt-in.
 """
