@@ -42,6 +42,7 @@ def _plural(n: int, word: str) -> str:
 
 
 def _cmd_process(args: argparse.Namespace) -> int:
+    from sea3d.enhance.stage import process_enhance_hook
     from sea3d.pipeline.process import ProcessConfig, run_process
 
     config = ProcessConfig(
@@ -58,7 +59,8 @@ def _cmd_process(args: argparse.Namespace) -> int:
         max_depth_m=args.max_depth,
         integrate=args.integrate,
         fresh=args.fresh,
-        enhance=args.enhance,
+        enhance=process_enhance_hook(args.enhance) if args.enhance else None,
+        restore_colours=args.restore_colours,
         report=not args.no_report,
         max_frames=args.max_frames,
     )
@@ -255,8 +257,13 @@ def register(sub: Any) -> None:
                    help="fuse every frame with a trusted pose (default) or keyframes only")
     p.add_argument("--fresh", action="store_true",
                    help="discard cached per-frame results in OUT instead of resuming")
-    p.add_argument("--enhance", metavar="MODULE:FUNCTION",
-                   help="enhance each raw image with this function before matching")
+    p.add_argument("--enhance", metavar="METHOD",
+                   help="enhance each raw image before matching: none (default: measured "
+                        "best for stereo), grey-world, shades-of-grey, red-comp, clahe, udcp, "
+                        "or a package.module:function (docs/enhance.md)")
+    p.add_argument("--restore-colours", choices=["none", "seathru"], default="none",
+                   help="colours of mesh and cloud: seathru restores them after depth with "
+                        "the stereo range (default none)")
     p.add_argument("--max-frames", type=int, metavar="N", help="only the first N pairs")
     p.add_argument("--no-report", action="store_true", help="skip report.html")
     p.add_argument("--json", action="store_true", help="print summary.json (no progress bars)")

@@ -76,6 +76,12 @@ def register(sub: Any) -> None:
     )
     p.add_argument("--no-imu-noise", action="store_true", help="exact IMU readings")
     p.add_argument(
+        "--clean-reference",
+        action="store_true",
+        help="also write every view without water, same noise seed, to GT/clean/ (the water "
+        "model's coefficients are in GT/sim.json either way)",
+    )
+    p.add_argument(
         "--gt",
         type=Path,
         metavar="DIR",
@@ -245,6 +251,7 @@ def _run_survey(args: argparse.Namespace) -> int:
         seed=args.seed,
         supersample=args.supersample,
         imu_noise=not args.no_imu_noise,
+        clean_reference=args.clean_reference,
     )
     cost = estimate_survey_cost(rig.width, rig.height, config)
     _check_disk(args.out, gt_dir, cost.total_bytes)

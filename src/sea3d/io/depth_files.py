@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from sea3d.errors import StereoError
 
 __all__ = [
+    "read_depth",
     "read_depth_png_mm",
     "read_disparity",
     "read_pfm",
@@ -212,6 +213,70 @@ def read_depth_png_mm(path: str | Path) -> NDArray[np.float32]:
     z = img.astype(np.float32) / np.float32(1000.0)
     z[img == 0] = np.nan
     return z
+
+
+def read_depth(path: str | Path) -> NDArray[np.float32]:
+    """Read a depth (or range) map in metres, NaN where invalid.
+
+    Formats: float ``.npy``, ``.tif``/``.tiff`` and ``.pfm`` in metres (NaN, inf and values
+    <= 0 invalid); 16-bit ``.png`` (and 16-bit TIFF) in **millimetres** with 0 invalid, as
+    :func:`write_depth_png_mm` writes them.
+
+    Returns:
+        ``(H, W)`` float32 metres.
+
+    Raises:
+        StereoError: a missing or unreadable file, an unknown suffix, more than one channel, an
+            integer ``.npy`` (its unit is unknown), or an 8-bit image (8 bits cannot hold
+            millimetres: it is a picture of depth, not depth).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise StereoError(f"depth file not found: {p}")
+    suffix = p.suffix.lower()
+    d: np.ndarray
+    if suffix == ".pfm":
+        d = read_pfm(p)
+    elif suffix == ".npy":
+        try:
+            d = np.load(p, allow_pickle=False)
+        except (OSError, ValueError) as err:
+            raise StereoError(f"cannot read {p}: {err}") from err
+        if d.dtype.kind != "f":
+            raise StereoError(
+                f"{p}: depth .npy holds {d.dtype}; expected float metres (NaN invalid)"
+            )
+    elif suffix in (".png", ".tif", ".tiff"):
+        img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise StereoError(f"cannot read image {p}")
+        if img.dtype == np.uint8:
+            raise StereoError(
+                f"{p}: an 8-bit image cannot hold depth in millimetres (it is a picture of "
+                "depth, not depth); give a 16-bit PNG of millimetres or float32 .npy/.tiff "
+                "metres"
+            )
+        if img.dtype == np.uint16:
+            if img.ndim != 2:
+                raise StereoError(f"{p}: expected a one-channel 16-bit depth image")
+            d = img.astype(np.float32) / np.float32(1000.0)
+            d[img == 0] = np.nan
+        elif img.dtype.kind == "f":
+            d = img
+        else:
+            raise StereoError(f"{p}: unsupported depth image type {img.dtype}")
+    else:
+        raise StereoError(
+            f"unknown depth file type {suffix!r} ({p}); use .npy/.tiff (float m) or .png "
+            "(uint16 mm)"
+        )
+    d = np.asarray(d, dtype=np.float32)
+    if d.ndim != 2:
+        raise StereoError(f"{p}: expected a one-channel (H, W) depth map, got shape {d.shape}")
+    d = d.copy()
+    with np.errstate(invalid="ignore"):
+        d[~np.isfinite(d) | (d <= 0)] = np.nan
+    return d
 
 
 def write_depth(path: str | Path, depth_m: np.ndarray) -> None:

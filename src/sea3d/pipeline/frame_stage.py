@@ -65,6 +65,11 @@ class FrameStageConfig:
     mesh's colours come from the enhanced left image): a picklable callable
     ``image (H, W[, 3]) uint8 -> image`` of the same shape, or its name
     ``"package.module:function"`` (the hook for :mod:`sea3d.enhance`)."""
+    restore_colours: Literal["none", "seathru"] = "none"
+    """The colours of mesh and cloud: ``seathru`` restores the rectified left image after
+    depth with the stereo range of its own pixels (:mod:`sea3d.enhance`; frames it cannot
+    restore fall back to grey world, with the reason in ``colour_status``); ``none`` keeps
+    the (enhanced) rectified image."""
     threads: int | None = None
     """Threads for numba and OpenCV inside one worker (None: the libraries' default)."""
 
@@ -78,11 +83,16 @@ class FrameStageConfig:
             raise ConfigError(f"--size must be at least 32x24, got {self.size_px}")
         if isinstance(self.enhance, str) and ":" not in self.enhance:
             raise ConfigError(f"enhance must be 'package.module:function', got {self.enhance!r}")
+        if self.restore_colours not in ("none", "seathru"):
+            raise ConfigError(f"restore_colours must be none or seathru, got "
+                              f"{self.restore_colours!r}")
 
     def fingerprint(self) -> dict[str, Any]:
         """What identifies the per-frame results (the cache is valid only for the same one)."""
         d = asdict(self)
         d.pop("threads")
+        if self.restore_colours == "none":
+            d.pop("restore_colours")  # caches written before the option stay valid
         enh = self.enhance
         if enh is not None and not isinstance(enh, str):
             d["enhance"] = f"{getattr(enh, '__module__', '?')}:{getattr(enh, '__qualname__', '?')}"
@@ -102,6 +112,10 @@ class FrameResult:
         depth_m: (H, W) float32 exact depth on the rectified grid, NaN invalid.
         fusion_depth_m: (H, W) float32 the same for the virtual pinhole (TSDF input).
         valid_fraction: fraction of pixels with depth.
+        color_left: (H, W, 3) uint8 restored colours of ``rect_left`` for mesh and cloud
+            (``restore_colours``), empty when the rectified image itself colours them.
+        colour_status: Sea-thru's status (``ok``, ``fallback-grey-world``, ...), empty
+            without ``restore_colours``.
         timings_s: seconds per step (``enhance_s``, ``rectify_s``, ``match_s``, ``depth_s``,
             ``rectify_right_s``, ``resample_s``, and ``warmup_s`` on a worker's first frame:
             kernel compilation).
@@ -117,6 +131,17 @@ class FrameResult:
         default_factory=lambda: np.zeros((0, 0), np.float32))
     valid_fraction: float = 0.0
     timings_s: dict[str, float] = field(default_factory=dict)
+    color_left: NDArray[np.uint8] = field(default_factory=lambda: np.zeros((0, 0), np.uint8))
+    colour_status: str = ""
+
+    def colors(self) -> NDArray[np.uint8]:
+        """(H, W, 3) uint8 colours for mesh and cloud: the restored ones when there are, else
+        the rectified left image (grey repeated)."""
+        if self.color_left.size:
+            return self.color_left
+        if self.rect_left.ndim == 3:
+            return self.rect_left
+        return np.repeat(self.rect_left[..., None], 3, axis=2)
 
     def to_cache(self) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
         """Arrays and metadata for :class:`sea3d.io.result_cache.FrameCache`."""
@@ -128,6 +153,9 @@ class FrameResult:
             "status": self.status, "message": self.message,
             "valid_fraction": self.valid_fraction, "timings_s": self.timings_s,
         }
+        if self.color_left.size:
+            arrays["color_left"] = self.color_left
+            meta["colour_status"] = self.colour_status
         return arrays, meta
 
     @classmethod
@@ -138,7 +166,9 @@ class FrameResult:
                    rect_left=arrays["rect_left"], rect_right=arrays["rect_right"],
                    depth_m=arrays["depth_m"], fusion_depth_m=arrays["fusion_depth_m"],
                    valid_fraction=float(meta["valid_fraction"]),
-                   timings_s={k: float(v) for k, v in meta["timings_s"].items()})
+                   timings_s={k: float(v) for k, v in meta["timings_s"].items()},
+                   color_left=arrays.get("color_left", np.zeros((0, 0), np.uint8)),
+                   colour_status=str(meta.get("colour_status", "")))
 
 
 @functools.lru_cache(maxsize=4)
@@ -266,6 +296,7 @@ def process_frame(config: FrameStageConfig, t_ns: int, left: NDArray[Any],
             left = cv2.resize(left, size, interpolation=cv2.INTER_AREA)
             right = cv2.resize(right, size, interpolation=cv2.INTER_AREA)
         left, right = _to_u8(left), _to_u8(right)
+        raw_left = left
         hook = config.enhance
         if hook is not None:
             fn = _resolve_hook(hook) if isinstance(hook, str) else hook
@@ -288,6 +319,17 @@ def process_frame(config: FrameStageConfig, t_ns: int, left: NDArray[Any],
     fusion = virtual_pinhole_depth(res.depth_m, points_rect, K, method=config.resample,
                                    focal_baseline_px_m=maps.focal_px * maps.baseline_m)
     timings["resample_s"] = time.perf_counter() - t2
+    colors: NDArray[np.uint8] = np.zeros((0, 0), np.uint8)
+    colour_status = ""
+    if config.restore_colours == "seathru":
+        tc = time.perf_counter()
+        # Sea-thru needs the camera's own colours: rectify the raw image again when a hook
+        # changed it before matching.
+        rect_raw = np.asarray(res.rect_left if raw_left is left else cv2.remap(
+            raw_left, maps.map_left_x, maps.map_left_y, cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT), np.uint8)
+        colors, colour_status = _restore_colours(rect_raw, res.depth_m, res.points_left, maps)
+        timings["restore_colours_s"] = time.perf_counter() - tc
     valid = float(np.isfinite(res.depth_m).mean())
     return FrameResult(
         t_ns=t_ns,
@@ -298,4 +340,24 @@ def process_frame(config: FrameStageConfig, t_ns: int, left: NDArray[Any],
         fusion_depth_m=fusion,
         valid_fraction=valid,
         timings_s=timings,
+        color_left=colors,
+        colour_status=colour_status,
     )
+
+
+def _restore_colours(rect_left: NDArray[np.uint8], depth_m: NDArray[np.float32],
+                     points_left: NDArray[np.float64], maps: Any) -> tuple[NDArray[np.uint8], str]:
+    """Sea-thru of the rectified left image with the range of the stereo points (their norms
+    in the left camera frame: exact through the ports), on the pixels that have depth."""
+    from sea3d.enhance.seathru import depth_to_range
+    from sea3d.enhance.stage import ColourConfig, restore_colours_with_range
+
+    has = np.isfinite(depth_m)
+    if int(has.sum()) == len(points_left):
+        range_m = np.full(depth_m.shape, np.nan, np.float32)
+        range_m[has] = np.linalg.norm(points_left, axis=1)
+    else:  # not one point per pixel with depth: the rectified pinhole's rays instead
+        range_m = depth_to_range(depth_m, maps.focal_px, maps.focal_px, maps.cx_px, maps.cy_px)
+    out = restore_colours_with_range(rect_left, range_m, ColourConfig(enabled=True))
+    img = out.image if out.image.ndim == 3 else np.repeat(out.image[..., None], 3, axis=2)
+    return np.ascontiguousarray(img, np.uint8), out.status

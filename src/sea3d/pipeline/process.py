@@ -133,6 +133,8 @@ class ProcessConfig:
     """Ignore (delete) cached per-frame results instead of resuming."""
     enhance: Any = None
     """Enhancement hook of the per-frame stage (see :class:`FrameStageConfig`)."""
+    restore_colours: Literal["none", "seathru"] = "none"
+    """Sea-thru on the output colours after depth (see :class:`FrameStageConfig`)."""
     cloud_voxel_m: float | None = None
     """Voxel of cloud.ply's downsampling; None: half ``voxel_m``."""
     merge_tile_m: float | None = 8.0
@@ -361,6 +363,7 @@ def run_process(
             rig_yaml=rig_yaml, size_px=config.size_px, engine=config.engine,
             max_disparity_px=config.max_disparity_px, min_depth_m=config.min_depth_m,
             max_depth_m=config.max_depth_m, enhance=config.enhance,
+            restore_colours=config.restore_colours,
             threads=max(1, (os.cpu_count() or 1) // max(1, n_local))
             if config.scheduler is None else None,
         )
@@ -423,6 +426,7 @@ def run_process(
             fuse_status: list[str] = []
             frame_status: list[str] = []
             valid_fraction: list[float] = []
+            colour_status: dict[str, int] = {}
             worker_t: dict[str, float] = {}
             n_cached = n_failed = n_unreadable = loop_closures = 0
             window = config.in_flight or 2 * n_workers + 2
@@ -512,8 +516,10 @@ def run_process(
                     bar_odo.update(1)
                     # -- fusion -----------------------------------------------------------
                     tf = time.perf_counter()
-                    color = res.rect_left if res.rect_left.ndim == 3 else np.repeat(
-                        res.rect_left[..., None], 3, axis=2)
+                    color = res.colors()
+                    if res.colour_status:
+                        colour_status[res.colour_status] = (
+                            colour_status.get(res.colour_status, 0) + 1)
                     step = fusion.step(
                         t_ns=res.t_ns, trusted=est.status in TRUSTED,
                         keyframe_id=est.keyframe_id, depth_m=res.fusion_depth_m,
@@ -625,6 +631,8 @@ def run_process(
         "mesh": {"vertices": len(merged.mesh.vertices), "triangles": len(merged.mesh.triangles)},
         "cloud": {"points": len(cloud.points), "outliers_removed": cloud.outliers},
         "mean_valid_depth_fraction": float(np.mean(valid_fraction)) if valid_fraction else 0.0,
+        "colours": {"enhance": str(config.enhance or "none"),
+                    "restore": config.restore_colours, "restore_status": colour_status},
         "timings_s": {},
         "worker_timings_s": worker_t,
         "cache_mb_written": cache.bytes_written / 2**20,

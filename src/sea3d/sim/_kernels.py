@@ -73,6 +73,7 @@ def light_and_water(
     beta_b: F64,
     b_inf: F64,
     water: bool,
+    view_water: bool,
     light_pos: F64,
     light_axis: F64,
     light_intensity: float,
@@ -81,7 +82,9 @@ def light_and_water(
     """Radiance at the camera of each hit: albedo x (sun + lamp) through the water model.
 
     See :meth:`sea3d.sim.optics.Imaging.shade` for the model; ``caustic_mod`` multiplies the
-    direct sunlight (ones when caustics are off).
+    direct sunlight (ones when caustics are off). ``view_water`` False removes the water between
+    the camera and the hit (no attenuation along the view ray, no backscatter) while the lights
+    still reach the hit through water.
     """
     m = albedo.shape[0]
     out = np.empty((m, 3), dtype=np.float32)
@@ -111,7 +114,7 @@ def light_and_water(
                 # exp(-(angle / cone)^2) with angle^2 ~ 2 (1 - cos angle): no arccos needed.
                 spot = np.exp(-2.0 * (1.0 - ca) / (cone_rad * cone_rad))
                 e_lamp = light_intensity * spot * cs / max(dl, 0.05) ** 2
-        z = path[i]
+        z = path[i] if view_water else 0.0
         for c in range(3):
             if water:
                 # Sun over depth_below then the view path z; lamp over dl then z.
@@ -370,6 +373,7 @@ def shade_fused(
     beta_b: F64,
     b_inf: F64,
     water: bool,
+    view_water: bool,
     light_pos: F64,
     light_axis: F64,
     light_intensity: float,
@@ -402,7 +406,7 @@ def shade_fused(
             k = obj[i]
             if k < 0:
                 for c in range(3):
-                    out[i, c] = np.float32(b_inf[c]) if water else np.float32(0.0)
+                    out[i, c] = np.float32(b_inf[c]) if water and view_water else np.float32(0.0)
                 continue
             ti = t[i]
             x, y, z = o_cam[i, 0], o_cam[i, 1], o_cam[i, 2]
@@ -505,12 +509,13 @@ def shade_fused(
                     ca = -(lx * light_axis[0] + ly * light_axis[1] + lz * light_axis[2])
                     spot = np.exp(-2.0 * (1.0 - ca) / (cone_rad * cone_rad))
                     e_lamp = light_intensity * spot * cs / max(dl, 0.05) ** 2
+            tw = ti if view_water else 0.0
             for c in range(3):
                 if water:
-                    irr = sun * np.exp(-beta_d[c] * (depth_below + ti)) + e_lamp * np.exp(
-                        -beta_d[c] * (dl + ti)
+                    irr = sun * np.exp(-beta_d[c] * (depth_below + tw)) + e_lamp * np.exp(
+                        -beta_d[c] * (dl + tw)
                     )
-                    out[i, c] = alb[c] * irr + b_inf[c] * (1.0 - np.exp(-beta_b[c] * ti))
+                    out[i, c] = alb[c] * irr + b_inf[c] * (1.0 - np.exp(-beta_b[c] * tw))
                 else:
                     out[i, c] = alb[c] * (sun + e_lamp)
 

@@ -123,6 +123,10 @@ class Imaging:
         full_well_e: electrons at full scale for shot noise (0 = no shot noise).
         read_noise: Gaussian read noise, standard deviation as a fraction of full scale.
         exposure: gain applied to linear radiance before the sensor.
+        line_of_sight_water: False removes the water between the camera and the scene (no
+            attenuation along the view ray, no backscatter; rays that hit nothing see black)
+            while sunlight and lamp still reach the scene through the water: the image
+            ``J`` of the formation model, which Sea-thru-like restorations estimate.
     """
 
     water: Water | None = None
@@ -141,6 +145,7 @@ class Imaging:
     full_well_e: float = 0.0
     read_noise: float = 0.0
     exposure: float = 1.0
+    line_of_sight_water: bool = True
 
     def __post_init__(self) -> None:
         for key in (
@@ -192,6 +197,16 @@ class Imaging:
     def without_sensor_noise(self) -> Imaging:
         """The same imaging without shot and read noise."""
         return replace(self, full_well_e=0.0, read_noise=0.0)
+
+    def without_water(self) -> Imaging:
+        """The same lights, caustics and sensor with no water at all (white light reaches the
+        scene, nothing attenuates or scatters): the clean reference of a view."""
+        return replace(self, water=None)
+
+    def without_line_of_sight_water(self) -> Imaging:
+        """The same imaging with the water between camera and scene removed (lights still
+        travel through water): the unattenuated image ``J`` of the formation model."""
+        return replace(self, line_of_sight_water=False)
 
     # ------------------------------------------------------------------------------------------
 
@@ -254,6 +269,7 @@ class Imaging:
             np.asarray(w.beta_B_per_m, dtype=np.float64) if w else zeros,
             np.asarray(w.B_inf_rgb, dtype=np.float64) if w else zeros,
             w is not None,
+            bool(self.line_of_sight_water),
             np.asarray(light_pos_world, dtype=np.float64),
             np.asarray(light_axis_world, dtype=np.float64),
             float(self.vehicle_light),
@@ -265,7 +281,7 @@ class Imaging:
 
         ``path_m`` may be ``inf`` (the ray hits nothing): the result is ``B_inf``.
         """
-        if self.water is None:
+        if self.water is None or not self.line_of_sight_water:
             return np.asarray(J, dtype=np.float32)
         z = np.asarray(path_m, dtype=np.float64)[:, None]
         bD = np.asarray(self.water.beta_D_per_m)[None, :]
@@ -280,7 +296,7 @@ class Imaging:
 
     def background(self, count: int) -> F32:
         """Radiance of rays that hit nothing: the veiling light, or black without water."""
-        if self.water is None:
+        if self.water is None or not self.line_of_sight_water:
             return np.zeros((count, 3), dtype=np.float32)
         return np.repeat(np.asarray(self.water.B_inf_rgb, dtype=np.float32)[None, :], count, axis=0)
 

@@ -608,6 +608,7 @@ class Renderer:
             np.asarray(w.beta_B_per_m, dtype=np.float64) if w else zeros,
             np.asarray(w.B_inf_rgb, dtype=np.float64) if w else zeros,
             w is not None,
+            bool(imaging.line_of_sight_water),
             light_pos,
             np.ascontiguousarray(R[:, 2]),
             float(imaging.vehicle_light),

@@ -16,15 +16,20 @@ Ground truth on disk (``gt/``, written by :func:`simulate_survey`):
 - ``poses_left.tum`` and ``poses_body.tum``: ``t x y z qx qy qz qw`` (t in seconds), poses
   ``T_world_left`` and ``T_world_body``;
 - ``scene.ply``: the scene mesh (world frame, vertex colours);
-- ``sim.json``: scene, water, seed, rates, ``T_body_left``, ``T_body_sonar``, IMU biases file.
+- ``sim.json``: scene, water, seed, rates, ``T_body_left``, ``T_body_sonar``, IMU biases file,
+  and ``water_model``: the water's coefficients (``beta_D_per_m``, ``beta_B_per_m``,
+  ``B_inf_rgb`` per R, G, B);
+- with ``SurveyConfig.clean_reference``: ``clean/left/<t_ns>.png`` and ``clean/right/<t_ns>.png``,
+  the same views without water and with the same sensor noise (:mod:`sea3d.sim.reference`),
+  exposed not to clip (the exposure is in ``sim.json``).
 """
 
 from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -53,6 +58,7 @@ from sea3d.sim.motion import (
     sample_times_ns,
 )
 from sea3d.sim.optics import Imaging
+from sea3d.sim.reference import unclipped_exposure, water_model_dict
 from sea3d.sim.render import GroundTruth, Renderer
 from sea3d.sim.scene import Scene, load_scene, make_board, sim_board
 
@@ -419,6 +425,7 @@ class SurveyConfig:
             lawnmower survey (looking at the floor), 30 for the others.
         imu_noise: add MTi-300-like IMU noise.
         sonar_noise_fraction: echosounder range noise, fraction of range (standard deviation).
+        clean_reference: also write each view without water (same seed) to ``gt/clean/``.
     """
 
     frames: int = 300
@@ -432,6 +439,7 @@ class SurveyConfig:
     camera_tilt_deg: float | None = None
     imu_noise: bool = True
     sonar_noise_fraction: float = 0.005
+    clean_reference: bool = False
 
     def tilt_deg(self) -> float:
         """The camera tilt in effect (see ``camera_tilt_deg``)."""
@@ -660,6 +668,37 @@ def write_tum(path: Path, t_ns: Sequence[int], T: FloatArray) -> None:
     path.write_text("\n".join(lines) + "\n")
 
 
+def _write_clean_reference(
+    renderer: Renderer,
+    rig: StereoRig,
+    T_wl: FloatArray,
+    imaging: Imaging,
+    time_s: float,
+    noise_state: Mapping[str, Any],
+    gt_dir: Path,
+    t_ns: int,
+    exposure: float | None,
+) -> float:
+    """Render one frame without water with the frame's own noise draws; the exposure is chosen
+    on the first frame (not to clip) and kept for the whole survey."""
+    clean = imaging.without_water()
+    quiet = clean.without_sensor_noise()
+    lv = renderer.render(rig.left, T_wl, quiet, time_s=time_s)
+    rv = renderer.render(rig.right, T_wl @ rig.T_left_right, quiet, time_s=time_s)
+    e = unclipped_exposure(lv.radiance, clean) if exposure is None else exposure
+    sensor = replace(clean, exposure=e)
+    rng = np.random.default_rng()
+    rng.bit_generator.state = noise_state
+    left = sensor.sensor(lv.radiance, rng)
+    right = sensor.sensor(rv.radiance, rng)
+    try:
+        cv2.imwrite(str(gt_dir / "clean" / "left" / f"{t_ns}.png"), left[:, :, ::-1])
+        cv2.imwrite(str(gt_dir / "clean" / "right" / f"{t_ns}.png"), right[:, :, ::-1])
+    except OSError as err:
+        raise SimulationError(f"cannot write clean reference to {gt_dir}: {err}") from err
+    return e
+
+
 def survey_mount(rig: StereoRig, config: SurveyConfig) -> Mount:
     """Where the simulated survey puts its sensors: the rig's own IMU and echosounder when it has
     them, otherwise :meth:`Mount.default` for the rig's baseline and the configured tilt."""
@@ -810,12 +849,21 @@ def simulate_survey(
                 "hit (TIFF, deflate, floating-point predictor: lossless)",
                 "object_id": "object_id/<t_ns>.png uint16, object index + 1, 0 = no hit",
                 "objects": [o.name for o in scene.objects],
+                "water_model": water_model_dict(imaging),
             }
+            if config.clean_reference:
+                (gt_dir / "clean" / "left").mkdir(parents=True, exist_ok=True)
+                (gt_dir / "clean" / "right").mkdir(parents=True, exist_ok=True)
+                meta["clean_reference"] = (
+                    "clean/{left,right}/<t_ns>.png: the same views without water, same sensor "
+                    "noise, exposure clean_reference_exposure"
+                )
             (gt_dir / "sim.json").write_text(json.dumps(meta, indent=1))
         except OSError as err:
             raise SimulationError(f"cannot write ground truth to {gt_dir}: {err}") from err
     i_imu = 0
     i_sonar = 0
+    ref_exposure: float | None = None
     for k, t_ns in enumerate(frame_t):
         while i_imu < len(imu_t) and imu_t[i_imu] <= t_ns:
             writer.write_imu(int(imu_t[i_imu]), imu.accel_mps2[i_imu], imu.gyro_radps[i_imu])
@@ -829,9 +877,15 @@ def simulate_survey(
             )
             i_sonar += 1
         time_s = float(t_ns) * 1e-9
+        noise_state = rng.bit_generator.state
         lv = renderer.render(rig.left, T_wl[k], imaging, time_s=time_s, rng=rng)
         rv = renderer.render(rig.right, T_wl[k] @ rig.T_left_right, imaging, time_s=time_s, rng=rng)
         writer.write_stereo(int(t_ns), lv.image, rv.image)
+        if config.clean_reference and gt_dir is not None:
+            ref_exposure = _write_clean_reference(
+                renderer, rig, T_wl[k], imaging, time_s, noise_state, gt_dir, int(t_ns),
+                ref_exposure,
+            )
         if gt_dir is not None:
             write_gt_depth(gt_dir / "depth" / f"{int(t_ns)}{GT_DEPTH_SUFFIX}", lv.gt.depth_m)
             cv2.imwrite(
@@ -840,6 +894,11 @@ def simulate_survey(
             )
         if progress is not None:
             progress(1)
+    if config.clean_reference and gt_dir is not None and ref_exposure is not None:
+        meta_path = gt_dir / "sim.json"
+        meta = json.loads(meta_path.read_text())
+        meta["clean_reference_exposure"] = ref_exposure
+        meta_path.write_text(json.dumps(meta, indent=1))
     return SurveyResult(
         frame_t_ns=frame_t,
         T_world_left=T_wl,

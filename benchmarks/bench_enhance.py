@@ -1,0 +1,520 @@
+"""Underwater enhancement, measured: colour against clean references, effect on dense stereo
+and on sparse features, caustic removal, real images, and speed (docs/enhance.md).
+
+Sections (``--section``, default all):
+
+- ``colour``: simulated ``lake`` and ``reef`` views in clear, coastal and turbid water (paper
+  rig without ports, so the images are already rectified), each method against the clean
+  reference (same view without water, same noise seed; :mod:`sea3d.sim.reference`):
+  CIEDE2000 after one global exposure gain (the issue's figure) and after per-channel gains
+  (white point forgiven), and against ``J`` (water removed from the line of sight only).
+  Sea-thru runs with the true range and with range from our SGM (``sea3d.stereo``), and
+  OpenCV's ``xphoto`` grey-world white balance is the reference tool.
+- ``stereo``: SGM bad-2 and density (ours and OpenCV StereoSGBM) on the same pairs with and
+  without each method (white balances applied jointly to the pair).
+- ``features``: correct SIFT matches (against ground-truth depth and poses, 3 px) between two
+  views of the lake in clear shallow water with caustics, raw, with CLAHE on L*, after caustic
+  removal, and both; plus the caustic-removal error against the caustic-free render.
+- ``real``: EUVP pairs (full reference), the real singles and RUIE (no reference: colour cast
+  must shrink, SSIM of L* to the input must stay high); pictures for the docs.
+- ``speed``: wall and CPU time per 1920x1080 image for each method, beside OpenCV's xphoto
+  grey world and OpenCV's CLAHE on 8-bit L (medians of ``--repeats`` runs).
+- ``process``: ``sea3d process --restore-colours seathru`` on a two-frame simulated coastal
+  survey: the colour cast of raw and restored frames against the clean view, and how closely
+  the fused cloud and mesh follow the restored colours.
+
+Run: ``PYTHONPATH=src nice python benchmarks/bench_enhance.py [--section colour] [--size 480x270]
+[--pictures docs/img]``. Figures go to stdout; ``--json FILE`` keeps them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from sea3d.enhance import (
+    METHODS,
+    SeathruConfig,
+    ciede2000_after_diagonal_gain,
+    ciede2000_after_gain,
+    clahe,
+    colour_cast,
+    compare_to_reference,
+    depth_to_range,
+    enhance_image,
+    remove_caustics,
+    uciqe,
+    uiqm,
+)
+from sea3d.enhance._image import luminance, srgb_to_linear
+from sea3d.eval.enhance_tasks import correct_feature_matches, stereo_with_enhancement
+from sea3d.geometry.se3 import look_at
+from sea3d.refraction.presets import paper_rig
+from sea3d.sim import Imaging, Renderer, builtin_scene
+from sea3d.sim.reference import simulate_pair_with_reference
+from sea3d.stereo import OpenCVSgbmConfig, SgmConfig, match
+
+DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+VIEW_EYE = (0.35, -1.6, 0.9)
+VIEW_TARGET = (0.0, 0.0, 0.1)
+WATERS = ("clear", "coastal", "turbid")
+SEATHRU_VARIANTS: dict[str, SeathruConfig] = {
+    "sea-thru as published": SeathruConfig.as_published(),
+    "envelope + fit": SeathruConfig(backscatter_fit="envelope", attenuation="fit"),
+    "envelope + fit-scaled": SeathruConfig(backscatter_fit="envelope", attenuation="fit-scaled"),
+    "envelope + illuminant": SeathruConfig(backscatter_fit="envelope", attenuation="illuminant"),
+    "eq10 + illuminant": SeathruConfig(backscatter_fit="eq10", attenuation="illuminant"),
+    "illuminant, no backscatter": SeathruConfig(backscatter=False),
+}
+CAUSTICS = 0.6  # the underwater presets' caustic strength
+DEFAULT_VARIANT = "envelope + illuminant"  # = SeathruConfig()
+OUT: dict[str, Any] = {}
+
+
+def _xphoto_grey(img: np.ndarray) -> np.ndarray:
+    wb = cv2.xphoto.createGrayworldWB()
+    return cv2.cvtColor(wb.balanceWhite(cv2.cvtColor(img, cv2.COLOR_RGB2BGR)), cv2.COLOR_BGR2RGB)
+
+
+def _stereo_range(left: np.ndarray, right: np.ndarray, rig: Any, max_d: int) -> np.ndarray:
+    """Range from our SGM on an already rectified (portless) pair."""
+    pin = rig.left
+    disp = match(left, right, SgmConfig(max_disparity_px=max_d)).disparity_px
+    with np.errstate(divide="ignore", invalid="ignore"):
+        depth = np.where(disp > 0, pin.fx * rig.baseline_m / disp, np.nan).astype(np.float32)
+    return depth_to_range(depth, pin.fx, pin.fy, pin.cx, pin.cy)
+
+
+def _render_cases(size: tuple[int, int], scenes: tuple[str, ...]) -> list[dict[str, Any]]:
+    rig = paper_rig("none", size_px=size)
+    cases = []
+    for scene in scenes:
+        r = Renderer(builtin_scene(scene), supersample=2)
+        T = look_at(VIEW_EYE, VIEW_TARGET)
+        for water in WATERS:
+            for lamp in (0.0, 0.8) if scene == "lake" and water == "coastal" else (0.0,):
+                im = dataclasses.replace(
+                    Imaging.underwater(water), vehicle_light=lamp, vignetting=0.0
+                )
+                p = simulate_pair_with_reference(rig, r.scene, T, im, renderer=r, seed=1)
+                cases.append({"scene": scene, "water": water, "lamp": lamp, "pair": p,
+                              "rig": rig})
+    return cases
+
+
+def _fmt(x: float) -> str:
+    return f"{x:5.2f}"
+
+
+def section_colour(args: argparse.Namespace) -> None:
+    cases = _render_cases(args.size, ("lake", "reef"))
+    max_d = 63 if args.size[0] <= 700 else 127
+    rows = []
+    for c in cases:
+        p, rig = c["pair"], c["rig"]
+        mask = p.gt.object_id >= 0
+        true_range = p.gt.range_m
+        t0 = time.perf_counter()
+        sgm_range = _stereo_range(p.left, p.right, rig, max_d)
+        stereo_s = time.perf_counter() - t0
+        outs: dict[str, np.ndarray] = {
+            "input": p.left, "xphoto-grey (OpenCV)": _xphoto_grey(p.left)
+        }
+        for m in ("grey-world", "shades-of-grey", "red-comp", "clahe", "udcp"):
+            outs[m] = enhance_image(p.left, m).images[0]
+        for name, cfg in SEATHRU_VARIANTS.items():
+            outs[f"{name} (true range)"] = enhance_image(
+                p.left, "seathru", range_m=true_range, seathru_config=cfg
+            ).images[0]
+            outs[f"{name} (stereo range)"] = enhance_image(
+                p.left, "seathru", range_m=sgm_range, seathru_config=cfg
+            ).images[0]
+        case = f"{c['scene']}/{c['water']}/lamp {c['lamp']}"
+        print(f"\n== colour: {case}  (stereo range valid on "
+              f"{100 * np.isfinite(sgm_range)[mask].mean():.0f} % of the surface, "
+              f"{stereo_s:.1f} s)")
+        print(f"{'method':40s} {'dE00 gain':>9s} {'dE00 diag':>9s} {'J diag':>7s} "
+              f"{'SSIM':>6s} {'PSNR':>6s}")
+        for name, img in outs.items():
+            g, _ = ciede2000_after_gain(img, p.left_clean, mask)
+            d, _ = ciede2000_after_diagonal_gain(img, p.left_clean, mask)
+            j, _ = ciede2000_after_diagonal_gain(img, p.left_unattenuated, mask)
+            ssim, psnr = _ssim_psnr(img, p.left_clean, mask)
+            print(f"{name:40s} {_fmt(g):>9s} {_fmt(d):>9s} {_fmt(j):>7s} {ssim:6.3f} "
+                  f"{psnr:6.1f}", flush=True)
+            rows.append({"case": case, "method": name, "gain": g, "diag": d, "J_diag": j,
+                         "ssim": ssim, "psnr_db": psnr})
+        if args.pictures and c["scene"] == "lake" and c["water"] == "coastal" and c["lamp"] == 0.0:
+            _picture(
+                args.pictures / "enhance_sim_coastal.jpg",
+                [p.left, outs["grey-world"], outs[f"{DEFAULT_VARIANT} (stereo range)"],
+                 p.left_clean],
+            )
+    OUT["colour"] = rows
+    _summary_colour(rows)
+
+
+def _ssim_psnr(img: np.ndarray, ref: np.ndarray, mask: np.ndarray) -> tuple[float, float]:
+    from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+
+    a, b = img.astype(np.float32) / 255.0, ref.astype(np.float32) / 255.0
+    _, smap = structural_similarity(b, a, data_range=1.0, channel_axis=2, full=True)
+    return float(smap.mean(axis=2)[mask].mean()), float(
+        peak_signal_noise_ratio(b[mask], a[mask], data_range=1.0)
+    )
+
+
+def _summary_colour(rows: list[dict[str, Any]]) -> None:
+    by: dict[str, dict[str, list[float]]] = {}
+    for r in rows:
+        d = by.setdefault(r["method"], {"g": [], "d": [], "j": [], "s": [], "p": []})
+        d["g"].append(r["gain"])
+        d["d"].append(r["diag"])
+        d["j"].append(r["J_diag"])
+        d["s"].append(r["ssim"])
+        d["p"].append(r["psnr_db"])
+    print("\n== colour summary: median over scenes, waters and lamp on/off")
+    print(f"{'method':40s} {'dE00 gain':>9s} {'dE00 diag':>9s} {'J diag':>7s} {'SSIM':>6s} "
+          f"{'PSNR':>6s}")
+    for m, d in by.items():
+        med = {k: statistics.median(v) for k, v in d.items()}
+        print(f"{m:40s} {_fmt(med['g']):>9s} {_fmt(med['d']):>9s} {_fmt(med['j']):>7s} "
+              f"{med['s']:6.3f} {med['p']:6.1f}")
+    for name in SEATHRU_VARIANTS:
+        s = by.get(f"{name} (stereo range)")
+        t = by.get(f"{name} (true range)")
+        if s and t:
+            ratio = [a / b for a, b in zip(s["d"], t["d"], strict=True)]
+            print(f"{name}: stereo / true range (dE00 diag), median "
+                  f"{statistics.median(ratio):.2f}, max {max(ratio):.2f}")
+
+
+def section_stereo(args: argparse.Namespace) -> None:
+    cases = _render_cases(args.size, ("lake",))
+    max_d = 63 if args.size[0] <= 700 else 127
+    rows = []
+    for c in cases:
+        p, rig = c["pair"], c["rig"]
+        pin = rig.left
+        with np.errstate(divide="ignore", invalid="ignore"):
+            gt = (pin.fx * rig.baseline_m / p.gt.depth_m).astype(np.float32)
+        case = f"{c['water']}/lamp {c['lamp']}"
+        print(f"\n== stereo: lake {case}")
+        print(f"{'method':16s} {'sea3d bad-2':>11s} {'density':>8s} {'OpenCV bad-2':>12s} "
+              f"{'density':>8s}")
+        ours_all = stereo_with_enhancement(p.left, p.right, gt, SgmConfig(max_disparity_px=max_d))
+        ocv_all = stereo_with_enhancement(p.left, p.right, gt,
+                                          OpenCVSgbmConfig(max_disparity_px=max_d))
+        for m, ours in ours_all.items():
+            ocv = ocv_all[m]
+            print(f"{m:16s} {ours.bad_2:11.2f} {ours.density:8.1f} {ocv.bad_2:12.2f} "
+                  f"{ocv.density:8.1f}", flush=True)
+            rows.append({"case": case, "method": m, "sea3d": ours.as_dict(),
+                         "opencv": ocv.as_dict()})
+    OUT["stereo"] = rows
+
+
+def section_features(args: argparse.Namespace) -> None:
+    size = args.size
+    rig = paper_rig("none", size_px=size)
+    cam = rig.left
+    r = Renderer(builtin_scene("lake"), supersample=2)
+    rows = []
+    for water in ("clear", "coastal"):
+        im = dataclasses.replace(Imaging.underwater(water), caustics=CAUSTICS, vignetting=0.0)
+        clean_im = dataclasses.replace(im, caustics=0.0)
+        frames, poses, depth, cleans = [], [], [], []
+        for k in range(7):
+            T = look_at((0.35 + 0.04 * k, -1.6, 0.9), (0.04 * k, 0.0, 0.1))
+            v = r.render(cam, T, im, time_s=1.5 * k, rng=np.random.default_rng(k))
+            c = r.render(cam, T, clean_im, time_s=1.5 * k, rng=np.random.default_rng(k))
+            frames.append(v.image)
+            poses.append(T)
+            depth.append(v.gt.depth_m)
+            cleans.append(c.image)
+        # Caustic removal of frames 2 and 4 with their four nearest neighbours each.
+        removed = {}
+        for k in (2, 4):
+            idx = list(range(max(0, k - 2), min(7, k + 3)))
+            res = remove_caustics([frames[j] for j in idx], idx.index(k), depth[k], cam,
+                                  [poses[j] for j in idx])
+            removed[k] = res.image
+            seen = res.frames_seen >= 3
+
+            def y(a: np.ndarray) -> np.ndarray:
+                return luminance(srgb_to_linear(a.astype(np.float32) / 255.0))
+
+            before = float(np.abs(y(frames[k]) - y(cleans[k]))[seen].mean())
+            after = float(np.abs(y(res.image) - y(cleans[k]))[seen].mean())
+            print(f"caustic removal {water} frame {k}: luminance error {before:.4f} -> "
+                  f"{after:.4f} ({100 * (1 - after / before):.0f} % less) on "
+                  f"{100 * seen.mean():.0f} % of the image")
+            rows.append({"water": water, "frame": k, "caustic_error_before": before,
+                         "caustic_error_after": after})
+            if args.pictures and water == "clear" and k == 2:
+                cmap = np.clip((res.caustic_map - 0.5) * 255, 0, 255).astype(np.uint8)
+                _picture(args.pictures / "enhance_caustics.jpg",
+                         [frames[k], res.image, np.repeat(cmap[..., None], 3, axis=2),
+                          cleans[k]])
+        T_b_a = np.linalg.inv(poses[4]) @ poses[2]
+        variants = {
+            "raw": (frames[2], frames[4]),
+            "clahe": (clahe(frames[2]), clahe(frames[4])),
+            "caustics removed": (removed[2], removed[4]),
+            "caustics removed + clahe": (clahe(removed[2]), clahe(removed[4])),
+            "caustic-free render (ceiling)": (cleans[2], cleans[4]),
+        }
+        print(f"\n== features: lake {water}, caustics {CAUSTICS}, views 8 cm and 3 s apart")
+        for name, (a, b) in variants.items():
+            fm = correct_feature_matches(a, b, depth[2], cam, T_b_a, tol_px=3.0)
+            print(f"{name:32s} correct {fm.correct:5d} of {fm.matches:5d} ratio-test matches "
+                  f"({100 * fm.precision:.0f} % of the {fm.judged} with true depth)", flush=True)
+            rows.append({"water": water, "variant": name, "correct": fm.correct,
+                         "matches": fm.matches, "judged": fm.judged})
+    OUT["features"] = rows
+
+
+def _images(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.glob("*") if p.suffix.lower() in (".jpg", ".jpeg", ".png"))
+
+
+def _read(p: Path) -> np.ndarray:
+    img = cv2.imread(str(p), cv2.IMREAD_COLOR)
+    if img is None:
+        raise SystemExit(f"cannot read {p}")
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def _ssim_l(a: np.ndarray, b: np.ndarray) -> float:
+    from skimage.metrics import structural_similarity
+
+    la = cv2.cvtColor(a.astype(np.float32) / 255.0, cv2.COLOR_RGB2Lab)[..., 0]
+    lb = cv2.cvtColor(b.astype(np.float32) / 255.0, cv2.COLOR_RGB2Lab)[..., 0]
+    return float(structural_similarity(la, lb, data_range=100.0))
+
+
+def section_real(args: argparse.Namespace) -> None:
+    methods = ("grey-world", "shades-of-grey", "red-comp", "clahe", "udcp")
+    uw = args.data / "underwater"
+    rows: dict[str, Any] = {}
+    euvp = uw / "euvp_pairs"
+    if euvp.is_dir():
+        acc: dict[str, list[list[float]]] = {m: [] for m in ("input", *methods)}
+        for raw_p in _images(euvp / "raw"):
+            raw, ref = _read(raw_p), _read(euvp / "reference" / raw_p.name)
+            for m in acc:
+                out = raw if m == "input" else enhance_image(raw, m).images[0]
+                r = compare_to_reference(out, ref)
+                acc[m].append([r.psnr_db, r.ssim, r.ciede2000, r.ciede2000_gain])
+        print(f"\n== EUVP ({len(acc['input'])} pairs, reference = EUVP's enhanced image), means")
+        print(f"{'method':16s} {'PSNR dB':>8s} {'SSIM':>6s} {'dE00':>6s} {'dE00 gain':>9s}")
+        for m, vals in acc.items():
+            v = np.mean(np.asarray(vals), axis=0)
+            print(f"{m:16s} {v[0]:8.2f} {v[1]:6.3f} {v[2]:6.2f} {v[3]:9.2f}")
+        rows["euvp"] = {m: np.mean(np.asarray(v), axis=0).tolist() for m, v in acc.items()}
+    ruie = uw / "ruie_uccs"
+    if ruie.is_dir():
+        print("\n== RUIE UCCS (no reference): colour cast (CIELAB chroma of the mean), SSIM of "
+              "L* to the input, UCIQE; means per folder")
+        rows["ruie"] = {}
+        for sub in ("blue", "green", "blue-green"):
+            paths = _images(ruie / sub)[:: max(1, args.ruie_stride)]
+            stats: dict[str, list[list[float]]] = {m: [] for m in ("input", *methods)}
+            for pth in paths:
+                img = _read(pth)
+                for m in stats:
+                    out = img if m == "input" else enhance_image(img, m).images[0]
+                    stats[m].append([colour_cast(out), _ssim_l(out, img), uciqe(out).uciqe])
+            print(f"-- {sub} ({len(paths)} images)")
+            for m, vals in stats.items():
+                v = np.mean(np.asarray(vals), axis=0)
+                shrink = sum(1 for a, b in zip(stats["input"], vals, strict=True) if b[0] < a[0])
+                print(f"{m:16s} cast {v[0]:6.2f} (smaller in {shrink}/{len(vals)})  "
+                      f"SSIM L* {v[1]:.3f}  UCIQE {v[2]:.3f}")
+            rows["ruie"][sub] = {m: np.mean(np.asarray(v), axis=0).tolist()
+                                 for m, v in stats.items()}
+    singles = uw / "singles"
+    if singles.is_dir():
+        print("\n== real singles (no reference): UIQM / UCIQE / colour cast")
+        rows["singles"] = {}
+        for pth in _images(singles):
+            img = _read(pth)
+            if max(img.shape[:2]) > 1280:
+                s = 1280 / max(img.shape[:2])
+                img = cv2.resize(img, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
+            line = f"{pth.stem[:22]:22s}"
+            outs = {"input": img}
+            for m in methods:
+                outs[m] = enhance_image(img, m).images[0]
+            for m, out in outs.items():
+                q = uiqm(out)
+                line += f" | {m} {q.uiqm:.2f}/{uciqe(out).uciqe:.3f}/{colour_cast(out):.1f}"
+            print(line, flush=True)
+            if args.pictures and pth.stem.startswith("galdran1"):
+                _picture(args.pictures / "enhance_real_single.jpg",
+                         [outs["input"], outs["grey-world"], outs["red-comp"], outs["clahe"],
+                          outs["udcp"]], height=180)
+    field = uw / "sea3d_field_left"
+    if field.is_dir() and args.pictures:
+        img = _read(sorted(field.glob("*.jpg"))[0])
+        _picture(args.pictures / "enhance_field.jpg",
+                 [img, enhance_image(img, "red-comp").images[0],
+                  enhance_image(img, "clahe").images[0]],
+                 height=200)
+    OUT["real"] = rows
+
+
+def _time(fn: Any, repeats: int) -> tuple[float, float]:
+    walls, cpus = [], []
+    fn()  # warm-up (imports, caches)
+    for _ in range(repeats):
+        w0, c0 = time.perf_counter(), time.process_time()
+        fn()
+        walls.append(time.perf_counter() - w0)
+        cpus.append(time.process_time() - c0)
+    return statistics.median(walls), statistics.median(cpus)
+
+
+def section_speed(args: argparse.Namespace) -> None:
+    field = args.data / "underwater" / "sea3d_field_left"
+    imgs = sorted(field.glob("*.jpg")) if field.is_dir() else []
+    if imgs:
+        img = cv2.resize(_read(imgs[0]), (1920, 1080))
+    else:
+        img = (np.random.default_rng(0).random((1080, 1920, 3)) * 255).astype(np.uint8)
+    yy = np.linspace(6.0, 1.0, 1080, dtype=np.float32)[:, None]
+    rng_map = np.repeat(yy, 1920, axis=1)
+    rng_map[:200] = np.nan  # open water without range
+    print(f"\n== speed per 1920x1080 image, medians of {args.repeats} runs (wall s, CPU s)")
+
+    def ref_clahe() -> None:
+        lab = cv2.cvtColor(img, cv2.COLOR_RGB2Lab)
+        lab[..., 0] = cv2.createCLAHE(2.0, (8, 8)).apply(lab[..., 0])
+        cv2.cvtColor(lab, cv2.COLOR_Lab2RGB)
+
+    refs = {"grey-world": ("OpenCV xphoto grey world", lambda: _xphoto_grey(img)),
+            "clahe": ("OpenCV CLAHE on 8-bit L", ref_clahe)}
+    rows = []
+    for m in METHODS:
+        kw: dict[str, Any] = {"range_m": rng_map} if m == "seathru" else {}
+        wall, cpu = _time(lambda m=m, kw=kw: enhance_image(img, m, **kw), args.repeats)
+        line = f"{m:16s} {wall:7.3f} {cpu:7.3f}"
+        row: dict[str, Any] = {"method": m, "wall_s": wall, "cpu_s": cpu}
+        if m in refs:
+            name, fn = refs[m]
+            rw, rc = _time(fn, args.repeats)
+            line += f"   {name}: {rw:.3f} {rc:.3f}  (ours / reference: {wall / rw:.1f}x wall)"
+            row.update(reference=name, reference_wall_s=rw, reference_cpu_s=rc)
+        print(line, flush=True)
+        rows.append(row)
+    OUT["speed"] = rows
+
+
+def _log_chroma(pixels: np.ndarray) -> np.ndarray:
+    m = pixels.reshape(-1, 3).astype(np.float64).mean(axis=0)
+    return np.log(np.array([m[0] / m[1], m[2] / m[1]]))
+
+
+def section_process(args: argparse.Namespace) -> None:
+    """``sea3d process --restore-colours seathru`` on a short simulated coastal survey with clean
+    references: the colour cast of the frames and of the fused cloud and mesh."""
+    import tempfile
+
+    from sea3d.io.rig_file import rig_to_yaml
+    from sea3d.io.session import SessionWriter, open_session
+    from sea3d.pipeline.frame_stage import FrameStageConfig, process_frame
+    from sea3d.pipeline.process import ProcessConfig, run_process
+    from sea3d.sim.survey import SurveyConfig, simulate_survey
+
+    size = (192, 108)  # as tests/enhance/test_process_colours.py
+    rig = paper_rig("none", size_px=size)
+    with tempfile.TemporaryDirectory() as tmp:
+        src, gt = Path(tmp) / "lake", Path(tmp) / "lake_gt"
+        cfg = SurveyConfig(frames=2, water="coastal", supersample=1, clean_reference=True)
+        with SessionWriter(src, format="folder", rig_yaml=rig_to_yaml(rig)) as w:
+            simulate_survey(builtin_scene("lake"), rig, cfg, w, gt)
+        with open_session(src) as s:
+            t0 = int(s.stamps("left")[0])
+            left, right = s.image("left", t0), s.image("right", t0)
+        clean = _read(gt / "clean" / "left" / f"{t0}.png")
+        plain = process_frame(FrameStageConfig(rig_yaml=rig_to_yaml(rig), max_depth_m=8.0), t0,
+                              left, right)
+        rest = process_frame(FrameStageConfig(rig_yaml=rig_to_yaml(rig), max_depth_m=8.0,
+                                              restore_colours="seathru"), t0, left, right)
+        res = run_process(src, ProcessConfig(
+            out_dir=Path(tmp) / "out", workers=0, poses_path=gt / "poses_left.tum",
+            restore_colours="seathru", max_depth_m=8.0, report=False, evaluate=False))
+    has = np.isfinite(rest.depth_m)
+    ref = _log_chroma(clean)
+
+    def cast(px: np.ndarray) -> float:
+        return float(np.abs(_log_chroma(px) - ref).sum())
+
+    want = _log_chroma(rest.colors()[has])
+    print(f"\n== process --restore-colours seathru: lake, coastal, {size[0]}x{size[1]}, frame 0 "
+          f"(depth on {100 * has.mean():.0f} %)")
+    print(f"colour cast |log R/G| + |log B/G| against the clean view: raw "
+          f"{cast(plain.rect_left[has]):.2f}, restored {cast(rest.colors()[has]):.2f}")
+    for name, colors in (("cloud", res.cloud_colors), ("mesh", res.mesh.colors_rgb)):
+        d = np.abs(_log_chroma(np.asarray(colors)) - want).max()
+        print(f"{name}: log chromaticity within {d:.3f} of the restored frame's "
+              f"(raw frame: {np.abs(_log_chroma(plain.rect_left[has]) - want).max():.2f})")
+    OUT["process"] = {"raw_cast": cast(plain.rect_left[has]),
+                      "restored_cast": cast(rest.colors()[has])}
+
+
+def _picture(path: Path, panels: list[np.ndarray], height: int = 160) -> None:
+    """Panels side by side, scaled to ``height``, as a small JPEG (kept under 200 KB)."""
+    scaled = []
+    for p in panels:
+        s = height / p.shape[0]
+        scaled.append(cv2.resize(p, (round(p.shape[1] * s), height),
+                                 interpolation=cv2.INTER_AREA))
+    strip = np.concatenate(scaled, axis=1)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    for q in (85, 75, 65, 50):
+        ok, buf = cv2.imencode(".jpg", cv2.cvtColor(strip, cv2.COLOR_RGB2BGR),
+                               [cv2.IMWRITE_JPEG_QUALITY, q])
+        if ok and len(buf) < 200_000:
+            path.write_bytes(buf.tobytes())
+            print(f"wrote {path} ({len(buf) // 1024} KB)")
+            return
+    raise SystemExit(f"{path}: could not get under 200 KB")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--section", action="append",
+                    choices=("colour", "stereo", "features", "real", "speed", "process"))
+    ap.add_argument("--size", default="480x270", help="simulated image size WxH")
+    ap.add_argument("--data", type=Path, default=DATA, help="the shared data folder")
+    ap.add_argument("--repeats", type=int, default=3, help="timed runs per method")
+    ap.add_argument("--ruie-stride", type=int, default=5, help="use every n-th RUIE image")
+    ap.add_argument("--pictures", type=Path, help="write the docs' pictures to this folder")
+    ap.add_argument("--json", type=Path, help="also write the figures as JSON")
+    args = ap.parse_args(argv)
+    w, h = (int(v) for v in args.size.split("x"))
+    args.size = (w, h)
+    sections = args.section or ["colour", "stereo", "features", "real", "speed", "process"]
+    funcs = {"colour": section_colour, "stereo": section_stereo, "features": section_features,
+             "real": section_real, "speed": section_speed, "process": section_process}
+    for s in sections:
+        t0 = time.perf_counter()
+        funcs[s](args)
+        print(f"[{s}: {time.perf_counter() - t0:.0f} s]", file=sys.stderr)
+    if args.json:
+        args.json.write_text(json.dumps(OUT, indent=1, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

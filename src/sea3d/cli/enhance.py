@@ -1,0 +1,370 @@
+"""``sea3d enhance`` (one image, or a whole session) and ``sea3d eval enhance``.
+
+    sea3d enhance dive.png -o dive_restored.png --method seathru --depth depth.tiff --rig rig.yaml
+    sea3d enhance dive.png -o dive_grey.png --method grey-world
+    sea3d enhance --session dive.mcap -o dive_seathru.mcap --method seathru
+    sea3d eval enhance restored.png reference.png --json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+__all__ = ["register", "register_eval"]
+
+_log = logging.getLogger(__name__)
+
+_METHODS = ("seathru", "grey-world", "shades-of-grey", "red-comp", "clahe", "udcp")
+
+
+def _read_image(path: str | Path) -> Any:
+    import cv2
+
+    from sea3d.errors import EnhanceError
+
+    p = Path(path)
+    if not p.is_file():
+        raise EnhanceError(f"image not found: {p}")
+    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise EnhanceError(f"cannot read image {p}")
+    if img.ndim == 3 and img.shape[2] == 4:
+        img = img[..., :3]
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    return img
+
+
+def _write_image(path: str | Path, img: Any) -> None:
+    import cv2
+    import numpy as np
+
+    from sea3d.errors import EnhanceError
+
+    p = Path(path)
+    data = np.asarray(img)
+    if data.dtype.kind == "f":
+        data = (np.clip(data, 0, 1) * 255.0 + 0.5).astype(np.uint8)
+    if data.dtype == np.uint16 and p.suffix.lower() in (".jpg", ".jpeg"):
+        data = (data // 257).astype(np.uint8)
+    if data.ndim == 3:
+        data = cv2.cvtColor(data, cv2.COLOR_RGB2BGR)
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        ok = cv2.imwrite(str(p), data)
+    except (cv2.error, OSError) as err:
+        raise EnhanceError(f"cannot write {p}: {err}") from err
+    if not ok:
+        raise EnhanceError(f"cannot write {p} (unknown image type {p.suffix!r}?)")
+
+
+def _seathru_config(args: argparse.Namespace) -> Any:
+    from sea3d.enhance.seathru import SeathruConfig
+
+    return SeathruConfig(
+        holes=args.holes,
+        backscatter=not args.no_backscatter,
+        attenuation=args.attenuation,
+        white_balance="none" if args.no_white_balance else "grey-world",
+    )
+
+
+def _range_for(args: argparse.Namespace, image: Any) -> Any:
+    """The range map for a single image from --depth (and the rig's intrinsics)."""
+    from sea3d.enhance.seathru import depth_to_range
+    from sea3d.errors import EnhanceError
+    from sea3d.io.depth_files import read_depth
+
+    if args.depth is None:
+        raise EnhanceError(
+            "--method seathru needs --depth DEPTH (float32 m .npy/.tiff or 16-bit mm PNG)"
+        )
+    depth = read_depth(args.depth)  # names the file in its errors
+    h, w = image.shape[:2]
+    if depth.shape != (h, w):
+        raise EnhanceError(
+            f"depth {args.depth} is {depth.shape[1]}x{depth.shape[0]} but image {args.input} is "
+            f"{w}x{h}; the depth must be in the image's pixel grid"
+        )
+    if args.range:
+        return depth
+    if args.rig is not None:
+        from sea3d.io.rig_file import load_rig
+
+        rig = load_rig(args.rig)
+        pin: Any = getattr(rig.left, "pinhole", rig.left)
+        if (pin.width, pin.height) != (w, h):
+            raise EnhanceError(
+                f"rig {args.rig} is {pin.width}x{pin.height} but image {args.input} is {w}x{h}"
+            )
+        return depth_to_range(depth, pin.fx, pin.fy, pin.cx, pin.cy)
+    if args.focal_px is not None:
+        return depth_to_range(depth, args.focal_px, args.focal_px, (w - 1) / 2, (h - 1) / 2)
+    _log.warning(
+        "no intrinsics (--rig or --focal-px): the depth is used as range along the line of "
+        "sight (too short by 1/cos of the off-axis angle)"
+    )
+    return depth
+
+
+def _cmd_enhance(args: argparse.Namespace) -> int:
+    from sea3d.errors import EnhanceError
+
+    if args.session is not None:
+        if args.input is not None:
+            raise EnhanceError("give either an input image or --session, not both")
+        return _cmd_enhance_session(args)
+    if args.input is None:
+        raise EnhanceError("sea3d enhance needs an input image (or --session SESSION)")
+    from sea3d.enhance.api import enhance_image
+
+    image = _read_image(args.input)
+    params: dict[str, Any] = {}
+    if args.method == "clahe":
+        params["clip_limit"] = args.clip_limit
+    range_m = _range_for(args, image) if args.method == "seathru" else None
+    out = enhance_image(
+        image,
+        args.method,
+        range_m=range_m,
+        seathru_config=_seathru_config(args) if args.method == "seathru" else None,
+        **params,
+    )
+    _write_image(args.output, out.images[0])
+    summary: dict[str, Any] = {
+        "input": str(args.input),
+        "output": str(args.output),
+        "method": args.method,
+        "status": out.status,
+        "notes": list(out.notes),
+    }
+    if out.model is not None:
+        summary["seathru_model"] = out.model.as_dict()
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        extra = f" ({out.status}: {'; '.join(out.notes)})" if out.status != "ok" else ""
+        print(f"{args.output}: {args.method}{extra}")
+    return 0
+
+
+def _session_depth(rig: Any, args: argparse.Namespace) -> Any:
+    """A callable (left, right) -> (range_left, range_right) from our stereo depth."""
+    import numpy as np
+
+    from sea3d.enhance.seathru import range_from_points
+    from sea3d.rectify import rectify_rig
+    from sea3d.stereo import make_config
+    from sea3d.stereo.depth import compute_depth, max_disparity_for_depth
+
+    maps = rectify_rig(rig, depth_range_m=(args.min_depth, args.max_depth))
+    config = make_config(args.engine, max_disparity_for_depth(maps, args.min_depth))
+    T_right_left = np.linalg.inv(rig.T_left_right)
+
+    def ranges(left: Any, right: Any) -> tuple[Any, Any]:
+        res = compute_depth(maps, left, right, config, max_depth_m=args.max_depth)
+        pts_l = res.points_left
+        pts_r = pts_l @ T_right_left[:3, :3].T + T_right_left[:3, 3]
+        return range_from_points(pts_l, rig.left), range_from_points(pts_r, rig.right)
+
+    return ranges
+
+
+def _cmd_enhance_session(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from sea3d.enhance.api import enhance_pair
+    from sea3d.errors import EnhanceError
+    from sea3d.io.rig_file import load_rig, rig_from_yaml
+    from sea3d.io.session import SessionWriter, layout_of, open_session
+
+    out_path = Path(args.output)
+    if out_path.exists():
+        raise EnhanceError(f"output {out_path} exists; choose a new session path")
+    params: dict[str, Any] = {}
+    if args.method == "clahe":
+        params["clip_limit"] = args.clip_limit
+    statuses: dict[str, int] = {}
+    with open_session(args.session) as session:
+        rig = None
+        if args.rig is not None:
+            rig = load_rig(args.rig)
+        elif session.rig_yaml:
+            rig = rig_from_yaml(session.rig_yaml, f"{args.session} (stored rig.yaml)")
+        ranges = None
+        cfg = None
+        if args.method == "seathru":
+            if rig is None:
+                raise EnhanceError(
+                    f"{args.session} stores no rig; Sea-thru needs stereo depth: pass --rig"
+                )
+            ranges = _session_depth(rig, args)
+            cfg = _seathru_config(args)
+        n_pairs = len(session.match_pairs())
+        if n_pairs == 0:
+            raise EnhanceError(f"{args.session}: no stereo pairs to enhance")
+        imu = session.imu()
+        sonar = session.sonar()
+        with SessionWriter(
+            out_path, format=args.format or layout_of(out_path), rig_yaml=session.rig_yaml
+        ) as writer:
+            for k in range(len(imu)):
+                writer.write_imu(int(imu.t_ns[k]), imu.accel_mps2[k], imu.gyro_radps[k])
+            for k in range(len(sonar)):
+                writer.write_sonar(int(sonar.t_ns[k]), float(sonar.range_m[k]),
+                                   float(sonar.confidence[k]))
+            bar = tqdm(total=n_pairs, unit="pair", desc=f"enhance {args.method}",
+                       disable=args.json or None)
+            try:
+                for pair in session.pairs():
+                    kw: dict[str, Any] = dict(params)
+                    if ranges is not None:
+                        rl, rr = ranges(pair.left, pair.right)
+                        kw.update(range_left_m=rl, range_right_m=rr, seathru_config=cfg)
+                    try:
+                        res = enhance_pair(pair.left, pair.right, args.method, **kw)
+                        lo, ro, status = res.images[0], res.images[1], res.status
+                    except EnhanceError as err:
+                        # One bad frame (no depth, saturated) must not end the session: it is
+                        # copied unchanged and counted.
+                        _log.warning("frame %d kept unchanged: %s", pair.t_ns, err)
+                        lo, ro, status = pair.left, pair.right, "unchanged"
+                    statuses[status] = statuses.get(status, 0) + 1
+                    writer.write_image("left", pair.t_ns, lo)
+                    writer.write_image("right", pair.right_t_ns or pair.t_ns, ro)
+                    bar.update(1)
+            finally:
+                bar.close()
+    summary = {
+        "session": str(args.session),
+        "output": str(out_path),
+        "method": args.method,
+        "pairs": sum(statuses.values()),
+        "status_counts": statuses,
+        "imu": len(imu),
+        "sonar": len(sonar),
+    }
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        print(
+            f"{summary['pairs']} pairs -> {out_path} ({args.method}; "
+            + ", ".join(f"{k}: {v}" for k, v in sorted(statuses.items()))
+            + f"); IMU {len(imu)} and echosounder {len(sonar)} samples copied"
+        )
+    return 0
+
+
+def register(sub: Any) -> None:
+    """Add ``enhance`` to the top-level parser."""
+    p = sub.add_parser(
+        "enhance",
+        help="underwater colour restoration, white balance, CLAHE, dehazing",
+        description="Enhance one image (IN -o OUT) or every stereo pair of a session "
+        "(--session SESSION -o OUT_SESSION, a new session with the same rig, IMU and "
+        "echosounder). Sea-thru uses metric depth: --depth for one image (float32 m "
+        ".npy/.tiff with NaN invalid, or a 16-bit millimetre PNG, in the image's pixel grid), "
+        "our stereo depth for a session.",
+    )
+    p.add_argument("input", nargs="?", help="input image")
+    p.add_argument("-o", "--output", required=True, help="output image, or output session")
+    p.add_argument("--method", choices=_METHODS, default="seathru", help="method (default seathru)")
+    p.add_argument("--depth", help="depth map of the input image (seathru)")
+    p.add_argument(
+        "--range", action="store_true", help="--depth already holds range along the line of sight"
+    )
+    p.add_argument(
+        "--rig", type=Path, help="rig file: intrinsics for depth -> range (and a session's rig)"
+    )
+    p.add_argument(
+        "--focal-px", type=float, help="pinhole focal length for depth -> range (centred)"
+    )
+    p.add_argument(
+        "--holes", choices=("inpaint", "mask"), default="inpaint",
+        help="pixels without depth: restore with inpainted range, or only white-balance them",
+    )
+    p.add_argument(
+        "--attenuation", choices=("fit", "fit-scaled", "illuminant", "none"), default="fit",
+        help="Sea-thru attenuation stage (default fit: the paper's beta_D(z))",
+    )
+    p.add_argument("--no-backscatter", action="store_true", help="Sea-thru: skip backscatter")
+    p.add_argument(
+        "--no-white-balance", action="store_true", help="Sea-thru: skip the final grey world"
+    )
+    p.add_argument("--clip-limit", type=float, default=2.0, help="CLAHE clip limit (default 2)")
+    p.add_argument("--session", help="enhance every stereo pair of this session (MCAP or folder)")
+    p.add_argument("--format", choices=("mcap", "folder"), help="output session layout")
+    p.add_argument(
+        "--engine", choices=("sea3d", "opencv"), default="sea3d",
+        help="session + seathru: stereo engine for the depth (default sea3d)",
+    )
+    p.add_argument("--min-depth", type=float, default=0.5, metavar="M",
+                   help="session + seathru: nearest depth (default 0.5 m)")
+    p.add_argument("--max-depth", type=float, default=10.0, metavar="M",
+                   help="session + seathru: farthest depth (default 10 m)")
+    p.add_argument("--json", action="store_true", help="print a JSON summary")
+    p.set_defaults(handler=_cmd_enhance)
+
+
+def _cmd_eval_enhance(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from sea3d.enhance.metrics import colour_cast, compare_to_reference, uciqe, uiqm
+    from sea3d.errors import EnhanceError
+
+    img = _read_image(args.output_image)
+    out: dict[str, Any] = {"image": str(args.output_image)}
+    if args.reference is not None:
+        ref = _read_image(args.reference)
+        if ref.shape != img.shape:
+            raise EnhanceError(
+                f"{args.output_image} is {img.shape[1]}x{img.shape[0]} but {args.reference} is "
+                f"{ref.shape[1]}x{ref.shape[0]} (or channels differ)"
+            )
+        mask = None
+        if args.mask is not None:
+            m = _read_image(args.mask)
+            mask = (m if m.ndim == 2 else m[..., 0]) > 0
+            if mask.shape != img.shape[:2]:
+                raise EnhanceError(f"mask {args.mask} is not {img.shape[1]}x{img.shape[0]}")
+        out["reference"] = str(args.reference)
+        out.update(compare_to_reference(img, ref, mask).as_dict())
+    if np.asarray(img).ndim == 3:
+        out["uiqm"] = uiqm(img).as_dict()
+        out["uciqe"] = uciqe(img).as_dict()
+        out["colour_cast"] = colour_cast(img)
+    if args.json:
+        print(json.dumps(out, indent=2))
+    else:
+        if "psnr_db" in out:
+            print(
+                f"PSNR {out['psnr_db']:.2f} dB  SSIM {out['ssim']:.4f}  CIEDE2000 "
+                f"{out['ciede2000']:.2f}  after gain {out['ciede2000_gain']:.2f} "
+                f"(x{out['gain']:.3f})  after per-channel gains {out['ciede2000_diag']:.2f}"
+            )
+        if "uiqm" in out:
+            print(
+                f"UIQM {out['uiqm']['uiqm']:.3f}  UCIQE {out['uciqe']['uciqe']:.4f}  "
+                f"colour cast {out['colour_cast']:.2f}"
+            )
+    return 0
+
+
+def register_eval(esub: Any) -> None:
+    """Add ``eval enhance`` to the ``eval`` command's subparsers."""
+    e = esub.add_parser(
+        "enhance",
+        help="PSNR, SSIM, CIEDE2000 (also after an exposure gain), UIQM, UCIQE of an image",
+        description="Compare an enhanced image with a reference (PSNR, SSIM with data range 1, "
+        "mean CIEDE2000, CIEDE2000 after the best global exposure gain and after the best "
+        "per-channel gains) and give its no-reference scores (UIQM, UCIQE, colour cast).",
+    )
+    e.add_argument("output_image", metavar="OUT", help="enhanced image")
+    e.add_argument("reference", metavar="REFERENCE", nargs="?", help="reference image")
+    e.add_argument("--mask", help="image whose non-zero pixels are the ones evaluated")
+    e.add_argument("--json", action="store_true", help="print the figures as JSON")
+    e.set_defaults(handler=_cmd_eval_enhance)
