@@ -21,7 +21,9 @@ from sea3d.errors import Sea3dError
 __all__ = ["build_parser", "main"]
 
 # Modules under sea3d.cli that add subcommands, in the order they appear in --help.
-_COMMAND_MODULES = ("rig", "session", "record", "sim", "calibrate", "depth", "eval", "demo")
+_COMMAND_MODULES = (
+    "rig", "session", "record", "sim", "calibrate", "depth", "sfm", "eval", "demo"
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
