@@ -22,7 +22,7 @@ __all__ = ["build_parser", "main"]
 
 # Modules under sea3d.cli that add subcommands, in the order they appear in --help.
 _COMMAND_MODULES = (
-    "rig", "session", "record", "sim", "calibrate", "depth", "sfm", "eval", "demo"
+    "rig", "session", "record", "sim", "calibrate", "depth", "sfm", "monodepth", "eval", "demo"
 )
 
 
