@@ -85,6 +85,7 @@ def align_depth(
     min_samples: int = 10,
     min_depth_m: float = 1e-3,
     seed: int = 0,
+    ransac_subset: int = 4000,
 ) -> tuple[F32, Alignment]:
     """Align a network's output to sparse metric depth.
 
@@ -98,6 +99,7 @@ def align_depth(
         min_samples: fewer valid samples than this: ``status="failed"``.
         min_depth_m: aligned depths below this are invalid.
         seed: RANSAC's random generator seed.
+        ransac_subset: samples each RANSAC hypothesis is scored on.
 
     Returns:
         ``(depth_m, alignment)``: ``(H, W)`` float32 metres (NaN invalid; all NaN when the fit
@@ -134,6 +136,10 @@ def align_depth(
     def rel_err(s: float, t: float) -> F64:
         return np.asarray(np.abs(s * x + t - y) / np.abs(y), dtype=np.float64)
 
+    # RANSAC hypotheses are scored on a random subset (enough to rank them), the refinement
+    # uses every sample.
+    score = rng.choice(n, min(n, ransac_subset), replace=False)
+    xs, ys = x[score], y[score]
     best_in = -1
     best = (float("nan"), 0.0)
     need = 2 if with_shift else 1
@@ -152,7 +158,7 @@ def align_depth(
             s, t = y[pick[0]] / x[pick[0]], 0.0
         if not s > 0:  # the output must grow with the fitted quantity
             continue
-        cnt = int(np.count_nonzero(rel_err(s, t) < threshold_rel))
+        cnt = int(np.count_nonzero(np.abs(s * xs + t - ys) < threshold_rel * np.abs(ys)))
         if cnt > best_in:
             best_in, best = cnt, (float(s), float(t))
     if best_in < need:
