@@ -263,7 +263,7 @@ def _cmd_sfm(args: argparse.Namespace) -> int:
                 for b in bars.values():
                     b.close()
                 bar = bars[stage] = tqdm(total=total, desc=stage, unit="img" if stage ==
-                                         "extract" else "frame", leave=False)
+                                         "prepare" else "frame", leave=False)
             bar.n = done
             bar.refresh()
 

@@ -14,9 +14,11 @@ mapping, bundle adjustment, with our cameras and rigs.
 - Pose priors (positions of the left camera over time, e.g. from odometry or ground truth) go to
   COLMAP as position priors; the model is then in the priors' (metric) world.
 
-Features are extracted in memory (images are never written out): a pool of worker processes
-runs pycolmap's SIFT (it holds the GIL, so threads would not help); the COLMAP database is
-scratch space in ``workdir`` (a temporary folder by default).
+Images are loaded one at a time, prepared (remapped for port cameras) and written as PNG into
+``workdir`` (a temporary folder by default) with COLMAP's database; COLMAP's own extractor then
+reads them with its threads (pycolmap's in-memory extractor holds the GIL, and worker processes
+would re-import the caller's main script). Keep ``import cv2`` (or any ``sea3d`` module) before
+``import pycolmap``: the other order makes OpenCV's PNG writer crash in pycolmap's zlib.
 """
 
 from __future__ import annotations
@@ -27,10 +29,8 @@ import shutil
 import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -52,9 +52,6 @@ log = logging.getLogger(__name__)
 F64 = NDArray[np.float64]
 Progress = Callable[[str, int, int], None]
 
-_EXTRACTOR: Any = None
-
-
 # ------------------------------------------------------------------------------ features
 def _extraction_options(config: SfmConfig, threads: int) -> Any:
     import pycolmap
@@ -66,51 +63,6 @@ def _extraction_options(config: SfmConfig, threads: int) -> Any:
     eo.sift.first_octave = int(config.sift_first_octave)
     eo.sift.peak_threshold = float(config.sift_peak_threshold)
     return eo
-
-
-def _init_worker(config: SfmConfig) -> None:
-    import pycolmap
-
-    global _EXTRACTOR
-    pycolmap.logging.minloglevel = 2
-    _EXTRACTOR = pycolmap.FeatureExtractor.create(
-        _extraction_options(config, 1), pycolmap.Device.cpu
-    )
-
-
-def _extract(grey: NDArray[np.uint8]) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
-    """SIFT of one grey image in COLMAP's pixel convention (centres at +0.5): keypoints
-    ``(N, 4)`` (x, y, scale, orientation) at full resolution and descriptors ``(N, 128)``."""
-    import pycolmap
-
-    kp, desc = _EXTRACTOR.extract_from_uint8_array(np.ascontiguousarray(grey))
-    return (np.asarray(pycolmap.keypoints_to_matrix(kp), dtype=np.float32),
-            np.asarray(desc.data, dtype=np.uint8))
-
-
-class _Pool:
-    """SIFT in worker processes, or in this process for small jobs."""
-
-    def __init__(self, config: SfmConfig, workers: int) -> None:
-        self.executor: ProcessPoolExecutor | None = None
-        if workers > 1:
-            self.executor = ProcessPoolExecutor(
-                max_workers=workers, mp_context=get_context("spawn"),
-                initializer=_init_worker, initargs=(config,),
-            )
-        else:
-            _init_worker(config)
-
-    def submit(self, grey: NDArray[np.uint8]) -> Future[Any]:
-        if self.executor is not None:
-            return self.executor.submit(_extract, grey)
-        fut: Future[Any] = Future()
-        fut.set_result(_extract(grey))
-        return fut
-
-    def close(self) -> None:
-        if self.executor is not None:
-            self.executor.shutdown(wait=True, cancel_futures=True)
 
 
 # ------------------------------------------------------------------------------ sensors
@@ -211,21 +163,6 @@ def _load(image: Any, source: str) -> np.ndarray:
     return arr
 
 
-def _grey(img: np.ndarray) -> NDArray[np.uint8]:
-    g = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img
-    return np.ascontiguousarray(g, dtype=np.uint8)
-
-
-def _colours_at(img: np.ndarray, kp: NDArray[np.float32]) -> NDArray[np.uint8]:
-    h, w = img.shape[:2]
-    u = np.clip(np.round(kp[:, 0] - 0.5).astype(np.intp), 0, w - 1)
-    v = np.clip(np.round(kp[:, 1] - 0.5).astype(np.intp), 0, h - 1)
-    c = img[v, u]
-    if c.ndim == 1:
-        c = np.repeat(c[:, None], 3, axis=1)
-    return np.ascontiguousarray(c, dtype=np.uint8)
-
-
 @contextmanager
 def _quiet_colmap() -> Iterator[None]:
     import pycolmap
@@ -272,6 +209,15 @@ def _prior_poses(priors: PosePriors, t_s: F64, max_gap_s: float) -> F64:
 
 
 # ------------------------------------------------------------------------------ the stage
+def _cpu_s() -> float:
+    """CPU seconds of this process and its finished children (the SIFT workers)."""
+    import resource
+
+    me = resource.getrusage(resource.RUSAGE_SELF)
+    ch = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + ch.ru_utime + ch.ru_stime
+
+
 def _check_frames(frames: Sequence[SfmFrame], config: SfmConfig, rig: StereoRig | None) -> None:
     if len(frames) < config.min_frames:
         where = frames[0].source if frames else "the input"
@@ -380,7 +326,7 @@ def _run(
     sensors = _sensors(frames, config, rig, first_img)
     timings["prepare_s"] = time.perf_counter() - t0
 
-    # ---------------------------------------------------------------- database + features
+    # ---------------------------------------------------------------- database + images
     t0 = time.perf_counter()
     db = pycolmap.Database.open(str(db_path))
     for s in sensors:
@@ -396,57 +342,40 @@ def _run(
         prig.add_sensor(cam_sensor["right"], _rigid(T))
     db.write_rig(prig, use_rig_id=True)
 
-    workers = max(1, min(threads, 8))
     n_images = len(frames) * len(sensors)
-    if n_images * first_img.shape[0] * first_img.shape[1] < 2e7:
-        workers = 1  # small jobs: process start-up costs more than it saves
-    pool = _Pool(config, workers)
-    colours: dict[int, NDArray[np.uint8]] = {}
-    pending: list[tuple[int, np.ndarray, Future[Any]]] = []
+    image_dir = wd / "images"
     image_ids: list[list[int]] = []
-    done = 0
-
-    def drain(limit: int) -> None:
-        nonlocal done
-        while len(pending) > limit:
-            iid, img, fut = pending.pop(0)
-            kp, desc = fut.result()
-            db.write_keypoints(iid, kp)
-            db.write_descriptors(iid, pycolmap.FeatureDescriptors(
-                type=pycolmap.FeatureExtractorType.SIFT, data=desc))
-            colours[iid] = _colours_at(img, kp)
-            done += 1
+    names: list[str] = []
+    iid = 0
+    for k, fr in enumerate(frames):
+        ids_k = []
+        for s in sensors:
+            iid += 1
+            src = fr.source or fr.name
+            raw = first_img if (k == 0 and s is sensors[0]) else _load(
+                fr.left if s.name == "left" else fr.right, f"{src} ({s.name})")
+            if raw.shape[:2] != (s.height, s.width):
+                what = "the rig" if s.fixed else f"the first image ({first_src})"
+                raise SfmError(
+                    f"{src}: {s.name} image is {raw.shape[1]}x{raw.shape[0]} but {what} "
+                    f"is {s.width}x{s.height}; all images must have one size"
+                )
+            img = s.prepare(raw)
+            name = f"{s.name}/{fr.name}.png"
+            if image_sink is not None:
+                image_sink(name, img)
+            path = image_dir / name
+            path.parent.mkdir(parents=True, exist_ok=True)
+            bgr = cv2.cvtColor(img, cv2.COLOR_RGB2BGR) if img.ndim == 3 else img
+            if not cv2.imwrite(str(path), bgr, [cv2.IMWRITE_PNG_COMPRESSION, 1]):
+                raise SfmError(f"cannot write the scratch image {path}")
+            db.write_image(pycolmap.Image(name=name, camera_id=s.camera_id, image_id=iid),
+                           use_image_id=True)
+            names.append(name)
+            ids_k.append(iid)
             if progress is not None:
-                progress("extract", done, n_images)
-
-    try:
-        iid = 0
-        for k, fr in enumerate(frames):
-            ids_k = []
-            for s in sensors:
-                iid += 1
-                src = fr.source or fr.name
-                raw = first_img if (k == 0 and s is sensors[0]) else _load(
-                    fr.left if s.name == "left" else fr.right, f"{src} ({s.name})")
-                if raw.shape[:2] != (s.height, s.width):
-                    what = "the rig" if s.fixed else f"the first image ({first_src})"
-                    raise SfmError(
-                        f"{src}: {s.name} image is {raw.shape[1]}x{raw.shape[0]} but {what} "
-                        f"is {s.width}x{s.height}; all images must have one size"
-                    )
-                img = s.prepare(raw)
-                name = f"{s.name}/{fr.name}.png"
-                if image_sink is not None:
-                    image_sink(name, img)
-                db.write_image(pycolmap.Image(name=name, camera_id=s.camera_id, image_id=iid),
-                               use_image_id=True)
-                pending.append((iid, img, pool.submit(_grey(img))))
-                ids_k.append(iid)
-                drain(2 * workers)
-            image_ids.append(ids_k)
-        drain(0)
-    finally:
-        pool.close()
+                progress("prepare", iid, n_images)
+        image_ids.append(ids_k)
     for k, ids_k in enumerate(image_ids):
         f = pycolmap.Frame(frame_id=k + 1, rig_id=1)
         for s, i in zip(sensors, ids_k, strict=True):
@@ -476,10 +405,17 @@ def _run(
             log.warning("%s: only %d frames have a pose prior within %.2f s; priors ignored",
                         priors.source, n_priors, config.prior_max_gap_s)
     db.close()
+    timings["prepare_s"] += time.perf_counter() - t0
+    # COLMAP's own extractor: its reader and SIFT threads run outside the GIL.
+    t0, c0 = time.perf_counter(), _cpu_s()
+    pycolmap.extract_features(str(db_path), str(image_dir), image_names=names,
+                              extraction_options=_extraction_options(config, threads),
+                              device=pycolmap.Device.cpu)
     timings["extract_s"] = time.perf_counter() - t0
+    timings["extract_cpu_s"] = _cpu_s() - c0
 
     # ---------------------------------------------------------------- matching
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), _cpu_s()
     mo = pycolmap.FeatureMatchingOptions()
     mo.num_threads = threads
     if config.matcher == "sequential":
@@ -493,9 +429,10 @@ def _run(
         pycolmap.match_exhaustive(str(db_path), matching_options=mo,
                                   device=pycolmap.Device.cpu)
     timings["match_s"] = time.perf_counter() - t0
+    timings["match_cpu_s"] = _cpu_s() - c0
 
     # ---------------------------------------------------------------- mapping
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), _cpu_s()
     opts = pycolmap.IncrementalPipelineOptions()
     opts.extract_colors = False
     opts.num_threads = threads
@@ -525,6 +462,7 @@ def _run(
     recs = pycolmap.incremental_mapping(str(db_path), str(wd), str(models_dir), opts,
                                         next_image_callback=on_next_image)
     timings["map_s"] = time.perf_counter() - t0
+    timings["map_cpu_s"] = _cpu_s() - c0
     n_img = len(frames) * len(sensors)
     metric = (rig is not None and len(sensors) == 2) or use_priors
     if not recs:
@@ -545,8 +483,8 @@ def _run(
         t0 = time.perf_counter()
         ba_report = refractive.refine(rec, sensors, rig, fix_scale=not metric)
         timings["refractive_ba_s"] = time.perf_counter() - t0
-    result = _result(rec, frames, sensors, rig, n_img, len(recs), metric, colours, timings,
-                     ba_report)
+    rec.extract_colors_for_all_images(str(image_dir))
+    result = _result(rec, frames, sensors, rig, n_img, len(recs), metric, timings, ba_report)
     timings["total_s"] = time.perf_counter() - t_start
     return result
 
@@ -576,7 +514,7 @@ def _camera_info(sensors: list[_Sensor], rec: Any) -> dict[str, dict[str, Any]]:
 
 def _result(rec: Any, frames: Sequence[SfmFrame], sensors: list[_Sensor],
             rig: StereoRig | None, n_img: int, n_models: int, metric: bool,
-            colours: dict[int, NDArray[np.uint8]], timings: dict[str, float],
+            timings: dict[str, float],
             ba_report: Any) -> SfmResult:
     ref = sensors[0]
     T_vref_ref = invert_T(ref.T_cam_virtual)
@@ -596,9 +534,7 @@ def _result(rec: Any, frames: Sequence[SfmFrame], sensors: list[_Sensor],
     for p in rec.points3D.values():
         pts.append(np.asarray(p.xyz, dtype=np.float64))
         errs.append(float(p.error))
-        el = p.track.elements[0]
-        c = colours.get(int(el.image_id))
-        cols.append(c[int(el.point2D_idx)] if c is not None else np.zeros(3, np.uint8))
+        cols.append(np.asarray(p.color, dtype=np.uint8))
     n_reg_img = sum(1 for im in rec.images.values() if im.has_pose)
     n_reg = len(names)
     status = "ok" if n_reg == len(frames) else "partial"

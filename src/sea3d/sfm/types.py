@@ -200,8 +200,10 @@ class SfmResult:
         virtual: ``{"left": VirtualPinholeReport, ...}`` for port cameras remapped into a
             virtual pinhole (residual over the working range).
         refractive_ba: report of the refractive bundle adjustment, or None.
-        timings_s: seconds per stage (``prepare_s``, ``extract_s``, ``match_s``, ``map_s``,
-            ``refractive_ba_s``, ``total_s``).
+        timings_s: wall seconds per stage (``prepare_s``, ``extract_s``, ``match_s``,
+            ``map_s``, ``refractive_ba_s``, ``total_s``) and CPU seconds of the three COLMAP
+            stages (``extract_cpu_s``, ``match_cpu_s``, ``map_cpu_s``: all threads and worker
+            processes).
         reconstruction: the ``pycolmap.Reconstruction`` (write it with
             :func:`sea3d.io.sfm_files.write_colmap_model`); None when failed.
     """
