@@ -115,7 +115,7 @@ def main() -> None:
                 * (1 + 0.01 * rng.standard_normal(inv.shape))}
         for name, pred in nets.items():
             t0 = time.perf_counter()
-            aligned, al = align_depth(pred, stereo, kind="inverse")
+            aligned, _ = align_depth(pred, stereo, kind="inverse")
             t_ours.append(time.perf_counter() - t0)
             fused, _ = fill_holes(stereo, aligned)
             t0 = time.perf_counter()

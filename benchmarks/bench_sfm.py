@@ -5,6 +5,7 @@ Sections (all by default; pick with --only):
 - ``ports``: the residual of the virtual pinhole for the paper's dome, decentred domes and a
   flat port: OpenCV-distortion fits at the camera centre and at the rays' closest point, and
   the exact remap at the closest point (sea3d.rectify.virtual_pinhole_maps).
+- ``sift``: 20 field frames with the default SIFT (first octave -1) and the ``--fast`` preset.
 - ``field``: the real 100-frame field sequence ``underwater/sea3d_field_left`` (1920x1080,
   monocular, self-calibrated): registered frames, mean reprojection error, points, wall and CPU
   time per stage; beside it COLMAP's stock pipeline through pycolmap on the same images in the
@@ -23,7 +24,7 @@ Sections (all by default; pick with --only):
 Rendered sequences are cached in ``--cache`` (default ``benchmarks/.cache``). Trajectory errors
 use a private Umeyama alignment (``sea3d.sfm._align``) until ``sea3d.eval.trajectory`` lands.
 
-    python benchmarks/bench_sfm.py [--only ports|field|stereo|refraction] [--size 640x360]
+    python benchmarks/bench_sfm.py [--only ports|sift|field|stereo|refraction] [--size 640x360]
         [--frames 40] [--no-reference]
 """
 
@@ -56,7 +57,8 @@ def _cpu_s() -> float:
 
 
 def _load() -> str:
-    return "load average %.1f %.1f %.1f on %d cores" % (*os.getloadavg(), os.cpu_count() or 1)
+    a, b, c = os.getloadavg()
+    return f"load average {a:.1f} {b:.1f} {c:.1f} on {os.cpu_count() or 1} cores"
 
 
 # ------------------------------------------------------------------------------ field data
@@ -125,6 +127,29 @@ def bench_field(reference: bool, overlap: int) -> None:
         print(f"  ratio sea3d/COLMAP: wall {wall / (t3 - w0):.2f}, CPU {cpu / cpu_ref:.2f}")
     finally:
         shutil.rmtree(wd, ignore_errors=True)
+
+
+def bench_sift(start: int = 40, count: int = 20) -> None:
+    """The default SIFT (first octave -1) against the fast preset on a stretch of field frames."""
+    import cv2
+
+    folder = DATA / "underwater" / "sea3d_field_left"
+    paths = sorted(folder.glob("*.jpg"))[start:start + count]
+    if not paths:
+        print(f"sift: {folder} not found (set SEA3D_TEST_DATA); skipped")
+        return
+    frames = [SfmFrame(name=p.stem, t_s=float(i),
+                       left=(lambda p=p: np.ascontiguousarray(cv2.imread(str(p))[:, :, ::-1])),
+                       source=str(p)) for i, p in enumerate(paths)]
+    print(f"sift: field frames {start}-{start + count - 1}, default against --fast, {_load()}")
+    for label, cfg in (("default (first_octave -1)", SfmConfig()),
+                       ("fast (first_octave 0, peak 0.001)", SfmConfig.fast())):
+        res = run_sfm(frames, cfg)
+        t = res.timings_s
+        print(f"  {label:34s} {res.registered}/{res.frames} registered, "
+              f"{len(res.points_world)} points, {res.mean_reprojection_error_px:.3f} px; CPU s: "
+              f"extract {t['extract_cpu_s']:.1f}, match {t['match_cpu_s']:.1f}, map "
+              f"{t['map_cpu_s']:.1f}")
 
 
 # ------------------------------------------------------------------------------ simulation
@@ -303,7 +328,7 @@ def bench_ports(size: tuple[int, int] = (960, 540), depth_range_m: tuple[float, 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--only", choices=["ports", "field", "stereo", "refraction"])
+    parser.add_argument("--only", choices=["ports", "sift", "field", "stereo", "refraction"])
     parser.add_argument("--size", default="640x360")
     parser.add_argument("--frames", type=int, default=40)
     parser.add_argument("--fps", type=float, default=2.0)
@@ -314,6 +339,8 @@ def main() -> None:
     w, h = (int(v) for v in args.size.split("x"))
     if args.only in (None, "ports"):
         bench_ports()
+    if args.only in (None, "sift"):
+        bench_sift()
     if args.only in (None, "field"):
         bench_field(not args.no_reference, args.overlap)
     if args.only in (None, "stereo"):

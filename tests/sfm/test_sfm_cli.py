@@ -100,3 +100,18 @@ def test_image_glob_is_self_calibrated_and_indexed(sim_session: Path, tmp_path: 
     # the self-calibrated focal length is near the dome camera's virtual pinhole (177 px)
     f = summary["cameras"]["left"]["params"][0]
     assert 0.9 * 177.3 < f < 1.1 * 177.3
+
+
+def test_imu_scale_is_reported_and_applied_only_when_trustworthy(
+    sim_session: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # One second of a slow orbit: far too little acceleration for the IMU to fix the scale;
+    # the run must say so and leave the model up to scale.
+    out = tmp_path / "out"
+    assert main(["-q", "sfm", str(sim_session), "-o", str(out), "--imu-scale",
+                 "--imu-extrinsics", str(sim_session / "gt" / "sim.json")]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["imu_scale"]["status"] in ("weak", "failed")
+    assert summary["imu_scale"]["applied"] is False and summary["metric"] is False
+    assert main(["sfm", str(sim_session), "-o", str(out), "--imu-scale"]) == 2
+    assert "--imu-extrinsics" in capsys.readouterr().err

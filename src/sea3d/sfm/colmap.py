@@ -439,6 +439,8 @@ def _run(
     opts.random_seed = int(config.seed)
     opts.mapper.random_seed = int(config.seed)
     opts.min_model_size = min(10, max(2, len(frames) // 3))
+    opts.ba_global_frames_ratio = float(config.ba_global_ratio)
+    opts.ba_global_points_ratio = float(config.ba_global_ratio)
     if rig is not None:
         opts.ba_refine_focal_length = False
         opts.ba_refine_principal_point = False

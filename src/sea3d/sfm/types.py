@@ -51,11 +51,16 @@ class SfmConfig:
         max_image_px: SIFT runs on images downscaled so their longer side is at most this
             (keypoints are scaled back; the model keeps the full size).
         max_features: most SIFT features per image.
-        sift_first_octave: COLMAP's ``first_octave`` (-1 upsamples first: more, finer features
-            at about 3x the extraction time; 0 works on the image as it is).
-        sift_peak_threshold: SIFT's contrast threshold (COLMAP's default 0.0067; hazy
-            underwater images need less).
+        sift_first_octave: COLMAP's ``first_octave``: -1 (COLMAP's default) upsamples first,
+            for finer, better localised features (field data: 0.43 px mean reprojection error
+            against 0.73 px with 0) at about 3x the extraction time; 0 works on the image as it
+            is (the ``fast`` preset).
+        sift_peak_threshold: SIFT's contrast threshold (COLMAP's default 0.0067; with
+            ``first_octave=0`` hazy underwater images need about 0.001).
         sequential_overlap: frames ahead each frame is matched with (sequential matcher).
+        ba_global_ratio: COLMAP runs a global bundle adjustment each time the model grew by
+            this factor (its default 1.1; 1.25 saves about a third of the mapping time on video,
+            the final global adjustment is the same).
         self_calibration_model: COLMAP camera model refined when no rig is given.
         depth_range_m: working range (near, far) in metres: where the virtual pinhole of a
             port camera is fitted and its residual reported.
@@ -75,9 +80,10 @@ class SfmConfig:
     matcher: str = "sequential"
     max_image_px: int = 1600
     max_features: int = 4096
-    sift_first_octave: int = 0
-    sift_peak_threshold: float = 0.002
-    sequential_overlap: int = 8
+    sift_first_octave: int = -1
+    sift_peak_threshold: float = 0.0067
+    sequential_overlap: int = 6
+    ba_global_ratio: float = 1.25
     self_calibration_model: str = "SIMPLE_RADIAL"
     depth_range_m: tuple[float, float] = (0.5, 10.0)
     refractive_ba: str = "auto"
@@ -87,6 +93,12 @@ class SfmConfig:
     min_frames: int = 3
     num_threads: int = -1
     seed: int = 0
+
+    @classmethod
+    def fast(cls, **overrides: Any) -> SfmConfig:
+        """A preset about 2.5x faster and less precise: SIFT without upsampling
+        (``first_octave=0``, ``peak_threshold=0.001``)."""
+        return cls(**{"sift_first_octave": 0, "sift_peak_threshold": 0.001, **overrides})
 
     def __post_init__(self) -> None:
         if self.camera not in CAMERAS:
@@ -117,6 +129,8 @@ class SfmConfig:
             raise ConfigError(
                 f"depth_range_m must satisfy 0 < near < far, got {self.depth_range_m}"
             )
+        if not self.ba_global_ratio > 1.0:
+            raise ConfigError(f"ba_global_ratio must be > 1, got {self.ba_global_ratio}")
         if not self.prior_position_std_m > 0 or not self.prior_max_gap_s > 0:
             raise ConfigError("prior_position_std_m and prior_max_gap_s must be > 0")
 
