@@ -168,7 +168,7 @@ def smooth_rotations(t: F64, R_mb: F64, ti: F64, gyro: F64, gyro_noise_density: 
         sol, *_ = np.linalg.lstsq(A, y, rcond=None)
         d = sol[: 3 * K].reshape(K, 3)
         R = Rotation.from_rotvec(d).as_matrix() @ R
-        bias = sol[3 * K:]
+        bias = np.asarray(sol[3 * K:], dtype=np.float64)
     return R, bias
 
 
