@@ -145,7 +145,7 @@ def smooth_rotations(t: F64, R_mb: F64, ti: F64, gyro: F64, gyro_noise_density: 
     K = len(t)
     R0 = np.asarray(R_mb, dtype=np.float64)
     R = R0.copy()
-    bias = np.zeros(3)
+    bias: F64 = np.zeros(3)
     w_abs = 1.0 / rotation_noise_rad
     w_rel = 1.0 / (gyro_noise_density * np.sqrt(dt))
     for _ in range(2):
