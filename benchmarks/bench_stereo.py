@@ -107,32 +107,67 @@ MIDDLEBURY = {
 }
 
 
+def most_confident(disparity: np.ndarray, confidence: np.ndarray, gt: np.ndarray,
+                   density_percent: float) -> np.ndarray:
+    """``disparity`` kept on its most confident pixels, as many as ``density_percent`` of the
+    known ground truth; filled pixels (confidence 0) last, nearest to a matched pixel first."""
+    known = np.isfinite(gt) & (gt > 0)
+    filled = np.isfinite(disparity) & (confidence <= 0)
+    dist = cv2.distanceTransform(filled.astype(np.uint8), cv2.DIST_L2, 3)
+    rank = np.where(filled, -1e-3 * dist / (1.0 + dist), confidence)
+    score = np.where(np.isfinite(disparity) & known, rank, -1.0)[known]
+    n = round(density_percent / 100.0 * known.sum())
+    keep = np.zeros(score.size, bool)
+    keep[np.argsort(-score, kind="stable")[:n]] = True
+    mask = np.zeros_like(known)
+    mask[known] = keep
+    return np.where(mask, disparity, np.nan)
+
+
+def _middlebury(root: Path, scene: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    ln, rn, gn, scale, md = MIDDLEBURY[scene]
+    folder = root / scene
+    left = cv2.cvtColor(cv2.imread(str(folder / ln)), cv2.COLOR_BGR2RGB)
+    right = cv2.cvtColor(cv2.imread(str(folder / rn)), cv2.COLOR_BGR2RGB)
+    raw = cv2.imread(str(folder / gn), cv2.IMREAD_UNCHANGED)
+    gt = np.where(raw > 0, raw / scale, np.nan).astype(np.float32)
+    return left, right, gt, md
+
+
 def middlebury_table(root: Path) -> None:
-    """Accuracy of sea3d and OpenCV (HH, SGBM; block sizes 3 and 5) on Middlebury scenes."""
+    """Accuracy of sea3d (default: dense; and matched pixels only) and OpenCV on Middlebury:
+    bad-X over pixels known in both maps, all-pixels bad-2 (missing = bad), and sea3d's bad-2
+    at each OpenCV engine's density (its most confident pixels)."""
     from sea3d.eval import disparity_metrics
     from sea3d.stereo import OpenCVSgbmConfig, SgmConfig, match
 
-    engines = {
-        "sea3d": lambda md: SgmConfig(max_disparity_px=md),
-        "sea3d fill 8": lambda md: SgmConfig(max_disparity_px=md, fill_max_px=8),
-        "sea3d 16 paths": lambda md: SgmConfig(max_disparity_px=md, paths=16),
-        "OpenCV HH w3": lambda md: OpenCVSgbmConfig(max_disparity_px=md, mode="hh",
-                                                    block_size_px=3),
-        "OpenCV HH w5": lambda md: OpenCVSgbmConfig(max_disparity_px=md, mode="hh"),
-        "OpenCV SGBM w5": lambda md: OpenCVSgbmConfig(max_disparity_px=md, mode="sgbm"),
+    refs = {
+        "OpenCV SGBM w3": ("sgbm", 3), "OpenCV SGBM w5": ("sgbm", 5),
+        "OpenCV HH w3": ("hh", 3), "OpenCV HH w5": ("hh", 5),
+        "OpenCV SGBM_3WAY w5": ("sgbm_3way", 5),
     }
-    print("| scene | engine | bad-0.5 % | bad-1 % | bad-2 % | bad-4 % | EPE px | density % |")
-    print("|---|---|---|---|---|---|---|---|")
-    for scene, (ln, rn, gn, scale, md) in MIDDLEBURY.items():
-        folder = root / scene
-        left = cv2.cvtColor(cv2.imread(str(folder / ln)), cv2.COLOR_BGR2RGB)
-        right = cv2.cvtColor(cv2.imread(str(folder / rn)), cv2.COLOR_BGR2RGB)
-        raw = cv2.imread(str(folder / gn), cv2.IMREAD_UNCHANGED)
-        gt = np.where(raw > 0, raw / scale, np.nan).astype(np.float32)
-        for name, mk in engines.items():
-            m = disparity_metrics(match(left, right, mk(md)).disparity_px, gt)  # type: ignore[no-untyped-call]
+    print("| scene | engine | bad-0.5 % | bad-1 % | bad-2 % | bad-4 % | EPE px | density % |"
+          " bad-2 all % | sea3d bad-2 % at this density |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for scene in MIDDLEBURY:
+        left, right, gt, md = _middlebury(root, scene)
+        ours = match(left, right, SgmConfig(max_disparity_px=md))
+        rows = [("sea3d (default, dense)", ours.disparity_px, ""),
+                ("sea3d matched pixels (--no-fill)",
+                 match(left, right, SgmConfig(max_disparity_px=md, fill_max_px=0)).disparity_px,
+                 "")]
+        for name, (mode, block) in refs.items():
+            d = match(left, right, OpenCVSgbmConfig(max_disparity_px=md, mode=mode,  # type: ignore[arg-type]
+                                                    block_size_px=block)).disparity_px
+            dens = disparity_metrics(d, gt).density
+            eq = disparity_metrics(most_confident(ours.disparity_px, ours.confidence, gt, dens),
+                                   gt)
+            rows.append((name, d, f"{eq.bad_2:.2f}"))
+        for name, d, eq_s in rows:
+            m = disparity_metrics(d, gt)
             print(f"| {scene} | {name} | {m.bad_0_5:.2f} | {m.bad_1:.2f} | {m.bad_2:.2f} | "
-                  f"{m.bad_4:.2f} | {m.epe_px:.3f} | {m.density:.1f} |")
+                  f"{m.bad_4:.2f} | {m.epe_px:.3f} | {m.density:.1f} | {m.bad_2_all:.2f} | "
+                  f"{eq_s} |")
 
 
 def _render_plane(cam: object, T_left_cam: np.ndarray, depth_m: float, tex: np.ndarray,
@@ -255,6 +290,92 @@ def underwater_table(width: int, height: int) -> None:
         print(f"| {h_m} m, {tilt:.0f} deg | {z0:.2f}-{z1:.2f} | {e_c:.2f} | {e_n:.2f} |")
 
 
+def ablation_tables(data: Path) -> None:
+    """The figures behind the design choices in docs/depth.md: the alignment refinement's gain
+    on plane depth, its window size on coastal water and Middlebury, and pyramid levels with 4
+    or 8 band paths."""
+    from bench_stereo_underwater import simulated_pairs
+
+    from sea3d.eval import disparity_metrics
+    from sea3d.rectify import rectify_rig
+    from sea3d.refraction.presets import paper_rig
+    from sea3d.stereo import SgmConfig, match
+    from sea3d.stereo.depth import compute_depth, max_disparity_for_depth
+
+    old5 = {"refine_window_px": 5, "refine_row_step": 1, "refine_weight_cutoff": 0.0}
+    variants = {
+        "no refinement": {"refine_iterations": 0},
+        "5 px window (before)": old5,
+        "9 px window": {**old5, "refine_window_px": 9},
+        "15 px window": {**old5, "refine_window_px": 15},
+        "15 px, rows step 3, weighted (default)": {},
+    }
+    # plane depth error: fronto-parallel textured planes, 480x270 pinhole rig
+    rng = np.random.default_rng(0)
+    n = 2048
+    base = cv2.GaussianBlur(rng.random((n, n)).astype(np.float32), (0, 0), 1.5)
+    base = (base - base.min()) / np.ptp(base)
+    coarse = cv2.resize(rng.random((n // 32, n // 32)).astype(np.float32), (n, n))
+    tex = (255 * (0.7 * base + 0.3 * coarse)).astype(np.float32)
+    rig = paper_rig(port="none", size_px=(480, 270))
+    maps = rectify_rig(rig)
+    print("plane depth error, median |z - z_true| / z % (480x270 pinhole rig, textured planes)")
+    print("| refinement | 1 m | 2 m | 3 m | 5 m |")
+    print("|---|---|---|---|---|")
+    planes = {z0: (_render_plane(rig.left, np.eye(4), z0, tex, 1.3 * z0),
+                   _render_plane(rig.right, rig.T_left_right, z0, tex, 1.3 * z0))
+              for z0 in (1.0, 2.0, 3.0, 5.0)}
+    for name, over in variants.items():
+        cells = []
+        for z0, (left, right) in planes.items():
+            cfg = SgmConfig(max_disparity_px=max_disparity_for_depth(maps, 0.8), **over)  # type: ignore[arg-type]
+            res = compute_depth(maps, left, right, cfg)
+            cells.append(f"{100 * float(np.median(np.abs(res.points_left[:, 2] - z0))) / z0:.3f}")
+        print(f"| {name} | " + " | ".join(cells) + " |")
+
+    print("\nrefinement window: EPE px (matched pixels, --no-fill) on the coastal pairs and "
+          "Middlebury")
+    pairs = simulated_pairs()
+    scenes = {sc: _middlebury(data / "stereo_gt", sc) for sc in MIDDLEBURY}
+    print("| refinement | " + " | ".join(p[0] for p in pairs) + " | " + " | ".join(scenes) + " |")
+    print("|---|" + "---|" * (len(pairs) + len(scenes)))
+    for name, over in variants.items():
+        cells = []
+        for _, left, right, d_gt, md in pairs:
+            cfg = SgmConfig(max_disparity_px=md, fill_max_px=0, **over)  # type: ignore[arg-type]
+            m = disparity_metrics(match(left, right, cfg).disparity_px, d_gt)
+            cells.append(f"{m.epe_px:.3f}")
+        for left, right, gt, md in scenes.values():
+            cfg = SgmConfig(max_disparity_px=md, fill_max_px=0, **over)  # type: ignore[arg-type]
+            m = disparity_metrics(match(left, right, cfg).disparity_px, gt)
+            cells.append(f"{m.epe_px:.3f}")
+        print(f"| {name} | " + " | ".join(cells) + " |")
+
+    print("\npyramid levels and paths on the refined levels: bad-2 % (matched pixels) / density %")
+    print("| levels, band paths | " + " | ".join(scenes) + " | synthetic 1080p | 1080p CPU s |")
+    print("|---|" + "---|" * (len(scenes) + 2))
+    left1, right1, gt1 = synthetic_pair(1920, 1080)
+    for levels, bp in ((0, 4), (1, 4), (1, 8), (2, 4), (2, 8), (3, 4), (3, 8), (4, 4)):
+        cells = []
+        for left, right, gt, md in scenes.values():
+            if levels > 2:
+                cells.append("")
+                continue
+            cfg = SgmConfig(max_disparity_px=md, fill_max_px=0, pyramid_levels=levels,
+                            band_paths=bp)  # type: ignore[arg-type]
+            m = disparity_metrics(match(left, right, cfg).disparity_px, gt)
+            cells.append(f"{m.bad_2:.2f} / {m.density:.1f}")
+        if levels >= 2:
+            cfg = SgmConfig(max_disparity_px=255, fill_max_px=0, pyramid_levels=levels,
+                            band_paths=bp)  # type: ignore[arg-type]
+            c0 = time.process_time()
+            m = disparity_metrics(match(left1, right1, cfg).disparity_px, gt1)
+            cells += [f"{m.bad_2:.3f} / {m.density:.1f}", f"{time.process_time() - c0:.2f}"]
+        else:
+            cells += ["", ""]
+        print(f"| {levels}, {bp} | " + " | ".join(cells) + " |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--middlebury", type=Path, help="print the accuracy table for this folder "
@@ -263,6 +384,8 @@ def main() -> None:
                     help="print the refraction-correction depth table instead of timing")
     ap.add_argument("--underwater", action="store_true",
                     help="print the simulated coastal-water accuracy tables instead of timing")
+    ap.add_argument("--ablation", type=Path, metavar="DATA",
+                    help="print the refinement and pyramid tables (DATA: ../shared/data)")
     ap.add_argument("--width", type=int, default=1920)
     ap.add_argument("--height", type=int, default=1080)
     ap.add_argument("--repeats", type=int, default=5)
@@ -274,6 +397,9 @@ def main() -> None:
         return
     if args.middlebury:
         middlebury_table(args.middlebury)
+        return
+    if args.ablation:
+        ablation_tables(args.ablation)
         return
     if args.underwater:
         underwater_table(args.width if args.width != 1920 else 640,
@@ -321,19 +447,88 @@ def main() -> None:
             )
             mem[engine] = json.loads(out.stdout.strip().splitlines()[-1])
 
-    print(f"\n{'engine':14s} {'median s':>9s} {'min s':>7s} {'time/sea3d':>11s} "
-          f"{'CPU s':>6s} {'peak RSS MB':>12s} {'bad-2 %':>8s} {'density %':>10s}")
+    load_after = " ".join(f"{x:.2f}" for x in os.getloadavg())
+    print(f"\n{'engine':14s} {'wall s':>7s} {'min s':>7s} {'CPU s':>6s} {'wall/3WAY':>10s} "
+          f"{'CPU/3WAY':>9s} {'peak RSS MB':>12s} {'bad-2 %':>8s} {'density %':>10s}")
     for engine in ENGINES:
         m = disparity_metrics(last[engine].disparity_px, gt)
-        print(f"{engine:14s} {med[engine]:9.3f} {min(times[engine]):7.3f} "
-              f"{med[engine] / med['sea3d']:10.2f}x {med_cpu[engine]:6.2f} "
+        print(f"{engine:14s} {med[engine]:7.3f} {min(times[engine]):7.3f} "
+              f"{med_cpu[engine]:6.2f} {med[engine] / med['opencv-3way']:9.2f}x "
+              f"{med_cpu[engine] / med_cpu['opencv-3way']:8.2f}x "
               f"{mem[engine]['peak_rss_mb']:12.0f} {m.bad_2:8.2f} {m.density:10.1f}")
-    print(f"load average before the runs: {load}")
-    print(f"\nsea3d is {med['opencv-sgbm'] / med['sea3d']:.2f}x as fast as MODE_SGBM and "
-          f"{med['opencv-3way'] / med['sea3d']:.2f}x as fast as MODE_SGBM_3WAY "
-          f"(medians of {args.repeats}).")
+    res0 = last["sea3d"]
+    mm = disparity_metrics(np.where(res0.measured, res0.disparity_px, np.nan), gt)
+    print(f"{'  matched only':14s} {'':7s} {'':7s} {'':6s} {'':10s} {'':9s} {'':12s} "
+          f"{mm.bad_2:8.3f} {mm.density:10.1f}   (sea3d without its filled pixels)")
+    print(f"load average (1, 5, 15 min) before the runs: {load}; after: {load_after}")
+    r_wall = med["sea3d"] / med["opencv-3way"]
+    r_cpu = med_cpu["sea3d"] / med_cpu["opencv-3way"]
+    print(f"\nsea3d against MODE_SGBM_3WAY (medians of {args.repeats}, interleaved): wall "
+          f"{r_wall:.2f}x, CPU {r_cpu:.2f}x; "
+          f"against MODE_SGBM: wall {med['sea3d'] / med['opencv-sgbm']:.2f}x, CPU "
+          f"{med_cpu['sea3d'] / med_cpu['opencv-sgbm']:.2f}x")
     stages = {k: round(v, 3) for k, v in last["sea3d"].timings_s.items()}
-    print(f"sea3d stages (last run, s): {stages}")
+    print(f"sea3d stages (last run, wall s): {stages}")
+    bandwidth_floor(left, right, med_cpu["sea3d"])
+
+
+def _copy_bandwidth_gbs(mbytes: int = 256, repeats: int = 7) -> tuple[float, float]:
+    """Best copy (read + write counted) and read-only bandwidth of this machine, GB/s, with
+    numpy on one thread (a STREAM-like copy of ``mbytes`` and a sum over it)."""
+    a = np.ones(mbytes * 2**20 // 8)
+    b = np.empty_like(a)
+    copy, read = [], []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        np.copyto(b, a)
+        copy.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        np.add.reduce(a)
+        read.append(time.perf_counter() - t0)
+    return 2 * a.nbytes / min(copy) / 1e9, a.nbytes / min(read) / 1e9
+
+
+def bandwidth_floor(left: np.ndarray, right: np.ndarray, cpu_s: float) -> None:
+    """Bytes the SGM kernels move through their volumes, and the time that takes at this
+    machine's measured bandwidth: the floor under sea3d's matching time."""
+    from sea3d.stereo import _sgm_kernels as K
+    from sea3d.stereo import match
+
+    counts = {"cost": 0, "sweep_set": 0, "sweep_add": 0, "select": 0}
+    orig = (K.band_costs, K.sweep, K.select_disparity)
+
+    def costs(*a: object) -> np.ndarray:
+        out = orig[0](*a)  # type: ignore[arg-type]
+        counts["cost"] += out.size
+        return out
+
+    def sweep(*a: object) -> None:
+        counts["sweep_add" if a[-1] else "sweep_set"] += a[0].size  # type: ignore[attr-defined]
+        orig[1](*a)  # type: ignore[arg-type]
+
+    def select(*a: object) -> object:
+        counts["select"] += a[0].size  # type: ignore[attr-defined]
+        return orig[2](*a)  # type: ignore[arg-type]
+
+    K.band_costs, K.sweep, K.select_disparity = costs, sweep, select  # type: ignore[assignment]
+    try:
+        match(left, right, _config("sea3d"))  # type: ignore[arg-type]
+    finally:
+        K.band_costs, K.sweep, K.select_disparity = orig  # type: ignore[assignment]
+    # per cell: costs written (1 B); a sweep reads the cost (1 B) and writes the int16 total
+    # (2 B), or reads and writes it (4 B); the selection reads the total (2 B)
+    volume = (counts["cost"] + 3 * counts["sweep_set"] + 5 * counts["sweep_add"]
+              + 2 * counts["select"])
+    h, w = left.shape[:2]
+    copy_gbs, read_gbs = _copy_bandwidth_gbs()
+    floor_s = volume / (copy_gbs * 1e9)
+    print(f"\nmemory-bandwidth floor: the kernels move {volume / 1e6:.0f} MB through their "
+          f"cost and sum volumes ({counts['cost'] / 1e6:.1f} M cells searched over all levels; "
+          f"{volume / counts['cost']:.1f} B per searched cell, {volume / (h * w * 256):.2f} B per "
+          f"pixel and disparity of the 0..255 range); this machine copies {copy_gbs:.1f} GB/s "
+          f"(read+write) and reads {read_gbs:.1f} GB/s on one thread now, so moving them takes "
+          f"{1000 * floor_s:.0f} ms: {100 * floor_s / cpu_s:.0f} % of sea3d's {cpu_s:.2f} "
+          f"CPU-s (the rest is compute: census, path steps, refinement)")
 
 
 if __name__ == "__main__":

@@ -192,6 +192,27 @@ def test_monitor_page_in_headless_chromium_shows_new_frames_and_the_recorders_fi
     assert _text(final, "stat-disk").endswith("GB") or "min left" in _text(final, "stat-disk")
 
 
+@pytest.mark.browser
+def test_monitor_page_says_replaying_not_recording_for_a_session(tmp_path):
+    exe = _chromium()
+    if exe is None:
+        pytest.skip("no chromium on PATH (apt-get install chromium)")
+    rng = np.random.default_rng(0)
+    path = tmp_path / "s.mcap"
+    with SessionWriter(path) as w:
+        for k in range(20):
+            img = rng.integers(0, 256, size=(24, 32, 3), dtype=np.uint8)
+            w.write_stereo(k * 50_000_000, img, img)
+    player = SessionPlayer(path, speed=1.0).start()
+    try:
+        with MonitorServer(player, "127.0.0.1", 0) as srv:
+            assert player.stats()["mode"] == "replay"
+            dom = _dump_dom(exe, srv.url, 800)
+    finally:
+        player.stop()
+    assert _text(dom, "state") == f"(replaying {path})"
+
+
 def test_sea3d_monitor_command_serves_a_session_until_interrupted(tmp_path):
     import os
     import signal

@@ -14,7 +14,11 @@ import numpy as np
 import pytest
 
 from sea3d.cli import main
+from sea3d.io.rig_file import rig_to_yaml
 from sea3d.io.session import SessionWriter, open_session
+from sea3d.refraction.presets import paper_rig
+
+RIG_YAML = rig_to_yaml(paper_rig("dome"))
 
 SRC = str(Path(__file__).resolve().parents[2] / "src")
 
@@ -22,7 +26,7 @@ SRC = str(Path(__file__).resolve().parents[2] / "src")
 def _session(path: Path, n: int = 12) -> list[np.ndarray]:
     rng = np.random.default_rng(0)
     imgs = [rng.integers(0, 256, size=(16, 20, 3), dtype=np.uint8) for _ in range(n)]
-    with SessionWriter(path, rig_yaml="rig: replayed\n") as w:
+    with SessionWriter(path, rig_yaml=RIG_YAML) as w:
         for k, img in enumerate(imgs):
             w.write_stereo(k * 33_333_333, img, img[:, ::-1].copy())
         for k in range(40):
@@ -65,7 +69,7 @@ def test_record_from_replay_sources_prints_a_summary_and_writes_the_session(
     assert summary["frames"] == {"left": 12, "right": 12, "imu": 40, "sonar": 4}
     assert summary["dropped"] == {"left": 0, "right": 0, "imu": 0, "sonar": 0}
     with open_session(out) as s:
-        assert s.rig_yaml == "rig: replayed\n"
+        assert s.rig_yaml == RIG_YAML
         for k in range(12):
             np.testing.assert_array_equal(s.image("left", k), imgs[k])
         assert s.info()["imu"]["count"] == 40
@@ -144,7 +148,18 @@ def test_record_rejects_unknown_sources_and_bad_rig(tmp_path, capsys):
         )
         == 2
     )
-    assert "cannot read rig file" in capsys.readouterr().err
+    assert "none.yaml: rig file not found" in capsys.readouterr().err
+    # A rig that cannot be used is refused before anything is recorded.
+    bad = tmp_path / "thick_dome.yaml"
+    bad.write_text(RIG_YAML.replace("thickness_m: 0.0031", "thickness_m: 10.0", 1))
+    utf16 = tmp_path / "utf16.yaml"
+    utf16.write_bytes(RIG_YAML.encode("utf-16-le"))
+    for rig, why in ((bad, "not below the inner radius"), (utf16, "not UTF-8 text")):
+        args = ["record", "--left", "0", "--right", "1", "--rig", str(rig), "--out"]
+        assert main([*args, str(tmp_path / "y.mcap")]) == 2
+        err = capsys.readouterr().err
+        assert why in err and rig.name in err and "Traceback" not in err
+        assert not (tmp_path / "y.mcap").exists()
 
 
 @pytest.mark.parametrize("out_name", ["killed.mcap", "killed_dir"])

@@ -11,11 +11,13 @@ import numpy as np
 import pytest
 
 from sea3d.errors import SessionError
+from sea3d.io.rig_file import rig_to_yaml
 from sea3d.io.session import SessionWriter, StereoPair, convert_session, open_session
+from sea3d.refraction.presets import paper_rig
 
 FRAME_NS = 33_333_333
 T0_NS = 1_700_000_000_123_456_789
-RIG_YAML = "# test rig\nleft: {fx: 1082.4}\nright: {fx: 1082.4}\n"
+RIG_YAML = rig_to_yaml(paper_rig("dome"))
 LAYOUTS = [("mcap", "s.mcap"), ("folder", "s_dir")]
 
 
@@ -45,6 +47,7 @@ def _write_all(path, fmt, rng, *, shape=(24, 32, 3), dtype=np.uint8, n=6, encodi
     return left, right, (imu_t, accel, gyro), (sonar_t, ranges, conf)
 
 
+@pytest.mark.parametrize("encoding", ["png", "jxl"])
 @pytest.mark.parametrize(("fmt", "name"), LAYOUTS)
 @pytest.mark.parametrize(
     ("shape", "dtype"),
@@ -55,10 +58,12 @@ def _write_all(path, fmt, rng, *, shape=(24, 32, 3), dtype=np.uint8, n=6, encodi
         ((24, 32, 3), np.uint16),
     ],
 )
-def test_png_round_trip_is_exact_for_every_stream(tmp_path, fmt, name, shape, dtype):
+def test_lossless_round_trip_is_exact_for_every_stream(tmp_path, fmt, name, shape, dtype, encoding):
     rng = np.random.default_rng(0)
     path = tmp_path / name
-    left, right, imu, sonar = _write_all(path, fmt, rng, shape=shape, dtype=dtype)
+    left, right, imu, sonar = _write_all(
+        path, fmt, rng, shape=shape, dtype=dtype, encoding=encoding
+    )
     with open_session(path) as s:
         assert s.format == fmt
         assert s.rig_yaml == RIG_YAML
@@ -80,12 +85,16 @@ def test_png_round_trip_is_exact_for_every_stream(tmp_path, fmt, name, shape, dt
         np.testing.assert_array_equal(son.confidence, sonar[2].astype(np.float32))
 
 
-def test_raw_image_messages_round_trip_exactly(tmp_path):
+@pytest.mark.parametrize("compression", [None, "none", "lz4", "zstd"])
+def test_raw_image_messages_round_trip_exactly(tmp_path, compression):
     rng = np.random.default_rng(0)
     path = tmp_path / "raw.mcap"
-    left, right, _, _ = _write_all(
-        path, "mcap", rng, shape=(20, 30, 3), dtype=np.uint16, encoding="raw"
-    )
+    left = _images(rng, 4, (20, 30, 3), np.uint16)
+    right = _images(rng, 4, (20, 30), np.uint8)
+    with SessionWriter(path, image_encoding="raw", chunk_compression=compression) as w:
+        for i in range(4):
+            w.write_image("left", i * FRAME_NS, left[i])
+            w.write_image("right", i * FRAME_NS, right[i])
     with open_session(path) as s:
         for i in range(len(left)):
             np.testing.assert_array_equal(s.image("left", i), left[i])
@@ -217,7 +226,7 @@ def test_convert_between_layouts_is_lossless_for_png(tmp_path, src_name, dst_nam
     src, dst, back = tmp_path / src_name, tmp_path / dst_name, tmp_path / f"back_{src_name}"
     left, right, imu, sonar = _write_all(src, None, rng, shape=(16, 20), dtype=np.uint16)
     counts = convert_session(src, dst)
-    assert counts == {"left": 6, "right": 6, "imu": 24, "sonar": 6, "skipped": 0}
+    assert counts == {"left": 6, "right": 6, "imu": 24, "sonar": 6, "skipped": 0, "problems": []}
     convert_session(dst, back)
     with open_session(src) as a, open_session(dst) as b, open_session(back) as c:
         assert b.rig_yaml == RIG_YAML and c.rig_yaml == RIG_YAML

@@ -17,7 +17,11 @@ import numpy as np
 import pytest
 
 from sea3d.errors import SessionError
+from sea3d.io.rig_file import rig_to_yaml
 from sea3d.io.session import SessionWriter, open_session
+from sea3d.refraction.presets import paper_rig
+
+RIG_YAML = rig_to_yaml(paper_rig("dome"))
 
 SRC = str(Path(__file__).resolve().parents[2] / "src")
 FRAME_NS = 33_333_333
@@ -30,7 +34,7 @@ def _frame(i: int, shape=(12, 16, 3)) -> np.ndarray:
 
 def _small_mcap(path: Path, n: int = 8) -> None:
     # chunk_size=1 closes a chunk after every message: many chunks to cut through.
-    with SessionWriter(path, chunk_size=1, rig_yaml="a: 1\n") as w:
+    with SessionWriter(path, chunk_size=1, rig_yaml=RIG_YAML) as w:
         for i in range(n):
             w.write_stereo(i * FRAME_NS, _frame(i), _frame(100 + i))
             w.write_imu(i * FRAME_NS, [i, 0, 9.81], [0, 0, i])
@@ -50,6 +54,8 @@ def test_truncated_mcap_is_readable_up_to_its_last_complete_chunk(tmp_path, capl
         for ci in chunk_indexes
         if 1 in ci.message_index_offsets  # channel 1 is /cam/left/image
     ]
+    with open(full, "rb") as f:
+        rig_end = min(a.offset + a.length for a in make_reader(f).get_summary().attachment_indexes)
     cut_path = tmp_path / "cut.mcap"
     cuts = sorted(set(np.linspace(200, len(data) - 1, 60).astype(int).tolist()))
     for cut in cuts:
@@ -60,7 +66,7 @@ def test_truncated_mcap_is_readable_up_to_its_last_complete_chunk(tmp_path, capl
             assert got == expected, f"cut at byte {cut}"
             for i, t in enumerate(got):
                 np.testing.assert_array_equal(s.image("left", i), _frame(t // FRAME_NS))
-            assert s.rig_yaml == "a: 1\n"
+            assert s.rig_yaml == (RIG_YAML if cut >= rig_end else None)
     assert any(
         "without its summary" in r.message or "truncated" in r.message for r in caplog.records
     )
@@ -207,6 +213,7 @@ def test_folder_images_of_different_sizes_are_named_with_their_stamp(tmp_path, c
     with SessionWriter(tmp_path / "other", format="folder") as w:
         w.write_image("left", 5, _frame(9, shape=(10, 10, 3)))
     os.replace(tmp_path / "other" / "left" / "5.png", path / "left" / f"{FRAME_NS}.png")
+    (path / "checksums.csv").unlink()  # as in the paper's folders, which have none
     with caplog.at_level(logging.WARNING), open_session(path) as s:
         with pytest.raises(
             SessionError, match=rf"{FRAME_NS}\.png \(t_ns={FRAME_NS}\) is \(10, 10, 3\)"
@@ -286,7 +293,7 @@ def test_a_damaged_first_image_does_not_condemn_the_rest_of_the_stream(tmp_path,
     with caplog.at_level(logging.WARNING), open_session(path) as s:
         np.testing.assert_array_equal(s.image("left", 2), _frame(2))
         assert [p.t_ns for p in s.pairs()] == [FRAME_NS, 2 * FRAME_NS, 3 * FRAME_NS]
-    assert any("0.png (t_ns=0): cannot decode" in r.message for r in caplog.records)
+    assert any("0.png (t_ns=0) is damaged: 15 bytes" in r.message for r in caplog.records)
 
 
 def test_a_damaged_record_length_midway_loses_only_that_chunk(tmp_path, caplog):
@@ -305,3 +312,22 @@ def test_a_damaged_record_length_midway_loses_only_that_chunk(tmp_path, caplog):
         for i, frame in enumerate((0, 1, 2, 4, 5, 6, 7)):
             np.testing.assert_array_equal(s.image("left", i), _frame(frame))
     assert any("through the summary" in r.message for r in caplog.records)
+
+
+def test_a_folder_cut_at_a_line_or_file_boundary_is_still_reported_by_verify(tmp_path):
+    from sea3d.io.session import verify_session
+
+    path = tmp_path / "s"
+    with SessionWriter(path, format="folder") as w:
+        for i in range(4):
+            w.write_stereo(i * FRAME_NS, _frame(i), _frame(i))
+            w.write_imu(i * FRAME_NS, [0, 0, 9.81], [0, 0, 0])
+    assert verify_session(path)["ok"]
+    lines = (path / "imu.csv").read_text().splitlines(keepends=True)
+    (path / "imu.csv").write_text("".join(lines[:-1]))  # no torn line: nothing to see in it
+    report = verify_session(path)
+    assert not report["ok"] and any("session.json counts 4 imu" in p for p in report["problems"])
+    sums = (path / "checksums.csv").read_text().splitlines(keepends=True)
+    (path / "checksums.csv").write_text("".join(sums[:3]))
+    report = verify_session(path)
+    assert any("have no line in checksums.csv" in p for p in report["problems"])

@@ -62,7 +62,7 @@ def test_stereo_cli_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert "differ in size" in capsys.readouterr().err
     assert main(["stereo", str(left), str(left), "--max-disparity", "500", "-o",
                  str(tmp_path / "x.pfm")]) == 2
-    assert "as wide as the image" in capsys.readouterr().err
+    assert "--max-disparity 500 is too wide" in capsys.readouterr().err
     assert main(["stereo", str(left), str(tmp_path / "missing.png"), "--max-disparity", "15",
                  "-o", str(tmp_path / "x.pfm")]) == 2
 
@@ -94,3 +94,45 @@ def test_depth_cli_dome_rig_png_and_ply(tmp_path: Path, capsys: pytest.CaptureFi
     args[2] = str(tmp_path / "big.yaml")
     assert main(args) == 2
     assert "640x360" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("value", ["0", "-3", "x"])
+def test_bad_max_disparity_is_refused_up_front_naming_the_option(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], value: str
+) -> None:
+    rng = np.random.default_rng(0)
+    left, right = _shifted_pair(tmp_path, rng)
+    # refused by the argument parser (exit 2), before the rig or the images are read
+    with pytest.raises(SystemExit) as stop:
+        main(["depth", "--rig", str(tmp_path / "no_such_rig.yaml"), "--left", str(left),
+              "--right", str(right), "-o", str(tmp_path / "d.png"), "--max-disparity", value])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert "--max-disparity" in err and "no_such_rig" not in err
+    with pytest.raises(SystemExit) as stop:
+        main(["stereo", str(left), str(right), "--max-disparity", value, "-o",
+              str(tmp_path / "d.pfm")])
+    assert stop.value.code == 2
+    assert "--max-disparity" in capsys.readouterr().err
+    assert not (tmp_path / "d.pfm").exists() and not (tmp_path / "d.png").exists()
+
+
+def test_too_wide_max_disparity_names_the_option(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rng = np.random.default_rng(0)
+    left, right = _shifted_pair(tmp_path, rng)  # 160 px wide
+    for engine, top in (("sea3d", 159), ("opencv-3way", 143)):
+        assert main(["stereo", str(left), str(right), "--max-disparity", str(top + 1), "-o",
+                     str(tmp_path / "d.pfm"), "--engine", engine]) == 2
+        err = capsys.readouterr().err
+        assert "--max-disparity" in err and "max_disparity_px" not in err
+        assert f"at most {top}" in err
+    save_rig(paper_rig(port="none", size_px=(160, 80)), tmp_path / "rig.yaml")
+    assert main(["depth", "--rig", str(tmp_path / "rig.yaml"), "--left", str(left), "--right",
+                 str(right), "-o", str(tmp_path / "d.png"), "--max-disparity", "400"]) == 2
+    assert "--max-disparity 400 is too wide" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["depth", "--rig", str(tmp_path / "rig.yaml"), "--left", str(left), "--right",
+              str(right), "-o", str(tmp_path / "d.png"), "--min-depth", "-1"])
+    assert "--min-depth" in capsys.readouterr().err

@@ -136,3 +136,27 @@ def test_median_matches_numpy_nanmedian_reference() -> None:
             if np.isfinite(d[y, x]):
                 ref[y, x] = np.nanmedian(d[max(y - 1, 0) : y + 2, max(x - 1, 0) : x + 2])
     np.testing.assert_array_equal(out, ref)
+
+
+def _noisy_step(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A disparity step (12 | 30 px) with 0.5 px noise, its truth, and a left image whose
+    intensity edge lies on the step."""
+    truth = np.full((60, 80), 12.0, np.float32)
+    truth[:, 40:] = 30.0
+    noisy = (truth + rng.normal(0, 0.5, truth.shape)).astype(np.float32)
+    image = np.where(truth > 20, 200, 60).astype(np.uint8)
+    return noisy, truth, image
+
+
+@pytest.mark.parametrize("step", [BilateralFilter(), WlsFilter(), JointBilateralFilter()])
+def test_edge_preserving_filters_smooth_noise_and_keep_the_step(step: object) -> None:
+    # a filter replaced by a no-op keeps the noise; one that ignores edges blurs the step
+    rng = np.random.default_rng(0)
+    noisy, truth, image = _noisy_step(rng)
+    out = FilterChain([step]).apply(noisy, image=image)  # type: ignore[list-item]
+    inner = np.ones_like(truth, dtype=bool)
+    inner[:, 36:44] = False  # away from the step
+    assert np.std((out - truth)[inner]) < 0.5 * np.std((noisy - truth)[inner])
+    # the step stays a step: pixels two columns from it keep their side's value
+    assert np.abs(out[:, 38] - 12.0).max() < 2.0
+    assert np.abs(out[:, 41] - 30.0).max() < 2.0

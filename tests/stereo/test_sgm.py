@@ -99,7 +99,9 @@ def test_sgm_accepts_rgb_uint16_and_float_inputs_alike() -> None:
     u16 = match(left.astype(np.uint16) * 257, right.astype(np.uint16) * 257, cfg).disparity_px
     np.testing.assert_array_equal(np.isfinite(ref), np.isfinite(rgb))
     np.testing.assert_allclose(ref, rgb, atol=1e-3, equal_nan=True)  # grey conversion rounding
-    assert np.nanmedian(np.abs(ref - u16)) < 1e-3
+    # uint16 is stretched to 0-255 by its maximum, so grey levels differ slightly from the uint8
+    # input; the refinement's intensity weights see that (a few thousandths of a pixel)
+    assert np.nanmedian(np.abs(ref - u16)) < 0.01
 
 
 def test_opencv_engine_is_descaled_and_range_rounded_to_16() -> None:
@@ -170,6 +172,38 @@ def test_left_border_pixels_whose_match_is_off_the_image_are_invalid_not_wrong()
     res = match(left, right, SgmConfig(max_disparity_px=47))
     d = res.disparity_px
     border = d[:, :18]  # x < d_true: the right image does not see these points
-    finite = np.isfinite(border)
-    assert np.all(np.abs(border[finite] - 20.0) < 2.0)
-    assert finite.mean() < 0.1
+    matched = res.measured[:, :18]
+    assert np.all(np.abs(border[matched] - 20.0) < 2.0)
+    assert matched.mean() < 0.1
+    # the default dense output fills them from their neighbour, marked with confidence 0
+    assert np.isfinite(border).all()
+    assert np.all(res.confidence[:, :18][~matched] == 0)
+    sparse = match(left, right, SgmConfig(max_disparity_px=47, fill_max_px=0))
+    np.testing.assert_array_equal(np.isfinite(sparse.disparity_px), res.measured)
+
+
+@pytest.mark.parametrize(
+    ("engine", "cv_mode"),
+    [("opencv", cv2.StereoSGBM_MODE_SGBM), ("opencv-hh", cv2.StereoSGBM_MODE_HH),
+     ("opencv-3way", cv2.StereoSGBM_MODE_SGBM_3WAY)],
+)
+def test_opencv_engine_names_select_their_modes(engine: str, cv_mode: int) -> None:
+    # each name must run its own OpenCV mode (3WAY and HH differ on this pair): compare with
+    # cv2.StereoSGBM in that mode directly
+    rng = np.random.default_rng(1)
+    left, right, _ = _slanted_pair(rng)
+    cfg = make_config(engine, 31)
+    ours = match(left, right, cfg).disparity_px
+    w = cfg.block_size_px  # type: ignore[union-attr]
+    raw = cv2.StereoSGBM_create(0, 32, w, P1=8 * w * w, P2=32 * w * w, disp12MaxDiff=1,
+                                preFilterCap=63, uniquenessRatio=10, speckleWindowSize=100,
+                                speckleRange=2, mode=cv_mode).compute(left, right)
+    ref = np.where(raw < 0, np.nan, raw / 16.0)
+    np.testing.assert_array_equal(np.isfinite(ours), np.isfinite(ref))
+    np.testing.assert_allclose(ours, ref, equal_nan=True)
+    others = {cv2.StereoSGBM_MODE_SGBM, cv2.StereoSGBM_MODE_HH, cv2.StereoSGBM_MODE_SGBM_3WAY}
+    for other in others - {cv_mode}:
+        alt = cv2.StereoSGBM_create(0, 32, w, P1=8 * w * w, P2=32 * w * w, disp12MaxDiff=1,
+                                    preFilterCap=63, uniquenessRatio=10, speckleWindowSize=100,
+                                    speckleRange=2, mode=other).compute(left, right)
+        assert not np.array_equal(raw, alt)

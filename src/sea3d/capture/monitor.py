@@ -17,6 +17,13 @@ Endpoints (all GET):
 The server listens on loopback (127.0.0.1) unless another address is given explicitly; it
 has no authentication, so only expose it on a trusted tether network.
 
+It serves a crowd: one thread per connection behind a listen backlog of
+:data:`LISTEN_BACKLOG`, at most :data:`MAX_BUSY_HANDLERS` requests worked on at once (the
+rest wait, they are not refused), socket timeouts so a stalled client cannot hold a thread,
+at most :data:`MAX_MJPEG_STREAMS` MJPEG streams, and bounded work per request: each preview
+JPEG is encoded once per frame and the disparity preview at most every 0.3 s, by one request
+while the others take the last one.
+
 A provider is anything with ``stats() -> dict`` and ``latest(stream) -> (seq, record) | None``:
 the :class:`~sea3d.capture.recorder.Recorder`, or :class:`SessionPlayer` for replay.
 """
@@ -42,6 +49,11 @@ from sea3d.errors import ConfigError
 __all__ = ["MonitorProvider", "MonitorServer", "SessionPlayer", "json_safe", "parse_address"]
 
 _log = logging.getLogger(__name__)
+
+LISTEN_BACKLOG = 1024
+MAX_BUSY_HANDLERS = 32
+MAX_MJPEG_STREAMS = 16
+SOCKET_TIMEOUT_S = 10.0
 
 
 class MonitorProvider(Protocol):
@@ -167,7 +179,8 @@ async function pollStats() {
   try {
     const s = await (await fetch("/stats.json", {cache: "no-store"})).json();
     const set = (id, v) => { document.getElementById(id).textContent = v; };
-    set("state", s.running ? "(recording)" : "(stopped)");
+    set("state", s.running ? (s.mode === "replay" ? "(replaying " + (s.source || "") + ")"
+        : "(recording)") : "(stopped)");
     set("stat-elapsed", fmt(s.elapsed_s, 1) + " s");
     for (const side of ["left", "right"]) {
       set("stat-frames-" + side, s.frames[side] ?? 0);
@@ -206,7 +219,8 @@ def _preview(image: np.ndarray, width: int) -> np.ndarray:
 
 
 class _FrameCache:
-    """JPEG encodings of the latest frames, made once per sequence number."""
+    """JPEG encodings of the latest frames, made once per sequence number by one request at
+    a time (the others take the last encoding instead of piling up on the CPU)."""
 
     def __init__(self, provider: MonitorProvider, preview_width: int, disparity_width: int) -> None:
         self.provider = provider
@@ -216,6 +230,8 @@ class _FrameCache:
         self._disp: tuple[tuple[int, int], bytes] | None = None
         self._disp_time = 0.0
         self._lock = threading.Lock()
+        self._encoding = {s: threading.Lock() for s in ("left", "right")}
+        self._disparity_busy = threading.Lock()
 
     def frame(self, stream: str) -> tuple[int, bytes] | None:
         latest = self.provider.latest(stream)
@@ -224,17 +240,27 @@ class _FrameCache:
         seq, rec = latest
         with self._lock:
             cached = self._jpeg.get(stream)
+        if cached is not None and cached[0] == seq:
+            return cached
+        busy = self._encoding.setdefault(stream, threading.Lock())
+        if not busy.acquire(blocking=cached is None):
+            return cached  # another request is encoding the new frame: serve the last one
+        try:
+            with self._lock:
+                cached = self._jpeg.get(stream)
             if cached is not None and cached[0] == seq:
                 return cached
-        ok, buf = cv2.imencode(
-            ".jpg", _preview(rec.image, self.preview_width), [cv2.IMWRITE_JPEG_QUALITY, 80]
-        )
-        if not ok:
-            return None
-        out = (seq, buf.tobytes())
-        with self._lock:
-            self._jpeg[stream] = out
-        return out
+            ok, buf = cv2.imencode(
+                ".jpg", _preview(rec.image, self.preview_width), [cv2.IMWRITE_JPEG_QUALITY, 80]
+            )
+            if not ok:
+                return cached
+            out = (seq, buf.tobytes())
+            with self._lock:
+                self._jpeg[stream] = out
+            return out
+        finally:
+            busy.release()
 
     def disparity(self) -> bytes | None:
         left, right = self.provider.latest("left"), self.provider.latest("right")
@@ -242,12 +268,24 @@ class _FrameCache:
             return None
         key = (left[0], right[0])
         with self._lock:
-            if self._disp is not None and (
-                self._disp[0] == key or time.monotonic() - self._disp_time < 0.3
-            ):
-                return self._disp[1]
-        gl = cv2.cvtColor(_preview(left[1].image, self.disparity_width), cv2.COLOR_BGR2GRAY)
-        gr = cv2.cvtColor(_preview(right[1].image, self.disparity_width), cv2.COLOR_BGR2GRAY)
+            cached = self._disp
+            fresh = cached is not None and (
+                cached[0] == key or time.monotonic() - self._disp_time < 0.3
+            )
+        if cached is not None and fresh:
+            return cached[1]
+        if not self._disparity_busy.acquire(blocking=cached is None):
+            return cached[1] if cached is not None else None
+        try:
+            return self._compute_disparity(left[1].image, right[1].image, key)
+        finally:
+            self._disparity_busy.release()
+
+    def _compute_disparity(
+        self, left: np.ndarray, right: np.ndarray, key: tuple[int, int]
+    ) -> bytes | None:
+        gl = cv2.cvtColor(_preview(left, self.disparity_width), cv2.COLOR_BGR2GRAY)
+        gr = cv2.cvtColor(_preview(right, self.disparity_width), cv2.COLOR_BGR2GRAY)
         if gl.shape != gr.shape:
             gr = cv2.resize(gr, (gl.shape[1], gl.shape[0]))
         num_disp = max(16, (gl.shape[1] // 8) // 16 * 16)
@@ -271,7 +309,16 @@ class _FrameCache:
         with self._lock:
             self._disp = (key, buf.tobytes())
             self._disp_time = time.monotonic()
-        return self._disp[1]
+            return self._disp[1]
+
+
+class _CrowdServer(ThreadingHTTPServer):
+    """``ThreadingHTTPServer`` with a real listen backlog (the standard library's is 5: 200
+    concurrent clients saw 31 s latencies and timeouts)."""
+
+    request_queue_size = LISTEN_BACKLOG
+    daemon_threads = True
+    allow_reuse_address = True
 
 
 class MonitorServer:
@@ -301,11 +348,12 @@ class MonitorServer:
         self.cache = _FrameCache(provider, preview_width, disparity_width)
         self._stopping = threading.Event()
         handler = self._make_handler()
+        self._busy = threading.BoundedSemaphore(MAX_BUSY_HANDLERS)
+        self._streams = threading.BoundedSemaphore(MAX_MJPEG_STREAMS)
         try:
-            self.httpd = ThreadingHTTPServer((host, port), handler)
+            self.httpd = _CrowdServer((host, port), handler)
         except OSError as err:
             raise ConfigError(f"cannot serve the monitor on {host}:{port}: {err}") from err
-        self.httpd.daemon_threads = True
         if not _is_loopback(host):
             _log.warning(
                 "monitor listens on %s, reachable from other machines; it has no authentication",
@@ -357,6 +405,7 @@ class MonitorServer:
 
         class Handler(BaseHTTPRequestHandler):
             server_version = "sea3d-monitor"
+            timeout = SOCKET_TIMEOUT_S  # a stalled client cannot hold its thread for ever
 
             def log_message(self, format: str, *args: Any) -> None:
                 _log.debug("monitor: " + format, *args)
@@ -375,6 +424,21 @@ class MonitorServer:
 
             def do_GET(self) -> None:
                 path = urlparse(self.path).path
+                if path in ("/stream/left.mjpg", "/stream/right.mjpg"):
+                    if not server._streams.acquire(blocking=False):
+                        self._send(503, b"too many MJPEG streams", "text/plain")
+                        return
+                    try:
+                        self._mjpeg(path[8:-5])
+                    except (BrokenPipeError, ConnectionResetError, TimeoutError):
+                        pass
+                    finally:
+                        server._streams.release()
+                    return
+                with server._busy:
+                    self._get(path)
+
+            def _get(self, path: str) -> None:
                 try:
                     if path in ("/", "/index.html"):
                         self._send(200, _PAGE.encode(), "text/html; charset=utf-8")
@@ -393,11 +457,9 @@ class MonitorServer:
                             self._send(503, b"no stereo pair yet", "text/plain")
                         else:
                             self._send(200, disp, "image/jpeg")
-                    elif path in ("/stream/left.mjpg", "/stream/right.mjpg"):
-                        self._mjpeg(path[8:-5])
                     else:
                         self._send(404, b"not found", "text/plain")
-                except (BrokenPipeError, ConnectionResetError):
+                except (BrokenPipeError, ConnectionResetError, TimeoutError):
                     pass
 
             def _mjpeg(self, stream: str) -> None:
@@ -455,6 +517,8 @@ class SessionPlayer:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._t0 = time.monotonic()
+        self._disk_free_at = -10.0
+        self._disk_free_value = 0
         self.running = False
 
     def start(self) -> SessionPlayer:
@@ -514,6 +578,13 @@ class SessionPlayer:
             j -= 1
         return j
 
+    def _disk_free(self, measure: Any) -> int:
+        now = time.monotonic()
+        if now - self._disk_free_at > 1.0:  # at most one statvfs a second, however many ask
+            self._disk_free_value = int(measure(self.session.path))
+            self._disk_free_at = now
+        return self._disk_free_value
+
     def stats(self) -> dict[str, Any]:
         """Figures in the recorder's layout: frames shown, fps, unpaired as drops, disk free."""
         from sea3d.capture.recorder import disk_free_bytes
@@ -544,11 +615,13 @@ class SessionPlayer:
             "frames": {"left": self._shown, "right": self._shown},
             "dropped": {"left": self.match.unpaired_left, "right": self.match.unpaired_right},
             "fps": {"left": fps, "right": fps},
-            "disk_free_bytes": disk_free_bytes(self.session.path),
+            "disk_free_bytes": self._disk_free(disk_free_bytes),
             "disk_left_s": None,
             "imu": imu,
             "sonar": sonar,
             "t_ns": t_ns,
             "pairs": len(self.match),
             "stop_reason": None,
+            "mode": "replay",
+            "source": str(self.session.path),
         }

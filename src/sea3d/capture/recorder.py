@@ -8,8 +8,11 @@
 
 At most ``queue_frames`` images are between capture and disk. When a camera delivers a frame
 and no slot is free, the frame is dropped and counted (``block_when_full=True`` makes replay
-sources wait instead). Free disk space is checked before starting and every
-``disk_check_interval_s``; the recording stops cleanly when it falls under ``min_free_bytes``.
+sources wait instead). Free disk space is checked before starting, by the session writer
+before every write (so the reserve ``min_free_bytes`` is never overshot) and every
+``disk_check_interval_s`` for the figures; the recording stops cleanly at the reserve, and a
+disk that fills anyway (``min_free_bytes=0``) or fails ends the recording with one reason that
+says what was kept. The counts reported are what a reader finds in the file.
 :meth:`Recorder.request_stop` (called by the CLI on Ctrl-C / SIGTERM) stops capture, drains
 what is queued, and closes the session so that everything written stays readable.
 """
@@ -23,7 +26,7 @@ import queue
 import shutil
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -31,7 +34,7 @@ from typing import Any
 
 from sea3d.capture.sources import ImageFrame, Source
 from sea3d.errors import CaptureError, ConfigError, SessionError
-from sea3d.io.session import ImuSample, SessionWriter, SonarSample
+from sea3d.io.session import ImuSample, SessionWriteError, SessionWriter, SonarSample
 
 __all__ = ["RecordSummary", "Recorder", "RecorderConfig", "disk_free_bytes"]
 
@@ -56,7 +59,8 @@ class RecorderConfig:
         out_path: session to create (``*.mcap`` file or folder); must not exist.
         format: ``"mcap"`` or ``"folder"``; None chooses from ``out_path``'s extension.
         duration_s: stop after this many seconds (None: until stopped or the sources end).
-        image_encoding: ``"png"``, ``"jpeg"`` or ``"raw"`` (MCAP only).
+        image_encoding: ``"jxl"`` (JPEG XL lossless, the default: keeps up with 2 x 30 fps at
+            1080p on 2 cores), ``"png"``, ``"jpeg"`` or ``"raw"`` (MCAP only).
         png_compression: zlib level 0..9.
         jpeg_quality: 0..100.
         queue_frames: most images waiting between capture and disk (both cameras together;
@@ -66,12 +70,14 @@ class RecorderConfig:
         min_free_bytes: stop when free disk space falls below this.
         disk_check_interval_s: how often free space is checked.
         rig_yaml: rig file text stored in the session.
+        chunk_compression: MCAP only: ``"lz4"``, ``"zstd"`` or ``"none"``; None: LZ4 for raw
+            images, none for encoded ones.
     """
 
     out_path: Path
     format: str | None = None
     duration_s: float | None = None
-    image_encoding: str = "png"
+    image_encoding: str = "jxl"
     png_compression: int = 1
     jpeg_quality: int = 95
     queue_frames: int = 16
@@ -80,6 +86,7 @@ class RecorderConfig:
     min_free_bytes: int = 2 * 1024**3
     disk_check_interval_s: float = 1.0
     rig_yaml: str | None = None
+    chunk_compression: str | None = None
 
     def __post_init__(self) -> None:
         if self.duration_s is not None and self.duration_s <= 0:
@@ -91,6 +98,15 @@ class RecorderConfig:
             )
         if self.min_free_bytes < 0 or self.disk_check_interval_s <= 0:
             raise ConfigError("min_free_bytes must be >= 0 and disk_check_interval_s > 0")
+        if self.image_encoding not in ("jxl", "png", "jpeg", "raw"):
+            raise ConfigError(
+                f"image_encoding must be jxl, png, jpeg or raw, got {self.image_encoding!r}"
+            )
+        if not 0 <= self.png_compression <= 9 or not 0 <= self.jpeg_quality <= 100:
+            raise ConfigError(
+                f"png_compression must be 0..9 and jpeg_quality 0..100, got "
+                f"{self.png_compression} and {self.jpeg_quality}"
+            )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -101,9 +117,10 @@ class RecordSummary:
         path: the session written.
         format: ``"mcap"`` or ``"folder"``.
         duration_s: wall-clock seconds from start to stop.
-        frames: records written per stream.
+        frames: records per stream on disk, readable (equal to what a reader finds).
         captured: records delivered by each source.
-        dropped: records not written per stream (queue full, bad stamps, write errors).
+        dropped: records captured but not on disk (``captured - frames``: queue full, bad
+            stamps, the open chunk when the disk failed).
         fps: images written per second of wall clock, per camera.
         bytes_written: payload bytes written.
         bytes_on_disk: size of the session on disk after closing.
@@ -166,7 +183,22 @@ class Recorder:
         self._t_start = 0.0
         self._t_stop: float | None = None
         self._disk_free = 0
+        self._listeners: list[Callable[[str, Any], None]] = []
+        self._write_error: str | None = None
         self.running = False
+
+    def add_listener(self, fn: Callable[[str, Any], None]) -> None:
+        """Also hand every captured record to ``fn(stream, record)`` (live views such as
+        Foxglove). Called in the capture threads: it must return at once; what it raises is
+        logged and never stops the recording."""
+        self._listeners.append(fn)
+
+    def _notify(self, stream: str, rec: Any) -> None:
+        for fn in self._listeners:
+            try:
+                fn(stream, rec)
+            except Exception as err:
+                _log.warning("listener %r failed on a %s record: %s", fn, stream, err)
 
     # -- control --------------------------------------------------------------------------
     def request_stop(self, reason: str = "stopped by user") -> None:
@@ -181,6 +213,15 @@ class Recorder:
         _log.error("%s", msg)
         if stop:
             self.request_stop(msg)
+
+    def _write_failed(self, err: SessionWriteError) -> None:
+        """The disk is full, at the reserve, or failing: stop once, with what was kept."""
+        with self._lock:
+            first = self._write_error is None
+            if first:
+                self._write_error = str(err)
+        if first:
+            self._fail(str(err))
 
     # -- live figures (also used by the monitor) -----------------------------------------------
     def latest(self, stream: str) -> tuple[int, Any] | None:
@@ -201,6 +242,7 @@ class Recorder:
             )
         elapsed = ((self._t_stop or now) - self._t_start) if self._t_start else 0.0
         written = self._writer.bytes_written if self._writer is not None else 0
+        frames = self._writer.counts if self._writer is not None else dict(self.written)
         rate = written / elapsed if elapsed > 0 else 0.0
         left_bytes = max(self._disk_free - self.config.min_free_bytes, 0)
         imu = self._latest.get("imu")
@@ -208,9 +250,10 @@ class Recorder:
         return {
             "running": self.running,
             "elapsed_s": elapsed,
-            "frames": dict(self.written),
+            "frames": frames,
             "captured": dict(self.captured),
             "dropped": dict(self.dropped),
+            "pending": {s: self.written[s] - frames.get(s, 0) for s in ("left", "right")},
             "fps": fps,
             "bytes_written": written,
             "disk_free_bytes": self._disk_free,
@@ -230,6 +273,7 @@ class Recorder:
                 "confidence": float(sonar.confidence),
             },
             "stop_reason": self._stop_reason or None,
+            "mode": "recording",
         }
 
     # -- threads ----------------------------------------------------------------------------
@@ -259,6 +303,7 @@ class Recorder:
             self.captured[stream] += 1
             self._latest[stream] = rec
             self._seq[stream] += 1
+            self._notify(stream, rec)
             if self.config.block_when_full:
                 # Wait for the writer even after a stop request: it drains the queue.
                 while not slots.acquire(timeout=0.1):
@@ -291,16 +336,18 @@ class Recorder:
                     writer.write_sonar(rec.t_ns, rec.range_m, rec.confidence)
                 else:
                     raise SessionError(f"{stream} source delivered {type(rec).__name__}")
+            except SessionWriteError as err:
+                self.dropped[stream] += 1
+                self._write_failed(err)
+                break
             except SessionError as err:
                 self.dropped[stream] += 1
                 _log.warning("%s sample dropped: %s", stream, err)
                 continue
-            except OSError as err:
-                self._fail(f"writing {stream} failed: {err}")
-                break
             self._latest[stream] = rec
             self._seq[stream] += 1
             self.written[stream] += 1
+            self._notify(stream, rec)
         self._ended.add(stream)
 
     def _write_images(self, q: queue.Queue[Any], slots: dict[str, threading.Semaphore]) -> None:
@@ -317,12 +364,12 @@ class Recorder:
                 writer.write_image(stream, rec.t_ns, rec.image, encoded=data)
                 self.written[stream] += 1
                 self._recent[stream].append(time.monotonic())
+            except SessionWriteError as err:
+                self.dropped[stream] += 1
+                self._write_failed(err)
             except SessionError as err:
                 self.dropped[stream] += 1
                 _log.warning("%s frame t_ns=%d dropped: %s", stream, rec.t_ns, err)
-            except OSError as err:
-                self.dropped[stream] += 1
-                self._fail(f"writing {stream} t_ns={rec.t_ns} failed: {err}")
             finally:
                 slots[stream].release()
 
@@ -355,6 +402,8 @@ class Recorder:
                 image_encoding=cfg.image_encoding,
                 png_compression=cfg.png_compression,
                 jpeg_quality=cfg.jpeg_quality,
+                min_free_bytes=cfg.min_free_bytes,
+                chunk_compression=cfg.chunk_compression,
                 handle_signals=False,
             )
         except BaseException:
@@ -426,8 +475,9 @@ class Recorder:
             self.running = False
             try:
                 writer.close()
-            except OSError as err:  # e.g. the disk filled: what is on disk stays readable
-                self._fail(f"closing {self.config.out_path} failed: {err}", stop=False)
+            except SessionWriteError as err:  # what is on disk stays readable
+                if self._write_error is None:
+                    self._fail(str(err), stop=False)
             finally:
                 for src in opened:
                     try:
@@ -446,15 +496,16 @@ class Recorder:
         else:
             on_disk = path.stat().st_size if path.exists() else 0
         streams = [s for s in _STREAMS if s in self.sources]
+        on_file = writer.counts
         return RecordSummary(
             path=os.fspath(path),
             format=writer.format,
             duration_s=duration,
-            frames={s: self.written[s] for s in streams},
+            frames={s: on_file[s] for s in streams},
             captured={s: self.captured[s] for s in streams},
-            dropped={s: self.dropped[s] for s in streams},
+            dropped={s: max(self.captured[s] - on_file[s], 0) for s in streams},
             fps={
-                s: self.written[s] / duration if duration > 0 else 0.0
+                s: on_file[s] / duration if duration > 0 else 0.0
                 for s in streams
                 if s in ("left", "right")
             },

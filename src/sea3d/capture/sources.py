@@ -294,7 +294,7 @@ class VideoFileSource(Source):
             self._cap = None
 
 
-_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm")
+_SUFFIXES = (".png", ".jpg", ".jpeg", ".jxl", ".tif", ".tiff", ".bmp", ".pgm", ".ppm")
 
 
 class ImageFolderSource(Source):
@@ -349,6 +349,7 @@ class ImageFolderSource(Source):
             self.stamps = int(t0_ns) + np.arange(len(files), dtype=np.int64) * step
         self.files = files
         self.loop = loop
+        self.skipped = 0
         self._pacer = _Pacer(speed)
         self._i = 0
         span = int(self.stamps[-1] - self.stamps[0])
@@ -357,18 +358,29 @@ class ImageFolderSource(Source):
         )
 
     def read(self) -> ImageFrame | None:
+        from sea3d.errors import SessionError
+        from sea3d.io.session_common import read_image_file
+
         n = len(self.files)
-        if self._i >= n and not self.loop:
-            return None
-        k, lap = self._i % n, self._i // n
-        self._i += 1
-        path = self.files[k]
-        img = cv2.imread(os.fspath(path), cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise CaptureError(f"cannot read image {path}")
-        t_ns = int(self.stamps[k]) + lap * self._period
-        self._pacer.wait(t_ns)
-        return ImageFrame(t_ns, _to_rgb(img))
+        misses = 0
+        while True:
+            if self._i >= n and not self.loop:
+                return None
+            k, lap = self._i % n, self._i // n
+            self._i += 1
+            path = self.files[k]
+            try:  # refuses cut or damaged files instead of replaying them half grey
+                img = read_image_file(path)
+            except SessionError as err:
+                self.skipped += 1
+                misses += 1
+                _log.warning("replay %s: skipping %s", self.name, err)
+                if misses >= n:
+                    raise CaptureError(f"image folder {self.folder}: no readable image") from err
+                continue
+            t_ns = int(self.stamps[k]) + lap * self._period
+            self._pacer.wait(t_ns)
+            return ImageFrame(t_ns, img)
 
 
 class ArraySource(Source):

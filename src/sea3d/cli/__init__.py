@@ -22,8 +22,9 @@ __all__ = ["build_parser", "main"]
 
 # Modules under sea3d.cli that add subcommands, in the order they appear in --help.
 _COMMAND_MODULES = (
-    "rig", "session", "record", "sim", "calibrate", "depth", "sfm", "monodepth", "eval", "demo"
-)
+    "rig", "session", "record", "stream", "bag", "sim", "calibrate", "depth", "sfm", "monodepth",
+    "recon", "eval", "demo",
+)  # fmt: skip
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -18,22 +18,56 @@ __all__ = ["register"]
 _ENGINES = ("sea3d", "sea3d-gpu", "opencv", "opencv-hh", "opencv-3way")
 
 
-def _read_image(path: str) -> Any:
-    import cv2
+def _positive_int(text: str) -> int:
+    """argparse type: an integer > 0 (so bad values fail before any work)."""
+    try:
+        value = int(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from err
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {value}")
+    return value
 
+
+def _positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from err
+    if not (value > 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return value
+
+
+def _check_range(max_disparity: int, width: int, engine: str, what: str) -> None:
+    """Refuse a ``--max-disparity`` the engine cannot search in an image ``width`` wide."""
     from sea3d.errors import StereoError
+
+    opencv = engine.startswith("opencv")
+    n = max_disparity + 1
+    if opencv:
+        n = -(-n // 16) * 16  # OpenCV searches whole multiples of 16
+    if n >= width if opencv else n > width:
+        top = (width - 1) // 16 * 16 - 1 if opencv else width - 1
+        note = f"; OpenCV rounds the range up to {n} disparities" if opencv else ""
+        raise StereoError(
+            f"--max-disparity {max_disparity} is too wide for {what} ({width} px wide{note}): "
+            f"use at most {top}"
+        )
+
+
+def _read_image(path: str) -> Any:
+    from sea3d.errors import SessionError, StereoError
+    from sea3d.io.session_common import read_image_file
 
     p = Path(path)
     if not p.is_file():
         raise StereoError(f"image not found: {p}")
-    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise StereoError(f"cannot read image {p}")
-    if img.ndim == 3 and img.shape[2] == 4:
-        img = img[..., :3]
-    if img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-    return img
+    try:  # refuses cut files (cv2.imread returns a cut JPEG half grey)
+        return read_image_file(p)
+    except SessionError as err:
+        raise StereoError(str(err)) from err
 
 
 def _engine_config(args: argparse.Namespace) -> Any:
@@ -42,6 +76,8 @@ def _engine_config(args: argparse.Namespace) -> Any:
     overrides: dict[str, Any] = {}
     if args.engine == "sea3d" and getattr(args, "paths", None):
         overrides["paths"] = args.paths
+    if args.engine == "sea3d" and getattr(args, "no_fill", False):
+        overrides["fill_max_px"] = 0
     return make_config(args.engine, args.max_disparity, **overrides)
 
 
@@ -62,6 +98,7 @@ def _cmd_stereo(args: argparse.Namespace) -> int:
     chain = FilterChain(parse_filter_chain(args.filters)) if args.filters else None
     left = _read_image(args.left)
     right = _read_image(args.right)
+    _check_range(args.max_disparity, int(left.shape[1]), args.engine, args.left)
     compile_s = _warm_up(args.engine)
     result = match(left, right, config)
     disp = result.disparity_px
@@ -73,7 +110,11 @@ def _cmd_stereo(args: argparse.Namespace) -> int:
     write_disparity(args.output, disp)
     import numpy as np
 
+    if args.confidence:
+        conf = np.where(np.isfinite(disp), result.confidence, np.float32(0.0))
+        write_disparity(args.confidence, conf.astype(np.float32))
     valid_fraction = float(np.isfinite(disp).mean())
+    measured_fraction = float(result.measured.mean())
     if args.json:
         out = {
             "engine": result.engine,
@@ -81,6 +122,8 @@ def _cmd_stereo(args: argparse.Namespace) -> int:
             "filter_s": filter_s,
             "compile_s": compile_s,
             "valid_fraction": valid_fraction,
+            "measured_fraction": measured_fraction,
+            "confidence": str(args.confidence) if args.confidence else None,
             "width": int(disp.shape[1]),
             "height": int(disp.shape[0]),
             "max_disparity_px": args.max_disparity,
@@ -90,7 +133,8 @@ def _cmd_stereo(args: argparse.Namespace) -> int:
         print(json.dumps(out, indent=2))
     else:
         print(
-            f"{args.output}: {disp.shape[1]}x{disp.shape[0]}, {100 * valid_fraction:.1f} % valid, "
+            f"{args.output}: {disp.shape[1]}x{disp.shape[0]}, {100 * valid_fraction:.1f} % valid "
+            f"({100 * measured_fraction:.1f} % matched, the rest filled), "
             f"matched in {result.timings_s['match_s']:.3f} s ({result.engine})"
         )
     return 0
@@ -150,6 +194,8 @@ def _cmd_depth_session(args: argparse.Namespace) -> int:
         n_pairs = len(match.left_index)
         if n_pairs == 0:
             raise StereoError(f"{args.session}: no stereo pairs to process")
+        if args.max_disparity is not None:
+            _check_range(args.max_disparity, rig.width, args.engine, "the rig's images")
         maps = rectify_rig(rig, depth_range_m=(args.min_depth, args.max_depth))
         max_d = args.max_disparity or max_disparity_for_depth(maps, args.min_depth)
         config = make_config(args.engine, max_d)
@@ -167,7 +213,8 @@ def _cmd_depth_session(args: argparse.Namespace) -> int:
                         f"{args.session}: frame {pair.t_ns} is {pair.left.shape[1]}x"
                         f"{pair.left.shape[0]} but the rig is {rig.width}x{rig.height}"
                     )
-                res = compute_depth(maps, pair.left, pair.right, config, max_depth_m=args.max_depth)
+                res = compute_depth(maps, pair.left, pair.right, config, max_depth_m=args.max_depth,
+                                    min_confidence=args.min_confidence)
                 write_depth_png_mm(out / "depth" / f"{pair.t_ns}.png", res.depth_m)
                 if args.points:
                     write_ply(out / "cloud" / f"{pair.t_ns}.ply", res.points_left, res.colors_rgb)
@@ -228,6 +275,8 @@ def _cmd_depth(args: argparse.Namespace) -> int:
             f"need 0 < --min-depth < --max-depth, got {args.min_depth} and {args.max_depth}"
         )
     rig = load_rig(args.rig)
+    if args.max_disparity is not None:
+        _check_range(args.max_disparity, rig.width, args.engine, f"the rig {args.rig}")
     left = _read_image(args.left)
     right = _read_image(args.right)
     for name, img, path in (("left", left, args.left), ("right", right, args.right)):
@@ -242,7 +291,8 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     max_d = args.max_disparity or max_disparity_for_depth(maps, args.min_depth)
     config = make_config(args.engine, max_d)
     compile_s = _warm_up(args.engine)
-    res = compute_depth(maps, left, right, config, max_depth_m=args.max_depth)
+    res = compute_depth(maps, left, right, config, max_depth_m=args.max_depth,
+                        min_confidence=args.min_confidence)
     write_depth(args.output, res.depth_m)
     if args.points:
         write_ply(args.points, res.points_left, res.colors_rgb)
@@ -292,7 +342,7 @@ def register(sub: Any) -> None:
     p.add_argument("right", help="right image (rectified)")
     p.add_argument(
         "--max-disparity",
-        type=int,
+        type=_positive_int,
         required=True,
         metavar="N",
         help="largest disparity searched, pixels (range 0..N)",
@@ -302,6 +352,17 @@ def register(sub: Any) -> None:
     p.add_argument("--paths", type=int, choices=(8, 16), help="sea3d engine: aggregation paths")
     p.add_argument(
         "--filters", default="", help='post-filter chain, e.g. "median:size_px=3,speckle,wls"'
+    )
+    p.add_argument(
+        "--confidence",
+        metavar="PATH",
+        help="also write the confidence map (.pfm, .npy or .tiff; 0 = filled or invalid)",
+    )
+    p.add_argument(
+        "--no-fill",
+        action="store_true",
+        help="sea3d engine: leave unmatched pixels NaN (default: dense, filled from the "
+        "background neighbour, with confidence 0)",
     )
     p.add_argument("--json", action="store_true", help="print timings and figures as JSON")
     p.set_defaults(handler=_cmd_stereo)
@@ -338,24 +399,32 @@ def register(sub: Any) -> None:
     d.add_argument("--engine", choices=_ENGINES, default="sea3d", help="matching engine")
     d.add_argument(
         "--max-disparity",
-        type=int,
+        type=_positive_int,
         default=None,
         metavar="N",
         help="largest disparity searched (default: from --min-depth)",
     )
     d.add_argument(
         "--min-depth",
-        type=float,
+        type=_positive_float,
         default=0.5,
         metavar="M",
         help="nearest depth to resolve, metres (sets the disparity range)",
     )
     d.add_argument(
         "--max-depth",
-        type=float,
+        type=_positive_float,
         default=10.0,
         metavar="M",
         help="farthest depth kept, metres (refractive rectification range too)",
+    )
+    d.add_argument(
+        "--min-confidence",
+        type=float,
+        default=1e-6,
+        metavar="C",
+        help="drop matches below this confidence (0..1) from depth and points (default: drop "
+        "only the filled, unmatched pixels)",
     )
     d.add_argument("--json", action="store_true", help="print timings and figures as JSON")
     d.set_defaults(handler=_cmd_depth)
@@ -372,12 +441,15 @@ def register_eval(esub: Any) -> None:
     ed.add_argument("ground_truth", metavar="GT", help="ground-truth disparity")
     ed.add_argument(
         "--scale",
-        type=float,
+        type=_positive_float,
         default=None,
         help="GT integer images store d * scale (Middlebury: 16, 8 or 4)",
     )
     ed.add_argument(
-        "--est-scale", type=float, default=None, help="the same for an integer estimate image"
+        "--est-scale",
+        type=_positive_float,
+        default=None,
+        help="the same for an integer estimate image",
     )
     ed.add_argument("--json", action="store_true", help="print the figures as JSON")
     ed.set_defaults(handler=_cmd_eval_disparity)

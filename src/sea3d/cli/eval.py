@@ -12,7 +12,7 @@ from typing import Any
 
 __all__ = ["register"]
 
-_EVAL_MODULES = ("depth",)
+_EVAL_MODULES = ("depth", "sonar", "recon")
 
 
 def register(sub: Any) -> None:

@@ -26,10 +26,22 @@ def register(sub: Any) -> None:
         "--from",
         dest="from_file",
         metavar="FILE",
-        help="an existing calibration: rig.yaml, or OpenCV/MATLAB FileStorage stereo YAML",
+        help="an existing calibration: rig.yaml, OpenCV/MATLAB FileStorage stereo YAML, or a "
+        "Kalibr camchain(-imucam).yaml",
     )
     create.add_argument("--extrinsics", metavar="FILE", help="OpenCV stereo_calib extrinsics.yml")
     create.add_argument("-o", "--output", required=True, metavar="RIG", help="file to write")
+    create.add_argument(
+        "--kalibr",
+        metavar="CAMCHAIN",
+        help="attach the IMU of a Kalibr camchain-imucam.yaml (cam0.T_cam_imu, "
+        "timeshift_cam_imu); cam0 is the left camera",
+    )
+    create.add_argument(
+        "--kalibr-imu",
+        metavar="IMU_YAML",
+        help="Kalibr imu.yaml with the IMU's noise densities, random walks and rate",
+    )
     create.add_argument(
         "--port",
         choices=["dome", "flat", "none"],
@@ -96,6 +108,10 @@ def register(sub: Any) -> None:
     conv.add_argument("--size", type=image_size, metavar="WxH", help="image size if IN lacks it")
     conv.set_defaults(handler=_convert)
 
+    from sea3d.cli.rig_plan import register_plan
+
+    register_plan(rsub)
+
 
 def _mm(values: list[float] | None) -> tuple[float, float, float] | None:
     return None if values is None else (values[0] * 1e-3, values[1] * 1e-3, values[2] * 1e-3)
@@ -132,7 +148,12 @@ def _create(args: argparse.Namespace) -> int:
             **port_opts,
         )
     else:
-        rig = load_rig(args.from_file, extrinsics=args.extrinsics, image_size=args.size)
+        from sea3d.io.kalibr import is_kalibr_camchain, rig_from_kalibr
+
+        if is_kalibr_camchain(args.from_file):
+            rig = rig_from_kalibr(args.from_file, args.kalibr_imu)
+        else:
+            rig = load_rig(args.from_file, extrinsics=args.extrinsics, image_size=args.size)
         if args.fx is not None or args.baseline_mm is not None:
             if args.fx is not None and args.fx <= 0:
                 raise ConfigError(f"--fx must be > 0, got {args.fx}")
@@ -148,7 +169,9 @@ def _create(args: argparse.Namespace) -> int:
                 if args.baseline_mm <= 0:
                     raise ConfigError(f"--baseline-mm must be > 0, got {args.baseline_mm}")
                 T[:3, 3] *= args.baseline_mm * 1e-3 / np.linalg.norm(T[:3, 3])
-            base = StereoRig(left=cams[0], right=cams[1], T_left_right=T)
+            base = StereoRig(
+                left=cams[0], right=cams[1], T_left_right=T, imu=rig.imu, sonar=rig.sonar
+            )
             old_port = getattr(rig.left, "port", None)
             rig = base if old_port is None and args.port is None else rig
             if args.port is None and old_port is not None:
@@ -159,6 +182,12 @@ def _create(args: argparse.Namespace) -> int:
                 rig = base
         if args.port is not None:
             rig = with_ports(rig, args.port, **port_opts)
+    if args.kalibr is not None:
+        from sea3d.io.kalibr import with_kalibr_imu
+
+        rig = with_kalibr_imu(rig, args.kalibr, args.kalibr_imu)
+    elif args.kalibr_imu is not None and rig.imu is None:
+        raise ConfigError("--kalibr-imu needs --kalibr (the camchain with T_cam_imu)")
     out = save_rig(rig, args.output)
     print(f"wrote {out}")
     return 0
@@ -185,7 +214,43 @@ def _rig_summary(rig: Any) -> dict[str, Any]:
         "right": cams["right"],
         "T_left_right": rig.T_left_right.tolist(),
         "baseline_m": rig.baseline_m,
+        "imu": data.get("imu"),
+        "sonar": data.get("sonar"),
     }
+
+
+def _sensor_lines(summary: dict[str, Any]) -> list[str]:
+    import numpy as np
+
+    from sea3d.geometry.se3 import R_to_rotvec
+
+    lines = []
+    imu = summary.get("imu")
+    if imu is None:
+        lines.append("  imu   none (odometry runs visual-only)")
+    else:
+        T = np.asarray(imu["T_left_imu"])
+        t = T[:3, 3] * 1e3
+        ang = np.degrees(np.linalg.norm(R_to_rotvec(T[:3, :3])))
+        lines.append(
+            f"  imu   {imu['rate_hz']:g} Hz, at ({t[0]:.1f}, {t[1]:.1f}, {t[2]:.1f}) mm in the "
+            f"left frame, rotated {ang:.2f} deg; time offset {imu['time_offset_s'] * 1e3:.3f} ms"
+        )
+        lines.append(
+            f"        gyro {imu['gyro_noise_density_radps_sqrthz']:.3g} rad/s/sqrt(Hz), random "
+            f"walk {imu['gyro_random_walk_radps_sqrts']:.3g} rad/s/sqrt(s); accel "
+            f"{imu['accel_noise_density_mps2_sqrthz']:.3g} m/s^2/sqrt(Hz), random walk "
+            f"{imu['accel_random_walk_mps2_sqrts']:.3g} m/s^2/sqrt(s); gravity "
+            f"{imu['gravity_mps2']:g} m/s^2"
+        )
+    sonar = summary.get("sonar")
+    if sonar is not None:
+        t = np.asarray(sonar["T_left_sonar"])[:3, 3] * 1e3
+        lines.append(
+            f"  sonar at ({t[0]:.1f}, {t[1]:.1f}, {t[2]:.1f}) mm in the left frame, beam "
+            f"{sonar['beam_deg']:g} deg along its -z"
+        )
+    return lines
 
 
 def _show(args: argparse.Namespace) -> int:
@@ -225,6 +290,7 @@ def _show(args: argparse.Namespace) -> int:
     lines.append(
         f"  right camera centre in the left frame: ({t[0]:.2f}, {t[1]:.2f}, {t[2]:.2f}) mm"
     )
+    lines.extend(_sensor_lines(summary))
     print("\n".join(lines))
     return 0
 

@@ -39,7 +39,9 @@ def register(sub: Any) -> None:
     info.set_defaults(handler=_info)
 
     ver = ssub.add_parser(
-        "verify", help="read every record; list damaged ones (exit status 1 if any)"
+        "verify",
+        help="check every CRC and decode every record; list damaged chunks and frames (exit "
+        "status 1 if any)",
     )
     ver.add_argument("path", help="session: .mcap file or folder")
     ver.add_argument("--json", action="store_true", help="print JSON")
@@ -57,6 +59,12 @@ def register(sub: Any) -> None:
         choices=("png", "jpeg", "raw"),
         default=None,
         help="output image encoding (default: keep the input's)",
+    )
+    conv.add_argument(
+        "--strict",
+        action="store_true",
+        help="refuse to convert a session with any damage (default: skip damaged records and "
+        "list them; exit status 1)",
     )
     conv.set_defaults(handler=_convert)
 
@@ -79,7 +87,7 @@ def _info(args: argparse.Namespace) -> int:
     out.write(f"session   {report['path']} ({report['format']})\n")
     out.write(f"size      {report['size_bytes'] / 1e6:.1f} MB\n")
     out.write(f"duration  {report['duration_s']:.3f} s\n")
-    out.write(f"rig       {'yes' if report['rig'] else 'no'}\n\n")
+    out.write(f"rig       {report['rig_status']}\n\n")
     out.write(
         f"{'stream':<8}{'count':>8} {'rate Hz':>11}{'first s':>21}{'last s':>21}{'gaps':>6}\n"
     )
@@ -96,16 +104,41 @@ def _info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _plural(n: int, word: str) -> str:
+    return f"{n} {word}" if n == 1 else f"{n} {word}s"
+
+
 def _convert(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
     from sea3d.io.session import convert_session
 
-    counts = convert_session(args.input, args.output, image_encoding=args.image_encoding)
-    skipped = counts.pop("skipped", 0)
-    parts = ", ".join(f"{v} {k}" for k, v in counts.items())
-    print(
-        f"wrote {args.output}: {parts}" + (f"; skipped {skipped} damaged images" if skipped else "")
-    )
-    return 0
+    bar = tqdm(total=0, unit="image", desc="convert", disable=None, leave=False)
+
+    def progress(done: int, total: int) -> None:
+        bar.total = total
+        bar.update(done - bar.n)
+
+    try:
+        report = convert_session(
+            args.input,
+            args.output,
+            image_encoding=args.image_encoding,
+            strict=args.strict,
+            progress=progress,
+        )
+    finally:
+        bar.close()
+    skipped = report.pop("skipped", 0)
+    problems = report.pop("problems", [])
+    parts = ", ".join(f"{v} {k}" for k, v in report.items())
+    line = f"wrote {args.output}: {parts}"
+    if skipped:
+        line += f"; skipped {_plural(skipped, 'damaged record')}"
+    print(line)
+    for msg in problems:
+        print(f"  {msg}")
+    return 1 if problems else 0
 
 
 def _verify(args: argparse.Namespace) -> int:
@@ -117,7 +150,15 @@ def _verify(args: argparse.Namespace) -> int:
         sys.stdout.write("\n")
     else:
         counts = ", ".join(f"{v} {k}" for k, v in report["records"].items())
-        print(f"{args.path}: {counts} readable; {len(report['problems'])} problems")
+        n = len(report["problems"])
+        print(f"{args.path}: {counts} readable; " + (_plural(n, "problem") if n else "no problems"))
+        for chunk in report["damaged_chunks"]:
+            print(
+                f"  damaged chunk at byte {chunk['offset']}: t_ns {chunk['start_ns']}.."
+                f"{chunk['end_ns']}, streams {', '.join(chunk['streams'])} ({chunk['reason']})"
+            )
+        for frame in report["damaged_frames"]:
+            print(f"  damaged {frame['stream']} frame t_ns={frame['t_ns']}")
         for msg in report["problems"]:
             print(f"  {msg}")
     return 0 if report["ok"] else 1

@@ -142,7 +142,7 @@ def _run_survey(args: argparse.Namespace) -> int:
     from sea3d.io.rig_file import rig_to_yaml
     from sea3d.io.session import SessionWriter, layout_of
     from sea3d.sim.scene import load_scene
-    from sea3d.sim.survey import SurveyConfig, simulate_survey
+    from sea3d.sim.survey import SurveyConfig, simulate_survey, survey_mount, with_survey_sensors
 
     rig = _load_rig(args.rig, args.size)
     scene = load_scene(args.scene)
@@ -171,11 +171,15 @@ def _run_survey(args: argparse.Namespace) -> int:
         rig.height,
         args.out,
     )
+    mount = survey_mount(rig, config)
+    session_rig = with_survey_sensors(rig, config, mount)  # the IMU and echosounder simulated
     with (
         _progress(args.frames, f"sim {scene.name}") as bar,
-        SessionWriter(args.out, format=fmt, rig_yaml=rig_to_yaml(rig)) as writer,
+        SessionWriter(args.out, format=fmt, rig_yaml=rig_to_yaml(session_rig)) as writer,
     ):
-        result = simulate_survey(scene, rig, config, writer, gt_dir, progress=bar.update)
+        result = simulate_survey(
+            scene, rig, config, writer, gt_dir, mount=mount, progress=bar.update
+        )
     print(
         f"wrote {len(result.frame_t_ns)} stereo frames, {result.imu_count} IMU and "
         f"{result.sonar_count} "

@@ -26,6 +26,21 @@
 
 A flat port has ``normal``, ``distance_m``, ``thickness_m`` and the indices instead.
 
+Optional blocks for the rig's other sensors (a file without them loads as before)::
+
+    imu:
+      T_left_imu: [[...], [...], [...], [0, 0, 0, 1]]   # IMU (body) -> left camera, metres
+      rate_hz: 200.0
+      gyro_noise_density_radps_sqrthz: 1.7e-4
+      gyro_random_walk_radps_sqrts: 1.9e-5
+      accel_noise_density_mps2_sqrthz: 2.0e-3
+      accel_random_walk_mps2_sqrts: 3.0e-3
+      gravity_mps2: 9.81          # optional, default 9.81
+      time_offset_s: 0.0          # optional: t_imu = t_cam + time_offset_s
+    sonar:
+      T_left_sonar: [[...], ...]  # echosounder -> left camera; its beam points along its -z
+      beam_deg: 30.0              # full cone angle
+
 Importers read OpenCV FileStorage stereo YAML as MATLAB's stereoCameraCalibrator exports it
 (``cameraMatrixLeft``, ``distCoeffsLeft``, ..., ``R``, ``T`` in millimetres; OpenCV's convention
 ``p_right = R p_left + T``) and OpenCV's ``stereo_calib`` sample files (``M1 D1 M2 D2`` in
@@ -37,7 +52,9 @@ file, the key and the value, and no partial rig is returned.
 from __future__ import annotations
 
 import logging
+import math
 import os
+import reprlib
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -49,20 +66,26 @@ import yaml
 from sea3d.errors import RigFileError, Sea3dError
 from sea3d.geometry.camera import CameraModel
 from sea3d.geometry.pinhole import DISTORTION_LENGTHS, PinholeCamera
-from sea3d.geometry.rig import StereoRig
+from sea3d.geometry.rig import ImuSpec, SonarSpec, StereoRig
 from sea3d.geometry.se3 import invert_T, make_T
 from sea3d.refraction.ports import DomePort, DomePortCamera, FlatPort, FlatPortCamera
 
 __all__ = [
     "RigFormat",
+    "check_rig_physics",
+    "decode_rig_bytes",
+    "imu_to_dict",
     "load_rig",
+    "read_rig_text",
     "rig_from_dict",
     "rig_from_yaml",
     "rig_to_colmap",
     "rig_to_dict",
     "rig_to_opencv_yaml",
     "rig_to_yaml",
+    "safe_yaml",
     "save_rig",
+    "sonar_to_dict",
 ]
 
 log = logging.getLogger(__name__)
@@ -140,7 +163,7 @@ def _camera_to_dict(cam: CameraModel) -> dict[str, Any]:
 
 def rig_to_dict(rig: StereoRig) -> dict[str, Any]:
     """The rig as plain Python values (the ``rig.yaml`` schema)."""
-    return {
+    out: dict[str, Any] = {
         "format": FORMAT_NAME,
         "version": FORMAT_VERSION,
         "image_width_px": rig.width,
@@ -149,6 +172,47 @@ def rig_to_dict(rig: StereoRig) -> dict[str, Any]:
         "right": _camera_to_dict(rig.right),
         "T_left_right": [[float(v) for v in row] for row in rig.T_left_right],
     }
+    out.update(_sensors_to_dict(rig))
+    return out
+
+
+# --------------------------------------------------------------------------- IMU / echosounder
+_IMU_NOISE_KEYS = (
+    "gyro_noise_density_radps_sqrthz",
+    "gyro_random_walk_radps_sqrts",
+    "accel_noise_density_mps2_sqrthz",
+    "accel_random_walk_mps2_sqrts",
+)
+
+
+def imu_to_dict(imu: ImuSpec) -> dict[str, Any]:
+    """The ``imu:`` block of ``rig.yaml``."""
+    out: dict[str, Any] = {
+        "T_left_imu": [[float(v) for v in row] for row in imu.T_left_imu],
+        "rate_hz": imu.rate_hz,
+    }
+    for key in _IMU_NOISE_KEYS:
+        out[key] = float(getattr(imu, key))
+    out["gravity_mps2"] = imu.gravity_mps2
+    out["time_offset_s"] = imu.time_offset_s
+    return out
+
+
+def sonar_to_dict(sonar: SonarSpec) -> dict[str, Any]:
+    """The ``sonar:`` block of ``rig.yaml``."""
+    return {
+        "T_left_sonar": [[float(v) for v in row] for row in sonar.T_left_sonar],
+        "beam_deg": sonar.beam_deg,
+    }
+
+
+def _sensors_to_dict(rig: StereoRig) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    if rig.imu is not None:
+        out["imu"] = imu_to_dict(rig.imu)
+    if rig.sonar is not None:
+        out["sonar"] = sonar_to_dict(rig.sonar)
+    return out
 
 
 def rig_to_yaml(rig: StereoRig) -> str:
@@ -158,6 +222,19 @@ def rig_to_yaml(rig: StereoRig) -> str:
 
 
 # --------------------------------------------------------------------------- from dict / YAML
+def _short(value: Any, limit: int = 120) -> str:
+    """``repr(value)`` cut to ``limit`` characters: error messages stay one readable line even
+    for a hostile file (a 1 KB YAML alias bomb expands to hundreds of MB of repr)."""
+    try:
+        short = reprlib.Repr()
+        short.maxlevel, short.maxlist, short.maxdict = 3, 8, 8
+        short.maxstring, short.maxother = 60, 60
+        text = short.repr(value)
+    except RecursionError:
+        text = f"<{type(value).__name__}>"
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 class _Reader:
     """Typed access to a nested mapping that names file and key in every error."""
 
@@ -178,30 +255,40 @@ class _Reader:
     def number(self, data: Mapping[str, Any], key: str, prefix: str = "") -> float:
         value = self.get(data, key, prefix)
         if isinstance(value, bool) or not isinstance(value, int | float):
-            raise self.fail(f"{prefix}{key}", f"expected a number, got {value!r}")
-        if not np.isfinite(value):
-            raise self.fail(f"{prefix}{key}", f"expected a finite number, got {value!r}")
-        return float(value)
+            raise self.fail(f"{prefix}{key}", f"expected a number, got {_short(value)}")
+        try:
+            number = float(value)  # an int beyond float range raises OverflowError
+        except OverflowError:
+            number = float("inf")
+        if not math.isfinite(number):
+            raise self.fail(f"{prefix}{key}", f"expected a finite number, got {_short(value)}")
+        return number
 
     def array(
         self, data: Mapping[str, Any], key: str, shape: tuple[int, ...] | None, prefix: str = ""
     ) -> np.ndarray:
         value = self.get(data, key, prefix)
+        if not isinstance(value, list | tuple) or len(value) > 64:
+            raise self.fail(
+                f"{prefix}{key}", f"expected a short list of numbers, got {_short(value)}"
+            )
         try:
             arr = np.asarray(value, dtype=np.float64)
-        except (TypeError, ValueError) as err:
-            raise self.fail(f"{prefix}{key}", f"expected numbers, got {value!r}") from err
+        except (TypeError, ValueError, RecursionError) as err:
+            raise self.fail(f"{prefix}{key}", f"expected numbers, got {_short(value)}") from err
         if shape is not None and arr.shape != shape:
-            raise self.fail(f"{prefix}{key}", f"expected shape {shape}, got {arr.shape}: {value!r}")
+            raise self.fail(
+                f"{prefix}{key}", f"expected shape {shape}, got {arr.shape}: {_short(value)}"
+            )
         if not np.all(np.isfinite(arr)):
-            raise self.fail(f"{prefix}{key}", f"non-finite values: {value!r}")
+            raise self.fail(f"{prefix}{key}", f"non-finite values: {_short(value)}")
         return arr
 
 
 def _camera_from_dict(r: _Reader, data: Any, name: str, width: int, height: int) -> CameraModel:
     prefix = f"{name}."
     if not isinstance(data, Mapping):
-        raise r.fail(name, f"expected a mapping, got {data!r}")
+        raise r.fail(name, f"expected a mapping, got {_short(data)}")
     dist = r.array(data, "distortion", None, prefix) if "distortion" in data else np.zeros(0)
     if dist.ndim != 1 or dist.size not in DISTORTION_LENGTHS:
         raise r.fail(
@@ -262,7 +349,58 @@ def _camera_from_dict(r: _Reader, data: Any, name: str, width: int, height: int)
         raise
     except Sea3dError as err:
         raise r.fail(f"{pp}", str(err)) from err
-    raise r.fail(f"{pp}type", f"expected none, dome or flat, got {kind!r}")
+    raise r.fail(f"{pp}type", f"expected none, dome or flat, got {_short(kind)}")
+
+
+def _imu_from_dict(r: _Reader, data: Any) -> ImuSpec:
+    p = "imu."
+    if not isinstance(data, Mapping):
+        raise r.fail("imu", f"expected a mapping, got {_short(data)}")
+    known = {"T_left_imu", "rate_hz", "gravity_mps2", "time_offset_s", *_IMU_NOISE_KEYS}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise r.fail(f"{p}{unknown[0]}", f"unknown key (expected {', '.join(sorted(known))})")
+    values: dict[str, Any] = {
+        "T_left_imu": r.array(data, "T_left_imu", (4, 4), p),
+        "rate_hz": r.number(data, "rate_hz", p),
+    }
+    for key in _IMU_NOISE_KEYS:
+        values[key] = r.number(data, key, p)
+    for key in ("gravity_mps2", "time_offset_s"):
+        if key in data:
+            values[key] = r.number(data, key, p)
+    try:
+        return ImuSpec(**values)
+    except Sea3dError as err:
+        raise r.fail("imu", str(err)) from err
+
+
+def _sonar_from_dict(r: _Reader, data: Any) -> SonarSpec:
+    p = "sonar."
+    if not isinstance(data, Mapping):
+        raise r.fail("sonar", f"expected a mapping, got {_short(data)}")
+    unknown = sorted(set(data) - {"T_left_sonar", "beam_deg"})
+    if unknown:
+        raise r.fail(f"{p}{unknown[0]}", "unknown key (expected T_left_sonar, beam_deg)")
+    try:
+        return SonarSpec(
+            T_left_sonar=r.array(data, "T_left_sonar", (4, 4), p),
+            beam_deg=r.number(data, "beam_deg", p),
+        )
+    except RigFileError:
+        raise
+    except Sea3dError as err:
+        raise r.fail("sonar", str(err)) from err
+
+
+def _sensors_from_dict(r: _Reader, data: Mapping[str, Any]) -> dict[str, Any]:
+    """The optional ``imu`` and ``sonar`` blocks as ``StereoRig`` keyword arguments."""
+    out: dict[str, Any] = {}
+    if data.get("imu") is not None:
+        out["imu"] = _imu_from_dict(r, data["imu"])
+    if data.get("sonar") is not None:
+        out["sonar"] = _sonar_from_dict(r, data["sonar"])
+    return out
 
 
 def rig_from_dict(data: Any, source: str = "<dict>") -> StereoRig:
@@ -279,36 +417,325 @@ def rig_from_dict(data: Any, source: str = "<dict>") -> StereoRig:
         )
     fmt = data.get("format")
     if fmt != FORMAT_NAME:
-        raise r.fail("format", f"expected {FORMAT_NAME!r}, got {fmt!r}")
+        raise r.fail("format", f"expected {FORMAT_NAME!r}, got {_short(fmt)}")
     version = data.get("version")
-    if version != FORMAT_VERSION:
+    if isinstance(version, bool) or version != FORMAT_VERSION:  # YAML's true is not 1
         raise r.fail(
-            "version", f"unsupported version {version!r} (this sea3d reads {FORMAT_VERSION})"
+            "version",
+            f"unsupported version {_short(version)} (this sea3d reads {FORMAT_VERSION})",
         )
     width = r.number(data, "image_width_px")
     height = r.number(data, "image_height_px")
     if width <= 0 or height <= 0 or width != int(width) or height != int(height):
         raise r.fail("image_width_px", f"expected positive whole pixels, got {width}x{height}")
+    check_image_size(int(width), int(height), source)
     left = _camera_from_dict(r, r.get(data, "left", ""), "left", int(width), int(height))
     right = _camera_from_dict(r, r.get(data, "right", ""), "right", int(width), int(height))
     T = r.array(data, "T_left_right", (4, 4))
+    sensors = _sensors_from_dict(r, data)
     try:
-        return StereoRig(left=left, right=right, T_left_right=T)
+        rig = StereoRig(left=left, right=right, T_left_right=T, **sensors)
     except Sea3dError as err:
         raise r.fail("T_left_right", str(err)) from err
+    check_rig_physics(rig, source)
+    return rig
 
 
 def rig_from_yaml(text: str, source: str = "<string>") -> StereoRig:
-    """Parse ``rig.yaml`` text.
+    """Parse ``rig.yaml`` text (size-limited, alias expansion bounded; see :func:`safe_yaml`).
 
     Raises:
         RigFileError: invalid YAML or an invalid rig, naming ``source``.
     """
+    return rig_from_dict(safe_yaml(text, source), source)
+
+
+# --------------------------------------------------------------------------- safe loading
+# A rig file is a few kB; these limits leave room for comments and generous formatting.
+MAX_RIG_FILE_BYTES = 1 << 20
+MAX_YAML_NODES = 20_000  # after alias expansion; a rig has about 100
+# Image sizes a stereo camera can have (the paper's sensor is 3856x2180).
+MAX_IMAGE_SIDE_PX = 32_768
+MAX_IMAGE_PIXELS = 1 << 28
+# Refractive indices of anything a port or its medium can be made of (air 1.0003, water 1.33,
+# acrylic 1.49, sapphire 1.77; the highest optical glasses stay under 2.1).
+N_RANGE = (1.0, 2.5)
+MAX_DOME_RADIUS_M = 2.0
+MAX_PORT_DISTANCE_M = 1.0
+MAX_PORT_THICKNESS_M = 0.2
+MAX_BASELINE_M = 10.0
+
+
+def decode_rig_bytes(data: bytes, source: str) -> str:
+    """Rig file bytes as text: UTF-8 (with or without a byte-order mark), or UTF-16/32 when
+    a byte-order mark says so.
+
+    Raises:
+        RigFileError: too large, or not decodable, naming ``source`` and the offending byte.
+    """
+    if len(data) > MAX_RIG_FILE_BYTES:
+        raise RigFileError(
+            f"{source}: {len(data)} bytes is too large for a rig file (limit "
+            f"{MAX_RIG_FILE_BYTES} bytes)"
+        )
+    for bom, codec in (
+        (b"\xef\xbb\xbf", "utf-8-sig"),
+        (b"\xff\xfe\x00\x00", "utf-32"),
+        (b"\x00\x00\xfe\xff", "utf-32"),
+        (b"\xff\xfe", "utf-16"),
+        (b"\xfe\xff", "utf-16"),
+    ):
+        if data.startswith(bom):
+            try:
+                return data.decode(codec)
+            except UnicodeDecodeError as err:
+                raise RigFileError(
+                    f"{source}: starts with a {codec} byte-order mark but byte {err.start} "
+                    f"cannot be decoded; save the rig as UTF-8"
+                ) from err
+    if b"\x00" in data:
+        raise RigFileError(
+            f"{source}: not UTF-8 text: NUL bytes (it looks like UTF-16 without a byte-order "
+            "mark); save the rig as UTF-8"
+        )
     try:
-        data = yaml.safe_load(text)
+        return data.decode("utf-8")
+    except UnicodeDecodeError as err:
+        hint = " (it looks like UTF-16 without a byte-order mark)" if b"\x00" in data else ""
+        raise RigFileError(
+            f"{source}: not UTF-8 text: byte 0x{data[err.start]:02x} at offset {err.start} "
+            f"cannot be decoded{hint}; save the rig as UTF-8"
+        ) from err
+
+
+def read_rig_text(path: str | os.PathLike[str]) -> str:
+    """Read a rig file's text with :func:`decode_rig_bytes`' size limit and decoding.
+
+    Raises:
+        RigFileError: missing, unreadable, too large or undecodable (naming the file).
+    """
+    p = Path(path)
+    try:
+        size = p.stat().st_size
+        if size > MAX_RIG_FILE_BYTES:
+            raise RigFileError(
+                f"{p}: {size} bytes is too large for a rig file (limit {MAX_RIG_FILE_BYTES} bytes)"
+            )
+        data = p.read_bytes()
+    except FileNotFoundError as err:
+        raise RigFileError(f"{p}: rig file not found") from err
+    except OSError as err:
+        raise RigFileError(f"{p}: cannot read: {err.strerror or err}") from err
+    return decode_rig_bytes(data, str(p))
+
+
+def safe_yaml(text: str, source: str) -> Any:
+    """``yaml.safe_load`` with limits: at most :data:`MAX_RIG_FILE_BYTES` of text and
+    :data:`MAX_YAML_NODES` nodes once aliases are expanded (anchors and aliases are allowed,
+    e.g. one ``port`` block shared by both cameras; recursive aliases are refused).
+
+    Raises:
+        RigFileError: invalid YAML, too large, too deeply nested, or too many nodes.
+    """
+    if not isinstance(text, str):
+        raise RigFileError(f"{source}: expected YAML text, got {type(text).__name__}")
+    if len(text) > MAX_RIG_FILE_BYTES:
+        raise RigFileError(
+            f"{source}: {len(text)} characters is too large for a rig file (limit "
+            f"{MAX_RIG_FILE_BYTES})"
+        )
+    try:
+        root = yaml.compose(text, Loader=yaml.SafeLoader)
+        if root is not None:
+            _count_yaml_nodes(root, source)
+        return yaml.safe_load(text)
     except yaml.YAMLError as err:
-        raise RigFileError(f"{source}: not valid YAML: {err}") from err
-    return rig_from_dict(data, source)
+        message = " ".join(str(err).split())  # one line
+        if len(message) > 400:
+            message = message[:400] + "..."
+        raise RigFileError(f"{source}: not valid YAML: {message}") from err
+    except RecursionError as err:
+        raise RigFileError(f"{source}: YAML nested too deeply for a rig file") from err
+
+
+def _count_yaml_nodes(root: yaml.Node, source: str) -> None:
+    """Raise if the node graph, with aliases expanded, exceeds :data:`MAX_YAML_NODES`."""
+    sizes: dict[int, int] = {}
+    active: set[int] = set()
+
+    def size(node: yaml.Node) -> int:
+        key = id(node)
+        if key in sizes:
+            return sizes[key]
+        if key in active:
+            raise RigFileError(f"{source}: YAML holds a recursive alias; refusing it")
+        active.add(key)
+        total = 1
+        if isinstance(node, yaml.SequenceNode):
+            total += sum(size(child) for child in node.value)
+        elif isinstance(node, yaml.MappingNode):
+            total += sum(size(k) + size(v) for k, v in node.value)
+        active.discard(key)
+        if total > MAX_YAML_NODES:
+            raise RigFileError(
+                f"{source}: YAML expands to more than {MAX_YAML_NODES} values (an alias bomb?); "
+                "refusing it"
+            )
+        sizes[key] = total
+        return total
+
+    size(root)
+
+
+# --------------------------------------------------------------------------- physics
+def check_image_size(width: int, height: int, source: str) -> None:
+    """Raise unless the image size is one a camera can have (at most 32768 px a side and
+    2^28 pixels)."""
+    if not (0 < width <= MAX_IMAGE_SIDE_PX and 0 < height <= MAX_IMAGE_SIDE_PX) or (
+        width * height > MAX_IMAGE_PIXELS
+    ):
+        raise RigFileError(
+            f"{source}: key 'image_width_px': image size {width}x{height} px is outside the "
+            f"range of cameras (at most {MAX_IMAGE_SIDE_PX} px a side, {MAX_IMAGE_PIXELS} "
+            "pixels)"
+        )
+
+
+def _check_intrinsics(pin: PinholeCamera, name: str, source: str) -> None:
+    """Principal point inside the image, focal lengths within 1/100..100 image widths, and a
+    distortion that stays invertible out to the image corners."""
+    w, h = pin.width, pin.height
+    if not (0.0 <= pin.cx <= w and 0.0 <= pin.cy <= h):
+        raise RigFileError(
+            f"{source}: key '{name}.cx_px': principal point ({pin.cx:g}, {pin.cy:g}) px lies "
+            f"outside the {w}x{h} image"
+        )
+    for key, f in (("fx_px", pin.fx), ("fy_px", pin.fy)):
+        if not 0.01 * w <= f <= 100.0 * w:
+            raise RigFileError(
+                f"{source}: key '{name}.{key}': focal length {f:g} px is not between 1/100 and "
+                f"100 image widths ({0.01 * w:g}..{100.0 * w:g} px)"
+            )
+    if pin.has_distortion:
+        bad = distortion_fold(pin)
+        if bad is None:
+            return
+        message = (
+            f"{source}: key '{name}.distortion': the lens model folds over at pixel "
+            f"({bad[0]:.0f}, {bad[1]:.0f}), {bad[2]:.0%} of the way from the principal point to "
+            "the image border: pixels beyond cannot be undistorted"
+        )
+        if bad[2] < FOLD_ERROR_FRACTION:
+            raise RigFileError(message + "; check the coefficients")
+        log.warning("%s (usual when the board never reached the image corners)", message)
+
+
+def distortion_fold(pin: PinholeCamera, n_rays: int = 72) -> tuple[float, float, float] | None:
+    """Where the distortion model stops being invertible inside the image, or None.
+
+    Along rays from the principal point in ``n_rays`` directions, undistorted radii from 0 to
+    20 (87 degrees off axis) are distorted with :meth:`PinholeCamera.distort`; the distorted
+    radius must keep growing until the point leaves the image.
+
+    Returns:
+        ``(u, v, fraction)`` for the worst ray: the last pixel before the fold and how far
+        out it lies as a fraction of the way from the principal point to the image border
+        along that ray (0..1); None if the model is invertible everywhere in the image.
+    """
+    angles = np.linspace(0.0, 2.0 * np.pi, n_rays, endpoint=False)
+    radii = np.concatenate([np.linspace(0.0, 2.0, 1500), np.linspace(2.0, 20.0, 1500)[1:]])
+    dirs = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    xy = (radii[None, :, None] * dirs[:, None, :]).reshape(-1, 2)
+    with np.errstate(all="ignore"):
+        xy_d = pin.distort(xy).reshape(n_rays, radii.size, 2)
+    u = pin.fx * xy_d[..., 0] + pin.cx
+    v = pin.fy * xy_d[..., 1] + pin.cy
+    inside = (u >= 0) & (u <= pin.width) & (v >= 0) & (v <= pin.height)
+    r_d = np.einsum("ijk,ik->ij", xy_d, dirs)  # distorted radius along the ray
+    worst: tuple[float, float, float] | None = None
+    for i in range(n_rays):
+        leaves = np.flatnonzero(~inside[i])
+        stop = int(leaves[0]) if leaves.size else radii.size
+        seg = r_d[i, : min(stop + 1, radii.size)]
+        growing = np.isfinite(seg[1:]) & (np.diff(seg) > 0)
+        if np.all(growing) and leaves.size:
+            continue
+        k = int(np.argmin(growing)) if not np.all(growing) else stop - 1
+        # How far to the border this ray is, in pixels, along its (undistorted) direction.
+        du, dv = pin.fx * dirs[i, 0], pin.fy * dirs[i, 1]
+        tx = ((pin.width - pin.cx) / du if du > 0 else -pin.cx / du) if du else np.inf
+        ty = ((pin.height - pin.cy) / dv if dv > 0 else -pin.cy / dv) if dv else np.inf
+        border = min(tx, ty) * float(np.hypot(du, dv))
+        reached = float(np.hypot(u[i, k] - pin.cx, v[i, k] - pin.cy))
+        fraction = min(reached / border, 1.0) if border > 0 else 0.0
+        if worst is None or fraction < worst[2]:
+            worst = (float(u[i, k]), float(v[i, k]), fraction)
+    return worst
+
+
+# A fold closer to the principal point than this fraction of the way to the border is a
+# broken model; beyond it (real calibrations whose board never reached the corners, such as
+# OpenCV's own stereo_calib sample, fold at about 80 %) it is a warning.
+FOLD_ERROR_FRACTION = 0.5
+
+
+def _check_port(cam: CameraModel, name: str, source: str) -> None:
+    port = getattr(cam, "port", None)
+    if port is None:
+        return
+    key = f"{name}.port"
+    for n_name in ("n_air", "n_glass", "n_water"):
+        n = float(getattr(port, n_name))
+        if not N_RANGE[0] <= n <= N_RANGE[1]:
+            raise RigFileError(
+                f"{source}: key '{key}.{n_name}': refractive index {n:g} is outside the range "
+                f"of real media ({N_RANGE[0]}..{N_RANGE[1]})"
+            )
+    if isinstance(port, DomePort):
+        r, t = port.inner_radius_m, port.thickness_m
+        if r > MAX_DOME_RADIUS_M:
+            raise RigFileError(
+                f"{source}: key '{key}.inner_radius_m': {r:g} m is larger than any dome port "
+                f"(at most {MAX_DOME_RADIUS_M} m)"
+            )
+        if t >= r:
+            raise RigFileError(
+                f"{source}: key '{key}.thickness_m': {t:g} m is not below the inner radius "
+                f"{r:g} m; a dome shell is thinner than its radius"
+            )
+    elif isinstance(port, FlatPort):
+        if port.distance_m > MAX_PORT_DISTANCE_M:
+            raise RigFileError(
+                f"{source}: key '{key}.distance_m': {port.distance_m:g} m is farther than a flat "
+                f"port sits from its lens (at most {MAX_PORT_DISTANCE_M} m)"
+            )
+        if port.thickness_m > MAX_PORT_THICKNESS_M:
+            raise RigFileError(
+                f"{source}: key '{key}.thickness_m': {port.thickness_m:g} m is thicker than any "
+                f"flat port (at most {MAX_PORT_THICKNESS_M} m)"
+            )
+
+
+def check_rig_physics(rig: StereoRig, source: str) -> None:
+    """Check a rig against physics, not just types: image size, intrinsics inside the image,
+    a distortion invertible out to the image corners, port geometry (dome thickness below
+    its radius, centre inside the dome, sizes of real ports), refractive indices of real media
+    and a baseline under 10 m.
+
+    Raises:
+        RigFileError: naming ``source``, the key and the value.
+    """
+    check_image_size(rig.width, rig.height, source)
+    for name in ("left", "right"):
+        cam = getattr(rig, name)
+        _check_intrinsics(_pinhole_of(cam), name, source)
+        _check_port(cam, name, source)
+    baseline = rig.baseline_m
+    if not 0.0 < baseline <= MAX_BASELINE_M:
+        raise RigFileError(
+            f"{source}: key 'T_left_right': baseline {baseline:g} m is outside (0, "
+            f"{MAX_BASELINE_M}] m"
+        )
 
 
 # --------------------------------------------------------------------------- OpenCV files
@@ -427,9 +854,11 @@ def _load_opencv(
         left = PinholeCamera.from_K(K1, *image_size, dist=D1)
         right = PinholeCamera.from_K(K2, *image_size, dist=D2)
         T_right_left = make_T(R_ortho, T)
-        return StereoRig(left=left, right=right, T_left_right=invert_T(T_right_left))
+        rig = StereoRig(left=left, right=right, T_left_right=invert_T(T_right_left))
     except Sea3dError as err:
         raise RigFileError(f"{path}: {err}") from err
+    check_rig_physics(rig, str(path))
+    return rig
 
 
 def rig_to_opencv_yaml(rig: StereoRig) -> str:
@@ -524,17 +953,23 @@ def load_rig(
     p = Path(path)
     if not p.is_file():
         raise RigFileError(f"{p}: rig file not found")
-    try:
-        text = p.read_text()
-    except (OSError, UnicodeDecodeError) as err:
-        raise RigFileError(f"{p}: cannot read: {err}") from err
+    text = read_rig_text(p)
     head = text.lstrip()[:200]
     if head.startswith("%YAML") or head.startswith("<?xml") or head.startswith("<opencv_storage"):
         nodes = _read_opencv_nodes(p)
         return _load_opencv(
             p, nodes, Path(extrinsics) if extrinsics else None, image_size, translation_scale
         )
-    return rig_from_yaml(text, str(p))  # JSON is valid YAML
+    if head.startswith("{"):
+        # JSON: read as JSON, since YAML 1.1 takes numbers such as 3e-05 for strings
+        import json
+
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as err:
+            raise RigFileError(f"{p}: not valid JSON: {err}") from err
+        return rig_from_dict(data, str(p))
+    return rig_from_yaml(text, str(p))
 
 
 def _atomic_write(path: Path, text: str) -> None:

@@ -43,13 +43,15 @@ from sea3d.io.session_common import (
     ImuSeries,
     PairMatch,
     SessionReader,
+    SessionWriteError,
     SonarSample,
     SonarSeries,
     StereoPair,
+    check_encoded_image,
     check_image,
     check_stamp,
     encode_image,
-    png_size,
+    image_size_of,
 )
 
 __all__ = [
@@ -57,6 +59,7 @@ __all__ = [
     "ImuSeries",
     "PairMatch",
     "SessionReader",
+    "SessionWriteError",
     "SessionWriter",
     "SonarSample",
     "SonarSeries",
@@ -115,16 +118,25 @@ class SessionWriter:
         path: output file (``.mcap``) or folder; must not hold a session already.
         format: ``"mcap"``, ``"folder"``, or None to choose from the extension.
         rig_yaml: the rig file's YAML text, stored with the session.
-        image_encoding: ``"png"`` (lossless), ``"jpeg"``, or ``"raw"`` (MCAP only:
-            ``sensor_msgs/Image``).
+        image_encoding: ``"png"`` (lossless), ``"jxl"`` (JPEG XL, lossless, about 5x less
+            CPU than PNG and half its size), ``"jpeg"`` (lossy), or ``"raw"`` (MCAP only:
+            ``sensor_msgs/Image`` in LZ4-compressed chunks).
         png_compression: zlib level 0..9 for PNG.
         jpeg_quality: 0..100 for JPEG.
         chunk_size: MCAP only: close a chunk after this many bytes.
         chunk_interval_s: MCAP only: close a chunk at least this often (bounds what SIGKILL loses).
+        chunk_compression: MCAP only: ``"none"``, ``"lz4"`` or ``"zstd"`` (level 1); None: LZ4
+            for raw images, none for encoded ones (they do not compress further).
+        min_free_bytes: refuse any write that would leave less free disk space than this
+            (:class:`SessionWriteError`); 0 writes until the disk is full.
         handle_signals: install the SIGTERM/SIGINT handlers described above.
 
+    ``counts`` holds the records per stream that reached the disk (for MCAP: whose chunk was
+    written), so it always equals what a reader finds.
+
     Raises:
-        SessionError: for an unknown format or encoding, or an output that already exists.
+        SessionError: for an unknown format or encoding, an invalid ``rig_yaml``, or an output
+            that already exists; :class:`SessionWriteError` when the output cannot be created.
     """
 
     def __init__(
@@ -138,12 +150,18 @@ class SessionWriter:
         jpeg_quality: int = 95,
         chunk_size: int = 4 << 20,
         chunk_interval_s: float = 1.0,
+        chunk_compression: str | None = None,
+        min_free_bytes: int = 0,
         handle_signals: bool = True,
     ) -> None:
         self.path = Path(path)
         self.format = format or layout_of(self.path)
         if self.format not in ("mcap", "folder"):
             raise SessionError(f"format must be 'mcap' or 'folder', got {self.format!r}")
+        if self.format == "folder" and image_encoding == "raw":
+            raise SessionError(
+                f"{self.path}: a folder session stores png, jxl or jpeg images, not 'raw'"
+            )
         if image_encoding not in IMAGE_ENCODINGS:
             raise SessionError(
                 f"image_encoding must be one of {IMAGE_ENCODINGS}, got {image_encoding!r}"
@@ -158,7 +176,6 @@ class SessionWriter:
         self._lock = threading.RLock()
         self._last: dict[str, int] = {}
         self._shape: dict[str, tuple[tuple[int, ...], np.dtype]] = {}
-        self.counts: dict[str, int] = {"left": 0, "right": 0, "imu": 0, "sonar": 0}
         self._closed = False
         self._busy = 0
         self._pending_signal: int | None = None
@@ -167,18 +184,37 @@ class SessionWriter:
         if self.format == "mcap":
             from sea3d.io.session_mcap import McapSessionWriter
 
-            self.path.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+            except OSError as err:
+                raise SessionWriteError(
+                    f"cannot create {self.path.parent}: {err.strerror or err}", kept=""
+                ) from err
             self._backend = McapSessionWriter(
                 self.path,
                 rig_yaml,
                 image_encoding,
                 chunk_size=chunk_size,
                 chunk_interval_s=chunk_interval_s,
+                chunk_compression=chunk_compression,
+                min_free_bytes=min_free_bytes,
             )
         else:
             from sea3d.io.session_folder import FolderSessionWriter
 
-            self._backend = FolderSessionWriter(self.path, rig_yaml, image_encoding)
+            if rig_yaml is not None:
+                from sea3d.io.session_mcap import _camera_info_params
+
+                _camera_info_params(rig_yaml, self.path)  # the same check as for MCAP
+            try:
+                self.path.mkdir(parents=True, exist_ok=True)
+            except OSError as err:
+                raise SessionWriteError(
+                    f"cannot create {self.path}: {err.strerror or err}", kept=""
+                ) from err
+            self._backend = FolderSessionWriter(
+                self.path, rig_yaml, image_encoding, min_free_bytes=min_free_bytes
+            )
         if handle_signals:
             self._install_signal_handlers()
 
@@ -236,10 +272,15 @@ class SessionWriter:
             raise SessionError(f"{self.path}: {kind} {stream} stamp t_ns={t_ns} (previous {last})")
 
     # -- writing ------------------------------------------------------------------------------
+    @property
+    def counts(self) -> dict[str, int]:
+        """Records per stream that reached the disk (what a reader will find)."""
+        return {s: int(self._backend.committed(s)) for s in ("left", "right", "imu", "sonar")}
+
     def encode(self, image: np.ndarray) -> bytes:
         """Encode an image with this writer's settings (thread-safe, no lock held).
 
-        Returns PNG or JPEG bytes; for ``image_encoding="raw"`` returns b"" (nothing to do).
+        Returns PNG, JPEG XL or JPEG bytes; for ``image_encoding="raw"`` returns b"".
         """
         if self.image_encoding == "raw":
             return b""
@@ -264,6 +305,8 @@ class SessionWriter:
 
         Raises:
             SessionError: unknown stream, bad image, size change, or a stamp not increasing.
+            SessionWriteError: the disk is full, at the reserve, or failing; what was
+                written before stays readable (the error says what).
         """
         if stream not in IMAGE_STREAMS:
             raise SessionError(f"unknown image stream {stream!r}; expected one of {IMAGE_STREAMS}")
@@ -290,39 +333,39 @@ class SessionWriter:
                 else:
                     self._backend.write_encoded(stream, t_ns, data)
                 self._last[stream] = t_ns
-                self.counts[stream] += 1
         finally:
             self._leave()
 
     def write_image_bytes(self, stream: str, t_ns: int, data: bytes, fmt: str) -> None:
-        """Write an already-encoded PNG or JPEG image as it is (used for lossless conversion).
+        """Write an already-encoded PNG, JPEG XL or JPEG image as it is (lossless conversion).
 
-        ``fmt`` must match this writer's ``image_encoding``.
+        ``fmt`` must match this writer's ``image_encoding``; the bytes are checked for
+        completeness first (:func:`~sea3d.io.session_common.check_encoded_image`), so damage
+        is never copied.
 
         Raises:
-            SessionError: unknown stream, format mismatch, or a stamp not increasing.
+            SessionError: unknown stream, format mismatch, incomplete or damaged bytes, or a
+                stamp not increasing.
         """
         if stream not in IMAGE_STREAMS:
             raise SessionError(f"unknown image stream {stream!r}; expected one of {IMAGE_STREAMS}")
         t_ns = check_stamp(t_ns, f"{stream} image")
         if fmt != self.image_encoding:
             raise SessionError(f"cannot store {fmt} bytes in a {self.image_encoding} session")
-        size = png_size(data) if fmt == "png" else None
-        if size is None:
-            from sea3d.io.session_common import decode_image
-
-            img = decode_image(data, f"{stream} image at t_ns={t_ns}")
-            size = (img.shape[1], img.shape[0])
+        where = f"{stream} image at t_ns={t_ns}"
+        found = check_encoded_image(data, where)
+        if found != fmt:
+            raise SessionError(f"{where}: the bytes are {found}, not {fmt}")
+        width, height = image_size_of(data, fmt, where)
         self._enter()
         try:
             with self._lock:
                 self._check_order(stream, t_ns)
                 if self.format == "mcap":
-                    self._backend.write_encoded(stream, t_ns, data, fmt, size[1], size[0])
+                    self._backend.write_encoded(stream, t_ns, data, fmt, height, width)
                 else:
                     self._backend.write_encoded(stream, t_ns, data)
                 self._last[stream] = t_ns
-                self.counts[stream] += 1
         finally:
             self._leave()
 
@@ -356,7 +399,6 @@ class SessionWriter:
                 self._check_order("imu", t_ns)
                 self._backend.write_imu(t_ns, acc, gyr)
                 self._last["imu"] = t_ns
-                self.counts["imu"] += 1
         finally:
             self._leave()
 
@@ -373,12 +415,15 @@ class SessionWriter:
                 self._check_order("sonar", t_ns)
                 self._backend.write_sonar(t_ns, np.float32(range_m), np.float32(confidence))
                 self._last["sonar"] = t_ns
-                self.counts["sonar"] += 1
         finally:
             self._leave()
 
     def flush(self) -> None:
-        """Push everything written so far to the OS (closes the open MCAP chunk)."""
+        """Push everything written so far to the OS (closes the open MCAP chunk).
+
+        Raises:
+            SessionWriteError: the open chunk could not be written.
+        """
         with self._lock:
             self._backend.flush()
 
@@ -388,7 +433,12 @@ class SessionWriter:
         return int(self._backend.bytes_written)
 
     def close(self) -> None:
-        """Finish the session (MCAP summary / session.json). Safe to call twice."""
+        """Finish the session (MCAP summary / session.json). Safe to call twice.
+
+        Raises:
+            SessionWriteError: the last records or the summary could not be written; the
+                file keeps everything written before (readable without a summary).
+        """
         with self._lock:
             if self._closed:
                 return
@@ -402,8 +452,23 @@ class SessionWriter:
     def __enter__(self) -> SessionWriter:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
+        if exc is None:
+            self.close()
+            return
+        try:  # an error is on its way already: close as well as possible, keep that error
+            self.close()
+        except SessionError as err:
+            _log.warning("%s", err)
+
+
+def _remove_output(path: Path) -> None:
+    import shutil
+
+    if path.is_dir():
+        shutil.rmtree(path, ignore_errors=True)
+    elif path.exists():
+        path.unlink()
 
 
 def convert_session(
@@ -411,57 +476,113 @@ def convert_session(
     dst: str | os.PathLike[str],
     *,
     image_encoding: str | None = None,
-) -> dict[str, int]:
+    strict: bool = False,
+    progress: Any = None,
+) -> dict[str, Any]:
     """Copy a session into the other layout (chosen by ``dst``'s extension).
 
-    PNG and JPEG images are copied byte for byte when the encoding stays the same, so a PNG
-    session converts losslessly both ways. Damaged records are skipped with a warning.
+    PNG, JPEG XL and JPEG images are copied byte for byte when the encoding stays the same
+    (after a completeness check), so a lossless session converts losslessly both ways. Damage
+    is never copied silently: damaged records are skipped and listed in ``problems``, or, with
+    ``strict``, the conversion is refused before anything is left behind.
 
     Args:
         src: session to read (MCAP file or folder).
         dst: output path; ``*.mcap`` writes MCAP, anything else a folder. Must not exist.
         image_encoding: output encoding; None keeps the source's (png when it is raw and the
             output is a folder).
+        strict: refuse (raise, and remove the partial output) at the first damaged record.
+        progress: optional callable ``progress(done, total)`` called after each image.
 
     Returns:
-        Counts of records written per stream, plus ``skipped``.
+        ``{"left", "right", "imu", "sonar"}`` records written, ``"skipped"`` (damaged records
+        left out) and ``"problems"`` (one message per problem, naming file and stamp).
 
     Raises:
-        SessionError: unreadable input or an existing output.
+        SessionError: unreadable input, an existing output, or damage with ``strict``;
+            :class:`SessionWriteError` when the output cannot be written (disk full...).
     """
+    dst_path = Path(dst)
+    problems: list[str] = []
     skipped = 0
+
+    def damaged(message: str, records: int = 1) -> None:
+        nonlocal skipped
+        if strict:
+            raise SessionError(f"{message}; refusing to convert a damaged session (--strict)")
+        problems.append(message)
+        skipped += records
+
     with open_session(src) as reader:
-        enc = image_encoding
-        if enc is None:
-            enc = str(getattr(reader, "meta", {}).get("image_encoding", "")) or None
-        if enc is None:
-            enc = getattr(reader, "metadata", {}).get("sea3d", {}).get("image_encoding", "png")
-        if enc == "raw" and layout_of(dst) == "folder":
-            enc = "png"
-        with SessionWriter(dst, rig_yaml=reader.rig_yaml, image_encoding=enc) as writer:
-            for stream in IMAGE_STREAMS:
-                stamps = reader.stamps(stream)
-                for i in range(stamps.size):
-                    t_ns = int(stamps[i])
-                    try:
-                        data, fmt = reader.image_bytes(stream, i)
-                        if fmt == enc:
-                            writer.write_image_bytes(stream, t_ns, data, fmt)
-                        else:
-                            writer.write_image(stream, t_ns, reader.image(stream, i, by="index"))
-                    except SessionError as err:
-                        _log.warning("convert: skipping %s t_ns=%d: %s", stream, t_ns, err)
-                        skipped += 1
-            imu = reader.imu()
-            for k in range(len(imu)):
-                writer.write_imu(int(imu.t_ns[k]), imu.accel_mps2[k], imu.gyro_radps[k])
-            sonar = reader.sonar()
-            for k in range(len(sonar)):
-                writer.write_sonar(
-                    int(sonar.t_ns[k]), float(sonar.range_m[k]), float(sonar.confidence[k])
+        if strict:
+            check = getattr(reader, "check", None)
+            if check is not None:
+                check()
+            if reader.problems:
+                raise SessionError(
+                    f"{reader.problems[0]}; refusing to convert a damaged session (--strict)"
                 )
-            counts = dict(writer.counts)
+        try:
+            rig_yaml = reader.rig_yaml
+        except SessionError as err:
+            damaged(str(err))
+            rig_yaml = None
+        enc = image_encoding or reader.image_encoding or "png"
+        if enc == "raw" and layout_of(dst_path) == "folder":
+            enc = "png"
+        if dst_path.exists() and not (dst_path.is_dir() and not any(dst_path.iterdir())):
+            raise SessionError(f"{dst_path} already exists; refusing to overwrite it")
+        total = sum(int(reader.stamps(s).size) for s in IMAGE_STREAMS)
+        done = 0
+        writer = SessionWriter(dst_path, rig_yaml=rig_yaml, image_encoding=enc)
+        try:
+            with writer:
+                for stream in IMAGE_STREAMS:
+                    stamps = reader.stamps(stream)
+                    for i in range(stamps.size):
+                        t_ns = int(stamps[i])
+                        try:
+                            data, fmt = reader.image_bytes(stream, i)
+                            if fmt == enc:
+                                writer.write_image_bytes(stream, t_ns, data, fmt)
+                            else:
+                                writer.write_image(
+                                    stream, t_ns, reader.image(stream, i, by="index")
+                                )
+                        except SessionWriteError:
+                            raise
+                        except SessionError as err:
+                            damaged(f"{stream} t_ns={t_ns}: {err}")
+                        done += 1
+                        if progress is not None:
+                            progress(done, total)
+                imu = reader.imu()
+                for k in range(len(imu)):
+                    writer.write_imu(int(imu.t_ns[k]), imu.accel_mps2[k], imu.gyro_radps[k])
+                sonar = reader.sonar()
+                for k in range(len(sonar)):
+                    writer.write_sonar(
+                        int(sonar.t_ns[k]), float(sonar.range_m[k]), float(sonar.confidence[k])
+                    )
+                for stream, n in reader.skipped.items():
+                    if n:
+                        damaged(f"{src}: {n} damaged {stream} records left out", n)
+                for msg in reader.problems:
+                    if msg not in problems:
+                        problems.append(msg)
+                if strict and reader.problems:
+                    raise SessionError(
+                        f"{reader.problems[0]}; refusing to convert a damaged session (--strict)"
+                    )
+        except SessionWriteError:
+            raise
+        except BaseException:
+            if strict:
+                _remove_output(dst_path)
+            raise
+        counts: dict[str, Any] = dict(writer.counts)
     counts["skipped"] = skipped
+    counts["problems"] = problems
     return counts
 
 
@@ -475,35 +596,89 @@ class _WarningCollector(logging.Handler):
 
 
 def verify_session(path: str | os.PathLike[str], *, name_unit: str = "ns") -> dict[str, Any]:
-    """Read and decode every record of a session and collect every problem found.
+    """Read, check and decode every record of a session and collect every problem found.
+
+    For MCAP files this checks every chunk's CRC and records, the message indexes, the data
+    section and summary CRCs, the attachments' CRCs and the summary's record counts; for
+    folders the images against ``checksums.csv``. Every image is decoded (incomplete PNG,
+    JPEG and JPEG XL data is refused), every IMU and sonar record read, and the stored rig
+    parsed and checked as a rig.
 
     Returns:
-        ``{"path", "ok", "records": {stream: readable count}, "problems": [message, ...]}``;
-        each problem names the file or topic and the stamp (truncation, damaged chunks,
-        undecodable images, size changes, bad CSV lines, duplicate or disordered stamps).
+        ``{"path", "ok", "records": {stream: readable count}, "problems": [message, ...],
+        "damaged_chunks": [{offset, start_ns, end_ns, streams, reason}], "damaged_frames":
+        [{stream, t_ns, reason}]}``; each problem names the file or topic and the stamp.
 
     Raises:
         SessionError: if the path is not a session at all.
     """
+    from dataclasses import asdict
+
     collector = _WarningCollector()
     io_logger = logging.getLogger("sea3d.io")
     io_logger.addHandler(collector)
+    # The verdict must not depend on the caller's logging set-up: warnings reach the collector
+    # even where the application logs only errors or called logging.disable, and only the
+    # collector (they come back in "problems").
+    old_level, old_propagate = io_logger.level, io_logger.propagate
+    old_disable = logging.root.manager.disable
+    if io_logger.getEffectiveLevel() > logging.WARNING:
+        io_logger.setLevel(logging.WARNING)
+    io_logger.propagate = False
+    if old_disable >= logging.WARNING:
+        logging.disable(logging.NOTSET)
     problems: list[str] = []
     records: dict[str, int] = {}
+    frames: list[dict[str, Any]] = []
+    chunks: list[dict[str, Any]] = []
     try:
         with open_session(path, name_unit=name_unit) as reader:
+            check = getattr(reader, "check", None)
+            if check is not None:
+                check()
             for stream in IMAGE_STREAMS:
                 ok = 0
-                for i in range(reader.stamps(stream).size):
+                stamps = reader.stamps(stream)
+                for i in range(stamps.size):
                     try:
                         reader.image(stream, i, by="index")
                         ok += 1
                     except SessionError as err:
                         problems.append(str(err))
+                        frames.append(
+                            {"stream": stream, "t_ns": int(stamps[i]), "reason": str(err)}
+                        )
                 records[stream] = ok
             records["imu"] = len(reader.imu())
             records["sonar"] = len(reader.sonar())
+            try:
+                _ = reader.rig_yaml  # parsed and checked as a rig; a problem if unusable
+            except SessionError as err:
+                problems.append(str(err))
+            chunks = [asdict(c) for c in getattr(reader, "damaged_chunks", [])]
+            for c in chunks:
+                c["streams"] = list(c["streams"])
+            problems = reader.problems + problems
+            for stream, n in reader.skipped.items():
+                if n:
+                    problems.append(f"{path}: {n} damaged {stream} records skipped")
     finally:
         io_logger.removeHandler(collector)
-    problems = collector.messages + problems
-    return {"path": os.fspath(path), "ok": not problems, "records": records, "problems": problems}
+        io_logger.setLevel(old_level)
+        io_logger.propagate = old_propagate
+        if old_disable >= logging.WARNING:
+            logging.disable(old_disable)
+    seen: set[str] = set()
+    unique = []
+    for msg in collector.messages + problems:
+        if msg not in seen:
+            seen.add(msg)
+            unique.append(msg)
+    return {
+        "path": os.fspath(path),
+        "ok": not unique,
+        "records": records,
+        "problems": unique,
+        "damaged_chunks": chunks,
+        "damaged_frames": frames,
+    }

@@ -17,11 +17,12 @@ import collections
 import itertools
 import logging
 import os
+import zlib
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import cv2
 import numpy as np
@@ -35,20 +36,39 @@ __all__ = [
     "ImuSeries",
     "PairMatch",
     "SessionReader",
+    "SessionWriteError",
     "SonarSample",
     "SonarSeries",
     "StereoPair",
+    "check_encoded_image",
     "decode_image",
     "encode_image",
+    "image_format_of",
+    "read_image_file",
 ]
 
 _log = logging.getLogger(__name__)
 
 IMAGE_STREAMS = ("left", "right")
-IMAGE_ENCODINGS = ("png", "jpeg", "raw")
+IMAGE_ENCODINGS = ("png", "jpeg", "jxl", "raw")
+COMPRESSED_ENCODINGS = ("png", "jpeg", "jxl")
 MAX_STAMP_NS = 2**63 - 1
 # An interval longer than this many median intervals counts as a gap in ``info()``.
 GAP_FACTOR = 1.5
+
+
+class SessionWriteError(SessionError):
+    """Writing a session failed (disk full, free space at the reserve, no permission, I/O
+    error). Everything written before stays readable; ``kept`` says what that is.
+
+    Attributes:
+        kept: the records on disk, e.g. ``"120 left, 120 right, 2400 imu up to t_ns=..."``.
+    """
+
+    def __init__(self, message: str, *, kept: str) -> None:
+        super().__init__(message + (f"; kept {kept}" if kept else ""))
+        self.kept = kept
+
 
 ImageArray = npt.NDArray[np.uint8] | npt.NDArray[np.uint16]
 
@@ -203,22 +223,63 @@ def check_image(image: Any, what: str) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- codecs
 
+# JPEG XL lossless at effort 1 (libjxl's fast-lossless path, through imagecodecs): on 1080p
+# camera frames about 5x less CPU than PNG at zlib level 1 and half its size
+# (benchmarks/bench_record.py --codecs prints the table).
+JXL_EFFORT = 1
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_JXL_CONTAINER = b"\x00\x00\x00\x0cJXL \r\n\x87\n"
+
+
+def image_format_of(data: bytes | memoryview) -> str | None:
+    """``png``, ``jpeg``, ``jxl`` or ``tiff`` from the first bytes of an encoded image, or None."""
+    head = bytes(data[:12])
+    if head.startswith(PNG_SIGNATURE):
+        return "png"
+    if head.startswith(b"\xff\xd8\xff"):
+        return "jpeg"
+    if head.startswith(b"\xff\x0a") or head == _JXL_CONTAINER:
+        return "jxl"
+    if head[:4] in (b"II*\x00", b"MM\x00*"):
+        return "tiff"
+    return None
+
 
 def encode_image(
-    image: np.ndarray, encoding: str, *, png_compression: int = 1, jpeg_quality: int = 95
+    image: np.ndarray,
+    encoding: str,
+    *,
+    png_compression: int = 1,
+    jpeg_quality: int = 95,
+    jxl_effort: int = JXL_EFFORT,
 ) -> bytes:
-    """Encode an RGB image as PNG or JPEG bytes (thread-safe; OpenCV releases the GIL).
+    """Encode an RGB image as PNG, JPEG or JPEG XL bytes (thread-safe; the codecs release the
+    GIL).
 
     Args:
-        image: (H, W) or (H, W, 3) RGB, uint8 or uint16 (uint16 only for PNG).
-        encoding: ``"png"`` (lossless) or ``"jpeg"``.
+        image: (H, W) or (H, W, 3) RGB, uint8 or uint16 (uint16 only for PNG and JPEG XL).
+        encoding: ``"png"`` (lossless), ``"jxl"`` (JPEG XL, lossless) or ``"jpeg"`` (lossy).
         png_compression: zlib level 0..9 (1 is fast and still about 2x smaller than raw).
         jpeg_quality: 0..100.
+        jxl_effort: libjxl effort 1..9 (1: fast lossless; higher is smaller and far slower).
 
     Raises:
-        SessionError: for an unknown encoding, uint16 JPEG, or an OpenCV encoder failure.
+        SessionError: for an unknown encoding, uint16 JPEG, or an encoder failure.
     """
     image = check_image(image, "encode_image")
+    if encoding == "jxl":
+        import imagecodecs
+
+        try:
+            return bytes(
+                imagecodecs.jpegxl_encode(
+                    np.ascontiguousarray(image), lossless=True, effort=jxl_effort, numthreads=1
+                )
+            )
+        except Exception as err:  # imagecodecs raises its own error classes
+            raise SessionError(
+                f"JPEG XL could not encode a {image.shape} {image.dtype} image: {err}"
+            ) from err
     bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR) if image.ndim == 3 else image
     if encoding == "png":
         ok, buf = cv2.imencode(
@@ -226,10 +287,10 @@ def encode_image(
         )
     elif encoding == "jpeg":
         if image.dtype != np.uint8:
-            raise SessionError("JPEG encoding needs uint8 images; use png for uint16")
+            raise SessionError("JPEG encoding needs uint8 images; use png or jxl for uint16")
         ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)])
     else:
-        raise SessionError(f"unknown image encoding {encoding!r}; expected 'png' or 'jpeg'")
+        raise SessionError(f"unknown image encoding {encoding!r}; expected 'png', 'jxl' or 'jpeg'")
     if not ok:
         raise SessionError(
             f"OpenCV could not encode a {image.shape} {image.dtype} image as {encoding}"
@@ -237,13 +298,76 @@ def encode_image(
     return buf.tobytes()
 
 
-def decode_image(data: bytes | memoryview | np.ndarray, where: str) -> np.ndarray:
-    """Decode PNG/JPEG/TIFF bytes to an RGB (or grey) array, keeping 16-bit depth.
+def check_encoded_image(data: bytes | memoryview, where: str) -> str:
+    """Check that encoded image bytes are complete, without decoding pixels where the format
+    allows it, and return the format (``png``, ``jpeg``, ``jxl``, ``tiff``).
+
+    PNG: every chunk is walked and its CRC checked, up to ``IEND``. JPEG: starts with SOI and
+    ends with EOI (trailing zero padding allowed); JPEG has no checksum, so flipped bits inside
+    it can only be caught by the MCAP chunk CRC or a folder's checksum list. JPEG XL and TIFF
+    carry no cheap end marker: they are decoded.
 
     Raises:
-        SessionError: naming ``where`` when the bytes are not a decodable image.
+        SessionError: naming ``where``, for an unknown format or incomplete or damaged bytes.
+    """
+    view = memoryview(data).cast("B")
+    fmt = image_format_of(view)
+    if fmt == "png":
+        pos, n = 8, len(view)
+        while True:
+            if pos + 12 > n:
+                raise SessionError(f"{where}: PNG is cut short at byte {n} (no IEND chunk)")
+            length = int.from_bytes(view[pos : pos + 4], "big")
+            kind = bytes(view[pos + 4 : pos + 8])
+            end = pos + 12 + length
+            if length > 2**31 - 1 or end > n:
+                raise SessionError(f"{where}: PNG chunk {kind!r} at byte {pos} is cut short")
+            crc = int.from_bytes(view[end - 4 : end], "big")
+            if zlib.crc32(view[pos + 4 : end - 4]) != crc:
+                raise SessionError(f"{where}: PNG chunk {kind!r} at byte {pos} is damaged (CRC)")
+            if kind == b"IEND":
+                return fmt
+            pos = end
+    if fmt == "jpeg":
+        tail = bytes(view[-4096:]).rstrip(b"\x00")
+        if not tail.endswith(b"\xff\xd9"):
+            raise SessionError(
+                f"{where}: JPEG is cut short ({len(view)} bytes, no end-of-image marker)"
+            )
+        return fmt
+    if fmt in ("jxl", "tiff"):
+        decode_image(view, where)
+        return fmt
+    raise SessionError(f"{where}: not a PNG, JPEG, JPEG XL or TIFF image ({len(view)} bytes)")
+
+
+def decode_image(data: bytes | memoryview | np.ndarray, where: str) -> np.ndarray:
+    """Decode PNG/JPEG/JPEG XL/TIFF bytes to an RGB (or grey) array, keeping 16-bit depth.
+
+    Incomplete images are refused, not returned half grey: OpenCV refuses cut PNGs (and checks
+    their chunk CRCs) and cut JPEGs in memory; a JPEG must also end with its end-of-image
+    marker, and libjxl refuses cut JPEG XL streams.
+
+    Raises:
+        SessionError: naming ``where`` when the bytes are not a complete, decodable image.
     """
     buf = np.frombuffer(data, dtype=np.uint8) if not isinstance(data, np.ndarray) else data
+    buf = buf.reshape(-1)
+    fmt = image_format_of(buf[:12].tobytes())
+    if fmt == "jxl":
+        import imagecodecs
+
+        try:
+            return np.ascontiguousarray(imagecodecs.jpegxl_decode(cast(Any, buf), numthreads=1))
+        except Exception as err:  # JpegxlError, RuntimeError for cut headers
+            raise SessionError(
+                f"{where}: cannot decode JPEG XL data ({buf.size} bytes; damaged or cut "
+                f"short?): {err}"
+            ) from err
+    if fmt in ("png", "jpeg"):
+        # Structure first (PNG chunk CRCs up to IEND, JPEG end marker): a damaged image is
+        # refused with its reason, before libpng prints its own complaints to stderr.
+        check_encoded_image(memoryview(cast(Any, buf)), where)
     img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED) if buf.size else None
     if img is None:
         raise SessionError(f"{where}: cannot decode image data ({buf.size} bytes; damaged?)")
@@ -254,11 +378,34 @@ def decode_image(data: bytes | memoryview | np.ndarray, where: str) -> np.ndarra
     return img
 
 
-def png_size(data: bytes) -> tuple[int, int] | None:
-    """(width, height) from a PNG's IHDR chunk, or None if ``data`` is not a PNG."""
-    if len(data) >= 24 and data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR":
+def image_size_of(data: bytes, fmt: str, where: str) -> tuple[int, int]:
+    """(width, height) of encoded image bytes: from the PNG header, else by decoding.
+
+    Raises:
+        SessionError: if the bytes cannot be decoded.
+    """
+    if fmt == "png" and len(data) >= 24 and data[12:16] == b"IHDR":
         return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
-    return None
+    img = decode_image(data, where)
+    return img.shape[1], img.shape[0]
+
+
+def read_image_file(path: str | os.PathLike[str]) -> np.ndarray:
+    """Read an image file (PNG, JPEG, JPEG XL, TIFF, ...) as RGB or grey, refusing incomplete
+    files (``cv2.imread`` returns a cut JPEG half grey).
+
+    Returns:
+        (H, W) or (H, W, 3) RGB, uint8 or uint16 (an alpha channel is dropped).
+
+    Raises:
+        SessionError: the file is missing, unreadable, cut short or not an image.
+    """
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except OSError as err:
+        raise SessionError(f"cannot read image {p}: {err.strerror or err}") from err
+    return decode_image(data, str(p))
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -375,12 +522,55 @@ class SessionReader(ABC):
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
         self._ref_shape: dict[str, tuple[tuple[int, ...], np.dtype]] = {}
+        # What the reader found damaged or missing (each also logged as a warning), and how
+        # many records of each stream it skipped because of damage.
+        self.problems: list[str] = []
+        self.skipped: dict[str, int] = {}
+        self._rig: str | None = None
+        self._rig_problem: str | None = None
+        self._rig_checked = False
 
     # -- layout-specific -----------------------------------------------------------------
     @property
-    @abstractmethod
     def rig_yaml(self) -> str | None:
-        """The rig file's YAML text stored with the session, or None."""
+        """The rig file's YAML text stored with the session, or None when none is stored.
+
+        Raises:
+            SessionError: a rig is stored but cannot be used (damaged, not UTF-8 text), so
+                that it is never mistaken for "no rig" or passed on as good.
+        """
+        self._check_rig()
+        if self._rig_problem is not None:
+            raise SessionError(self._rig_problem)
+        return self._rig
+
+    def _check_rig(self) -> None:
+        """A stored rig must parse as a rig (an empty or cut rig.yaml is damage, not a rig)."""
+        if self._rig is None or self._rig_checked:
+            return
+        self._rig_checked = True
+        from sea3d.errors import RigFileError
+        from sea3d.io.rig_file import rig_from_yaml
+
+        try:
+            rig_from_yaml(self._rig, f"{self.path} (stored rig.yaml)")
+        except RigFileError as err:
+            self._rig_problem = f"the stored rig cannot be used: {err}"
+            self.problems.append(self._rig_problem)
+            _log.warning("%s", self._rig_problem)
+
+    @property
+    def rig_status(self) -> str:
+        """``"yes"``, ``"no"`` or ``"damaged: <why>"`` (never raises)."""
+        self._check_rig()
+        if self._rig_problem is not None:
+            return f"damaged: {self._rig_problem}"
+        return "yes" if self._rig is not None else "no"
+
+    @property
+    def image_encoding(self) -> str | None:
+        """The image encoding the session was written with, when it says so."""
+        return None
 
     @abstractmethod
     def stamps(self, stream: str) -> np.ndarray:
@@ -609,7 +799,8 @@ class SessionReader(ABC):
             "format": self.format,
             "size_bytes": self.size_bytes(),
             "duration_s": (max(lasts) - min(firsts)) * 1e-9 if firsts else 0.0,
-            "rig": self.rig_yaml is not None,
+            "rig_status": self.rig_status,
+            "rig": self._rig is not None and self._rig_problem is None,
             "streams": streams,
             "pairs": {
                 "count": len(match),

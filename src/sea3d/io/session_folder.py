@@ -4,10 +4,15 @@
 
     session/
       left/<t_ns>.png      right/<t_ns>.png     (or .jpg)
-      imu.csv              t_ns,ax,ay,az,wx,wy,wz   (m/s^2, rad/s)
-      sonar.csv            t_ns,range_m,confidence  (m, 0..1)
+      imu.csv              t_ns,ax,ay,az,wx,wy,wz,crc32   (m/s^2, rad/s)
+      sonar.csv            t_ns,range_m,confidence,crc32  (m, 0..1)
       rig.yaml             the rig file (optional)
+      checksums.csv        stream,file,bytes,crc32: one line per image (and the rig)
       session.json         format, version, image encoding, counts, "complete"
+
+The ``crc32`` column (8 hex digits, CRC-32 of the line before it) and ``checksums.csv`` let a
+reader refuse damaged readings and images instead of passing them on; folders without them
+(the paper's) are read as before, unchecked.
 
 Every image is written under a temporary name (``.<t_ns>.png.tmp``) and renamed when complete,
 so a crash never leaves a half-written image under its final name. CSV lines are flushed as they
@@ -16,11 +21,13 @@ are written; a torn last line is skipped with a warning when read.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
 import re
 import time
+import zlib
 from pathlib import Path
 from typing import IO, Any
 
@@ -30,6 +37,7 @@ from sea3d.errors import SessionError
 from sea3d.io.session_common import (
     ImuSeries,
     SessionReader,
+    SessionWriteError,
     SonarSeries,
     decode_image,
     sort_stamps,
@@ -39,29 +47,52 @@ __all__ = ["FolderSessionReader", "FolderSessionWriter"]
 
 _log = logging.getLogger(__name__)
 
-IMU_HEADER = "t_ns,ax,ay,az,wx,wy,wz"
-SONAR_HEADER = "t_ns,range_m,confidence"
+# The last column is the CRC-32 (8 hex digits) of the line's text before it, so that a damaged
+# reading is skipped, never passed on; files without it (the paper's) are read as well.
+IMU_COLUMNS = "t_ns,ax,ay,az,wx,wy,wz"
+SONAR_COLUMNS = "t_ns,range_m,confidence"
+IMU_HEADER = IMU_COLUMNS + ",crc32"
+SONAR_HEADER = SONAR_COLUMNS + ",crc32"
 SESSION_FORMAT = "sea3d-session"
 SESSION_VERSION = 1
-_EXT = {"png": ".png", "jpeg": ".jpg"}
-_IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".pgm", ".ppm")
+CHECKSUM_HEADER = "stream,file,bytes,crc32"
+_EXT = {"png": ".png", "jpeg": ".jpg", "jxl": ".jxl"}
+_IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".jxl", ".tif", ".tiff", ".pgm", ".ppm")
 _NAME_RE = re.compile(r"^(\d+)$")
 
 
 def _atomic_write(path: Path, data: bytes) -> None:
+    """Write ``data`` under a temporary name and rename it; on failure nothing is left."""
     tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def _why(err: OSError) -> str:
+    return err.strerror or str(err)
 
 
 class FolderSessionWriter:
-    """Backend of :class:`~sea3d.io.session.SessionWriter` for the folder layout (not public)."""
+    """Backend of :class:`~sea3d.io.session.SessionWriter` for the folder layout (not public).
 
-    def __init__(self, path: Path, rig_yaml: str | None, image_encoding: str) -> None:
+    ``counts`` holds what is on disk: an image counts once it is renamed to its final name, a
+    CSV line once it is flushed. Each image's size and CRC-32 go to ``checksums.csv``.
+    """
+
+    def __init__(
+        self, path: Path, rig_yaml: str | None, image_encoding: str, *, min_free_bytes: int = 0
+    ) -> None:
         if image_encoding not in _EXT:
             raise SessionError(
-                f"{path}: a folder session stores png or jpeg images, not {image_encoding!r}"
+                f"{path}: a folder session stores png, jxl or jpeg images, not {image_encoding!r}"
             )
         if path.exists() and not path.is_dir():
             raise SessionError(f"{path} exists and is not a folder")
@@ -72,19 +103,76 @@ class FolderSessionWriter:
         self.path = path
         self.ext = _EXT[image_encoding]
         self.image_encoding = image_encoding
-        for s in ("left", "right"):
-            (path / s).mkdir(parents=True, exist_ok=True)
-        if rig_yaml is not None:
-            _atomic_write(path / "rig.yaml", rig_yaml.encode("utf-8"))
-        self._created = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
-        self._write_json({}, complete=False)
-        self._csv: dict[str, IO[str]] = {}
-        for name, header in (("imu", IMU_HEADER), ("sonar", SONAR_HEADER)):
-            f = open(path / f"{name}.csv", "w", encoding="ascii", newline="\n")
-            f.write(header + "\n")
-            f.flush()
-            self._csv[name] = f
+        self.min_free_bytes = int(min_free_bytes)
+        self.counts: dict[str, int] = {}
+        self.last_t_ns: int | None = None
         self.bytes_written = 0
+        self.broken: str | None = None
+        self._csv: dict[str, IO[str]] = {}
+        self._created = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+        try:
+            for s in ("left", "right"):
+                (path / s).mkdir(parents=True, exist_ok=True)
+            rig_bytes = None if rig_yaml is None else rig_yaml.encode("utf-8")
+            if rig_bytes is not None:
+                _atomic_write(path / "rig.yaml", rig_bytes)
+            self._write_json({}, complete=False)
+            for name, header in (
+                ("imu", IMU_HEADER),
+                ("sonar", SONAR_HEADER),
+                ("checksums", CHECKSUM_HEADER),
+            ):
+                f = open(path / f"{name}.csv", "w", encoding="ascii", newline="\n")
+                self._csv[name] = f
+                f.write(header + "\n")
+                f.flush()
+            if rig_bytes is not None:
+                self._line("checksums", f"rig,rig.yaml,{len(rig_bytes)},{zlib.crc32(rig_bytes)}\n")
+        except OSError as err:
+            for opened in self._csv.values():
+                try:
+                    opened.close()
+                except OSError:
+                    pass
+            for name in ("imu.csv", "sonar.csv", "checksums.csv", "session.json", "rig.yaml"):
+                with contextlib.suppress(OSError):  # nothing usable: do not block a new attempt
+                    (path / name).unlink()
+            for sub in ("left", "right", ""):
+                with contextlib.suppress(OSError):
+                    (path / sub).rmdir() if sub else path.rmdir()
+            raise SessionWriteError(f"cannot write {path}: {_why(err)}", kept="nothing") from err
+
+    def _kept(self) -> str:
+        parts = [f"{n} {s}" for s, n in self.counts.items() if n]
+        last = "" if self.last_t_ns is None else f" up to t_ns={self.last_t_ns}"
+        return (", ".join(parts) or "no records") + last
+
+    def _check(self, size: int) -> None:
+        if self.broken is not None:
+            raise SessionWriteError(self.broken, kept=self._kept())
+        st = os.statvfs(self.path)
+        free = int(st.f_bavail) * int(st.f_frsize)
+        if free - size - 65536 < self.min_free_bytes:  # room for session.json at close
+            if self.min_free_bytes > 0:
+                self.broken = (
+                    f"{self.path}: free space would fall under the "
+                    f"{self.min_free_bytes / 1e9:.2f} GB reserve ({free / 1e9:.2f} GB free)"
+                )
+            else:
+                self.broken = f"{self.path}: the disk is full ({free} bytes free)"
+            raise SessionWriteError(self.broken, kept=self._kept())
+
+    def _failed(self, what: str, err: OSError) -> SessionWriteError:
+        self.broken = f"{self.path}: writing {what} failed: {_why(err)}"
+        return SessionWriteError(self.broken, kept=self._kept())
+
+    def _done(self, stream: str, t_ns: int, size: int) -> None:
+        self.counts[stream] = self.counts.get(stream, 0) + 1
+        self.bytes_written += size
+        self.last_t_ns = t_ns if self.last_t_ns is None else max(self.last_t_ns, t_ns)
+
+    def committed(self, stream: str) -> int:
+        return self.counts.get(stream, 0)
 
     def _write_json(self, counts: dict[str, int], *, complete: bool) -> None:
         meta = {
@@ -99,31 +187,72 @@ class FolderSessionWriter:
         }
         _atomic_write(self.path / "session.json", (json.dumps(meta, indent=2) + "\n").encode())
 
+    def _line(self, name: str, line: str) -> None:
+        f = self._csv[name]
+        f.write(line)
+        f.flush()
+
     def write_encoded(self, stream: str, t_ns: int, data: bytes) -> None:
-        _atomic_write(self.path / stream / f"{t_ns}{self.ext}", data)
-        self.bytes_written += len(data)
+        self._check(len(data))
+        name = f"{t_ns}{self.ext}"
+        try:
+            _atomic_write(self.path / stream / name, data)
+        except OSError as err:
+            raise self._failed(f"{stream}/{name}", err) from err
+        self._done(stream, t_ns, len(data))
+        try:
+            self._line("checksums", f"{stream},{name},{len(data)},{zlib.crc32(data)}\n")
+        except OSError as err:
+            raise self._failed("checksums.csv", err) from err
 
     def write_imu(self, t_ns: int, accel: np.ndarray, gyro: np.ndarray) -> None:
-        vals = ",".join(repr(float(v)) for v in (*accel, *gyro))
-        line = f"{t_ns},{vals}\n"
-        self._csv["imu"].write(line)
-        self._csv["imu"].flush()
-        self.bytes_written += len(line)
+        text = f"{t_ns}," + ",".join(repr(float(v)) for v in (*accel, *gyro))
+        line = f"{text},{zlib.crc32(text.encode()):08x}\n"
+        self._check(len(line))
+        try:
+            self._line("imu", line)
+        except OSError as err:
+            raise self._failed("imu.csv", err) from err
+        self._done("imu", t_ns, len(line))
 
     def write_sonar(self, t_ns: int, range_m: np.float32, confidence: np.float32) -> None:
-        line = f"{t_ns},{range_m!s},{confidence!s}\n"
-        self._csv["sonar"].write(line)
-        self._csv["sonar"].flush()
-        self.bytes_written += len(line)
+        text = f"{t_ns},{range_m!s},{confidence!s}"
+        line = f"{text},{zlib.crc32(text.encode()):08x}\n"
+        self._check(len(line))
+        try:
+            self._line("sonar", line)
+        except OSError as err:
+            raise self._failed("sonar.csv", err) from err
+        self._done("sonar", t_ns, len(line))
 
     def flush(self) -> None:
-        for f in self._csv.values():
-            f.flush()
+        if self.broken is not None:
+            raise SessionWriteError(self.broken, kept=self._kept())
+        try:
+            for f in self._csv.values():
+                f.flush()
+        except OSError as err:
+            raise self._failed("CSV files", err) from err
 
     def close(self, counts: dict[str, int]) -> None:
+        del counts
+        error: OSError | None = None
         for f in self._csv.values():
-            f.close()
-        self._write_json(counts, complete=True)
+            try:
+                f.close()
+            except OSError as err:  # a torn last line is skipped by the reader
+                error = error or err
+        try:
+            self._write_json(
+                {s: self.counts.get(s, 0) for s in ("left", "right", "imu", "sonar")},
+                complete=self.broken is None and error is None,
+            )
+        except OSError as err:
+            error = error or err
+        if error is not None:
+            raise SessionWriteError(
+                f"{self.path}: closing failed: {_why(error)}", kept=self._kept()
+            ) from error
 
 
 class FolderSessionReader(SessionReader):
@@ -157,7 +286,28 @@ class FolderSessionReader(SessionReader):
             name_unit = "us"
         self._scale = 1000 if name_unit == "us" else 1
         rig_path = self.path / "rig.yaml"
-        self._rig = rig_path.read_text(encoding="utf-8") if rig_path.is_file() else None
+        self._rig = None
+        if rig_path.is_file():
+            from sea3d.errors import RigFileError
+            from sea3d.io.rig_file import read_rig_text
+
+        self._checksums = self._read_checksums()
+        if rig_path.is_file():
+            try:
+                want = self._checksums.get(("rig", "rig.yaml"))
+                if want is not None:
+                    data = rig_path.read_bytes()
+                    if (len(data), zlib.crc32(data)) != want:
+                        raise RigFileError(
+                            f"{rig_path}: the stored rig is damaged ({len(data)} bytes with "
+                            f"CRC-32 {zlib.crc32(data)}; checksums.csv says {want[0]} bytes "
+                            f"with {want[1]})"
+                        )
+                self._rig = read_rig_text(rig_path)
+            except (RigFileError, OSError) as err:
+                self._rig_problem = str(err)
+                self.problems.append(str(err))
+                _log.warning("%s", err)
         self._files: dict[str, list[str]] = {}
         self._stamps: dict[str, np.ndarray] = {}
         for s in ("left", "right"):
@@ -172,10 +322,6 @@ class FolderSessionReader(SessionReader):
             )
         self._imu: ImuSeries | None = None
         self._sonar: SonarSeries | None = None
-
-    @property
-    def rig_yaml(self) -> str | None:
-        return self._rig
 
     def _index_images(self, stream: str) -> None:
         folder = self.path / stream
@@ -238,55 +384,143 @@ class FolderSessionReader(SessionReader):
             return self.sonar().t_ns
         raise SessionError(f"unknown stream {stream!r}; expected left, right, imu or sonar")
 
+    def _read_checksums(self) -> dict[tuple[str, str], tuple[int, int]]:
+        """(stream, file name) -> (bytes, CRC-32) from ``checksums.csv``; torn lines skipped."""
+        path = self.path / "checksums.csv"
+        out: dict[tuple[str, str], tuple[int, int]] = {}
+        if not path.is_file():
+            return out
+        try:
+            lines = path.read_text(encoding="ascii", errors="replace").splitlines()
+        except OSError as err:
+            _log.warning("%s: cannot read (%s); images are not checked", path, err)
+            return out
+        for lineno, line in enumerate(lines[1:], start=2):
+            parts = line.split(",")
+            try:
+                if len(parts) != 4 or parts[0] not in ("left", "right", "rig"):
+                    raise ValueError(f"{len(parts)} fields")
+                out[(parts[0], parts[1])] = (int(parts[2]), int(parts[3]))
+            except ValueError:
+                _log.warning("%s line %d: %r is not a checksum line; skipped", path, lineno, line)
+        return out
+
     def _record_name(self, stream: str, index: int) -> str:
         return str(self.path / stream / self._files[stream][index])
 
-    def _read_image(self, stream: str, index: int) -> np.ndarray:
+    def _stored_bytes(self, stream: str, index: int) -> bytes:
         name = self._record_name(stream, index)
         try:
             data = Path(name).read_bytes()
         except OSError as err:
-            raise SessionError(f"cannot read {name}: {err}") from err
+            raise SessionError(f"cannot read {name}: {err.strerror or err}") from err
+        want = self._checksums.get((stream, self._files[stream][index]))
+        if want is not None and (len(data), zlib.crc32(data)) != want:
+            raise SessionError(
+                f"{name} (t_ns={int(self._stamps[stream][index])}) is damaged: {len(data)} "
+                f"bytes with CRC-32 {zlib.crc32(data)}, checksums.csv says {want[0]} bytes "
+                f"with {want[1]}"
+            )
+        return data
+
+    def _read_image(self, stream: str, index: int) -> np.ndarray:
+        name = self._record_name(stream, index)
+        data = self._stored_bytes(stream, index)
         return decode_image(data, f"{name} (t_ns={int(self._stamps[stream][index])})")
 
     def image_bytes(self, stream: str, index: int) -> tuple[bytes, str]:
-        """The stored (encoded) bytes of an image and its format (``png``, ``jpeg``, ...)."""
+        """The stored (encoded) bytes of an image and its format (``png``, ``jpeg``, ...),
+        checked against ``checksums.csv`` when the folder has one."""
         name = self._record_name(stream, index)
         suffix = os.path.splitext(name)[1].lower().lstrip(".")
         fmt = {"jpg": "jpeg", "tif": "tiff"}.get(suffix, suffix)
-        try:
-            return Path(name).read_bytes(), fmt
-        except OSError as err:
-            raise SessionError(f"cannot read {name}: {err}") from err
+        return self._stored_bytes(stream, index), fmt
 
-    def _read_csv(self, name: str, header: str, ncols: int) -> tuple[np.ndarray, np.ndarray]:
+    def check(self) -> list[str]:
+        """Compare what is readable with the counts ``session.json`` recorded at close
+        (a CSV or image folder cut at a line or file boundary shows no damage of its own).
+
+        Returns the new problems (also in :attr:`problems`).
+        """
+        before = len(self.problems)
+        if (self.path / "checksums.csv").is_file():
+            unchecked = [
+                f"{stream}/{name}"
+                for stream in ("left", "right")
+                for name in self._files[stream]
+                if (stream, name) not in self._checksums
+            ]
+            if unchecked:
+                message = (
+                    f"{self.path}: {len(unchecked)} images have no line in checksums.csv (cut "
+                    f"short?) and cannot be checked, e.g. {unchecked[0]}"
+                )
+                self.problems.append(message)
+                _log.warning("%s", message)
+        counts = self.meta.get("counts") if self.meta.get("complete") else None
+        if isinstance(counts, dict):
+            found = {
+                "left": int(self.stamps("left").size),
+                "right": int(self.stamps("right").size),
+                "imu": len(self.imu()) + self.skipped.get("imu", 0),
+                "sonar": len(self.sonar()) + self.skipped.get("sonar", 0),
+            }
+            for stream, n in found.items():
+                want = counts.get(stream)
+                if isinstance(want, int) and want != n:
+                    message = (
+                        f"{self.path}: session.json counts {want} {stream} records, the folder "
+                        f"holds {n}"
+                    )
+                    self.problems.append(message)
+                    _log.warning("%s", message)
+        return self.problems[before:]
+
+    @property
+    def image_encoding(self) -> str | None:
+        enc = self.meta.get("image_encoding")
+        return str(enc) if enc else None
+
+    def _read_csv(self, name: str, columns: str, ncols: int) -> tuple[np.ndarray, np.ndarray]:
         path = self.path / name
         if not path.is_file():
             return np.zeros(0, np.int64), np.zeros((0, ncols - 1), np.float64)
         stamps: list[int] = []
         rows: list[list[float]] = []
+        stream = name.removesuffix(".csv")
+        with_crc = False  # set by a header with the crc32 column: then every line has one
         with open(path, encoding="ascii", errors="replace") as f:
             for lineno, line in enumerate(f, start=1):
                 text = line.strip()
                 if not text:
                     continue
                 if lineno == 1 and not text[0].isdigit():
-                    if text.replace(" ", "") != header:
+                    with_crc = text.replace(" ", "") == columns + ",crc32"
+                    if text.replace(" ", "") not in (columns, columns + ",crc32"):
                         _log.warning(
                             "%s: header %r differs from %r; reading columns by position",
                             path,
                             text,
-                            header,
+                            columns,
                         )
                     continue
                 parts = text.split(",")
                 try:
-                    if len(parts) != ncols:
-                        raise ValueError(f"{len(parts)} fields, expected {ncols}")
+                    if len(parts) == ncols + 1:
+                        body, _, crc = text.rpartition(",")
+                        if crc != f"{zlib.crc32(body.encode()):08x}":  # as written
+                            raise ValueError("damaged (CRC-32 mismatch)")
+                        parts = parts[:-1]
+                    elif len(parts) != ncols or with_crc:
+                        raise ValueError(
+                            f"{len(parts)} fields, expected {ncols}"
+                            + (" + crc32" if with_crc else "")
+                        )
                     t = int(parts[0])
                     vals = [float(p) for p in parts[1:]]
                 except ValueError as err:
                     torn = not line.endswith("\n")
+                    self.skipped[stream] = self.skipped.get(stream, 0) + 1
                     _log.warning(
                         "%s line %d: %s (%r); skipped%s",
                         path,
@@ -305,13 +539,13 @@ class FolderSessionReader(SessionReader):
 
     def imu(self) -> ImuSeries:
         if self._imu is None:
-            t, v = self._read_csv("imu.csv", "t_ns,ax,ay,az,wx,wy,wz", 7)
+            t, v = self._read_csv("imu.csv", IMU_COLUMNS, 7)
             self._imu = ImuSeries(t_ns=t, accel_mps2=v[:, :3].copy(), gyro_radps=v[:, 3:].copy())
         return self._imu
 
     def sonar(self) -> SonarSeries:
         if self._sonar is None:
-            t, v = self._read_csv("sonar.csv", "t_ns,range_m,confidence", 3)
+            t, v = self._read_csv("sonar.csv", SONAR_COLUMNS, 3)
             self._sonar = SonarSeries(
                 t_ns=t, range_m=v[:, 0].astype(np.float32), confidence=v[:, 1].astype(np.float32)
             )

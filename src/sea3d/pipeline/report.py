@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["image_tag", "write_demo_report"]
+__all__ = ["colorbar_tag", "depth_check_html", "image_tag", "write_process_report"]
 
 
 def image_tag(rgb: NDArray[np.uint8], alt: str, *, max_width_px: int = 960) -> str:
@@ -34,8 +34,22 @@ def _pct(x: float) -> str:
     return "n/a" if not np.isfinite(x) else f"{100.0 * x:.2f} %"
 
 
-def write_demo_report(
-    path: Path,
+def colorbar_tag(lo: float, hi: float, label: str, *, cmap: str = "turbo") -> str:
+    """A horizontal colour bar (PNG) for pictures coloured with OpenCV's or matplotlib's turbo
+    map over the fixed range ``lo``..``hi``."""
+    from matplotlib.colorbar import ColorbarBase
+    from matplotlib.colors import Normalize
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6.0, 0.75))
+    ax = fig.add_axes((0.05, 0.55, 0.9, 0.3))
+    ColorbarBase(ax, cmap=cmap, norm=Normalize(lo, hi), orientation="horizontal")
+    ax.set_xlabel(label, fontsize=8)
+    ax.tick_params(labelsize=7)
+    return _figure_tag(fig, f"colour bar: {label}").replace("<img ", '<img class="bar" ', 1)
+
+
+def depth_check_html(
     *,
     left: NDArray[np.uint8],
     right: NDArray[np.uint8],
@@ -47,8 +61,10 @@ def write_demo_report(
     error_range_m: tuple[float, float],
     cloud_rgb: NDArray[np.uint8],
     summary: dict[str, Any],
-) -> Path:
-    """Write the demo's HTML report and return its path."""
+) -> str:
+    """The single-pair depth check of the demo, as an HTML fragment: the input pair, depth
+    against ground truth beside the pinhole-in-water and ports-ignored baselines, disparity,
+    depth and error pictures with colour bars, and the pair's point cloud."""
     ours = summary["refraction_corrected"]
     base = summary["pinhole_in_water_baseline"]
     ignored = summary.get("ports_ignored_baseline")
@@ -71,32 +87,12 @@ def write_demo_report(
             f"<td>{_pct(b['median_rel'])}</td>"
             f"<td>{_pct(other['median_rel']) if other else 'n/a'}</td></tr>"
         )
-    timings = "".join(
-        f"<tr><td>{html.escape(k)}</td><td>{v:.2f} s</td></tr>"
-        for k, v in summary["timings_s"].items()
-    )
-    cfg = summary["config"]
-    page = f"""<!doctype html>
-<html lang="en"><head><meta charset="utf-8"><title>sea3d demo</title>
-<style>
-body {{ font-family: system-ui, sans-serif; margin: 2em; max-width: 1000px; color: #222; }}
-img {{ max-width: 100%; display: block; margin: 0.3em 0 1em; }}
-table {{ border-collapse: collapse; margin: 0.5em 0 1.5em; }}
-td, th {{ border: 1px solid #ccc; padding: 0.3em 0.7em; text-align: right; }}
-td:first-child, th:first-child {{ text-align: left; }}
-.pair {{ display: flex; gap: 0.5em; }} .pair div {{ flex: 1; }}
-.note {{ color: #555; font-size: 0.9em; }}
-</style></head><body>
-<h1>sea3d demo: refraction-corrected stereo depth</h1>
-<p>Scene <b>{html.escape(str(cfg["scene"]))}</b>, water <b>{html.escape(str(cfg["water"]))}</b>,
-the paper's rig ({summary["image_size_px"][0]}x{summary["image_size_px"][1]}, baseline 107 mm)
-behind <b>{html.escape(str(cfg["port"]))}</b> ports, engine <b>{html.escape(str(cfg["engine"]))}</b>
-with {summary["max_disparity_px"]} disparities. Valid depth on
+    return f"""<h2>One stereo pair: depth against ground truth</h2>
+<p>The survey's first pair, {summary["image_size_px"][0]}x{summary["image_size_px"][1]},
+matched with {summary["max_disparity_px"]} disparities: valid depth on
 {_pct(summary["valid_fraction"])} of the rectified pixels, {summary["points"]} points.</p>
-<h2>Input pair (simulated, with ground truth)</h2>
 <div class="pair"><div>{image_tag(left, "left image", max_width_px=640)}</div>
 <div>{image_tag(right, "right image", max_width_px=640)}</div></div>
-<h2>Depth against ground truth</h2>
 <table><tr><th>method</th><th>points</th><th>median |error| / depth</th><th>median |error|</th>
 <th>90th pct relative</th><th>mean signed relative</th><th>within 1 %</th></tr>
 {"".join(rows)}</table>
@@ -108,25 +104,255 @@ disparities with the best-fitting pinhole (z = f B / d): the paper's in-water pi
 whose virtual-pinhole fit leaves {summary["virtual_pinhole_rms_px"]:.2f} px RMS. The last row,
 if shown, matches the same images again with the in-air calibration, as if the ports were not
 there.</p>
-<h2>Disparity</h2>
-<p class="note">Rectified left view, colour scale {disparity_range[0]:.0f} (blue) to
-{disparity_range[1]:.0f} px (red); black = invalid.</p>
+<h3>Disparity</h3>
+<p class="note">Rectified left view; black = invalid.</p>
 {image_tag(disparity_rgb, "disparity")}
-<h2>Depth</h2>
-<p class="note">Rectified left view, {depth_range_m[0]} m (blue) to {depth_range_m[1]} m (red).</p>
+{colorbar_tag(disparity_range[0], disparity_range[1], "disparity (px)")}
+<h3>Depth</h3>
+<p class="note">Rectified left view; black = invalid.</p>
 {image_tag(depth_rgb, "depth")}
-<h2>Depth error</h2>
-<p class="note">Raw left view, estimated minus true depth,
-{1000 * error_range_m[0]:.0f} mm (blue) to +{1000 * error_range_m[1]:.0f} mm (red);
-green is zero.</p>
+{colorbar_tag(depth_range_m[0], depth_range_m[1], "depth (m)")}
+<h3>Depth error</h3>
+<p class="note">Raw left view, estimated minus true depth; black = no estimate.</p>
 {image_tag(error_rgb, "depth error")}
-<h2>Point cloud</h2>
-<p class="note">cloud.ply (left camera frame, metres), seen from above and to the side.</p>
+{colorbar_tag(1000 * error_range_m[0], 1000 * error_range_m[1], "depth error (mm)")}
+<h3>The pair's point cloud</h3>
+<p class="note">Left camera frame, seen from above and to the side.</p>
 {image_tag(cloud_rgb, "point cloud")}
-<h2>Timings</h2><table>{timings}</table>
-<p class="note">Files beside this report: rig.yaml, depth_mm.png (16-bit millimetres, 0 =
-invalid), depth_m.npy (float32 metres, NaN invalid), disparity.pfm, cloud.ply,
-gt_depth_m.npy, summary.json.</p>
+"""
+
+
+# ------------------------------------------------------------------------------ process report
+
+_STATUS_COLOURS = {
+    "initialising": "#9e9e9e",
+    "tracking": "#2e7d32",
+    "imu_only": "#f9a825",
+    "lost": "#c62828",
+    "relocalised": "#1565c0",
+}
+
+
+def _figure_tag(fig: Any, alt: str) -> str:
+    """An ``<img>`` of a matplotlib figure (PNG, embedded)."""
+    import io
+
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    FigureCanvasAgg(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    data = base64.b64encode(buf.getvalue()).decode("ascii")
+    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
+
+
+def _trajectory_figure(result: Any, gt: Any, T_ref_est: NDArray[np.float64]) -> str:
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7.5, 6.0))
+    ax = fig.add_subplot(1, 1, 1)
+    T = result.T_world_left
+    if len(T):
+        p = T[:, :3, 3] @ T_ref_est[:3, :3].T + T_ref_est[:3, 3]
+        trusted = np.array([s.value in ("tracking", "relocalised") for s in result.statuses])
+        ax.plot(p[:, 0], p[:, 1], "-", color="#1565c0", lw=1.4, label="estimate")
+        if (~trusted).any():
+            ax.plot(p[~trusted, 0], p[~trusted, 1], "x", color="#c62828", ms=4,
+                    label="not trusted (lost / IMU only / initialising)")
+        ax.plot(p[0, 0], p[0, 1], "o", color="#1565c0", ms=6)
+    if gt is not None:
+        g = gt.T_world_x[:, :3, 3]
+        ax.plot(g[:, 0], g[:, 1], "--", color="#444444", lw=1.0, label="ground truth")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title("camera path seen from above" + (" (estimate aligned to ground truth, SE(3))"
+                                                  if gt is not None else ""), fontsize=10)
+    return _figure_tag(fig, "trajectory from above")
+
+
+def _timeline_figure(result: Any, status_rows: list[dict[str, str]]) -> str:
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Patch
+
+    n = len(result.statuses)
+    fig = Figure(figsize=(9.0, 2.6))
+    ax = fig.add_subplot(1, 1, 1)
+    t0 = int(result.t_ns[0]) if len(result.t_ns) else 0
+    t = (np.asarray(result.t_ns, np.float64) - t0) * 1e-9
+    dt = float(np.median(np.diff(t))) if n > 1 else 1.0
+    for row, (key, colours) in enumerate((("status", _STATUS_COLOURS),
+                                          ("fusion", {"integrated": "#2e7d32"}))):
+        for i in range(n):
+            value = result.statuses[i].value if key == "status" else status_rows[i]["fusion"]
+            c = colours.get(value, "#e0e0e0")
+            ax.broken_barh([(t[i] - dt / 2, dt)], (1 - row + 0.1, 0.8), color=c, lw=0)
+    kf = [t[i] for i in range(n) if status_rows[i]["keyframe_id"] != ""]
+    ax.plot(kf, [2.05] * len(kf), "|", color="#333333", ms=6)
+    lc = [t[i] for i in range(n) if status_rows[i]["loop_closure"] == "1"]
+    ax.plot(lc, [2.25] * len(lc), "v", color="#6a1b9a", ms=7)
+    ax.set_yticks([0.5, 1.5, 2.1])
+    ax.set_yticklabels(["fused", "odometry", "keyframes / loops"])
+    ax.set_ylim(0, 2.45)
+    ax.set_xlabel("session time (s)")
+    handles = [Patch(color=c, label=k.replace("_", " ")) for k, c in _STATUS_COLOURS.items()]
+    handles.append(Patch(color="#e0e0e0", label="not fused"))
+    ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.35), ncol=6,
+              fontsize=7, frameon=False)
+    return _figure_tag(fig, "status timeline")
+
+
+def _read_status_rows(path: Path) -> list[dict[str, str]]:
+    import csv
+
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _fmt(x: Any, unit: str = "", scale: float = 1.0, digits: int = 3) -> str:
+    if x is None or (isinstance(x, float) and not np.isfinite(x)):
+        return "n/a"
+    return f"{x * scale:.{digits}f}{unit}"
+
+
+def write_process_report(path: Path, result: Any, *, title: str | None = None,
+                         intro_html: str = "", sections_html: str = "") -> Path:
+    """Write ``report.html`` of a ``sea3d process`` run and return its path.
+
+    The page holds: the run's figures, the path seen from above (against the ground truth
+    when the session has one), a shaded picture of the mesh (CPU ray casting), the status
+    timeline, and the timings (one-off kernel compilation shown apart). ``title``,
+    ``intro_html`` and ``sections_html`` (inserted before the trajectory) let the demo put its
+    own parts on the same page.
+    """
+    from sea3d.io.trajectory_files import read_trajectory
+    from sea3d.recon.render import render_mesh, view_from_above
+
+    s = result.summary
+    gt = None
+    T_ref_est = np.eye(4)
+    tv = s.get("trajectory_vs_gt")
+    if isinstance(tv, dict) and "T_ref_est" in tv and s.get("ground_truth"):
+        gt_path = Path(s["ground_truth"]) / "poses_left.tum"
+        if gt_path.is_file():
+            gt = read_trajectory(gt_path)
+            T_ref_est = np.asarray(tv["T_ref_est"], np.float64)
+    rows = _read_status_rows(result.files["status"])
+    traj_img = _trajectory_figure(result, gt, T_ref_est)
+    timeline_img = _timeline_figure(result, rows)
+    mesh = result.mesh
+    if not mesh.empty:
+        mesh_w = mesh.transformed(T_ref_est)
+        view = view_from_above(mesh_w.vertices, tilt_deg=30.0)
+        mesh_img = image_tag(render_mesh(mesh_w, view, size_px=(960, 540)), "mesh")
+    else:
+        mesh_img = "<p>(the mesh is empty: no frame was fused)</p>"
+    facts = [
+        ("stereo frames", s["frames"]),
+        ("keyframes", s["keyframes"]),
+        ("frames lost", s["frames_lost"]),
+        ("frames on the IMU only", s["frames_imu_only"]),
+        ("frames fused into the TSDF", s["frames_fused"]),
+        ("loop closures", s["loop_closures"]),
+        ("segments", s["segments"]),
+        ("path length", _fmt(s["path_length_m"], " m", digits=2)),
+        ("frames per second (frame loop)", _fmt(s.get("frames_per_second"), "", digits=2)),
+        ("frames taken from the cache", s["frames_from_cache"]),
+        ("mesh", f"{s['mesh']['vertices']} vertices, {s['mesh']['triangles']} triangles"),
+        ("cloud", f"{s['cloud']['points']} points ({s['cloud']['outliers_removed']} outliers "
+                  "removed)"),
+    ]
+    fact_rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(str(v))}</td></tr>"
+                        for k, v in facts)
+    gt_html = "<p class=\"note\">The session has no ground truth beside it.</p>"
+    if isinstance(tv, dict) and "ate_m" in tv:
+        ate = tv["ate_m"]
+        rpe = "".join(
+            f"<tr><td>RPE over {r['delta_m']:g} m</td><td>"
+            f"{_fmt(r['translation_m']['rmse'], ' mm', 1000, 1)} RMSE "
+            f"({_fmt(r['drift_pct'], ' %', digits=2)} drift), "
+            f"{_fmt(r['rotation_deg']['rmse'], ' deg', digits=2)}</td></tr>" for r in tv["rpe"])
+        gt_html = (
+            "<table><tr><th>trajectory (trusted frames)</th><th></th></tr>"
+            f"<tr><td>poses matched</td><td>{tv['matched']}</td></tr>"
+            f"<tr><td>ATE RMSE</td><td>{_fmt(ate['rmse'], ' mm', 1000, 1)} "
+            f"({_fmt(tv.get('ate_rmse_pct_of_path'), ' % of the path', digits=3)})</td></tr>"
+            f"<tr><td>ATE median / max</td><td>{_fmt(ate['median'], ' mm', 1000, 1)} / "
+            f"{_fmt(ate['max'], ' mm', 1000, 1)}</td></tr>{rpe}</table>"
+        )
+    elif isinstance(tv, dict) and "error" in tv:
+        gt_html = f"<p>Trajectory not evaluated: {html.escape(tv['error'])}</p>"
+    mv = s.get("mesh_vs_gt")
+    mesh_html = ""
+    if isinstance(mv, dict) and "accuracy_m" in mv:
+        acc, comp = mv["accuracy_m"], mv["completeness_m"]
+        thr = "".join(
+            f"<tr><td>within {1000 * t:.0f} mm</td><td>{100 * p:.1f} %</td>"
+            f"<td>{100 * r:.1f} %</td><td>{100 * f:.1f} %</td></tr>"
+            for t, p, r, f in zip(mv["thresholds_m"], mv["precision"], mv["recall"],
+                                  mv["fscore"], strict=True))
+        mesh_html = (
+            "<table><tr><th>mesh against the scene</th><th>median</th><th>90th pct</th></tr>"
+            f"<tr><td>accuracy (mesh to scene)</td><td>{_fmt(acc['median'], ' mm', 1000, 1)}"
+            f"</td><td>{_fmt(acc['p90'], ' mm', 1000, 1)}</td></tr>"
+            f"<tr><td>completeness (seen surface to mesh)</td>"
+            f"<td>{_fmt(comp['median'], ' mm', 1000, 1)}</td>"
+            f"<td>{_fmt(comp['p90'], ' mm', 1000, 1)}</td></tr></table>"
+            "<table><tr><th>threshold</th><th>precision</th><th>recall</th><th>F-score</th></tr>"
+            f"{thr}</table><p class=\"note\">Completeness reference: "
+            f"{html.escape(str(mv.get('completeness_reference', '')))}.</p>"
+        )
+    timings = s["timings_s"]
+    trows = "".join(f"<tr><td>{html.escape(k)}</td><td>{v:.2f} s</td></tr>"
+                    for k, v in timings.items())
+    wt = s.get("worker_timings_s", {})
+    wrows = "".join(f"<tr><td>{html.escape(k)}</td><td>{v:.2f} s</td></tr>"
+                    for k, v in wt.items() if k != "warmup_s" and not k.startswith("pyramid"))
+    warm = wt.get("warmup_s", 0.0)
+    page_title = html.escape(title or "sea3d process report")
+    page = f"""<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>{page_title}</title>
+<style>
+body {{ font-family: system-ui, sans-serif; margin: 2em; max-width: 1000px; color: #222; }}
+img {{ max-width: 100%; display: block; margin: 0.3em 0 1em; }}
+table {{ border-collapse: collapse; margin: 0.5em 0 1.5em; }}
+td, th {{ border: 1px solid #ccc; padding: 0.3em 0.7em; text-align: right; }}
+td:first-child, th:first-child {{ text-align: left; }}
+.note {{ color: #555; font-size: 0.9em; }}
+.pair {{ display: flex; gap: 0.5em; }} .pair div {{ flex: 1; }}
+img.bar {{ max-width: 520px; margin-top: -0.6em; }}
+</style></head><body>
+<h1>{html.escape(title or "sea3d process: " + Path(s["session"]).name)}</h1>
+{intro_html}
+<p>{s["frames"]} stereo frames at {s["image_size_px"][0]}x{s["image_size_px"][1]}
+({"refractive rig, depth triangulated with refracted rays" if s["refractive"] else "pinhole rig"}),
+poses from <b>{html.escape(str(s["odometry"]))}</b>, TSDF voxels of {1000 * s["voxel_m"]:.0f} mm,
+per-frame stage on {html.escape(str(s["executor"]["kind"]))}
+({s["executor"]["workers"]} workers).</p>
+<table>{fact_rows}</table>
+{sections_html}
+<h2>Trajectory</h2>
+{traj_img}
+{gt_html}
+<h2>Mesh</h2>
+<p class="note">mesh.ply, shaded by CPU ray casting, seen from above
+{"(placed in the ground truth's frame)" if gt is not None else ""}.</p>
+{mesh_img}
+{mesh_html}
+<h2>Status timeline</h2>
+<p class="note">Odometry status of every frame, keyframes (ticks), loop closures (triangles)
+and which frames the TSDF fused; per-frame figures are in status.csv.</p>
+{timeline_img}
+<h2>Timings</h2>
+<table><tr><th>pipeline stage (wall time, this process)</th><th></th></tr>{trows}</table>
+<table><tr><th>per-frame stage, summed over workers</th><th></th></tr>{wrows}</table>
+<p class="note">One-off: {warm:.2f} s of kernel compilation (or loading from numba's cache) on
+the workers' first frames is counted apart, not in the figures above; the rectification maps
+took {timings.get("rectify_maps_s", 0.0):.2f} s once.</p>
+<p class="note">Files beside this report: trajectory.tum, mesh.ply, cloud.ply, status.csv,
+summary.json; cache/ (per-frame results that let a rerun resume) and submaps/.</p>
 </body></html>
 """
     path.write_text(page)

@@ -158,6 +158,7 @@ def fit_virtual_pinhole(
     grid_step_px: int = 40,
     n_depths: int = 6,
     center: str | F64 = "camera",
+    name: str = "camera",
 ) -> tuple[PinholeCamera, VirtualPinholeReport]:
     """Best-fitting pinhole (with 5-term OpenCV distortion) for a refractive camera.
 
@@ -177,6 +178,7 @@ def fit_virtual_pinhole(
         grid_step_px: pixel grid spacing.
         n_depths: number of depths sampled.
         center: ``"camera"``, ``"rays"`` or a ``(3,)`` point in the camera frame, metres.
+        name: how the log line names the camera (``left``, ``right``).
 
     Returns:
         The fitted :class:`PinholeCamera` (in the frame of the virtual centre) and its
@@ -245,9 +247,9 @@ def fit_virtual_pinhole(
         max_by_depth_px=tuple(float(e.max()) for e in err),
         center_m=(float(c[0]), float(c[1]), float(c[2])),
     )
-    log.debug("virtual pinhole fx %.1f at %s mm: residual RMS %.3f px, max %.3f px over "
-             "%.2f-%.2f m", virtual.fx, np.round(c * 1e3, 3).tolist(), report.rms_px,
-             report.max_px, near, far)
+    log.info("virtual pinhole of the %s camera: fx %.1f px at %s mm, residual RMS %.3f px, "
+             "max %.3f px over %.2f-%.2f m", name, virtual.fx, np.round(c * 1e3, 3).tolist(),
+             report.rms_px, report.max_px, near, far)
     return virtual, report
 
 
@@ -285,9 +287,9 @@ def rectify_rig(
     refractive = pin_l is None or pin_r is None
     rep_l = rep_r = None
     if pin_l is None:
-        pin_l, rep_l = fit_virtual_pinhole(rig.left, depth_range_m)
+        pin_l, rep_l = fit_virtual_pinhole(rig.left, depth_range_m, name="left")
     if pin_r is None:
-        pin_r, rep_r = fit_virtual_pinhole(rig.right, depth_range_m)
+        pin_r, rep_r = fit_virtual_pinhole(rig.right, depth_range_m, name="right")
     T_right_left = rig.T_right_left
     R = T_right_left[:3, :3]
     t = T_right_left[:3, 3]

@@ -128,7 +128,9 @@ def with_ports(
     }
     left = _with_port(pins[0], port, dome_center_m=dome_center_left_m, **common)
     right = _with_port(pins[1], port, dome_center_m=dome_center_right_m, **common)
-    return StereoRig(left=left, right=right, T_left_right=rig.T_left_right)
+    return StereoRig(
+        left=left, right=right, T_left_right=rig.T_left_right, imu=rig.imu, sonar=rig.sonar
+    )
 
 
 def paper_rig(

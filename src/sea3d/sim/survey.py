@@ -35,9 +35,10 @@ from sea3d.calib.targets import BoardSpec
 from sea3d.errors import SimulationError
 from sea3d.geometry.camera import CameraModel
 from sea3d.geometry.pinhole import PinholeCamera
-from sea3d.geometry.rig import StereoRig
+from sea3d.geometry.rig import ImuSpec, SonarSpec, StereoRig
 from sea3d.geometry.se3 import R_to_quat_wxyz, invert_T
 from sea3d.sim.motion import (
+    GRAVITY_WORLD,
     HandHeld,
     ImuNoise,
     Lawnmower,
@@ -116,13 +117,19 @@ def scale_rig(rig: StereoRig, size_px: tuple[int, int]) -> StereoRig:
         pin = _scaled_pinhole(_pinhole_of(cam), w, h)
         port = getattr(cam, "port", None)
         cams.append(type(cam)(pin, port) if port is not None else pin)  # type: ignore[call-arg]
-    return StereoRig(left=cams[0], right=cams[1], T_left_right=rig.T_left_right)
+    return StereoRig(
+        left=cams[0], right=cams[1], T_left_right=rig.T_left_right, imu=rig.imu, sonar=rig.sonar
+    )
 
 
 def in_air(rig: StereoRig) -> StereoRig:
     """The rig's bare pinhole cameras (ports removed): the rig as it sees in air."""
     return StereoRig(
-        left=_pinhole_of(rig.left), right=_pinhole_of(rig.right), T_left_right=rig.T_left_right
+        left=_pinhole_of(rig.left),
+        right=_pinhole_of(rig.right),
+        T_left_right=rig.T_left_right,
+        imu=rig.imu,
+        sonar=rig.sonar,
     )
 
 
@@ -540,6 +547,63 @@ def write_tum(path: Path, t_ns: Sequence[int], T: FloatArray) -> None:
     path.write_text("\n".join(lines) + "\n")
 
 
+def survey_mount(rig: StereoRig, config: SurveyConfig) -> Mount:
+    """Where the simulated survey puts its sensors: the rig's own IMU and echosounder when it has
+    them, otherwise :meth:`Mount.default` for the rig's baseline and the configured tilt."""
+    if rig.imu is None:
+        default = Mount.default(baseline_m=rig.baseline_m, camera_tilt_deg=config.tilt_deg())
+        if rig.sonar is None:
+            return default
+        T_body_left = default.T_body_left
+    else:
+        T_body_left = rig.imu.T_imu_left
+    if rig.sonar is not None:
+        T_body_sonar = T_body_left @ rig.sonar.T_left_sonar
+    else:
+        T_body_sonar = Mount.default(baseline_m=rig.baseline_m).T_body_sonar
+    return Mount(T_body_left=T_body_left, T_body_sonar=T_body_sonar)
+
+
+def survey_imu_noise(rig: StereoRig) -> ImuNoise:
+    """The IMU noise the survey simulates: the rig's figures when it has an IMU, else MTi-300."""
+    if rig.imu is None:
+        return ImuNoise.mti300()
+    return ImuNoise(
+        gyro_noise_density_radps_sqrthz=rig.imu.gyro_noise_density_radps_sqrthz,
+        gyro_bias_rw_radps_sqrts=rig.imu.gyro_random_walk_radps_sqrts,
+        accel_noise_density_mps2_sqrthz=rig.imu.accel_noise_density_mps2_sqrthz,
+        accel_bias_rw_mps2_sqrts=rig.imu.accel_random_walk_mps2_sqrts,
+    )
+
+
+def with_survey_sensors(
+    rig: StereoRig, config: SurveyConfig, mount: Mount | None = None
+) -> StereoRig:
+    """The rig as the simulated session describes it: with the IMU (``T_left_imu``, rate, the
+    simulated noise figures, gravity 9.81) and the echosounder (``T_left_sonar``, an ideal single
+    ray: ``beam_deg`` 0) that :func:`simulate_survey` simulates, so the session is
+    self-describing. Noise figures are given even with ``imu_noise=False`` (an estimator needs
+    some weight; ``gt/sim.json`` says the readings were exact)."""
+    import dataclasses
+
+    m = mount or survey_mount(rig, config)
+    noise = survey_imu_noise(rig)
+    imu = ImuSpec(
+        T_left_imu=invert_T(m.T_body_left),
+        rate_hz=config.imu_rate_hz,
+        gyro_noise_density_radps_sqrthz=noise.gyro_noise_density_radps_sqrthz,
+        gyro_random_walk_radps_sqrts=noise.gyro_bias_rw_radps_sqrts,
+        accel_noise_density_mps2_sqrthz=noise.accel_noise_density_mps2_sqrthz,
+        accel_random_walk_mps2_sqrts=noise.accel_bias_rw_mps2_sqrts,
+        gravity_mps2=float(-GRAVITY_WORLD[2]),
+    )
+    sonar = SonarSpec(
+        T_left_sonar=invert_T(m.T_body_left) @ m.T_body_sonar,
+        beam_deg=rig.sonar.beam_deg if rig.sonar is not None else 0.0,
+    )
+    return dataclasses.replace(rig, imu=imu, sonar=sonar)
+
+
 def simulate_survey(
     scene: Scene,
     rig: StereoRig,
@@ -563,7 +627,8 @@ def simulate_survey(
         writer: a session writer (``write_stereo``, ``write_imu``, ``write_sonar``).
         gt_dir: folder for ground truth (created), or None for none.
         trajectory: overrides the configured trajectory.
-        mount: sensor placement on the body (default :meth:`Mount.default` for the rig).
+        mount: sensor placement on the body (default :func:`survey_mount`: the rig's own IMU
+            and echosounder if it has them, else :meth:`Mount.default` for the rig).
         progress: called with 1 after each frame.
 
     Returns:
@@ -573,7 +638,7 @@ def simulate_survey(
         SimulationError: bad configuration or an unwritable ``gt_dir``.
     """
     traj = trajectory or default_trajectory(scene, config)
-    mount = mount or Mount.default(baseline_m=rig.baseline_m, camera_tilt_deg=config.tilt_deg())
+    mount = mount or survey_mount(rig, config)
     imaging = _imaging(config.water if config.water != "none" else None)
     rng = np.random.default_rng(config.seed)
     renderer = Renderer(scene, supersample=config.supersample)
@@ -583,7 +648,7 @@ def simulate_survey(
     imu = imu_samples(
         traj,
         imu_t,
-        noise=ImuNoise.mti300() if config.imu_noise else None,
+        noise=survey_imu_noise(rig) if config.imu_noise else None,
         rng=np.random.default_rng(config.seed + 1),
     )
     sonar_t = sample_times_ns(end_ns * 1e-9, config.sonar_rate_hz)
@@ -664,4 +729,12 @@ def simulate_survey(
     )
 
 
-__all__ += ["default_trajectory", "in_air", "write_calibration_set", "write_tum"]
+__all__ += [
+    "default_trajectory",
+    "in_air",
+    "survey_imu_noise",
+    "survey_mount",
+    "with_survey_sensors",
+    "write_calibration_set",
+    "write_tum",
+]

@@ -1,10 +1,13 @@
 """Numba kernels of sea3d's semi-global matcher (private; see :mod:`sea3d.stereo.sgm`).
 
-Layout: every per-pixel disparity search is a *band* ``d = lo[y, x] + k`` for
-``k in range(n[y, x])``; costs and aggregated costs are stored as ``(H, W, K)`` arrays with
-``K = max(n)``. A full search is the band ``lo = 0``, ``n = D``; the coarse-to-fine search narrows
-the band around the disparity found one pyramid level up, so memory and time scale with the band
-width, not the disparity range.
+Layout: every pixel ``p = y * W + x`` searches a band of disparities ``d = lo[p] + k``,
+``k < 16 * nch[p]``: whole chunks of 16 candidates, so that each chunk is one step of the
+16-lane vector kernels of :mod:`sea3d.stereo._simd`. Costs (uint8) and summed path costs
+(int16) are packed: pixel ``p``'s band starts at ``offs[p]`` (:func:`band_offsets`). A full
+search is ``lo = 0`` with the range rounded up to chunks; the coarse-to-fine levels give most
+pixels one chunk around the coarser answer and pixels at depth steps up to three. Candidates
+outside the right image or the range get :data:`INVALID_COST`, which no real match reaches,
+and are never selected.
 
 The path recursion is Hirschmüller's (PAMI 2008, eq. 13) with the path minimum subtracted::
 
@@ -12,7 +15,13 @@ The path recursion is Hirschmüller's (PAMI 2008, eq. 13) with the path minimum 
                               min_k L_r(q, k) + P2(p, q)) - min_k L_r(q, k)
 
 with ``q = p - r``; ``L_r(q, d)`` is infinite where ``d`` lies outside ``q``'s band. P2 is adapted
-to the guide image: ``P2(p, q) = max(P1 + 1, P2 * tau / (tau + |I(p) - I(q)|))``.
+to the guide image: ``P2(p, q) = max(P1 + 1, P2 * tau / (tau + |I(p) - I(q)|))``. Every path
+value is at most ``INVALID_COST + P2``, so 16 paths of them fit int16 for ``P2 <= 1500``.
+
+Scanlines are walked in lockstep groups (:func:`sweep`): a group of neighbouring lines advances
+one pixel at a time, so the pixels processed back to back are independent and the CPU overlaps
+them; each group keeps one padded state slot per line and shifts with the path direction, so
+groups never depend on each other and run on any thread without synchronisation.
 """
 
 from __future__ import annotations
@@ -20,25 +29,23 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-_INF = 1 << 20
-_GROUP = 16  # neighbouring scanlines kept together in one thread's share
+from sea3d.stereo._simd import (
+    LANES,
+    argmin16,
+    census_cost16,
+    load_at,
+    min_outside16,
+    path_step16_add,
+    path_step16_set,
+    right_scatter16,
+    select16,
+    window_sums16,
+)
 
-_M1 = np.uint64(0x5555555555555555)
-_M2 = np.uint64(0x3333333333333333)
-_M4 = np.uint64(0x0F0F0F0F0F0F0F0F)
-_H01 = np.uint64(0x0101010101010101)
-_U1 = np.uint64(1)
-_U2 = np.uint64(2)
-_U4 = np.uint64(4)
-_U56 = np.uint64(56)
-
-
-@njit(cache=True, inline="always")
-def _popcount64(x: np.uint64) -> int:
-    x = x - ((x >> _U1) & _M1)
-    x = (x & _M2) + ((x >> _U2) & _M2)
-    x = (x + (x >> _U4)) & _M4
-    return int((x * _H01) >> _U56)
+INVALID_COST = 255
+"""Matching cost of candidates that lie outside the right image or the disparity range."""
+_INF = 8000  # out-of-band path cost: above any real one (<= 255 + 1500), small enough for int16
+_BIG = 32767  # "no candidate" in the selection
 
 
 @njit(parallel=True, cache=True)
@@ -46,146 +53,181 @@ def census_transform(img: np.ndarray, half_h: int, half_w: int) -> np.ndarray:
     """Census signature of each pixel: one bit per window neighbour darker than the centre.
 
     ``img`` (H, W) float32; window (2*half_h+1) x (2*half_w+1) <= 65 pixels; borders replicate.
-    Returns (H, W) uint64.
+    Returns (H, W) uint64. The loops run along rows (vectorised), filling two 32-bit halves; the
+    bit order is the same for both images, which is all the Hamming distance needs.
     """
     h, w = img.shape
+    pw = w + 2 * half_w
     out = np.empty((h, w), np.uint64)
+    one = np.uint32(1)
     for y in prange(h):
-        interior_y = half_h <= y < h - half_h
+        centre = img[y]
+        padded = np.empty(pw, np.float32)
+        lo32 = np.zeros(w, np.uint32)
+        hi32 = np.zeros(w, np.uint32)
+        n = 0
+        for dy in range(-half_h, half_h + 1):
+            row = img[min(max(y + dy, 0), h - 1)]
+            for x in range(pw):
+                padded[x] = row[min(max(x - half_w, 0), w - 1)]
+            for dx in range(2 * half_w + 1):
+                if dy == 0 and dx == half_w:
+                    continue
+                if n < 32:
+                    for x in range(w):
+                        lo32[x] = (lo32[x] << one) | np.uint32(padded[x + dx] < centre[x])
+                else:
+                    for x in range(w):
+                        hi32[x] = (hi32[x] << one) | np.uint32(padded[x + dx] < centre[x])
+                n += 1
         for x in range(w):
-            c = img[y, x]
-            sig = np.uint64(0)
-            if interior_y and half_w <= x < w - half_w:
-                for dy in range(-half_h, half_h + 1):
-                    for dx in range(-half_w, half_w + 1):
-                        if dy != 0 or dx != 0:
-                            sig = (sig << _U1) | np.uint64(img[y + dy, x + dx] < c)
-            else:
-                for dy in range(-half_h, half_h + 1):
-                    yy = min(max(y + dy, 0), h - 1)
-                    for dx in range(-half_w, half_w + 1):
-                        if dy != 0 or dx != 0:
-                            xx = min(max(x + dx, 0), w - 1)
-                            sig = (sig << _U1) | np.uint64(img[yy, xx] < c)
-            out[y, x] = sig
+            out[y, x] = (np.uint64(hi32[x]) << np.uint64(32)) | np.uint64(lo32[x])
     return out
 
 
-@njit(parallel=True, cache=True)
-def band_costs(
-    census_l: np.ndarray, census_r: np.ndarray, lo: np.ndarray, n: np.ndarray, offs: np.ndarray
-) -> np.ndarray:
-    """Hamming distance of census signatures over each pixel's band.
-
-    Returns the packed volume (offs[-1],) uint8: ``cost[offs[y*W+x] + k]`` matches left ``x``
-    with right ``x - lo - k``. Bands never reach past the right image's left edge
-    (``lo + n - 1 <= x``).
-    """
-    h, w = census_l.shape
-    cost = np.empty(offs[-1], np.uint8)
-    for y in prange(h):
-        for x in range(w):
-            cl = census_l[y, x]
-            base = x - lo[y, x]
-            cb = offs[y * w + x]
-            for k in range(n[y, x]):
-                cost[cb + k] = _popcount64(cl ^ census_r[y, base - k])
-    return cost
-
-
-def band_offsets(n: np.ndarray) -> np.ndarray:
-    """Start of each pixel's band in the packed volumes: (H*W + 1,) int64 prefix sums of n."""
-    offs = np.zeros(n.size + 1, np.int64)
-    np.cumsum(n.ravel(), out=offs[1:])
+def band_offsets(nch: np.ndarray) -> np.ndarray:
+    """Start of each pixel's band in the packed volumes: (H*W + 1,) int64 prefix sums of
+    ``16 * nch``."""
+    offs = np.zeros(nch.size + 1, np.int64)
+    np.cumsum(nch.ravel().astype(np.int64) * LANES, out=offs[1:])
     return offs
 
 
 @njit(parallel=True, cache=True)
-def aggregate_lines(
-    cf: np.ndarray,
-    lo: np.ndarray,
-    n: np.ndarray,
-    offs: np.ndarray,
-    k_max: int,
-    guide: np.ndarray,
-    p1: int,
-    p2_lut: np.ndarray,
-    tf: np.ndarray,
-    starts: np.ndarray,
-    dy: int,
-    dx: int,
-) -> None:
-    """Aggregate along the scanlines of direction ``(dy, dx)`` and back; *adds* into ``tf``.
+def band_costs(
+    census_l: np.ndarray, census_r: np.ndarray, lo: np.ndarray, nch: np.ndarray,
+    offs: np.ndarray, num_disp: int,
+) -> np.ndarray:
+    """Hamming distance of census signatures over each pixel's band.
 
-    ``cf`` (packed, uint8) and ``tf`` (packed, uint16) are the cost and summed volumes with
-    pixel ``p = y * W + x``'s band at ``offs[p]`` (:func:`band_offsets`); ``guide`` (H, W) uint8;
-    ``p2_lut[|dI|]`` the edge-adapted P2 for an intensity step ``dI``. ``starts`` (N, 2) int64
-    holds the first pixel ``(y, x)`` of every scanline (the pixels whose predecessor
-    ``(y - dy, x - dx)`` lies outside the image). Scanlines are independent, so they are shared
-    among threads with no synchronisation; each is walked forward (path ``+r``), then backward.
-
-    Path costs live in rows of ``bufs`` (previous, current, re-aligned) with one infinite entry
-    on each side of the band, so the recursion's ``d - 1`` and ``d + 1`` need no bounds tests;
-    when the band moves between neighbours the previous costs are first re-aligned into the
-    third row. (Walking neighbouring lines in lockstep for cache locality measured slower.)
+    Returns the packed volume (offs[-1],) uint8: ``cost[offs[p] + k]`` matches left ``x`` with
+    right ``x - lo - k``; candidates with ``lo + k > x`` or ``lo + k >= num_disp`` get
+    :data:`INVALID_COST`. Bands must satisfy ``lo + 16 * nch - 1 <= x`` wherever
+    ``x >= 16 * nch - 1``, and ``lo = 0`` elsewhere.
     """
-    h, w = lo.shape
-    kk = k_max
+    h, w = census_l.shape
     lof = lo.reshape(-1)
-    nf = n.reshape(-1)
-    gf = guide.reshape(-1)
-    for i in prange(starts.shape[0]):
-        bufs = np.full((3, kk + 2), _INF, np.int32)
-        y0 = np.int64(starts[i, 0])
-        x0 = np.int64(starts[i, 1])
-        length = 1
-        while 0 <= y0 + length * dy < h and 0 <= x0 + length * dx < w:
-            length += 1
-        for direction in range(2):
-            if direction == 0:
-                p = y0 * w + x0
-                s = dy * w + dx
+    ncf = nch.reshape(-1)
+    k_max = int(nch.max()) * LANES
+    cost = np.empty(offs[-1], np.uint8)
+    # the right rows reversed, so each band reads increasing addresses; padded at the end
+    stride = w + k_max
+    rev = np.zeros(h * stride, np.uint64)
+    for y in prange(h):
+        for j in range(w):
+            rev[y * stride + j] = census_r[y, w - 1 - j]
+    for y in prange(h):
+        row = y * stride + w - 1
+        for x in range(w):
+            p = y * w + x
+            lo_p = load_at(lof, p)
+            kp = load_at(ncf, p) * LANES
+            cb = load_at(offs, p)
+            cl = census_l[y, x]
+            start = row - x + lo_p
+            census_cost16(rev, start, cl, cost, cb)
+            for c in range(LANES, kp, LANES):
+                census_cost16(rev, start + c, cl, cost, cb + c)
+            top = min(x, num_disp - 1) - lo_p  # last valid k
+            if top < kp - 1:
+                for k in range(max(top + 1, 0), kp):
+                    cost[cb + k] = INVALID_COST
+    return cost
+
+
+@njit(cache=True)
+def _sweep_block(
+    cf: np.ndarray, lof: np.ndarray, ncf: np.ndarray, offs: np.ndarray, k_max: int,
+    gf: np.ndarray, tf: np.ndarray, p1: int, p2_lut: np.ndarray, p0: int, so: int, si: int,
+    n_outer: int, n_inner: int, s: int, b0: int, nb: int, accumulate: bool,
+) -> None:
+    pad = k_max + 2
+    ll = 3 * k_max + 4
+    # two padded state rows per line (previous and current step); entries outside the band
+    # written last into a row hold _INF
+    state = np.full(2 * nb * ll, _INF, np.int16)
+    extent = np.zeros(2 * nb, np.int64)  # candidates written into each row
+    mins = np.zeros(nb, np.int64)
+    alive = np.zeros(nb, np.bool_)
+    back = so + s * si  # pixel index step back to the predecessor
+    for o in range(n_outer):
+        i_first = b0 + s * o
+        # the slots of this step that lie inside the image
+        j0 = min(max(0, -i_first), nb)
+        j1 = max(min(nb, n_inner - i_first), j0)
+        if s != 0:
+            for j in range(0, j0):
+                alive[j] = False
+            for j in range(j1, nb):
+                alive[j] = False
+        par = o & 1
+        rd = (1 - par) * nb * ll + pad
+        wr = par * nb * ll + pad
+        p_row = p0 + o * so + i_first * si
+        for j in range(j0, j1):
+            p = p_row + j * si
+            cb = load_at(offs, p)
+            kp = load_at(ncf, p) * LANES
+            sw = wr + j * ll
+            if not alive[j]:
+                # path start: L = C
+                m = _INF
+                for k in range(kp):
+                    v = np.int16(cf[cb + k])
+                    state[sw + k] = v
+                    if accumulate:
+                        tf[cb + k] += v
+                    else:
+                        tf[cb + k] = v
+                    m = min(m, int(v))
+                alive[j] = True
             else:
-                p = (y0 + (length - 1) * dy) * w + x0 + (length - 1) * dx
-                s = -(dy * w + dx)
-            np_ = nf[p]
-            cb = offs[p]
-            m = _INF
-            pi = 0
-            for k in range(np_):
-                v = np.int32(cf[cb + k])
-                bufs[0, k + 1] = v
-                tf[cb + k] += v
-                m = min(m, int(v))
-            bufs[0, np_ + 1] = _INF
-            for _ in range(length - 1):
-                q = p
-                p += s
-                n_q = np_
-                np_ = nf[p]
-                off = lof[p] - lof[q]
-                pe = p2_lut[abs(np.int32(gf[p]) - np.int32(gf[q]))]
-                c2 = m + pe
-                ci = 1 - pi
-                si = pi
-                if off != 0 or np_ != n_q:
-                    for k in range(np_ + 2):
-                        j = k + off
-                        bufs[2, k] = bufs[pi, j] if 1 <= j <= n_q else _INF
-                    si = 2
-                cb = offs[p]
-                mm = _INF
-                for k in range(np_):
-                    v = min(bufs[si, k], bufs[si, k + 2]) + p1
-                    v = min(v, bufs[si, k + 1])
-                    v = min(v, c2)
-                    v = np.int32(cf[cb + k]) + v - m
-                    bufs[ci, k + 1] = v
-                    tf[cb + k] += v
-                    mm = min(mm, int(v))
-                bufs[ci, np_ + 1] = _INF
-                m = mm
-                pi = ci
+                q = p - back
+                off = min(max(load_at(lof, p) - load_at(lof, q), -k_max - 1), k_max + 1)
+                pe = load_at(p2_lut, abs(np.int32(load_at(gf, p)) - np.int32(load_at(gf, q))))
+                mq = mins[j]
+                # the predecessor's entries, read ``off`` entries along when the band moved
+                ip = rd + j * ll + off - 1
+                if accumulate:
+                    m = path_step16_add(state, ip, cf, cb, sw, tf, cb, p1, mq + pe, mq)
+                    for c in range(LANES, kp, LANES):
+                        m = min(m, path_step16_add(state, ip + c, cf, cb + c, sw + c, tf,
+                                                   cb + c, p1, mq + pe, mq))
+                else:
+                    m = path_step16_set(state, ip, cf, cb, sw, tf, cb, p1, mq + pe, mq)
+                    for c in range(LANES, kp, LANES):
+                        m = min(m, path_step16_set(state, ip + c, cf, cb + c, sw + c, tf,
+                                                   cb + c, p1, mq + pe, mq))
+            mins[j] = m
+            e = par * nb + j
+            if extent[e] > kp:  # a wider band was here two steps ago
+                for k in range(kp, extent[e]):
+                    state[sw + k] = _INF
+            extent[e] = kp
+
+
+@njit(parallel=True, cache=True)
+def sweep(
+    cf: np.ndarray, lof: np.ndarray, ncf: np.ndarray, offs: np.ndarray, gf: np.ndarray,
+    tf: np.ndarray, p1: int, p2_lut: np.ndarray, p0: int, so: int, si: int, n_outer: int,
+    n_inner: int, s: int, group: int, accumulate: bool,
+) -> None:
+    """Aggregate one path direction over the whole image; adds into (or sets) ``tf``.
+
+    The scanlines are indexed by ``i`` in ``[0, n_inner)`` and advance by ``o`` in
+    ``[0, n_outer)``: pixel ``(o, i)`` is ``p0 + o * so + i * si`` and its predecessor on the
+    path is ``(o - 1, i - s)``. Lines are processed in groups of ``group`` neighbours that
+    shift by ``s`` per step, so each group holds whole paths. ``cf`` (uint8) and ``tf`` (int16)
+    are the packed cost and total volumes (``offs``), ``lof``/``ncf`` the flat band starts and
+    chunk counts, ``gf`` the flat uint8 guide image, ``p2_lut[|dI|]`` the edge-adapted P2.
+    """
+    k_max = int(ncf.max()) * LANES
+    span = abs(s) * (n_outer - 1)
+    n_groups = (n_inner + span + group - 1) // group
+    base = -span if s > 0 else 0
+    for g in prange(n_groups):
+        _sweep_block(cf, lof, ncf, offs, k_max, gf, tf, p1, p2_lut, p0, so, si, n_outer,
+                     n_inner, s, base + g * group, group, accumulate)
 
 
 def p2_table(p1: int, p2: int, tau: float) -> np.ndarray:
@@ -195,33 +237,30 @@ def p2_table(p1: int, p2: int, tau: float) -> np.ndarray:
     return np.maximum(np.floor(p2 * tau / (tau + diff)), p1 + 1).astype(np.int32)
 
 
-def scanline_starts(h: int, w: int, dy: int, dx: int, n_threads: int) -> np.ndarray:
-    """First pixels ``(y, x)`` of the scanlines of direction ``(dy, dx)``, (N, 2) int64.
-
-    Starts are in border order (neighbouring lines next to each other, as
-    :func:`aggregate_lines` groups them), with groups dealt round-robin to the threads' shares
-    of a static parallel split, so each thread gets long and short lines alike.
-    """
-    ys, xs = np.mgrid[0:h, 0:w]
-    pred_out = (ys - dy < 0) | (ys - dy >= h) | (xs - dx < 0) | (xs - dx >= w)
-    sy, sx = ys[pred_out], xs[pred_out]
-    # border order: along rows for starts on the top/bottom edge, then along columns
-    on_row_edge = (sy - dy < 0) | (sy - dy >= h)
-    key = np.where(on_row_edge, sx, w + sy).astype(np.int64)
-    order = np.argsort(key, kind="stable")
-    starts = np.stack([sy[order], sx[order]], axis=1).astype(np.int64)
-    t = max(int(n_threads), 1)
-    block = np.arange(len(starts)) // _GROUP
-    order = np.argsort(block % t, kind="stable")
-    return np.ascontiguousarray(starts[order])
+def path_sweeps(h: int, w: int, dy: int, dx: int) -> list[tuple[int, int, int, int, int, int]]:
+    """The :func:`sweep` arguments ``(p0, so, si, n_outer, n_inner, s)`` that walk direction
+    ``(dy, dx)`` (``dy >= 0``) forward and backward over an ``h x w`` image."""
+    if dy == 0:
+        # horizontal: lines are rows (inner index y), advancing along x
+        step = 1 if dx > 0 else -1
+        return [(0 if step > 0 else w - 1, step, w, w, h, 0),
+                (w - 1 if step > 0 else 0, -step, w, w, h, 0)]
+    out = []
+    for r in range(dy):  # rows dy apart form separate paths
+        n_outer = (h - r + dy - 1) // dy
+        out.append((r * w, dy * w, 1, n_outer, w, dx))
+        out.append(((h - 1 - r) * w, -dy * w, 1, n_outer, w, -dx))
+    return out
 
 
 @njit(parallel=True, cache=True)
 def select_disparity(
     total: np.ndarray,
     lo: np.ndarray,
-    n: np.ndarray,
+    nch: np.ndarray,
     offs: np.ndarray,
+    none: np.ndarray,
+    num_disp: int,
     uniqueness: float,
     lr_max_diff: int,
     subpixel: int,
@@ -231,57 +270,70 @@ def select_disparity(
     ``subpixel``: 0 none, 1 parabola, 2 equiangular. ``uniqueness`` is the minimum relative
     margin ``(second - best) / best`` of the best cost over the best cost outside ``best +- 1``.
     ``lr_max_diff < 0`` disables the left-right check. The right view's disparity is the
-    winner-take-all along the same aggregated volume's diagonals. Pixels without candidates
-    (``n = 0``) and winners within a pixel of the right image's left edge where the band was
-    cut there are invalid: their true match may lie outside the right image.
+    winner-take-all along the same aggregated volume's diagonals. Pixels without a valid
+    candidate (or flagged in ``none``) and winners within a pixel of the right image's left edge
+    where the band reaches that edge are invalid: their true match may lie outside the image.
 
     Returns disparity (H, W) float32 (NaN invalid) and confidence (H, W) float32 in [0, 1]:
     ``1 - best / second`` (0 where invalid).
     """
     h, w = lo.shape
+    k_max = int(nch.max()) * LANES
     disp = np.empty((h, w), np.float32)
     conf = np.zeros((h, w), np.float32)
     nan = np.float32(np.nan)
     for y in prange(h):
-        rbest = np.full(w, _INF, np.int32)
-        rdisp = np.full(w, -1, np.int32)
-        dint = np.empty(w, np.int32)
+        # right-view winners, stored k_max entries along so candidates off the image fit
+        rbest = np.full(w + k_max + LANES, _BIG, np.int16)
+        rdisp = np.full(w + k_max + LANES, -1, np.int16)
+        dint = np.full(w, -1, np.int32)
         for x in range(w):
             lo_p = lo[y, x]
-            np_ = n[y, x]
+            kp = nch[y, x] * LANES
+            n_valid = min(kp, num_disp - lo_p, x - lo_p + 1)
             cb = offs[y * w + x]
-            best = _INF
-            kb = 0
-            for k in range(np_):
-                s = int(total[cb + k])
-                if s < best:
-                    best = s
-                    kb = k
-                xr = x - lo_p - k
-                if s < rbest[xr]:
-                    rbest[xr] = s
-                    rdisp[xr] = lo_p + k
-            second = _INF
-            for k in range(np_):
-                if k < kb - 1 or k > kb + 1:
-                    s = int(total[cb + k])
-                    if s < second:
-                        second = s
+            if n_valid <= 0 or none[y, x]:
+                disp[y, x] = nan
+                continue
+            if kp == LANES:  # one chunk: one fused vector step
+                r = select16(total, cb, n_valid, rbest, rdisp, k_max + x - lo_p - (LANES - 1),
+                             lo_p)
+                best = r % 32768
+                second = (r // 32768) % 32768
+                kb = r // (32768 * 32768)
+            else:
+                best = _BIG
+                kb = 0
+                for c in range(0, kp, LANES):
+                    nv = n_valid - c
+                    if nv <= 0:
+                        break
+                    r = argmin16(total, cb + c, nv)
+                    if r // 32 < best:
+                        best = r // 32
+                        kb = c + r % 32
+                    right_scatter16(rbest, rdisp, k_max + x - lo_p - c - (LANES - 1), total,
+                                    cb + c, nv, lo_p + c)
+                second = _BIG
+                for c in range(0, kp, LANES):
+                    nv = n_valid - c
+                    if nv <= 0:
+                        break
+                    second = min(second,
+                                 min_outside16(total, cb + c, nv, kb - 1 - c, kb + 1 - c))
+            # a winner against the right image's left edge, with the band reaching it: the
+            # true match may lie outside the right image
+            if lo_p + n_valid - 1 == x and lo_p + kb >= x - 1:
+                disp[y, x] = nan
+                continue
+            if second < _BIG and (second - best) < uniqueness * best:
+                disp[y, x] = nan
+                continue
             dint[x] = lo_p + kb
-            # no candidate, or a winner against the right image's left edge with the band cut
-            # there: the true match may lie outside the right image
-            if np_ == 0 or (lo_p + np_ - 1 == x and lo_p + kb >= x - 1):
-                disp[y, x] = nan
-                dint[x] = -1
-                continue
-            if second < _INF and (second - best) < uniqueness * best:
-                disp[y, x] = nan
-                dint[x] = -1
-                continue
-            c = 1.0 if second >= _INF else 1.0 - best / max(second, 1)
-            conf[y, x] = c
+            # > 0 on every matched pixel: confidence 0 marks filled ones
+            conf[y, x] = 1.0 if second >= _BIG else max(1.0 - best / max(second, 1), 1e-6)
             delta = 0.0
-            if subpixel > 0 and 0 < kb < np_ - 1:
+            if subpixel > 0 and 0 < kb < n_valid - 1:
                 cm = float(total[cb + kb - 1])
                 c0 = float(best)
                 cp = float(total[cb + kb + 1])
@@ -290,14 +342,9 @@ def select_disparity(
                     if den > 0:
                         delta = 0.5 * (cm - cp) / den
                 else:
-                    if cm > cp:
-                        den = cm - c0
-                        if den > 0:
-                            delta = 0.5 * (cm - cp) / den
-                    else:
-                        den = cp - c0
-                        if den > 0:
-                            delta = 0.5 * (cm - cp) / den
+                    den = (cm - c0) if cm > cp else (cp - c0)
+                    if den > 0:
+                        delta = 0.5 * (cm - cp) / den
                 delta = min(max(delta, -0.5), 0.5)
             disp[y, x] = np.float32(lo_p + kb + delta)
         if lr_max_diff >= 0:
@@ -305,8 +352,7 @@ def select_disparity(
                 d = dint[x]
                 if d < 0:
                     continue
-                xr = x - d
-                if abs(rdisp[xr] - d) > lr_max_diff:
+                if abs(rdisp[k_max + x - d] - d) > lr_max_diff:
                     disp[y, x] = nan
                     conf[y, x] = 0.0
     return disp, conf
@@ -318,18 +364,21 @@ def band_from_coarse(
     h: int,
     w: int,
     num_disp: int,
+    max_chunks: int,
     margin: int,
-    band_max: int,
     radius: int,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per-pixel search bands at a level from the disparity one level coarser (half size).
 
     Invalid (NaN) coarse pixels take the range spanned by their nearest valid neighbours in the
-    row (occlusions lie between a foreground and a background disparity). Each fine pixel
-    searches ``[2 * min - margin, 2 * max + margin]`` over a ``(2*radius+1)^2`` coarse window,
-    capped at ``band_max`` disparities around the coarse value at its own position, and never
-    past the right image's left edge; pixels whose whole band lies beyond that edge get
-    ``n = 0`` (no candidate: invalid). Returns ``lo``, ``n`` (h, w) int32.
+    row (occlusions lie between a foreground and a background disparity). Each fine pixel's
+    natural band is ``[2 * min - margin, 2 * max + margin]`` over a ``(2*radius+1)^2`` coarse
+    window. It gets the fewest chunks of 16 that hold it (at most ``max_chunks``), centred on
+    it, or, where it is wider still, centred on the coarse value at the pixel's own position;
+    the band is then moved inside ``[0, min(num_disp, x + 1))``. Pixels whose natural band lies
+    wholly beyond the right image's left edge are flagged in ``none`` (no candidate).
+
+    Returns ``lo`` (h, w) int32, ``nch`` (h, w) int32 chunks, ``none`` (h, w) bool.
     """
     hc, wc = coarse.shape
     cmin = np.empty((hc, wc), np.float32)
@@ -363,46 +412,73 @@ def band_from_coarse(
                 else:
                     cmin[yc, xc] = min(a, b)
                     cmax[yc, xc] = max(a, b)
+    # window minimum and maximum on the coarse grid, separably (rows, then columns)
+    rmin = np.empty((hc, wc), np.float32)
+    rmax = np.empty((hc, wc), np.float32)
+    for yc in prange(hc):
+        for xc in range(wc):
+            mn = cmin[yc, xc]
+            mx = cmax[yc, xc]
+            for xx in range(max(xc - radius, 0), min(xc + radius + 1, wc)):
+                mn = min(mn, cmin[yc, xx])
+                mx = max(mx, cmax[yc, xx])
+            rmin[yc, xc] = mn
+            rmax[yc, xc] = mx
+    wmin = np.empty((hc, wc), np.float32)
+    wmax = np.empty((hc, wc), np.float32)
+    for yc in prange(hc):
+        for xc in range(wc):
+            mn = rmin[yc, xc]
+            mx = rmax[yc, xc]
+            for yy in range(max(yc - radius, 0), min(yc + radius + 1, hc)):
+                mn = min(mn, rmin[yy, xc])
+                mx = max(mx, rmax[yy, xc])
+            wmin[yc, xc] = mn
+            wmax[yc, xc] = mx
+    # each coarse cell's band start and width (its 2x2 fine pixels share them)
+    c_start = np.empty((hc, wc), np.int32)
+    c_low = np.empty((hc, wc), np.int32)
+    c_n = np.empty((hc, wc), np.int32)
+    for yc in prange(hc):
+        for xc in range(wc):
+            a = int(np.floor(2.0 * wmin[yc, xc])) - margin
+            b = int(np.ceil(2.0 * wmax[yc, xc])) + margin
+            width = b - a + 1
+            n = min((width + LANES - 1) // LANES, max_chunks)
+            kp = n * LANES
+            if width <= kp:
+                c_start[yc, xc] = a - (kp - width) // 2
+            else:
+                c_start[yc, xc] = int(np.round(cmin[yc, xc] + cmax[yc, xc])) - kp // 2
+            c_low[yc, xc] = max(a, 0)
+            c_n[yc, xc] = n
     lo = np.empty((h, w), np.int32)
-    nn = np.empty((h, w), np.int32)
+    nch = np.empty((h, w), np.int32)
+    none = np.zeros((h, w), np.bool_)
     for y in prange(h):
         yc = min(y // 2, hc - 1)
         for x in range(w):
             xc = min(x // 2, wc - 1)
-            mn = np.float32(1e9)
-            mx = np.float32(-1e9)
-            for yy in range(max(yc - radius, 0), min(yc + radius + 1, hc)):
-                for xx in range(max(xc - radius, 0), min(xc + radius + 1, wc)):
-                    mn = min(mn, cmin[yy, xx])
-                    mx = max(mx, cmax[yy, xx])
-            a = int(np.floor(2.0 * mn)) - margin
-            b = int(np.ceil(2.0 * mx)) + margin
-            if b - a + 1 > band_max:
-                centre = 2.0 * 0.5 * (cmin[yc, xc] + cmax[yc, xc])
-                a = int(np.round(centre)) - band_max // 2
-                b = a + band_max - 1
-            top = min(num_disp - 1, x)
-            a = max(a, 0)
-            b = min(b, top)
-            if a > b:
-                # the coarse level puts this pixel's match left of the right image: no search
-                lo[y, x] = max(min(a, top), 0)
-                nn[y, x] = 0
-                continue
-            lo[y, x] = a
-            nn[y, x] = b - a + 1
-    return lo, nn
+            n = c_n[yc, xc]
+            top = min(num_disp - 1, x)  # largest disparity with a match inside the right image
+            if c_low[yc, xc] > top:
+                none[y, x] = True
+            lo[y, x] = max(min(c_start[yc, xc], top - n * LANES + 1), 0)
+            nch[y, x] = n
+    return lo, nch, none
 
 
 @njit(parallel=True, cache=True)
-def full_band(h: int, w: int, num_disp: int) -> tuple[np.ndarray, np.ndarray]:
-    """The full search ``[0, num_disp)`` cut at the right image's left edge."""
-    lo = np.zeros((h, w), np.int32)
-    nn = np.empty((h, w), np.int32)
+def _padded_rows(img: np.ndarray, stride: int) -> np.ndarray:
+    """``img`` (H, W) as flat rows of ``stride >= W`` entries, each row's last value repeated."""
+    h, w = img.shape
+    out = np.empty(h * stride, np.float32)
     for y in prange(h):
         for x in range(w):
-            nn[y, x] = min(num_disp, x + 1)
-    return lo, nn
+            out[y * stride + x] = img[y, x]
+        for x in range(w, stride):
+            out[y * stride + x] = img[y, w - 1]
+    return out
 
 
 @njit(parallel=True, cache=True)
@@ -410,40 +486,45 @@ def refine_subpixel(
     left: np.ndarray,
     right: np.ndarray,
     disp: np.ndarray,
-    grad_x: np.ndarray,
     grad_y: np.ndarray,
     half_h: int,
     half_w: int,
     iterations: int,
     max_step: float,
+    inv_gamma: float,
+    row_step: int,
 ) -> np.ndarray:
     """Refine disparities by direct image alignment, removing the cost-curve fit's bias.
 
-    For each valid pixel, the window ``(2*half_h+1) x (2*half_w+1)`` of the left image is
-    modelled as ``L(x, y) = a * R(x - d - gx (x - x0) - gy (y - y0)) + b``: gain ``a`` and
-    offset ``b`` absorb brightness changes between the views, the disparity gradient
-    ``(gx, gy)`` (from the current map, ``grad_x``/``grad_y``) lets the window follow slanted
-    surfaces, and ``R`` is interpolated linearly along the row. Starting from ``a = 1, b = 0``,
-    ``a``, ``b`` and ``d`` are updated by ``iterations`` Gauss-Newton steps. Updates that move
-    ``d`` by more than ``max_step`` pixels, windows leaving the image, or texture-less windows
-    keep the input value.
+    For each valid pixel, the window ``(2*half_h+1) x (2*half_w+1)`` (``half_w <= 7``) of the
+    left image is modelled as ``L(x, y) = a * R(x - d - gy (y - y0)) + b``: gain ``a`` and offset
+    ``b`` absorb brightness changes between the views, the vertical disparity slope ``gy``
+    (from the current map, ``grad_y``) lets the window follow surfaces that recede upwards, and
+    ``R`` is interpolated linearly along the row; every ``row_step``-th window row is read.
+    Window pixels are weighted by their likeness to the centre, Tukey's biweight
+    ``(1 - t^2)^2`` of ``t = (L - L0) * inv_gamma`` (0 for ``|t| >= 1``; ``inv_gamma = 0``
+    weighs all alike), so windows straddling an edge lean on the centre's side. Starting from
+    ``a = 1, b = 0``, ``a``, ``b`` and ``d`` are updated by ``iterations`` Gauss-Newton steps
+    (:func:`window_sums16` forms the normal equations, 16 lanes per window row). Updates that
+    move ``d`` by more than ``max_step`` pixels, windows leaving the image, or texture-less
+    windows keep the input.
 
     ``left``, ``right`` (H, W) float32 images; ``disp`` (H, W) float32, NaN invalid;
-    ``grad_x``, ``grad_y`` (H, W) float32 px/px (NaN treated as 0). Returns a new map.
+    ``grad_y`` (H, W) float32 px/px (NaN treated as 0). Returns a new map.
     """
     h, w = left.shape
+    stride = w + 2 * LANES
+    lp = _padded_rows(left, stride)
+    rp = _padded_rows(right, stride)
     out = disp.copy()
-    for y in prange(h):
-        if y < half_h or y >= h - half_h:
-            continue
+    n_px = np.float32((2 * (half_h // row_step) + 1) * (2 * half_w + 1))
+    for y in prange(half_h, h - half_h):
+        sums = np.empty(9, np.float32)
         for x in range(half_w, w - half_w):
             d0 = disp[y, x]
             if d0 != d0:
                 continue
-            gx = grad_x[y, x]
             gy = grad_y[y, x]
-            if gx != gx or abs(gx) > 0.5:
-                gx = np.float32(0.0)
             if gy != gy or abs(gy) > 0.5:
                 gy = np.float32(0.0)
             d = np.float32(d0)
@@ -451,41 +532,26 @@ def refine_subpixel(
             b = np.float32(0.0)
             ok = True
             for _ in range(iterations):
-                reach = half_w + 1.0 + abs(gx) * half_w + abs(gy) * half_h
+                reach = half_w + 1.0 + abs(gy) * half_h
                 if x - d - reach < 0.0 or x - d + reach > w - 1.001:
                     ok = False
                     break
-                h00 = h01 = h02 = h12 = h22 = np.float32(0.0)
-                g0 = g1 = g2 = np.float32(0.0)
-                for j in range(-half_h, half_h + 1):
-                    rrow = right[y + j]
-                    lrow = left[y + j]
-                    # the row's shift; the horizontal slant only stretches the window slightly,
-                    # so the fractional part is shared by the row (cheap, vectorisable)
-                    x0 = x - half_w - d - gy * j
-                    i0 = int(x0)
-                    f = x0 - i0
-                    for i in range(2 * half_w + 1):
-                        k = i0 + i + int(np.floor(0.5 - gx * (i - half_w)))
-                        r0 = rrow[k]
-                        grad = rrow[k + 1] - r0
-                        rv = r0 + f * grad
-                        jd = a * grad
-                        res = lrow[x - half_w + i] - a * rv - b
-                        h00 += rv * rv
-                        h01 += rv
-                        h02 -= rv * jd
-                        h12 -= jd
-                        h22 += jd * jd
-                        g0 += rv * res
-                        g1 += res
-                        g2 -= jd * res
-                h11 = np.float32((2 * half_h + 1) * (2 * half_w + 1))
+                window_sums16(lp, rp, stride, x, y, d, gy, half_h, half_w, a, b, left[y, x],
+                              inv_gamma, row_step, sums, 0)
+                h00 = sums[0]
+                h01 = sums[1]
+                h02 = -sums[2]
+                h11 = sums[3]
+                h12 = -sums[4]
+                h22 = sums[5]
+                g0 = sums[6]
+                g1 = sums[7]
+                g2 = -sums[8]
                 c0 = h11 * h22 - h12 * h12
                 c1 = h01 * h22 - h12 * h02
                 c2 = h01 * h12 - h11 * h02
                 det = h00 * c0 - h01 * c1 + h02 * c2
-                if abs(det) < 1e-6 * h11 * h11 * h11 or h22 < 1e-3 * h11:
+                if abs(det) < 1e-6 * h11 * h11 * h11 or h22 < 1e-3 * h11 or h11 < 0.1 * n_px:
                     ok = False
                     break
                 da = (g0 * c0 - h01 * (g1 * h22 - h12 * g2) + h02 * (g1 * h12 - h11 * g2)) / det
@@ -500,22 +566,6 @@ def refine_subpixel(
             if ok:
                 out[y, x] = d
     return out
-
-
-@njit(parallel=True, cache=True)
-def disparity_gradients(disp: np.ndarray, r: int) -> tuple[np.ndarray, np.ndarray]:
-    """Disparity slope per pixel (px/px) by central differences over ``r`` pixels, NaN where
-    either neighbour is invalid. Returns ``(grad_x, grad_y)`` (H, W) float32."""
-    h, w = disp.shape
-    gx = np.full((h, w), np.nan, np.float32)
-    gy = np.full((h, w), np.nan, np.float32)
-    for y in prange(h):
-        for x in range(w):
-            if r <= x < w - r:
-                gx[y, x] = (disp[y, x + r] - disp[y, x - r]) / (2 * r)
-            if r <= y < h - r:
-                gy[y, x] = (disp[y + r, x] - disp[y - r, x]) / (2 * r)
-    return gx, gy
 
 
 @njit(parallel=True, cache=True)

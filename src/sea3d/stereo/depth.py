@@ -33,6 +33,7 @@ __all__ = [
     "compute_depth",
     "depth_to_disparity",
     "disparity_to_depth",
+    "disparity_to_points",
     "max_disparity_for_depth",
     "triangulate_disparity",
 ]
@@ -139,13 +140,47 @@ def triangulate_disparity(
     return points, depth, mask
 
 
+def disparity_to_points(
+    maps: RectifyMaps, disparity_px: np.ndarray, *, max_gap_m: float = 0.01
+) -> tuple[F64, F64, NDArray[np.bool_]]:
+    """Metric points of a rectified left disparity map, for any rig.
+
+    Pinhole rigs: ``z = f B / d`` along the rectified left axis, back-projected through the
+    rectified pinhole and rotated into the left camera's own frame (``R_rect_left_left^T``).
+    Refractive rigs: :func:`triangulate_disparity` with the true rays.
+
+    Returns:
+        ``points_left`` (N, 3) metres in the left camera frame, ``depth_rect`` (N,) metres along
+        the rectified left z axis, and the (H, W) bool mask of the N pixels (points in
+        ``np.nonzero`` order of the mask).
+
+    Raises:
+        StereoError: a disparity map of the wrong size, or a refractive rig without its rig.
+    """
+    d = np.asarray(disparity_px)
+    if d.shape != (maps.height, maps.width):
+        raise StereoError(f"disparity {d.shape} does not match the rig {maps.height}x{maps.width}")
+    if maps.refractive:
+        return triangulate_disparity(maps, d, max_gap_m=max_gap_m)
+    depth = disparity_to_depth(d, maps.focal_px, maps.baseline_m)
+    mask = np.isfinite(depth)
+    v, u = np.nonzero(mask)
+    z = depth[v, u].astype(np.float64)
+    f = maps.focal_px
+    pts_rect = np.stack([(u - maps.cx_px) * z / f, (v - maps.cy_px) * z / f, z], axis=1)
+    points = pts_rect @ maps.R_rect_left_left  # R^T applied row-wise: rect -> left frame
+    return points, z, mask
+
+
 @dataclass(frozen=True, kw_only=True, eq=False)
 class DepthResult:
     """Depth of one stereo pair.
 
     Attributes:
         depth_m: (H, W) float32 metres along the rectified left z axis, NaN invalid.
-        disparity_px: (H, W) float32 rectified left disparity, NaN invalid.
+        disparity_px: (H, W) float32 rectified left disparity, NaN invalid (dense for sea3d's
+            engine: it includes the filled pixels that ``depth_m`` leaves out).
+        confidence: (H, W) float32 matching confidence, 0 where filled or invalid.
         points_left: (N, 3) float64 metres in the left camera's own frame.
         colors_rgb: (N, 3) uint8 colours of the points (rectified left image).
         rect_left: the rectified left image.
@@ -160,6 +195,7 @@ class DepthResult:
     rect_left: np.ndarray
     maps: RectifyMaps
     timings_s: dict[str, float] = field(default_factory=dict)
+    confidence: F32 | None = None
 
 
 def compute_depth(
@@ -169,16 +205,22 @@ def compute_depth(
     config: EngineConfig,
     *,
     max_depth_m: float | None = None,
+    min_confidence: float = 1e-6,
 ) -> DepthResult:
     """Rectify a raw pair, match it, and turn the disparity into metric depth and points.
 
     Pinhole rigs use ``z = f B / d``; refractive rigs triangulate with the refracted rays.
+    Depth and points keep only what 3D fusion should see: pixels the engine matched with a
+    confidence of at least ``min_confidence`` (the default drops the filled, unmatched pixels
+    of sea3d's dense disparity; ``DepthResult.disparity_px`` keeps them).
 
     Args:
         maps: from :func:`sea3d.rectify.rectify_rig`.
         left, right: raw images (H, W) or (H, W, 3) RGB, the rig's size.
         config: matching engine config (its range is in rectified pixels).
         max_depth_m: depths beyond this are set invalid (None keeps all).
+        min_confidence: matched pixels below this confidence get no depth (0 keeps filled
+            pixels too).
 
     Raises:
         RectifyError: image size differs from the rig's. StereoError: invalid images.
@@ -190,18 +232,10 @@ def compute_depth(
     t2 = time.perf_counter()
     disp = res.disparity_px
     h, w = disp.shape
-    if maps.refractive:
-        points, z, mask = triangulate_disparity(maps, disp)
-        depth: F32 = np.full((h, w), np.nan, np.float32)
-        depth[mask] = z
-    else:
-        depth = disparity_to_depth(disp, maps.focal_px, maps.baseline_m)
-        mask = np.isfinite(depth)
-        v, u = np.nonzero(mask)
-        z = depth[v, u].astype(np.float64)
-        f = maps.focal_px
-        pts_rect = np.stack([(u - maps.cx_px) * z / f, (v - maps.cy_px) * z / f, z], axis=1)
-        points = pts_rect @ maps.R_rect_left_left  # R^T applied row-wise: rect -> left frame
+    keep = res.confidence >= min_confidence if min_confidence > 0 else np.isfinite(disp)
+    points, z, mask = disparity_to_points(maps, np.where(keep, disp, np.nan))
+    depth: F32 = np.full((h, w), np.nan, np.float32)
+    depth[mask] = z
     if max_depth_m is not None:
         with np.errstate(invalid="ignore"):
             far = depth > max_depth_m
@@ -219,5 +253,5 @@ def compute_depth(
                "depth_s": t3 - t2}
     return DepthResult(depth_m=depth, disparity_px=disp, points_left=points,
                        colors_rgb=np.ascontiguousarray(colors, dtype=np.uint8), rect_left=rl,
-                       maps=maps, timings_s=timings)
+                       maps=maps, timings_s=timings, confidence=res.confidence)
 

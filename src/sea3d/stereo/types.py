@@ -39,6 +39,10 @@ class SgmConfig:
     """Census window width, pixels (odd; width * height <= 65)."""
     census_height_px: int = 7
     """Census window height, pixels (odd)."""
+    census_presmooth_px: float = 0.5
+    """Gaussian sigma (pixels) of a light smoothing of both images before the census; it
+    keeps the census bits of low-contrast, hazy texture from flipping with noise and sampling
+    phase (0 disables). The alignment refinement uses the unsmoothed images."""
     p1: int = 9
     """Penalty for a disparity change of one pixel between path neighbours (census bits)."""
     p2: int = 100
@@ -63,7 +67,9 @@ class SgmConfig:
     band_margin_px: int = 2
     """Coarse-to-fine: extra disparities searched on each side of the coarse estimate."""
     band_max_px: int = 48
-    """Coarse-to-fine: widest per-pixel search band, disparities."""
+    """Coarse-to-fine: widest per-pixel search band, disparities (a multiple of 16). Bands
+    come in chunks of 16 centred on the range of the coarse disparities around the pixel; where
+    that range is wider than this, on the coarse disparity at the pixel itself."""
     band_paths: Literal[4, 8, 16] = 4
     """Coarse-to-fine: paths aggregated on the banded (finer) levels. The coarsest level
     (and a full search) always uses ``paths``; within a narrow band around the coarse answer
@@ -74,17 +80,27 @@ class SgmConfig:
     refine_iterations: int = 1
     """Gauss-Newton steps of direct image alignment (gain, offset, disparity) that refine each
     disparity after the cost-curve fit, removing its pixel-locking bias; 0 disables."""
-    refine_window_px: int = 5
-    """Odd window size of that refinement, pixels."""
+    refine_window_px: int = 15
+    """Odd window size of that refinement, pixels (3..15)."""
+    refine_row_step: int = 3
+    """The refinement reads every this many rows of its window, symmetrically about the centre
+    (15 px window, step 3: rows -6, -3, 0, 3, 6): the same reach for a third of the work,
+    measured within 0.003 px EPE of reading every row on Middlebury and the coastal pairs."""
+    refine_weight_cutoff: float = 40.0
+    """Window pixels in the refinement weigh ``(1 - (dI / c)^2)^2`` (Tukey's biweight of their
+    grey-level difference ``dI`` to the centre, 0 beyond ``c``), so a window straddling an
+    edge leans on the centre's side; 0 weighs all alike."""
     median_px: int = 3
     """Size of the NaN-aware median filter applied to the result (0 or 1 disables)."""
     speckle_size_px: int = 100
     """Speckle removal: largest connected blob (pixels) that is removed; 0 disables."""
     speckle_range_px: float = 2.0
     """Speckle removal: disparity step that separates blobs, pixels."""
-    fill_max_px: int = 0
-    """Fill row-wise runs of up to this many invalid pixels with the background neighbour
-    (occlusion filling); 0 disables."""
+    fill_max_px: int | None = None
+    """Fill invalid pixels along rows with the farther (background) of their two valid
+    neighbours, as suits occlusions: ``None`` (default) fills every hole, so the disparity is
+    dense; ``N`` fills runs of up to ``N`` pixels; 0 leaves every invalid pixel NaN. Filled
+    pixels get confidence 0, so users who fuse 3D can drop them (``sea3d depth`` does)."""
 
     def __post_init__(self) -> None:
         _check_common(self.max_disparity_px)
@@ -97,8 +113,8 @@ class SgmConfig:
                 "census window too large for 64-bit signatures: "
                 f"{self.census_width_px}x{self.census_height_px}"
             )
-        if not (0 < self.p1 < self.p2 < 4000):
-            raise ConfigError(f"need 0 < p1 < p2 < 4000, got p1={self.p1}, p2={self.p2}")
+        if not (0 < self.p1 < self.p2 <= 1500):
+            raise ConfigError(f"need 0 < p1 < p2 <= 1500, got p1={self.p1}, p2={self.p2}")
         if self.paths not in (8, 16):
             raise ConfigError(f"paths must be 8 or 16, got {self.paths}")
         if self.band_paths not in (4, 8, 16):
@@ -107,10 +123,21 @@ class SgmConfig:
             raise ConfigError(f"unknown subpixel mode {self.subpixel!r}")
         if self.pyramid_levels is not None and not (0 <= self.pyramid_levels <= 6):
             raise ConfigError(f"pyramid_levels must be in 0..6, got {self.pyramid_levels}")
-        if self.band_max_px < 2 * self.band_margin_px + 3 or self.band_margin_px < 0:
+        if self.band_max_px < 16 or self.band_max_px % 16 or self.band_margin_px < 0:
             raise ConfigError(
-                f"band_max_px ({self.band_max_px}) must exceed 2 * band_margin_px + 2"
+                f"band_max_px must be a positive multiple of 16, got {self.band_max_px}; "
+                f"band_margin_px must be >= 0, got {self.band_margin_px}"
             )
+        if self.refine_window_px % 2 == 0 or not (3 <= self.refine_window_px <= 15):
+            raise ConfigError(
+                f"refine_window_px must be odd and in 3..15, got {self.refine_window_px}"
+            )
+        if self.census_presmooth_px < 0 or self.refine_weight_cutoff < 0:
+            raise ConfigError("census_presmooth_px and refine_weight_cutoff must be >= 0")
+        if self.fill_max_px is not None and self.fill_max_px < 0:
+            raise ConfigError(f"fill_max_px must be None or >= 0, got {self.fill_max_px}")
+        if self.refine_row_step < 1:
+            raise ConfigError(f"refine_row_step must be >= 1, got {self.refine_row_step}")
         if self.p2_edge_tau <= 0 or self.uniqueness < 0:
             raise ConfigError("p2_edge_tau must be > 0 and uniqueness >= 0")
 
@@ -163,8 +190,8 @@ class DisparityResult:
 
     Attributes:
         disparity_px: ``(H, W)`` float32, left view, pixels; NaN where invalid.
-        confidence: ``(H, W)`` float32 in [0, 1]; 0 where invalid. Engines without a
-            confidence measure give 1 on valid pixels.
+        confidence: ``(H, W)`` float32 in [0, 1]; 0 where invalid or filled (not matched).
+            Engines without a confidence measure give 1 on valid pixels.
         timings_s: wall-clock seconds per stage; ``match_s`` is the whole matching call
             without start-up (JIT compilation) and file I/O.
         engine: engine name, ``"sea3d"`` or ``"opencv"``.
@@ -174,6 +201,11 @@ class DisparityResult:
     confidence: NDArray[np.float32]
     timings_s: dict[str, float] = field(default_factory=dict)
     engine: str = ""
+
+    @property
+    def measured(self) -> NDArray[np.bool_]:
+        """``(H, W)`` bool: pixels matched, not filled (valid with confidence > 0)."""
+        return self.valid & (self.confidence > 0)
 
     @property
     def valid(self) -> NDArray[np.bool_]:

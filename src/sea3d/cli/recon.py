@@ -1,0 +1,337 @@
+"""``sea3d process``, ``sea3d fuse``, ``sea3d eval trajectory`` and ``sea3d eval surface``.
+
+``process`` turns a recorded session into a trajectory, a mesh, a point cloud and a report;
+``fuse`` integrates RGB-D frames with known poses into a mesh; the ``eval`` commands measure
+trajectories (ATE, RPE) and surfaces (accuracy, completeness).
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from sea3d.cli._args import image_size
+
+__all__ = ["register", "register_eval"]
+
+
+def _bar_factory(enabled: bool) -> Any:
+    from tqdm import tqdm
+
+    position = [0]
+
+    def make(stage: str, total: int) -> Any:
+        bar = tqdm(total=total, desc=f"{stage:>9}", unit="frame" if stage != "merge" else "map",
+                   position=position[0], leave=True, disable=None if enabled else True,
+                   dynamic_ncols=True)
+        position[0] += 1
+        return bar
+
+    return make
+
+
+def _plural(n: int, word: str) -> str:
+    return f"{n} {word}" + ("" if n == 1 else "s")
+
+
+# ------------------------------------------------------------------------------------ process
+
+
+def _cmd_process(args: argparse.Namespace) -> int:
+    from sea3d.pipeline.process import ProcessConfig, run_process
+
+    config = ProcessConfig(
+        out_dir=args.output,
+        rig_path=args.rig,
+        size_px=args.size,
+        voxel_m=args.voxel_m,
+        use_imu=not args.no_imu,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        poses_path=args.poses,
+        engine=args.engine,
+        min_depth_m=args.min_depth,
+        max_depth_m=args.max_depth,
+        integrate=args.integrate,
+        fresh=args.fresh,
+        enhance=args.enhance,
+        report=not args.no_report,
+        max_frames=args.max_frames,
+    )
+    result = run_process(args.session, config, progress=_bar_factory(not args.json))
+    s = result.summary
+    if args.json:
+        json.dump(s, sys.stdout, indent=2, default=str)
+        sys.stdout.write("\n")
+        return 0
+    print(
+        f"{_plural(s['frames'], 'frame')}: {_plural(s['keyframes'], 'keyframe')}, "
+        f"{s['frames_lost']} lost, {_plural(s['loop_closures'], 'loop closure')}, path "
+        f"{s['path_length_m']:.2f} m; poses from {s['odometry']}"
+    )
+    fps = s.get("frames_per_second")
+    print(f"{s['frames_fused']} frames fused into {_plural(s['submaps'], 'submap')}; "
+          f"{s['mesh']['triangles']} triangles, {s['cloud']['points']} cloud points"
+          + (f"; {fps:.2f} frames/s" if fps else "")
+          + (f" ({s['frames_from_cache']} from the cache)" if s["frames_from_cache"] else ""))
+    tv = s.get("trajectory_vs_gt")
+    if isinstance(tv, dict) and "ate_m" in tv:
+        print(f"against ground truth: ATE RMSE {1000 * tv['ate_m']['rmse']:.1f} mm "
+              f"({tv['ate_rmse_pct_of_path'] or 0:.3f} % of the path)", end="")
+        mv = s.get("mesh_vs_gt")
+        if isinstance(mv, dict) and "accuracy_m" in mv:
+            print(f"; mesh accuracy median {1000 * mv['accuracy_m']['median']:.1f} mm, 90th "
+                  f"percentile {1000 * mv['accuracy_m']['p90']:.1f} mm", end="")
+        print()
+    print(f"wrote {result.out_dir}/trajectory.tum, mesh.ply, cloud.ply, summary.json"
+          + (", report.html" if "report" in result.files else ""))
+    return 0
+
+
+# --------------------------------------------------------------------------------------- fuse
+
+
+def _glob(pattern: str, what: str) -> list[Path]:
+    from sea3d.errors import ReconError
+    from sea3d.io.rgbd_files import natural_key
+
+    paths = sorted((Path(p) for p in glob.glob(pattern)), key=natural_key)
+    if not paths:
+        raise ReconError(f"no {what} files match {pattern!r}")
+    return paths
+
+
+def _cmd_fuse(args: argparse.Namespace) -> int:
+    import numpy as np
+    from tqdm import tqdm
+
+    from sea3d.io.mesh_files import write_mesh, write_point_cloud
+    from sea3d.io.trajectory_files import read_trajectory
+    from sea3d.pipeline.fuse import fuse_rgbd
+    from sea3d.recon.cloud import CloudConfig, clean_point_cloud
+    from sea3d.recon.tsdf import TsdfConfig
+
+    colors = _glob(args.color, "colour")
+    depths = _glob(args.depth, "depth")
+    poses = read_trajectory(args.poses)
+    fx, fy, cx, cy = args.intrinsics
+    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    config = TsdfConfig(voxel_m=args.voxel_m, trunc_voxels=args.trunc_voxels,
+                        depth_min_m=args.min_depth, depth_max_m=args.max_depth)
+    with tqdm(total=len(colors), desc="fuse", unit="frame",
+              disable=True if args.json else None) as bar:
+        res = fuse_rgbd(colors, depths, poses, K, config, depth_scale=args.depth_scale,
+                        progress=bar.update)
+    write_mesh(args.output, res.mesh)
+    n_cloud = None
+    if args.cloud:
+        p, c, n = res.volume.extract_points()
+        cl = clean_point_cloud(p, c, n, CloudConfig(voxel_m=args.voxel_m / 2))
+        write_point_cloud(args.cloud, cl.points, cl.colors, cl.normals)
+        n_cloud = len(cl.points)
+    ms = np.asarray(res.integrate_ms)
+    out = {
+        "frames": res.frames,
+        "skipped_without_pose": res.skipped,
+        "vertices": len(res.mesh.vertices),
+        "triangles": len(res.mesh.triangles),
+        "tsdf_ms_per_frame_median": float(np.median(ms)),
+        "tsdf_ms_per_frame_mean": float(np.mean(ms)),
+        "blocks": res.volume.block_count,
+        "memory_mb": res.volume.memory_bytes / 2**20,
+        "mesh": str(args.output),
+        "cloud": str(args.cloud) if args.cloud else None,
+        "cloud_points": n_cloud,
+    }
+    if args.json:
+        print(json.dumps(out, indent=2))
+    else:
+        print(f"{_plural(res.frames, 'frame')} fused ({res.skipped} without a pose), "
+              f"{out['tsdf_ms_per_frame_median']:.1f} ms per frame; "
+              f"{out['triangles']} triangles -> {args.output}"
+              + (f"; {n_cloud} points -> {args.cloud}" if args.cloud else ""))
+    return 0
+
+
+# --------------------------------------------------------------------------------------- eval
+
+
+def _cmd_eval_trajectory(args: argparse.Namespace) -> int:
+    from sea3d.eval.trajectory import evaluate_trajectory
+    from sea3d.io.trajectory_files import read_trajectory
+
+    est = read_trajectory(args.estimate, args.est_format, kitti_times=args.est_times)
+    ref = read_trajectory(args.ground_truth, args.gt_format, kitti_times=args.gt_times)
+    by_index = not (est.timed and ref.timed)
+    m = evaluate_trajectory(est.t_ns, est.T_world_x, ref.t_ns, ref.T_world_x, align=args.align,
+                            max_diff_s=args.max_diff_s, by_index=by_index,
+                            rpe_deltas_m=args.rpe_delta_m, rpe_along=args.rpe_along)
+    if args.json:
+        d = m.as_dict()
+        d["paired_by"] = "index" if by_index else "time"
+        print(json.dumps(d, indent=2))
+        return 0
+    a = m.ate_m
+    print(f"{m.matched} of {m.estimate_poses} poses paired by {'index' if by_index else 'time'}"
+          f", aligned {m.align}" + (f" (scale {m.scale:.4f})" if m.align == "sim3" else "")
+          + f"; path {m.path_length_m:.2f} m")
+    print(f"ATE: rmse {a.rmse:.4f} m, mean {a.mean:.4f}, median {a.median:.4f}, std {a.std:.4f},"
+          f" min {a.min:.4f}, max {a.max:.4f} m; rotation rmse {m.ate_rotation_deg.rmse:.3f} deg")
+    for r in m.rpe:
+        t = r.translation_m
+        print(f"RPE {r.delta_m:g} m ({t.count} pairs): rmse {t.rmse:.4f} m ({r.drift_pct:.2f} %),"
+              f" mean {t.mean:.4f}, median {t.median:.4f}, max {t.max:.4f} m; rotation rmse "
+              f"{r.rotation_deg.rmse:.3f} deg")
+    return 0
+
+
+def _cmd_eval_surface(args: argparse.Namespace) -> int:
+    from sea3d.eval.surface import surface_metrics
+    from sea3d.io.mesh_files import read_mesh
+
+    est = read_mesh(args.mesh)
+    ref = read_mesh(args.reference)
+    thresholds = tuple(t / 1000.0 for t in args.thresholds_mm)
+    m = surface_metrics(est.vertices, est.triangles, ref.vertices, ref.triangles,
+                        samples=args.samples, thresholds_m=thresholds,
+                        crop_margin_m=args.crop_margin_m)
+    if args.json:
+        print(json.dumps(m.as_dict(), indent=2))
+        return 0
+    a, c = m.accuracy_m, m.completeness_m
+    print(f"accuracy (estimate to reference): median {1000 * a.median:.1f} mm, mean "
+          f"{1000 * a.mean:.1f} mm, 90th percentile {1000 * a.p90:.1f} mm")
+    print(f"completeness (reference to estimate): median {1000 * c.median:.1f} mm, mean "
+          f"{1000 * c.mean:.1f} mm, 90th percentile {1000 * c.p90:.1f} mm")
+    for t, p, r, f in zip(m.thresholds_m, m.precision, m.recall, m.fscore, strict=True):
+        print(f"within {1000 * t:g} mm: precision {100 * p:.1f} %, recall {100 * r:.1f} %, "
+              f"F-score {100 * f:.1f} %")
+    return 0
+
+
+# ----------------------------------------------------------------------------------- register
+
+
+def register(sub: Any) -> None:
+    """Add ``process`` and ``fuse``."""
+    p = sub.add_parser(
+        "process",
+        help="a whole session into a trajectory, a coloured mesh, a point cloud and a report",
+        description="Rectify, match and triangulate every stereo pair (in worker processes or "
+        "on a Dask cluster), run the odometry and fuse depth into keyframe-anchored TSDF "
+        "submaps, in time order. Writes OUT/trajectory.tum, mesh.ply, cloud.ply, status.csv, "
+        "summary.json and report.html; per-frame results are cached in OUT/cache so a rerun "
+        "resumes where a run stopped.",
+    )
+    p.add_argument("session", type=Path, help="an MCAP file or a session folder")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="OUT",
+                   help="output folder")
+    p.add_argument("--rig", type=Path, help="rig file (default: the rig stored with the session)")
+    p.add_argument("--size", type=image_size, metavar="WxH",
+                   help="process at this size (images resized, intrinsics scaled)")
+    p.add_argument("--voxel-m", type=float, default=0.02, metavar="V",
+                   help="TSDF voxel edge in metres (default 0.02)")
+    p.add_argument("--no-imu", action="store_true", help="visual odometry only")
+    ex = p.add_mutually_exclusive_group()
+    ex.add_argument("--workers", type=int, metavar="N",
+                    help="local worker processes for the per-frame stage (default: one per "
+                    "core; 0 runs it in this process)")
+    ex.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                    help="run the per-frame stage on this Dask scheduler's workers")
+    p.add_argument("--poses", type=Path, metavar="TRAJ",
+                   help="known T_world_left poses (TUM, KITTI or EuRoC CSV) instead of odometry")
+    p.add_argument("--engine", default="sea3d",
+                   choices=["sea3d", "sea3d-gpu", "opencv", "opencv-hh", "opencv-3way"],
+                   help="stereo matching engine (default sea3d)")
+    p.add_argument("--min-depth", type=float, default=0.5, metavar="M",
+                   help="nearest depth resolved, metres (default 0.5)")
+    p.add_argument("--max-depth", type=float, default=4.0, metavar="M",
+                   help="farthest depth fused, metres (default 4)")
+    p.add_argument("--integrate", choices=["trusted", "keyframes"], default="trusted",
+                   help="fuse every frame with a trusted pose (default) or keyframes only")
+    p.add_argument("--fresh", action="store_true",
+                   help="discard cached per-frame results in OUT instead of resuming")
+    p.add_argument("--enhance", metavar="MODULE:FUNCTION",
+                   help="enhance each raw image with this function before matching")
+    p.add_argument("--max-frames", type=int, metavar="N", help="only the first N pairs")
+    p.add_argument("--no-report", action="store_true", help="skip report.html")
+    p.add_argument("--json", action="store_true", help="print summary.json (no progress bars)")
+    p.set_defaults(handler=_cmd_process)
+
+    f = sub.add_parser(
+        "fuse",
+        help="fuse RGB-D frames with known poses into a coloured TSDF mesh",
+        description="Integrate colour + depth images with known camera poses (T_world_cam) "
+        "into a TSDF (Open3D's VoxelBlockGrid) and write its mesh. Integer depth images hold "
+        "metres x --depth-scale (0 invalid); float images hold metres.",
+    )
+    f.add_argument("--color", required=True, metavar="GLOB", help="colour images, e.g. 'rgb/*.png'")
+    f.add_argument("--depth", required=True, metavar="GLOB", help="depth images")
+    f.add_argument("--poses", type=Path, required=True, metavar="TRAJ",
+                   help="T_world_cam per frame (TUM, KITTI or EuRoC CSV): in frame order when "
+                   "the counts agree, else by the nanosecond stamps in the file names")
+    f.add_argument("--intrinsics", type=float, nargs=4, required=True,
+                   metavar=("FX", "FY", "CX", "CY"), help="depth camera intrinsics, pixels")
+    f.add_argument("--depth-scale", type=float, default=1000.0, metavar="S",
+                   help="integer depth = metres x S (default 1000: millimetres)")
+    f.add_argument("--voxel-m", type=float, required=True, metavar="V", help="voxel edge, metres")
+    f.add_argument("--trunc-voxels", type=float, default=4.0, metavar="N",
+                   help="truncation distance in voxels (default 4)")
+    f.add_argument("--min-depth", type=float, default=0.1, metavar="M",
+                   help="nearest depth used, metres (default 0.1)")
+    f.add_argument("--max-depth", type=float, default=5.0, metavar="M",
+                   help="farthest depth used, metres (default 5)")
+    f.add_argument("-o", "--output", type=Path, required=True, metavar="MESH",
+                   help="output mesh (.ply)")
+    f.add_argument("--cloud", type=Path, metavar="CLOUD",
+                   help="also write a cleaned point cloud (.ply)")
+    f.add_argument("--json", action="store_true", help="print the figures as JSON")
+    f.set_defaults(handler=_cmd_fuse)
+
+
+def register_eval(esub: Any) -> None:
+    """Add ``eval trajectory`` and ``eval surface``."""
+    t = esub.add_parser(
+        "trajectory",
+        help="ATE and RPE of an estimated trajectory against ground truth",
+        description="Read TUM, KITTI or EuRoC CSV trajectories, pair poses by time (KITTI "
+        "without times: by index), align (Umeyama) and report the absolute trajectory error "
+        "and the relative pose error per travelled distance, as evo defines them.",
+    )
+    t.add_argument("estimate", metavar="EST", help="estimated trajectory")
+    t.add_argument("ground_truth", metavar="GT", help="reference trajectory")
+    t.add_argument("--align", choices=["se3", "sim3", "none"], default="se3",
+                   help="alignment of the estimate (default se3)")
+    t.add_argument("--max-diff-s", type=float, default=0.01, metavar="S",
+                   help="largest stamp difference of a pair, seconds (default 0.01)")
+    t.add_argument("--rpe-delta-m", type=float, nargs="+", metavar="D",
+                   help="RPE distances, metres (default 1, 10, 100 m where the path allows)")
+    t.add_argument("--rpe-along", choices=["estimate", "reference"], default="estimate",
+                   help="whose path picks the RPE pairs (default estimate, as evo)")
+    t.add_argument("--est-format", choices=["tum", "kitti", "euroc"], help="default: guessed")
+    t.add_argument("--gt-format", choices=["tum", "kitti", "euroc"], help="default: guessed")
+    t.add_argument("--est-times", type=Path, metavar="TIMES", help="KITTI times.txt of EST")
+    t.add_argument("--gt-times", type=Path, metavar="TIMES", help="KITTI times.txt of GT")
+    t.add_argument("--json", action="store_true", help="print the figures as JSON")
+    t.set_defaults(handler=_cmd_eval_trajectory)
+
+    s = esub.add_parser(
+        "surface",
+        help="accuracy and completeness of a mesh against a reference mesh, in metres",
+        description="Sample both surfaces by area; accuracy is the distance of the mesh's "
+        "samples to the reference, completeness that of the reference's samples to the mesh "
+        "(exact point-to-triangle distances); precision, recall and F-score at thresholds.",
+    )
+    s.add_argument("mesh", metavar="MESH", help="reconstructed mesh (or point cloud)")
+    s.add_argument("reference", metavar="REF_MESH", help="reference mesh (or point cloud)")
+    s.add_argument("--samples", type=int, default=200_000, help="samples per surface")
+    s.add_argument("--thresholds-mm", type=float, nargs="+", default=[10.0, 20.0, 50.0],
+                   metavar="T", help="precision/recall thresholds, mm (default 10 20 50)")
+    s.add_argument("--crop-margin-m", type=float, metavar="M",
+                   help="only reference surface within the mesh's bounding box grown by M")
+    s.add_argument("--json", action="store_true", help="print the figures as JSON")
+    s.set_defaults(handler=_cmd_eval_surface)

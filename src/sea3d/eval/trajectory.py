@@ -1,0 +1,363 @@
+"""Trajectory accuracy: association by time, alignment, ATE and RPE.
+
+Definitions (the conventions of the TUM RGB-D benchmark and of evo, re-derived here; evo is
+GPL and is neither used nor copied, its stored results are golden values in the tests):
+
+- **Association**: every estimated stamp is paired with the nearest reference stamp within
+  ``max_diff``; pairs are taken greedily in order of increasing time difference, so each
+  stamp is used at most once. Unstamped (KITTI) trajectories are paired by index.
+- **Alignment** of the estimate onto the reference (Umeyama 1991, closed form on the matched
+  positions): ``se3`` (rotation and translation), ``sim3`` (and scale, for monocular or
+  badly scaled estimates), or ``none``. The aligned estimate is ``S @ T_est`` with
+  ``S = [s R | t]``.
+- **ATE** (absolute trajectory error, evo's APE on the translation part): for each pair
+  ``e_i = |p_ref,i - p_est,i|`` after alignment, in metres; the rotation part is the angle of
+  ``R_ref,i^T R_est,i`` in degrees.
+- **RPE** (relative pose error) per distance ``delta``: along the estimate's path (as evo
+  does; ``along="reference"`` uses the reference's), the stamps ``k_0 < k_1 < ...`` where the
+  path travelled since the previous one first reaches ``delta``; for consecutive ones
+  ``E = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)`` with reference ``Q`` and estimate ``P``, the error is
+  ``|t(E)|`` (metres) and the angle of ``R(E)`` (degrees). Inverses are rigid (``R^T``).
+  ``drift_pct`` is the RMSE as a percentage of ``delta``.
+
+Statistics of every error array: rmse, mean, median, std (population), min, max, sse, p90.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sea3d.errors import OdometryError
+
+__all__ = [
+    "ErrorStats",
+    "RpeResult",
+    "TrajectoryMetrics",
+    "associate",
+    "error_stats",
+    "evaluate_trajectory",
+    "path_length_m",
+    "umeyama",
+]
+
+Align = Literal["se3", "sim3", "none"]
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+
+
+@dataclass(frozen=True, kw_only=True)
+class ErrorStats:
+    """Statistics of an error array (units of the errors)."""
+
+    count: int
+    rmse: float
+    mean: float
+    median: float
+    std: float
+    min: float
+    max: float
+    sse: float
+    p90: float
+
+
+def error_stats(errors: NDArray[np.floating]) -> ErrorStats:
+    """:class:`ErrorStats` of a 1-D array (all NaN for an empty one)."""
+    e = np.asarray(errors, dtype=np.float64).reshape(-1)
+    if e.size == 0:
+        nan = float("nan")
+        return ErrorStats(count=0, rmse=nan, mean=nan, median=nan, std=nan, min=nan, max=nan,
+                          sse=nan, p90=nan)
+    sse = float(np.sum(e * e))
+    return ErrorStats(
+        count=int(e.size),
+        rmse=float(np.sqrt(sse / e.size)),
+        mean=float(np.mean(e)),
+        median=float(np.median(e)),
+        std=float(np.std(e)),
+        min=float(np.min(e)),
+        max=float(np.max(e)),
+        sse=sse,
+        p90=float(np.percentile(e, 90)),
+    )
+
+
+@dataclass(frozen=True, kw_only=True)
+class RpeResult:
+    """Relative pose error over one distance."""
+
+    delta_m: float
+    """Path distance between the two poses of each pair, metres."""
+    along: str
+    """Whose path chose the pairs: ``estimate`` or ``reference``."""
+    translation_m: ErrorStats
+    """Translation error of the relative motion, metres."""
+    rotation_deg: ErrorStats
+    """Rotation error of the relative motion, degrees."""
+    drift_pct: float
+    """``100 * translation_m.rmse / delta_m``."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class TrajectoryMetrics:
+    """Figures of an estimate against a reference trajectory."""
+
+    matched: int
+    """Poses paired by time (or index)."""
+    estimate_poses: int
+    reference_poses: int
+    align: str
+    scale: float
+    """Scale of the alignment (1 unless ``sim3``)."""
+    T_ref_est: list[list[float]]
+    """The alignment ``S`` (4x4, rotation block times ``scale``) as nested lists."""
+    path_length_m: float
+    """Length of the matched reference path, metres."""
+    ate_m: ErrorStats
+    """Absolute translation error after alignment, metres."""
+    ate_rotation_deg: ErrorStats
+    """Absolute rotation error after alignment, degrees."""
+    rpe: list[RpeResult] = field(default_factory=list)
+
+    @property
+    def ate_rmse_m(self) -> float:
+        """RMSE of the ATE, metres (the headline figure)."""
+        return self.ate_m.rmse
+
+    def as_dict(self) -> dict[str, object]:
+        """Plain values for JSON, with the headline ``ate_rmse_m`` at the top level."""
+        d = asdict(self)
+        d["ate_rmse_m"] = self.ate_rmse_m
+        d["ate_rmse_pct_of_path"] = (
+            100.0 * self.ate_rmse_m / self.path_length_m if self.path_length_m > 0 else None
+        )
+        return d
+
+
+def associate(t_est_ns: NDArray[np.integer], t_ref_ns: NDArray[np.integer],
+              max_diff_ns: int) -> tuple[I64, I64]:
+    """Pair stamps one-to-one by nearest time within ``max_diff_ns`` (greedy by difference).
+
+    Args:
+        t_est_ns, t_ref_ns: (N,) and (M,) integer nanoseconds, sorted.
+        max_diff_ns: largest accepted difference.
+
+    Returns:
+        ``(i_est, i_ref)``, (K,) int64 each, sorted by ``i_est``.
+    """
+    a = np.asarray(t_est_ns, dtype=np.int64)
+    b = np.asarray(t_ref_ns, dtype=np.int64)
+    if a.size == 0 or b.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    j = np.searchsorted(b, a)
+    cand_i = np.concatenate([np.arange(a.size), np.arange(a.size)])
+    cand_j = np.concatenate([j - 1, j])
+    ok = (cand_j >= 0) & (cand_j < b.size)
+    cand_i, cand_j = cand_i[ok], cand_j[ok]
+    diff = np.abs(a[cand_i] - b[cand_j])
+    keep = diff <= max_diff_ns
+    cand_i, cand_j, diff = cand_i[keep], cand_j[keep], diff[keep]
+    order = np.lexsort((cand_j, cand_i, diff))
+    used_a = np.zeros(a.size, bool)
+    used_b = np.zeros(b.size, bool)
+    out_i, out_j = [], []
+    for k in order.tolist():
+        ia, jb = int(cand_i[k]), int(cand_j[k])
+        if not used_a[ia] and not used_b[jb]:
+            used_a[ia] = used_b[jb] = True
+            out_i.append(ia)
+            out_j.append(jb)
+    ii = np.asarray(out_i, np.int64)
+    jj = np.asarray(out_j, np.int64)
+    s = np.argsort(ii)
+    return ii[s], jj[s]
+
+
+def umeyama(src: F64, dst: F64, *, with_scale: bool) -> tuple[F64, F64, float]:
+    """Least-squares similarity ``dst ~ s R src + t`` (Umeyama 1991).
+
+    Args:
+        src, dst: (N, 3) matched points, N >= 3 not all collinear for a unique rotation.
+        with_scale: estimate ``s``; otherwise ``s = 1``.
+
+    Returns:
+        ``(R (3, 3), t (3,), s)``.
+
+    Raises:
+        OdometryError: fewer than 3 points or a degenerate (zero-spread) source.
+    """
+    x = np.asarray(src, dtype=np.float64)
+    y = np.asarray(dst, dtype=np.float64)
+    if x.shape != y.shape or x.ndim != 2 or x.shape[1] != 3 or len(x) < 3:
+        raise OdometryError(f"alignment needs at least 3 matched positions, got {len(x)}")
+    mx, my = x.mean(axis=0), y.mean(axis=0)
+    xc, yc = x - mx, y - my
+    var_x = float(np.mean(np.sum(xc * xc, axis=1)))
+    if var_x <= 1e-18:
+        raise OdometryError("alignment is undefined: the estimated positions do not move")
+    cov = yc.T @ xc / len(x)
+    U, D, Vt = np.linalg.svd(cov)
+    S = np.eye(3)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        S[2, 2] = -1.0
+    R = U @ S @ Vt
+    s = float(np.trace(np.diag(D) @ S) / var_x) if with_scale else 1.0
+    t = my - s * R @ mx
+    return R, t, s
+
+
+def path_length_m(positions: F64) -> float:
+    """Length of the polyline through (N, 3) positions, metres."""
+    p = np.asarray(positions, dtype=np.float64)
+    if len(p) < 2:
+        return 0.0
+    return float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1)))
+
+
+def _rigid_inv(T: F64) -> F64:
+    """Inverse of (N, 4, 4) transforms with ``R^T`` (rigid), as evo computes it."""
+    R = T[..., :3, :3]
+    t = T[..., :3, 3]
+    out = np.zeros_like(T)
+    Rt = np.swapaxes(R, -1, -2)
+    out[..., :3, :3] = Rt
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, t)
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def _angle_deg(R: F64) -> F64:
+    c = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
+    return np.asarray(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))), dtype=np.float64)
+
+
+def _path_ids(positions: F64, delta_m: float) -> I64:
+    """Indices where the path travelled since the previous index first reaches ``delta_m``."""
+    steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+    ids = []
+    acc = 0.0
+    for i, s in enumerate(steps.tolist(), start=1):
+        acc += s
+        if acc >= delta_m:
+            ids.append(i)
+            acc = 0.0
+    return np.asarray(ids, dtype=np.int64)
+
+
+def _rpe(Q: F64, P: F64, delta_m: float, along: str) -> RpeResult:
+    ids = _path_ids((P if along == "estimate" else Q)[:, :3, 3], delta_m)
+    i, j = ids[:-1], ids[1:]
+    rel_q = _rigid_inv(Q[i]) @ Q[j]
+    rel_p = _rigid_inv(P[i]) @ P[j]
+    E = _rigid_inv(rel_q) @ rel_p
+    trans = error_stats(np.linalg.norm(E[:, :3, 3], axis=1))
+    rot = error_stats(_angle_deg(E[:, :3, :3]))
+    drift = 100.0 * trans.rmse / delta_m if trans.count else float("nan")
+    return RpeResult(delta_m=float(delta_m), along=along, translation_m=trans, rotation_deg=rot,
+                     drift_pct=drift)
+
+
+def default_rpe_deltas(length_m: float) -> list[float]:
+    """RPE distances for a path: 1, 10 and 100 m, those shorter than half the path (at least
+    the path's tenth, for short paths)."""
+    deltas = [d for d in (1.0, 10.0, 100.0) if d <= 0.5 * length_m]
+    if not deltas and length_m > 0:
+        deltas = [float(f"{0.1 * length_m:.2g}")]
+    return deltas
+
+
+def evaluate_trajectory(
+    t_est_ns: NDArray[np.integer],
+    T_world_est: F64,
+    t_ref_ns: NDArray[np.integer],
+    T_world_ref: F64,
+    *,
+    align: Align = "se3",
+    max_diff_s: float = 0.01,
+    by_index: bool = False,
+    rpe_deltas_m: list[float] | None = None,
+    rpe_along: Literal["estimate", "reference"] = "estimate",
+) -> TrajectoryMetrics:
+    """ATE and RPE of an estimated trajectory against a reference (see the module docstring).
+
+    Args:
+        t_est_ns, T_world_est: (N,) int64 stamps and (N, 4, 4) estimated poses.
+        t_ref_ns, T_world_ref: (M,) and (M, 4, 4) reference poses.
+        align: ``se3``, ``sim3`` or ``none``.
+        max_diff_s: association tolerance, seconds.
+        by_index: pair pose k with pose k (unstamped KITTI files); needs N == M.
+        rpe_deltas_m: RPE distances; None picks :func:`default_rpe_deltas` of the path.
+        rpe_along: whose path chooses the RPE pairs.
+
+    Returns:
+        :class:`TrajectoryMetrics`.
+
+    Raises:
+        OdometryError: bad shapes, an unknown alignment, fewer than 3 (2 with ``none``)
+            matched poses, or ``by_index`` with different lengths.
+    """
+    ie: I64
+    ir: I64
+    Pe = np.asarray(T_world_est, dtype=np.float64)
+    Qr = np.asarray(T_world_ref, dtype=np.float64)
+    te = np.asarray(t_est_ns, dtype=np.int64).reshape(-1)
+    tr = np.asarray(t_ref_ns, dtype=np.int64).reshape(-1)
+    for name, T, t in (("estimate", Pe, te), ("reference", Qr, tr)):
+        if T.ndim != 3 or T.shape[1:] != (4, 4) or T.shape[0] != t.shape[0]:
+            raise OdometryError(f"{name}: need (N,) stamps and (N, 4, 4) poses, got {t.shape} "
+                                f"and {T.shape}")
+    if align not in ("se3", "sim3", "none"):
+        raise OdometryError(f"unknown alignment {align!r}; use se3, sim3 or none")
+    if rpe_along not in ("estimate", "reference"):
+        raise OdometryError(f"rpe_along must be 'estimate' or 'reference', got {rpe_along!r}")
+    if by_index:
+        if len(Pe) != len(Qr):
+            raise OdometryError(f"pairing by index needs equal lengths, got {len(Pe)} estimated "
+                                f"and {len(Qr)} reference poses")
+        ie = ir = np.asarray(np.arange(len(Pe)), dtype=np.int64).reshape(-1)
+    else:
+        ie, ir = associate(te, tr, round(max_diff_s * 1e9))
+    need = 2 if align == "none" else 3
+    if len(ie) < need:
+        raise OdometryError(
+            f"only {len(ie)} of {len(Pe)} estimated poses have a reference pose within "
+            f"{max_diff_s} s (need {need}); check the time base or --max-diff-s"
+        )
+    P, Q = Pe[ie], Qr[ir]
+    S = np.eye(4)
+    scale = 1.0
+    if align != "none":
+        R, t_align, scale = umeyama(P[:, :3, 3], Q[:, :3, 3], with_scale=align == "sim3")
+        S[:3, :3] = scale * R
+        S[:3, 3] = t_align
+        Pa = P.copy()
+        Pa[:, :3, :3] = R @ P[:, :3, :3]
+        Pa[:, :3, 3] = P[:, :3, 3] @ (scale * R).T + t_align
+        P = Pa
+    ate = error_stats(np.linalg.norm(P[:, :3, 3] - Q[:, :3, 3], axis=1))
+    rot = error_stats(_angle_deg(np.swapaxes(Q[:, :3, :3], -1, -2) @ P[:, :3, :3]))
+    length = path_length_m(Q[:, :3, 3])
+    deltas = default_rpe_deltas(length) if rpe_deltas_m is None else list(rpe_deltas_m)
+    rpes = []
+    for d in deltas:
+        if not d > 0:
+            raise OdometryError(f"RPE distances must be > 0 m, got {d}")
+        rpes.append(_rpe(Q, P, float(d), rpe_along))
+    return TrajectoryMetrics(
+        matched=len(ie),
+        estimate_poses=len(Pe),
+        reference_poses=len(Qr),
+        align=align,
+        scale=float(scale),
+        T_ref_est=S.tolist(),
+        path_length_m=length,
+        ate_m=ate,
+        ate_rotation_deg=rot,
+        rpe=rpes,
+    )
+
+
+__all__ += ["default_rpe_deltas"]

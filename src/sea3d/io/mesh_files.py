@@ -1,0 +1,145 @@
+"""Mesh and point-cloud files (PLY, OBJ, STL, OFF, GLB through Open3D), written atomically.
+
+Meshes are written as binary PLY with vertex colours (uchar RGB) and normals when present;
+point clouds as binary PLY with colours and normals. A file is written under a temporary
+name beside the target and renamed into place, so a reader never sees half a file.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sea3d.errors import ReconError
+from sea3d.recon.types import Mesh
+
+__all__ = ["read_mesh", "read_point_cloud", "write_mesh", "write_point_cloud"]
+
+
+def _tmp_path(p: Path) -> Path:
+    return p.with_name(f".{p.stem}.tmp{os.getpid()}{p.suffix}")
+
+
+def write_mesh(path: str | os.PathLike[str], mesh: Mesh) -> None:
+    """Write a :class:`~sea3d.recon.types.Mesh` (format from the extension, PLY binary).
+
+    Raises:
+        ReconError: the file cannot be written.
+    """
+    import open3d as o3d
+
+    p = Path(path)
+    m = o3d.geometry.TriangleMesh()
+    m.vertices = o3d.utility.Vector3dVector(np.ascontiguousarray(mesh.vertices, np.float64))
+    m.triangles = o3d.utility.Vector3iVector(np.ascontiguousarray(mesh.triangles, np.int32))
+    if mesh.colors_rgb is not None:
+        m.vertex_colors = o3d.utility.Vector3dVector(mesh.colors_rgb.astype(np.float64) / 255.0)
+    if mesh.normals is not None:
+        m.vertex_normals = o3d.utility.Vector3dVector(np.ascontiguousarray(mesh.normals))
+    tmp = _tmp_path(p)
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        ok = o3d.io.write_triangle_mesh(tmp, m, write_ascii=False, compressed=False)
+        if not ok:
+            raise ReconError(f"cannot write mesh {p} (Open3D refused the format {p.suffix!r})")
+        os.replace(tmp, p)
+    except OSError as err:
+        raise ReconError(f"cannot write mesh {p}: {err}") from err
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def write_point_cloud(
+    path: str | os.PathLike[str],
+    points: NDArray[np.float64],
+    colors_rgb: NDArray[np.uint8] | None = None,
+    normals: NDArray[np.float64] | None = None,
+) -> None:
+    """Write a point cloud (PLY binary, or any format Open3D knows by extension).
+
+    Args:
+        points: (N, 3) metres. colors_rgb: (N, 3) uint8 or None. normals: (N, 3) or None.
+
+    Raises:
+        ReconError: mismatched shapes or an unwritable file.
+    """
+    import open3d as o3d
+
+    p = Path(path)
+    pts = np.asarray(points, np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ReconError(f"points must be (N, 3), got {pts.shape}")
+    pc = o3d.geometry.PointCloud()
+    pc.points = o3d.utility.Vector3dVector(pts)
+    for name, a in (("colours", colors_rgb), ("normals", normals)):
+        if a is not None and np.asarray(a).shape != pts.shape:
+            raise ReconError(f"{name} {np.asarray(a).shape} do not match points {pts.shape}")
+    if colors_rgb is not None:
+        pc.colors = o3d.utility.Vector3dVector(np.asarray(colors_rgb, np.float64) / 255.0)
+    if normals is not None:
+        pc.normals = o3d.utility.Vector3dVector(np.asarray(normals, np.float64))
+    tmp = _tmp_path(p)
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        if not o3d.io.write_point_cloud(tmp, pc, write_ascii=False, compressed=False):
+            raise ReconError(f"cannot write point cloud {p} (format {p.suffix!r})")
+        os.replace(tmp, p)
+    except OSError as err:
+        raise ReconError(f"cannot write point cloud {p}: {err}") from err
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def read_mesh(path: str | os.PathLike[str]) -> Mesh:
+    """Read a triangle mesh; a file without triangles comes back as a mesh of its vertices
+    only (``triangles`` empty), so point clouds can be evaluated too.
+
+    Raises:
+        ReconError: missing or unreadable file, or one with no vertices.
+    """
+    import open3d as o3d
+
+    p = Path(path)
+    if not p.is_file():
+        raise ReconError(f"mesh {p} does not exist")
+    m = o3d.io.read_triangle_mesh(p)
+    v = np.asarray(m.vertices, np.float64)
+    f = np.asarray(m.triangles, np.int64).reshape(-1, 3)
+    if len(v) == 0:
+        pc = o3d.io.read_point_cloud(p)
+        v = np.asarray(pc.points, np.float64)
+        if len(v) == 0:
+            raise ReconError(f"{p} holds no vertices (not a mesh or point cloud Open3D reads)")
+        cols = (np.clip(np.rint(np.asarray(pc.colors) * 255), 0, 255).astype(np.uint8)
+                if pc.has_colors() else None)
+        return Mesh(vertices=v, triangles=np.zeros((0, 3), np.int64), colors_rgb=cols)
+    cols = (np.clip(np.rint(np.asarray(m.vertex_colors) * 255), 0, 255).astype(np.uint8)
+            if m.has_vertex_colors() else None)
+    nrm = np.asarray(m.vertex_normals, np.float64) if m.has_vertex_normals() else None
+    return Mesh(vertices=v, triangles=f, colors_rgb=cols, normals=nrm)
+
+
+def read_point_cloud(path: str | os.PathLike[str]) -> tuple[NDArray[np.float64],
+                                                           NDArray[np.uint8] | None]:
+    """Points (N, 3) and colours (N, 3) uint8 (or None) of a point-cloud file.
+
+    Raises:
+        ReconError: missing, unreadable or empty file.
+    """
+    import open3d as o3d
+
+    p = Path(path)
+    if not p.is_file():
+        raise ReconError(f"point cloud {p} does not exist")
+    pc = o3d.io.read_point_cloud(p)
+    pts = np.asarray(pc.points, np.float64)
+    if len(pts) == 0:
+        raise ReconError(f"{p} holds no points")
+    cols = (np.clip(np.rint(np.asarray(pc.colors) * 255), 0, 255).astype(np.uint8)
+            if pc.has_colors() else None)
+    return pts, cols

@@ -1,0 +1,258 @@
+"""On-disk caches of the process pipeline: per-frame results and finished TSDF submaps.
+
+Both hold named numpy arrays plus a JSON header in one file per entry, in this container::
+
+    b"SEA3DC1\\n" | uint64 payload length | uint32 CRC-32 of the payload | payload
+
+where the payload is an uncompressed ``.npz`` archive (``allow_pickle`` off) compressed with
+Zstandard (level 3). An entry is written under a temporary name and renamed into place
+(atomic on POSIX), so a killed run leaves whole entries or none; on reading, the magic,
+length and checksum are checked and a damaged entry is reported (and recomputed by the
+pipeline), never passed on as good.
+
+- :class:`FrameCache`: ``OUT/cache/frames/<t_ns>.s3c``; ``OUT/cache/config.json`` holds the
+  fingerprint of the per-frame configuration the entries were made with.
+- :class:`DiskSubmapStore`: ``OUT/submaps/<id>.s3c``, a
+  :class:`~sea3d.recon.submaps.SubmapStore` that keeps finished submaps out of memory.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import logging
+import os
+import struct
+import zlib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sea3d.errors import ReconError, SessionError
+from sea3d.recon.types import Submap, VoxelBlocks
+
+__all__ = ["CacheEntryError", "DiskSubmapStore", "FrameCache", "read_entry", "write_entry"]
+
+log = logging.getLogger(__name__)
+
+_MAGIC = b"SEA3DC1\n"
+_HEAD = struct.Struct("<QI")
+_SUFFIX = ".s3c"
+
+
+class CacheEntryError(SessionError):
+    """A cache entry is damaged (truncated, wrong checksum, unreadable arrays)."""
+
+
+def write_entry(path: Path, arrays: dict[str, NDArray[Any]], meta: dict[str, Any]) -> int:
+    """Write one entry atomically; returns its size in bytes.
+
+    Raises:
+        SessionError: the file cannot be written.
+    """
+    import imagecodecs
+
+    buf = io.BytesIO()
+    members: dict[str, Any] = {"__meta__": np.array(json.dumps(meta)), **arrays}
+    np.savez(buf, **members)
+    payload = imagecodecs.zstd_encode(buf.getvalue(), level=3)
+    data = _MAGIC + _HEAD.pack(len(payload), zlib.crc32(payload) & 0xFFFFFFFF) + payload
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except OSError as err:
+        raise SessionError(f"cannot write cache entry {path}: {err}") from err
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return len(data)
+
+
+def read_entry(path: Path) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
+    """Read and check one entry: ``(arrays, meta)``.
+
+    Raises:
+        CacheEntryError: missing, truncated, checksum mismatch or unreadable content.
+    """
+    import imagecodecs
+
+    try:
+        data = path.read_bytes()
+    except OSError as err:
+        raise CacheEntryError(f"cannot read cache entry {path}: {err}") from err
+    n0 = len(_MAGIC) + _HEAD.size
+    if len(data) < n0 or data[: len(_MAGIC)] != _MAGIC:
+        raise CacheEntryError(f"{path} is not a sea3d cache entry (bad header)")
+    length, crc = _HEAD.unpack(data[len(_MAGIC):n0])
+    payload = data[n0:]
+    if len(payload) != length:
+        raise CacheEntryError(f"{path} is truncated ({len(payload)} of {length} bytes)")
+    if zlib.crc32(payload) & 0xFFFFFFFF != crc:
+        raise CacheEntryError(f"{path} fails its checksum")
+    try:
+        with np.load(io.BytesIO(imagecodecs.zstd_decode(payload)), allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files if k != "__meta__"}
+            meta = json.loads(str(z["__meta__"]))
+    except Exception as err:  # any decoding failure means a damaged entry
+        raise CacheEntryError(f"{path} cannot be decoded: {err}") from err
+    return arrays, meta
+
+
+class FrameCache:
+    """Per-frame results of the process pipeline, by frame stamp.
+
+    Args:
+        root: the cache folder (``OUT/cache``).
+        fingerprint: identifies the per-frame configuration; entries made with another one
+            are not used (see :meth:`check_fingerprint`).
+    """
+
+    def __init__(self, root: Path, fingerprint: dict[str, Any]) -> None:
+        self.root = Path(root)
+        self.frames_dir = self.root / "frames"
+        self.fingerprint = fingerprint
+        self.bytes_written = 0
+
+    def check_fingerprint(self) -> bool:
+        """True if the folder is empty or was made with the same configuration; writes the
+        fingerprint for a new cache.
+
+        Raises:
+            SessionError: unreadable or unwritable ``config.json``.
+        """
+        cfg = self.root / "config.json"
+        text = json.dumps(self.fingerprint, indent=1, sort_keys=True)
+        try:
+            if cfg.is_file():
+                try:
+                    return bool(json.loads(cfg.read_text()) == json.loads(text))
+                except json.JSONDecodeError:
+                    return False
+            self.root.mkdir(parents=True, exist_ok=True)
+            tmp = cfg.with_name(".config.json.tmp")
+            tmp.write_text(text + "\n")
+            os.replace(tmp, cfg)
+        except OSError as err:
+            raise SessionError(f"cannot use the cache folder {self.root}: {err}") from err
+        return True
+
+    def clear(self) -> int:
+        """Remove every entry and the fingerprint; returns the number of entries removed."""
+        n = 0
+        if self.frames_dir.is_dir():
+            for p in self.frames_dir.glob(f"*{_SUFFIX}"):
+                p.unlink()
+                n += 1
+        cfg = self.root / "config.json"
+        if cfg.exists():
+            cfg.unlink()
+        return n
+
+    def path(self, t_ns: int) -> Path:
+        """The entry file of a frame."""
+        return self.frames_dir / f"{int(t_ns)}{_SUFFIX}"
+
+    def stamps(self) -> set[int]:
+        """Stamps with an entry on disk (not yet checked)."""
+        if not self.frames_dir.is_dir():
+            return set()
+        out = set()
+        for p in self.frames_dir.glob(f"*{_SUFFIX}"):
+            try:
+                out.add(int(p.stem))
+            except ValueError:
+                continue
+        return out
+
+    def put(self, t_ns: int, arrays: dict[str, NDArray[Any]], meta: dict[str, Any]) -> None:
+        """Store one frame's result."""
+        self.bytes_written += write_entry(self.path(t_ns), arrays, {**meta, "t_ns": int(t_ns)})
+
+    def get(self, t_ns: int) -> tuple[dict[str, NDArray[Any]], dict[str, Any]] | None:
+        """One frame's result, or None when absent or damaged (a damaged entry is logged and
+        removed, so the frame is computed again)."""
+        p = self.path(t_ns)
+        if not p.is_file():
+            return None
+        try:
+            arrays, meta = read_entry(p)
+        except CacheEntryError as err:
+            log.warning("%s; recomputing that frame", err)
+            p.unlink(missing_ok=True)
+            return None
+        if meta.get("t_ns") != int(t_ns):
+            log.warning("%s holds frame %s, not %d; recomputing", p, meta.get("t_ns"), t_ns)
+            p.unlink(missing_ok=True)
+            return None
+        return arrays, meta
+
+
+class DiskSubmapStore:
+    """Finished TSDF submaps on disk (``<root>/<id>.s3c``): a
+    :class:`~sea3d.recon.submaps.SubmapStore`.
+
+    Args:
+        root: the folder (created; existing entries are removed by :meth:`clear`).
+    """
+
+    def __init__(self, root: Path) -> None:
+        self.root = Path(root)
+        self.bytes_written = 0
+
+    def clear(self) -> None:
+        """Remove every stored submap."""
+        if self.root.is_dir():
+            for p in self.root.glob(f"*{_SUFFIX}"):
+                p.unlink()
+
+    def put(self, submap: Submap) -> None:
+        b = submap.blocks
+        arrays: dict[str, NDArray[Any]] = {
+            "keys": b.keys, "tsdf": b.tsdf, "weight": b.weight, "color": b.color,
+            "T_anchor_grid": submap.T_anchor_grid,
+        }
+        meta = {
+            "submap_id": submap.submap_id,
+            "anchor_keyframe_id": submap.anchor_keyframe_id,
+            "frames": submap.frames,
+            "keyframe_ids": list(submap.keyframe_ids),
+            "t_first_ns": submap.t_first_ns,
+            "t_last_ns": submap.t_last_ns,
+            "voxel_m": b.voxel_m,
+            "trunc_voxels": b.trunc_voxels,
+        }
+        self.bytes_written += write_entry(self.root / f"{submap.submap_id}{_SUFFIX}", arrays, meta)
+
+    def get(self, submap_id: int) -> Submap:
+        try:
+            a, m = read_entry(self.root / f"{int(submap_id)}{_SUFFIX}")
+            return Submap(
+                submap_id=int(m["submap_id"]),
+                anchor_keyframe_id=int(m["anchor_keyframe_id"]),
+                T_anchor_grid=np.asarray(a["T_anchor_grid"], np.float64),
+                blocks=VoxelBlocks(keys=a["keys"], tsdf=a["tsdf"], weight=a["weight"],
+                                   color=a["color"], voxel_m=float(m["voxel_m"]),
+                                   trunc_voxels=float(m["trunc_voxels"])),
+                frames=int(m["frames"]),
+                keyframe_ids=tuple(int(k) for k in m["keyframe_ids"]),
+                t_first_ns=int(m["t_first_ns"]),
+                t_last_ns=int(m["t_last_ns"]),
+            )
+        except (CacheEntryError, KeyError, ValueError) as err:
+            raise ReconError(f"submap {submap_id} in {self.root} is damaged: {err}") from err
+
+    def ids(self) -> list[int]:
+        if not self.root.is_dir():
+            return []
+        out = []
+        for p in self.root.glob(f"*{_SUFFIX}"):
+            try:
+                out.append(int(p.stem))
+            except ValueError:
+                continue
+        return sorted(out)

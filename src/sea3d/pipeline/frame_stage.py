@@ -1,0 +1,301 @@
+"""The per-frame stage of ``sea3d process``: [enhance], rectify, match, depth, fusion depth.
+
+:func:`process_frame` is a pure function of a :class:`FrameStageConfig` and one raw stereo
+pair (arrays, not paths), so it runs unchanged in the client, in a local worker process or on
+a Dask worker on another machine, which needs only the sea3d package: the rig travels inside
+the config as its YAML text, the client hands each worker the rectification maps it built
+once (:func:`install_geometry`: no worker fits the virtual pinholes again), and each process
+compiles the matcher's kernels once (loaded from numba's cache, timed as ``warmup_s`` so that
+reports can say it is one-off).
+
+Depth comes out twice: ``depth_m``, exactly triangulated on the rectified grid (what the
+odometry gets), and ``fusion_depth_m``, the same surface re-sampled where the rectified
+view's virtual pinhole sees it (what the pinhole TSDF integrates;
+:mod:`sea3d.recon.depth_resample`).
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any, Literal
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from sea3d.errors import ConfigError, Sea3dError
+from sea3d.recon.depth_resample import ResampleMethod, virtual_pinhole_depth
+
+__all__ = ["FrameResult", "FrameStageConfig", "install_geometry", "process_frame",
+           "stage_geometry"]
+
+log = logging.getLogger(__name__)
+
+FrameStatus = Literal["ok", "no_depth", "failed"]
+EnhanceHook = Callable[[NDArray[np.uint8]], NDArray[np.uint8]]
+
+
+@dataclass(frozen=True, kw_only=True)
+class FrameStageConfig:
+    """Everything the per-frame stage needs (shipped to every worker)."""
+
+    rig_yaml: str
+    """The rig file's YAML text (at the session's recorded image size)."""
+    size_px: tuple[int, int] | None = None
+    """Process at ``(width, height)`` (raw images resized, intrinsics scaled); None: as
+    recorded."""
+    engine: str = "sea3d"
+    """Matching engine (``sea3d``, ``sea3d-gpu``, ``opencv``, ...)."""
+    max_disparity_px: int | None = None
+    """Disparity search range; None derives it from ``min_depth_m``."""
+    min_depth_m: float = 0.5
+    """Nearest depth resolved, metres (sets the disparity range and the virtual-pinhole fit)."""
+    max_depth_m: float = 6.0
+    """Farther depth is dropped, metres."""
+    resample: ResampleMethod = "resample"
+    """How exact depth is put into the virtual pinhole for fusion (see
+    :mod:`sea3d.recon.depth_resample`)."""
+    enhance: str | EnhanceHook | None = None
+    """Optional enhancement of the raw images before rectification and matching (the
+    mesh's colours come from the enhanced left image): a picklable callable
+    ``image (H, W[, 3]) uint8 -> image`` of the same shape, or its name
+    ``"package.module:function"`` (the hook for :mod:`sea3d.enhance`)."""
+    threads: int | None = None
+    """Threads for numba and OpenCV inside one worker (None: the libraries' default)."""
+
+    def __post_init__(self) -> None:
+        if not (0 < self.min_depth_m < self.max_depth_m):
+            raise ConfigError(f"need 0 < min_depth_m < max_depth_m, got {self.min_depth_m}, "
+                              f"{self.max_depth_m}")
+        if self.max_disparity_px is not None and self.max_disparity_px < 1:
+            raise ConfigError(f"--max-disparity must be >= 1, got {self.max_disparity_px}")
+        if self.size_px is not None and (self.size_px[0] < 32 or self.size_px[1] < 24):
+            raise ConfigError(f"--size must be at least 32x24, got {self.size_px}")
+        if isinstance(self.enhance, str) and ":" not in self.enhance:
+            raise ConfigError(f"enhance must be 'package.module:function', got {self.enhance!r}")
+
+    def fingerprint(self) -> dict[str, Any]:
+        """What identifies the per-frame results (the cache is valid only for the same one)."""
+        d = asdict(self)
+        d.pop("threads")
+        enh = self.enhance
+        if enh is not None and not isinstance(enh, str):
+            d["enhance"] = f"{getattr(enh, '__module__', '?')}:{getattr(enh, '__qualname__', '?')}"
+        d["size_px"] = list(self.size_px) if self.size_px else None
+        return d
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class FrameResult:
+    """The per-frame stage's result for one stereo pair.
+
+    Attributes:
+        t_ns: the left image's stamp.
+        status: ``ok``, ``no_depth`` (matched, but no valid depth) or ``failed`` (see message).
+        message: why it failed, empty otherwise.
+        rect_left, rect_right: rectified images, uint8, grey (H, W) or RGB (H, W, 3).
+        depth_m: (H, W) float32 exact depth on the rectified grid, NaN invalid.
+        fusion_depth_m: (H, W) float32 the same for the virtual pinhole (TSDF input).
+        valid_fraction: fraction of pixels with depth.
+        timings_s: seconds per step (``enhance_s``, ``rectify_s``, ``match_s``, ``depth_s``,
+            ``rectify_right_s``, ``resample_s``, and ``warmup_s`` on a worker's first frame:
+            kernel compilation).
+    """
+
+    t_ns: int
+    status: FrameStatus
+    message: str = ""
+    rect_left: NDArray[np.uint8] = field(default_factory=lambda: np.zeros((0, 0), np.uint8))
+    rect_right: NDArray[np.uint8] = field(default_factory=lambda: np.zeros((0, 0), np.uint8))
+    depth_m: NDArray[np.float32] = field(default_factory=lambda: np.zeros((0, 0), np.float32))
+    fusion_depth_m: NDArray[np.float32] = field(
+        default_factory=lambda: np.zeros((0, 0), np.float32))
+    valid_fraction: float = 0.0
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    def to_cache(self) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
+        """Arrays and metadata for :class:`sea3d.io.result_cache.FrameCache`."""
+        arrays: dict[str, NDArray[Any]] = {
+            "rect_left": self.rect_left, "rect_right": self.rect_right,
+            "depth_m": self.depth_m, "fusion_depth_m": self.fusion_depth_m,
+        }
+        meta: dict[str, Any] = {
+            "status": self.status, "message": self.message,
+            "valid_fraction": self.valid_fraction, "timings_s": self.timings_s,
+        }
+        return arrays, meta
+
+    @classmethod
+    def from_cache(cls, t_ns: int, arrays: dict[str, NDArray[Any]],
+                   meta: dict[str, Any]) -> FrameResult:
+        """Rebuild a result from a cache entry (KeyError if a field is missing)."""
+        return cls(t_ns=int(t_ns), status=meta["status"], message=meta.get("message", ""),
+                   rect_left=arrays["rect_left"], rect_right=arrays["rect_right"],
+                   depth_m=arrays["depth_m"], fusion_depth_m=arrays["fusion_depth_m"],
+                   valid_fraction=float(meta["valid_fraction"]),
+                   timings_s={k: float(v) for k, v in meta["timings_s"].items()})
+
+
+@functools.lru_cache(maxsize=4)
+def _geometry(rig_yaml: str, size_px: tuple[int, int] | None, min_depth_m: float,
+              max_depth_m: float) -> Any:
+    from sea3d.io.rig_file import rig_from_yaml
+    from sea3d.rectify import rectify_rig
+    from sea3d.sim.survey import scale_rig
+
+    rig = rig_from_yaml(rig_yaml, "the session's rig")
+    if size_px is not None:
+        rig = scale_rig(rig, size_px)
+    maps = rectify_rig(rig, depth_range_m=(min_depth_m, max_depth_m))
+    return rig, maps
+
+
+_INSTALLED: dict[tuple[Any, ...], tuple[Any, Any]] = {}
+
+
+def _geometry_key(config: FrameStageConfig) -> tuple[Any, ...]:
+    return (config.rig_yaml, config.size_px, config.min_depth_m, config.max_depth_m)
+
+
+def install_geometry(config: FrameStageConfig, geometry: tuple[Any, Any]) -> None:
+    """Give this process the ``(rig, maps)`` of ``config``, built elsewhere (the client), so
+    that a worker does not fit the virtual pinholes again (seconds per worker at 640x360)."""
+    _INSTALLED[_geometry_key(config)] = geometry
+
+
+def stage_geometry(config: FrameStageConfig) -> tuple[Any, Any]:
+    """``(rig, maps)``: the (scaled) :class:`~sea3d.geometry.rig.StereoRig` and its
+    :class:`~sea3d.rectify.maps.RectifyMaps`: as installed by :func:`install_geometry`, or
+    built once per process and configuration.
+
+    Raises:
+        RigFileError, RectifyError: an invalid rig.
+    """
+    got = _INSTALLED.get(_geometry_key(config))
+    if got is not None:
+        return got
+    out: tuple[Any, Any] = _geometry(config.rig_yaml, config.size_px, config.min_depth_m,
+                                     config.max_depth_m)
+    return out
+
+
+@functools.lru_cache(maxsize=8)
+def _resolve_hook(name: str) -> EnhanceHook:
+    module, _, attr = name.partition(":")
+    try:
+        fn = getattr(importlib.import_module(module), attr)
+    except (ImportError, AttributeError) as err:
+        raise ConfigError(f"cannot find the enhancement {name!r}: {err}") from err
+    if not callable(fn):
+        raise ConfigError(f"enhancement {name!r} is not callable")
+    hook: EnhanceHook = fn
+    return hook
+
+
+_WARM: set[str] = set()
+_THREADS: list[int] = []
+
+
+def _prepare_process(config: FrameStageConfig) -> float:
+    """Per-process set-up: thread counts and one-off kernel compilation (returns seconds)."""
+    if config.threads is not None and _THREADS != [config.threads]:
+        import numba
+
+        numba.set_num_threads(max(1, min(config.threads, numba.config.NUMBA_NUM_THREADS)))
+        cv2.setNumThreads(config.threads)
+        _THREADS[:] = [config.threads]
+    if config.engine in _WARM:
+        return 0.0
+    _WARM.add(config.engine)
+    if config.engine == "sea3d":
+        from sea3d.stereo.sgm import warm_up
+
+        return warm_up()
+    return 0.0
+
+
+def _to_u8(img: NDArray[Any]) -> NDArray[np.uint8]:
+    if img.dtype == np.uint8:
+        return img
+    if img.dtype == np.uint16:
+        return (img >> 8).astype(np.uint8)
+    top = float(np.nanmax(img)) or 1.0
+    return np.clip(img * (255.0 / top), 0, 255).astype(np.uint8)
+
+
+def process_frame(config: FrameStageConfig, t_ns: int, left: NDArray[Any],
+                  right: NDArray[Any], geometry: tuple[Any, Any] | None = None) -> FrameResult:
+    """Enhance (if configured), rectify, match and triangulate one raw stereo pair.
+
+    Args:
+        config: :class:`FrameStageConfig`.
+        t_ns: the pair's stamp.
+        left, right: raw images (H, W) or (H, W, 3) RGB, uint8 or uint16, at the recorded size.
+        geometry: ``(rig, maps)`` of ``config`` built by the caller (see
+            :func:`install_geometry`); None builds or reuses this process's own.
+
+    Returns:
+        :class:`FrameResult` (``failed`` with a message for images it cannot use, never an
+        exception for valid configurations).
+
+    Raises:
+        RigFileError, RectifyError, ConfigError: the configuration itself is unusable.
+    """
+    from sea3d.stereo import make_config
+    from sea3d.stereo.depth import compute_depth, max_disparity_for_depth
+
+    timings: dict[str, float] = {}
+    if geometry is not None and _geometry_key(config) not in _INSTALLED:
+        install_geometry(config, geometry)
+    warm = _prepare_process(config)
+    if warm > 0:
+        timings["warmup_s"] = warm
+    _, maps = stage_geometry(config)
+    try:
+        if left.shape[:2] != (maps.height, maps.width):
+            if config.size_px is None:
+                return FrameResult(t_ns=t_ns, status="failed", message=(
+                    f"image is {left.shape[1]}x{left.shape[0]} but the rig is "
+                    f"{maps.width}x{maps.height}"), timings_s=timings)
+            size = (maps.width, maps.height)
+            left = cv2.resize(left, size, interpolation=cv2.INTER_AREA)
+            right = cv2.resize(right, size, interpolation=cv2.INTER_AREA)
+        left, right = _to_u8(left), _to_u8(right)
+        hook = config.enhance
+        if hook is not None:
+            fn = _resolve_hook(hook) if isinstance(hook, str) else hook
+            te = time.perf_counter()
+            left, right = fn(left), fn(right)
+            timings["enhance_s"] = time.perf_counter() - te
+        max_d = config.max_disparity_px or max_disparity_for_depth(maps, config.min_depth_m)
+        engine = make_config(config.engine, max_d)
+        res = compute_depth(maps, left, right, engine, max_depth_m=config.max_depth_m)
+        tr = time.perf_counter()
+        rect_right = cv2.remap(right, maps.map_right_x, maps.map_right_y, cv2.INTER_LINEAR,
+                               borderMode=cv2.BORDER_CONSTANT)
+        timings["rectify_right_s"] = time.perf_counter() - tr
+        timings.update({k: float(v) for k, v in res.timings_s.items()})
+    except Sea3dError as err:
+        return FrameResult(t_ns=t_ns, status="failed", message=str(err), timings_s=timings)
+    t2 = time.perf_counter()
+    K = maps.P_left[:3, :3]
+    points_rect = res.points_left @ maps.R_rect_left_left.T
+    fusion = virtual_pinhole_depth(res.depth_m, points_rect, K, method=config.resample,
+                                   focal_baseline_px_m=maps.focal_px * maps.baseline_m)
+    timings["resample_s"] = time.perf_counter() - t2
+    valid = float(np.isfinite(res.depth_m).mean())
+    return FrameResult(
+        t_ns=t_ns,
+        status="ok" if valid > 0 else "no_depth",
+        rect_left=np.ascontiguousarray(res.rect_left, np.uint8),
+        rect_right=np.ascontiguousarray(rect_right, np.uint8),
+        depth_m=res.depth_m,
+        fusion_depth_m=fusion,
+        valid_fraction=valid,
+        timings_s=timings,
+    )

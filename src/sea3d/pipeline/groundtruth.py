@@ -1,0 +1,93 @@
+"""Ground truth beside a session, as the simulator writes it (``sea3d sim``; see
+:mod:`sea3d.sim.survey`): ``gt/`` inside a folder session, ``<name>_gt/`` next to an MCAP
+file, holding ``poses_left.tum``, ``scene.ply``, ``depth/<t_ns>.npy`` and ``sim.json``."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sea3d.geometry.camera import CameraModel
+
+__all__ = ["GroundTruth", "find_ground_truth", "observed_surface_points"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, kw_only=True)
+class GroundTruth:
+    """Paths of a session's ground truth (each None when absent)."""
+
+    root: Path
+    poses_left: Path | None
+    scene_mesh: Path | None
+    depth_dir: Path | None
+
+
+def find_ground_truth(session: Path) -> GroundTruth | None:
+    """The ground truth of ``session`` if the simulator left one beside it, else None."""
+    s = Path(session)
+    root = s / "gt" if s.is_dir() else s.with_name(s.stem + "_gt")
+    if not root.is_dir():
+        return None
+
+    def have(p: Path) -> Path | None:
+        return p if p.exists() else None
+
+    gt = GroundTruth(root=root, poses_left=have(root / "poses_left.tum"),
+                     scene_mesh=have(root / "scene.ply"), depth_dir=have(root / "depth"))
+    if gt.poses_left is None and gt.scene_mesh is None:
+        return None
+    return gt
+
+
+def observed_surface_points(
+    depth_dir: Path,
+    camera: CameraModel,
+    t_ns: NDArray[np.int64],
+    T_world_left: NDArray[np.float64],
+    *,
+    max_depth_m: float,
+    frame_stride: int = 5,
+    pixel_stride: int = 4,
+) -> NDArray[np.float64]:
+    """World points of the surface the left camera saw, from ground-truth depth maps.
+
+    Ground-truth depth is metres along the raw left camera's z axis; each sampled pixel is
+    unprojected through ``camera`` (refraction included) to the point of that depth.
+
+    Args:
+        depth_dir: ``gt/depth`` with ``<t_ns>.npy``.
+        camera: the raw left camera, at the ground truth's image size.
+        t_ns, T_world_left: (N,) stamps and (N, 4, 4) true poses of the frames to use.
+        max_depth_m: farther points are left out (what the reconstruction could not see).
+        frame_stride, pixel_stride: subsampling.
+
+    Returns:
+        (M, 3) float64 world points (empty when no depth map was found).
+    """
+    out = []
+    v, u = np.mgrid[0:camera.height:pixel_stride, 0:camera.width:pixel_stride]
+    uv = np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64)
+    rays = camera.unproject(uv)
+    for k in range(0, len(t_ns), frame_stride):
+        p = depth_dir / f"{int(t_ns[k])}.npy"
+        if not p.is_file():
+            continue
+        depth = np.load(p)
+        if depth.shape != (camera.height, camera.width):
+            log.warning("%s is %s, not the camera's %dx%d; skipped", p, depth.shape,
+                        camera.width, camera.height)
+            continue
+        z = depth[v.ravel(), u.ravel()].astype(np.float64)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            s = (z - rays.origins[:, 2]) / rays.directions[:, 2]
+        ok = np.isfinite(s) & (s > 0) & (z <= max_depth_m) & rays.valid
+        pts = rays.origins[ok] + s[ok, None] * rays.directions[ok]
+        T = T_world_left[k]
+        out.append(pts @ T[:3, :3].T + T[:3, 3])
+    return np.concatenate(out) if out else np.zeros((0, 3))

@@ -1,0 +1,566 @@
+"""Submap fusion: TSDF submaps anchored to keyframes, so loop closures move anchors, not voxels.
+
+The ordered fusion stage (:class:`SubmapFusion`) integrates frames into one *active* submap.
+A submap is anchored to the keyframe that started it; its voxels live in a grid frame fixed
+to that keyframe (``T_anchor_grid``, chosen so that the grid is the world as it stood when
+the submap started, which keeps the final merge exact when nothing moved). Every
+``keyframes_per_submap`` keyframes, or when the active submap reaches ``max_blocks`` voxel
+blocks, it is *finished*: its voxels are copied out (:class:`~sea3d.recon.types.Submap`) and
+handed to the caller, who stores them (the process pipeline spills them to disk) and may
+drop them from memory. So memory holds one active submap: its hash map starts with room for
+``min(initial_blocks, max_blocks)`` blocks and grows by doubling, and the submap is finished
+once it holds ``max_blocks`` (at the next keyframe, or at once, keeping its anchor), so what it
+holds stays below ``2 (max_blocks + b) B`` with ``b`` the blocks one frame adds and ``B`` the
+bytes of a block (``block_resolution^3`` voxels of 20 bytes: tsdf, weight, RGB as float32;
+10 KB at 8^3). :meth:`SubmapFusion.memory_bytes` reports what is held.
+
+After the last frame, :func:`merge_submaps` places every submap at ``T_world_anchor @
+T_anchor_grid`` with the keyframe poses the odometry holds *then* (after every loop closure)
+and fuses them into one world grid: voxel values are combined by their observation weights
+(the weighted mean a single volume would have computed), exactly where a submap's grid still
+coincides with the world grid, and by trilinear splatting where a loop closure moved it.
+Spatial tiles bound the memory of that merge as well.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field, replace
+from typing import Literal, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sea3d.errors import ReconError
+from sea3d.recon.tsdf import TsdfConfig, TsdfVolume
+from sea3d.recon.types import Mesh, Submap, VoxelBlocks
+
+__all__ = [
+    "FuseStatus",
+    "FusionConfig",
+    "FusionStep",
+    "MemorySubmapStore",
+    "SubmapFusion",
+    "SubmapStore",
+    "merge_submaps",
+]
+
+log = logging.getLogger(__name__)
+F64 = NDArray[np.float64]
+
+IntegratePolicy = Literal["keyframes", "trusted"]
+FuseStatus = Literal["integrated", "skipped_untrusted", "skipped_not_keyframe", "skipped_no_depth",
+                     "skipped_no_anchor"]
+
+_IDENTITY_TOL = 1e-9
+
+
+@dataclass(frozen=True, kw_only=True)
+class FusionConfig:
+    """What the fusion stage integrates and how it cuts the map into submaps."""
+
+    tsdf: TsdfConfig = field(default_factory=TsdfConfig)
+    """Voxel size, truncation, depth range."""
+    integrate: IntegratePolicy = "trusted"
+    """``trusted``: every frame with a trustworthy pose (tracking or relocalised);
+    ``keyframes``: only keyframes among those."""
+    keyframes_per_submap: int = 20
+    """Keyframes after which a new submap starts."""
+    max_blocks: int = 20_000
+    """Voxel blocks after which a new submap starts (bounds memory: 20,000 blocks of 8^3
+    voxels hold 205 MB; about 250 m^2 of surface at 2 cm voxels)."""
+
+    def __post_init__(self) -> None:
+        if self.integrate not in ("keyframes", "trusted"):
+            raise ReconError(f"integrate must be 'keyframes' or 'trusted', got {self.integrate!r}")
+        if self.keyframes_per_submap < 1 or self.max_blocks < 1:
+            raise ReconError("keyframes_per_submap and max_blocks must be >= 1")
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class FusionStep:
+    """What fusion did with one frame.
+
+    Attributes:
+        status: ``integrated`` or why not.
+        submap_id: the submap it went into (None when skipped).
+        finished: submaps finished by this step (hand them to a :class:`SubmapStore`).
+        blocks_touched: voxel blocks the frame updated.
+    """
+
+    status: FuseStatus
+    submap_id: int | None = None
+    finished: tuple[Submap, ...] = ()
+    blocks_touched: int = 0
+
+
+class SubmapStore(Protocol):
+    """Where finished submaps go, and where the merge reads them back."""
+
+    def put(self, submap: Submap) -> None:
+        """Keep a finished submap (replacing one of the same id)."""
+        ...
+
+    def get(self, submap_id: int) -> Submap:
+        """The submap of that id."""
+        ...
+
+    def ids(self) -> list[int]:
+        """Ids of every stored submap, ascending."""
+        ...
+
+
+class MemorySubmapStore:
+    """A :class:`SubmapStore` in memory (for short sequences and tests)."""
+
+    def __init__(self) -> None:
+        self._maps: dict[int, Submap] = {}
+
+    def put(self, submap: Submap) -> None:
+        self._maps[submap.submap_id] = submap
+
+    def get(self, submap_id: int) -> Submap:
+        try:
+            return self._maps[submap_id]
+        except KeyError as err:
+            raise ReconError(f"no submap {submap_id} in the store") from err
+
+    def ids(self) -> list[int]:
+        return sorted(self._maps)
+
+
+class SubmapFusion:
+    """The ordered fusion stage: feed frames in time order with their odometry poses.
+
+    Args:
+        config: :class:`FusionConfig`.
+    """
+
+    def __init__(self, config: FusionConfig | None = None) -> None:
+        self.config = config or FusionConfig()
+        self._active: TsdfVolume | None = None
+        self._active_id = -1
+        self._anchor_id = -1
+        self._T_anchor_grid = np.eye(4)
+        self._keyframes: list[int] = []
+        self._t_first = 0
+        self._t_last = 0
+        self.submaps_finished = 0
+        self.frames_integrated = 0
+        self.peak_memory_bytes = 0
+
+    @property
+    def active_submap_id(self) -> int | None:
+        """Id of the submap being filled, or None."""
+        return self._active_id if self._active is not None else None
+
+    def memory_bytes(self) -> int:
+        """Bytes the active submap's voxel arrays hold now."""
+        return self._active.memory_bytes if self._active is not None else 0
+
+    def _start(self, anchor_id: int, T_world_anchor: F64, t_ns: int) -> None:
+        tsdf = self.config.tsdf
+        self._active = TsdfVolume(
+            replace(tsdf, initial_blocks=min(tsdf.initial_blocks, self.config.max_blocks)))
+        self._active_id += 1
+        self._anchor_id = anchor_id
+        self._T_anchor_grid = _rigid_inverse(T_world_anchor)  # grid = world, now
+        self._keyframes = []
+        self._t_first = t_ns
+
+    def _finish(self) -> Submap | None:
+        if self._active is None:
+            return None
+        vol = self._active
+        self._active = None
+        self.submaps_finished += 1
+        return Submap(
+            submap_id=self._active_id,
+            anchor_keyframe_id=self._anchor_id,
+            T_anchor_grid=self._T_anchor_grid.copy(),
+            blocks=vol.export_blocks(),
+            frames=vol.frames,
+            keyframe_ids=tuple(self._keyframes),
+            t_first_ns=self._t_first,
+            t_last_ns=self._t_last,
+        )
+
+    def step(
+        self,
+        *,
+        t_ns: int,
+        trusted: bool,
+        keyframe_id: int | None,
+        depth_m: NDArray[np.floating] | None,
+        color_rgb: NDArray[np.uint8] | None,
+        K: F64,
+        T_world_cam: F64,
+        keyframe_poses: dict[int, F64],
+    ) -> FusionStep:
+        """Integrate one frame (or say why not).
+
+        Args:
+            t_ns: the frame's stamp.
+            trusted: its pose is trustworthy (odometry status tracking or relocalised).
+            keyframe_id: the keyframe it created, or None.
+            depth_m: (H, W) float32 metres in the pinhole camera of ``K`` (for refractive rigs
+                already passed through
+                :func:`~sea3d.recon.depth_resample.virtual_pinhole_depth`), NaN invalid.
+            color_rgb: (H, W, 3) uint8 colours registered to the depth, or None.
+            K: (3, 3) intrinsics of that pinhole.
+            T_world_cam: (4, 4) pose of that camera (for the rectified view:
+                ``T_world_left @ R_rect_left_left^T`` as a 4x4).
+            keyframe_poses: the odometry's current keyframe poses ``T_world_cam`` by id (only
+                the active anchor's is read).
+
+        Returns:
+            :class:`FusionStep`; its ``finished`` submaps belong to the caller now.
+        """
+        self._t_last = max(self._t_last, int(t_ns))
+        finished: list[Submap] = []
+        if not trusted:
+            return FusionStep(status="skipped_untrusted")
+        if keyframe_id is None and self.config.integrate == "keyframes":
+            return FusionStep(status="skipped_not_keyframe")
+        if keyframe_id is not None:
+            need_new = self._active is None or (
+                len(self._keyframes) >= self.config.keyframes_per_submap
+            )
+            if not need_new and self._active is not None:
+                need_new = self._active.block_count >= self.config.max_blocks
+            if need_new:
+                done = self._finish()
+                if done is not None:
+                    finished.append(done)
+                self._start(keyframe_id, np.asarray(T_world_cam, np.float64), int(t_ns))
+            self._keyframes.append(int(keyframe_id))
+        elif self._active is not None and self._active.block_count >= self.config.max_blocks:
+            # Full, and no keyframe to start the next one: the next submap keeps the anchor.
+            T_anchor = keyframe_poses.get(self._anchor_id)
+            if T_anchor is not None:
+                anchor, kfs = self._anchor_id, list(self._keyframes)
+                done = self._finish()
+                if done is not None:
+                    finished.append(done)
+                self._start(anchor, np.asarray(T_anchor, np.float64), int(t_ns))
+                self._keyframes = kfs[:1]
+        if self._active is None:
+            # Trusted frames before the first keyframe have nothing to be anchored to.
+            return FusionStep(status="skipped_no_anchor", finished=tuple(finished))
+        if depth_m is None or not np.isfinite(depth_m).any():
+            return FusionStep(status="skipped_no_depth", submap_id=self._active_id,
+                              finished=tuple(finished))
+        T_world_anchor = keyframe_poses.get(self._anchor_id)
+        if T_world_anchor is None:
+            raise ReconError(f"keyframe_poses lacks the active anchor keyframe {self._anchor_id}")
+        T_world_grid = np.asarray(T_world_anchor, np.float64) @ self._T_anchor_grid
+        T_grid_cam = _rigid_inverse(T_world_grid) @ np.asarray(T_world_cam, np.float64)
+        touched = self._active.integrate(depth_m, color_rgb, K, T_grid_cam)
+        self.frames_integrated += 1
+        self.peak_memory_bytes = max(self.peak_memory_bytes, self._active.memory_bytes)
+        return FusionStep(status="integrated", submap_id=self._active_id,
+                          finished=tuple(finished), blocks_touched=touched)
+
+    def finish(self) -> Submap | None:
+        """Finish the active submap (after the last frame) and return it, or None."""
+        return self._finish()
+
+
+def _rigid_inverse(T: F64) -> F64:
+    out = np.eye(4)
+    R = T[:3, :3]
+    out[:3, :3] = R.T
+    out[:3, 3] = -R.T @ T[:3, 3]
+    return out
+
+
+# ------------------------------------------------------------------------------------ merging
+
+
+def _voxel_samples(blocks: VoxelBlocks) -> tuple[NDArray[np.int64], F64, F64, F64]:
+    """Integer voxel coordinates (K, 3), tsdf, weight, colour (K, 3) of the observed voxels."""
+    r = blocks.block_resolution
+    w = blocks.weight.reshape(len(blocks), -1)
+    b, loc = np.nonzero(w > 0)
+    z, y, x = loc // (r * r), (loc // r) % r, loc % r
+    coords = blocks.keys[b].astype(np.int64) * r + np.stack([x, y, z], axis=1)
+    return (np.asarray(coords, np.int64),
+            blocks.tsdf.reshape(len(blocks), -1)[b, loc].astype(np.float64),
+            w[b, loc].astype(np.float64),
+            blocks.color.reshape(len(blocks), -1, 3)[b, loc].astype(np.float64))
+
+
+class _Accumulator:
+    """Weighted sums per voxel of a box of a world grid, voxels keyed by a linear index."""
+
+    def __init__(self, lo: NDArray[np.int64], hi: NDArray[np.int64]) -> None:
+        self.lo = np.asarray(lo, np.int64)
+        self.dims = np.asarray(hi, np.int64) - self.lo
+        self.parts: list[tuple[NDArray[np.int64], F64, F64, F64]] = []
+
+    def add(self, coords: NDArray[np.int64], tsdf: F64, weight: F64, color: F64) -> None:
+        if len(coords):
+            c = coords - self.lo
+            key = (c[:, 0] * self.dims[1] + c[:, 1]) * self.dims[2] + c[:, 2]
+            self.parts.append((key, weight, weight * tsdf, weight[:, None] * color))
+
+    def reduce(self) -> tuple[NDArray[np.int64], F64, F64, F64]:
+        """Unique voxel coordinates with summed weight, tsdf mean and colour mean."""
+        if not self.parts:
+            return np.zeros((0, 3), np.int64), np.zeros(0), np.zeros(0), np.zeros((0, 3))
+        key = np.concatenate([p[0] for p in self.parts])
+        w = np.concatenate([p[1] for p in self.parts])
+        wt = np.concatenate([p[2] for p in self.parts])
+        wc = np.concatenate([p[3] for p in self.parts])
+        self.parts = []
+        uniq, inv = np.unique(key, return_inverse=True)
+        n = len(uniq)
+        sw = np.asarray(np.bincount(inv, weights=w, minlength=n), np.float64)
+        st = np.bincount(inv, weights=wt, minlength=n)
+        sc = np.stack([np.bincount(inv, weights=wc[:, k], minlength=n) for k in range(3)],
+                      axis=1)
+        z = uniq % self.dims[2]
+        y = (uniq // self.dims[2]) % self.dims[1]
+        x = uniq // (self.dims[2] * self.dims[1])
+        coords = np.asarray(np.stack([x, y, z], axis=1) + self.lo, np.int64)
+        return coords, sw, st / sw, sc / sw[:, None]
+
+
+def _splat(coords: NDArray[np.int64], T: F64, voxel_m: float
+           ) -> tuple[NDArray[np.int64], F64]:
+    """Trilinear splat of voxel centres moved by ``T``: target coordinates (8K, 3), weights."""
+    p = coords.astype(np.float64) * voxel_m
+    q = (p @ T[:3, :3].T + T[:3, 3]) / voxel_m
+    q0 = np.floor(q)
+    f = q - q0
+    base = q0.astype(np.int64)
+    out_c, out_w = [], []
+    for dx in (0, 1):
+        for dy in (0, 1):
+            for dz in (0, 1):
+                wgt = ((f[:, 0] if dx else 1 - f[:, 0]) * (f[:, 1] if dy else 1 - f[:, 1])
+                       * (f[:, 2] if dz else 1 - f[:, 2]))
+                out_c.append(base + np.array([dx, dy, dz]))
+                out_w.append(wgt)
+    return np.concatenate(out_c), np.concatenate(out_w)
+
+
+def _to_blocks(coords: NDArray[np.int64], weight: F64, tsdf: F64, color: F64,
+               config: TsdfConfig) -> VoxelBlocks:
+    r = config.block_resolution
+    if len(coords) == 0:
+        return VoxelBlocks(keys=np.zeros((0, 3), np.int32), tsdf=np.zeros((0, r, r, r), np.float32),
+                           weight=np.zeros((0, r, r, r), np.float32),
+                           color=np.zeros((0, r, r, r, 3), np.float32), voxel_m=config.voxel_m,
+                           trunc_voxels=config.trunc_voxels)
+    keys = np.floor_divide(coords, r)
+    local = coords - keys * r
+    k0 = keys.min(axis=0)
+    dims = keys.max(axis=0) - k0 + 1
+    kk = keys - k0
+    lin = (kk[:, 0] * dims[1] + kk[:, 1]) * dims[2] + kk[:, 2]
+    ulin, inv = np.unique(lin, return_inverse=True)
+    inv = inv.reshape(-1)
+    ukeys = np.stack([ulin // (dims[1] * dims[2]), (ulin // dims[2]) % dims[1], ulin % dims[2]],
+                     axis=1) + k0
+    m = len(ukeys)
+    T = np.zeros((m, r, r, r), np.float32)
+    W = np.zeros((m, r, r, r), np.float32)
+    C = np.zeros((m, r, r, r, 3), np.float32)
+    x, y, z = local[:, 0], local[:, 1], local[:, 2]
+    T[inv, z, y, x] = tsdf
+    W[inv, z, y, x] = weight
+    C[inv, z, y, x] = color
+    return VoxelBlocks(keys=ukeys.astype(np.int32), tsdf=T, weight=W, color=C,
+                       voxel_m=config.voxel_m, trunc_voxels=config.trunc_voxels)
+
+
+def _submap_bounds(sm: Submap, T_world_grid: F64) -> tuple[F64, F64]:
+    r = sm.blocks.block_resolution
+    keys = sm.blocks.keys.astype(np.float64)
+    lo = keys.min(axis=0) * r * sm.blocks.voxel_m
+    hi = (keys.max(axis=0) + 1) * r * sm.blocks.voxel_m
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                        for z in (lo[2], hi[2])])
+    cw = corners @ T_world_grid[:3, :3].T + T_world_grid[:3, 3]
+    return cw.min(axis=0), cw.max(axis=0)
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class MergedMap:
+    """The result of :func:`merge_submaps`.
+
+    Attributes:
+        mesh: the world mesh (metres, vertex colours and normals).
+        points: (N, 3) world surface points; colors (N, 3) uint8; normals (N, 3).
+        submaps: submaps merged; moved: those a loop closure had moved (splatted).
+        voxels: observed voxels of the merged grid.
+    """
+
+    mesh: Mesh
+    points: F64
+    colors: NDArray[np.uint8]
+    normals: F64
+    submaps: int
+    moved: int
+    voxels: int
+
+
+def merge_submaps(
+    store: SubmapStore,
+    keyframe_poses: dict[int, F64],
+    config: TsdfConfig,
+    *,
+    tile_m: float | None = 8.0,
+    progress: Callable[[int], None] | None = None,
+) -> MergedMap:
+    """Fuse every stored submap into one world grid and extract its mesh and surface points.
+
+    Args:
+        store: the finished submaps.
+        keyframe_poses: final ``T_world_cam`` of each anchor keyframe (the same camera as the
+            one fusion integrated with).
+        config: the TSDF layout the submaps were built with.
+        tile_m: merge cubes of this edge one at a time (bounds memory to the submaps that
+            overlap one tile); None merges everything at once.
+        progress: called with 1 per submap read.
+
+    Returns:
+        :class:`MergedMap`.
+
+    Raises:
+        ReconError: a submap whose anchor keyframe has no pose, or whose voxel layout differs.
+    """
+    ids = store.ids()
+    placed: list[tuple[int, F64, F64, F64, bool]] = []
+    for sid in ids:
+        sm = store.get(sid)
+        if sm.blocks.voxel_m != config.voxel_m or (
+            len(sm.blocks) and sm.blocks.block_resolution != config.block_resolution
+        ):
+            raise ReconError(f"submap {sid} has another voxel layout than the merge's config")
+        T_wa = keyframe_poses.get(sm.anchor_keyframe_id)
+        if T_wa is None:
+            raise ReconError(f"submap {sid}: its anchor keyframe {sm.anchor_keyframe_id} has no "
+                             "pose")
+        T_wg = np.asarray(T_wa, np.float64) @ sm.T_anchor_grid
+        moved = not np.allclose(T_wg, np.eye(4), atol=_IDENTITY_TOL)
+        if len(sm.blocks):
+            lo, hi = _submap_bounds(sm, T_wg)
+            placed.append((sid, T_wg, lo, hi, moved))
+        if progress is not None:
+            progress(1)
+    if not placed:
+        empty = Mesh(vertices=np.zeros((0, 3)), triangles=np.zeros((0, 3), np.int64))
+        return MergedMap(mesh=empty, points=np.zeros((0, 3)), colors=np.zeros((0, 3), np.uint8),
+                         normals=np.zeros((0, 3)), submaps=len(ids), moved=0, voxels=0)
+    lo_all = np.min([p[2] for p in placed], axis=0)
+    hi_all = np.max([p[3] for p in placed], axis=0)
+    tiles = list(_tiles(lo_all, hi_all, tile_m))
+    meshes: list[Mesh] = []
+    pts, cols, nrms = [], [], []
+    voxels = 0
+    v = config.voxel_m
+    r = config.block_resolution
+    for t_lo, t_hi in tiles:
+        # Voxels of this tile: integer coordinates in [c_lo, c_hi); one block of margin so
+        # that marching cubes sees the neighbours of the tile's border voxels.
+        c_lo = np.floor(t_lo / v).astype(np.int64)
+        c_hi = np.floor(t_hi / v).astype(np.int64)
+        m_lo, m_hi = c_lo - r, c_hi + r
+        acc = _Accumulator(m_lo, m_hi)
+        for sid, T_wg, lo, hi, moved in placed:
+            if np.any(hi < t_lo - r * v) or np.any(lo > t_hi + r * v):
+                continue
+            coords, tsdf, weight, color = _voxel_samples(store.get(sid).blocks)
+            if moved:
+                tc, tw = _splat(coords, T_wg, v)
+                k = len(coords)
+                rep = np.tile(np.arange(k), 8)
+                sel = np.all((tc >= m_lo) & (tc < m_hi), axis=1) & (tw > 1e-6)
+                acc.add(tc[sel], tsdf[rep[sel]].astype(np.float64),
+                        (weight[rep[sel]] * tw[sel]).astype(np.float64),
+                        color[rep[sel]].astype(np.float64))
+            else:
+                sel = np.all((coords >= m_lo) & (coords < m_hi), axis=1)
+                acc.add(coords[sel], tsdf[sel].astype(np.float64),
+                        weight[sel].astype(np.float64), color[sel].astype(np.float64))
+        coords, wsum, tmean, cmean = acc.reduce()
+        if len(coords) == 0:
+            continue
+        inner = np.all((coords >= c_lo) & (coords < c_hi), axis=1)
+        voxels += int(np.count_nonzero(inner & (wsum > config.weight_threshold)))
+        vol = TsdfVolume.from_blocks(_to_blocks(coords, wsum, tmean, cmean, config), config)
+        mesh = vol.extract_mesh()
+        if len(tiles) > 1 and not mesh.empty:
+            mesh = _crop_mesh(mesh, t_lo, t_hi)
+        meshes.append(mesh)
+        p, c, n = vol.extract_points()
+        if len(tiles) > 1 and len(p):
+            keep = np.all((p >= t_lo) & (p < t_hi), axis=1)
+            p, c, n = p[keep], c[keep], n[keep]
+        pts.append(p)
+        cols.append(c)
+        nrms.append(n)
+    mesh = _weld(Mesh.concatenate(meshes)) if len(meshes) > 1 else (
+        meshes[0] if meshes else Mesh(vertices=np.zeros((0, 3)),
+                                      triangles=np.zeros((0, 3), np.int64)))
+    return MergedMap(
+        mesh=mesh,
+        points=np.concatenate(pts) if pts else np.zeros((0, 3)),
+        colors=np.concatenate(cols) if cols else np.zeros((0, 3), np.uint8),
+        normals=np.concatenate(nrms) if nrms else np.zeros((0, 3)),
+        submaps=len(ids),
+        moved=sum(1 for p in placed if p[4]),
+        voxels=voxels,
+    )
+
+
+def _tiles(lo: F64, hi: F64, tile_m: float | None) -> Iterator[tuple[F64, F64]]:
+    if tile_m is None:
+        yield lo - 1.0, hi + 1.0
+        return
+    if not tile_m > 0:
+        raise ReconError(f"tile_m must be > 0, got {tile_m}")
+    start = np.asarray(lo, np.float64)
+    n = np.maximum(np.ceil((hi - start) / tile_m).astype(np.int64), 1)
+    for i in range(n[0]):
+        for j in range(n[1]):
+            for k in range(n[2]):
+                t_lo = start + np.array([i, j, k]) * tile_m
+                yield t_lo, t_lo + tile_m
+
+
+def _crop_mesh(mesh: Mesh, lo: F64, hi: F64) -> Mesh:
+    """Triangles whose centroid lies in ``[lo, hi)`` (each lies in exactly one tile)."""
+    cen = mesh.vertices[mesh.triangles].mean(axis=1)
+    keep = np.all((cen >= lo) & (cen < hi), axis=1)
+    tri = mesh.triangles[keep]
+    used = np.unique(tri)
+    remap = np.full(len(mesh.vertices), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    return Mesh(vertices=mesh.vertices[used], triangles=remap[tri],
+                colors_rgb=None if mesh.colors_rgb is None else mesh.colors_rgb[used],
+                normals=None if mesh.normals is None else mesh.normals[used])
+
+
+def _weld(mesh: Mesh, tol_m: float = 1e-6) -> Mesh:
+    """Merge vertices that coincide (tile seams) into one."""
+    if mesh.empty:
+        return mesh
+    q = np.round(mesh.vertices / tol_m).astype(np.int64)
+    _, first, inv = np.unique(q, axis=0, return_index=True, return_inverse=True)
+    inv = inv.reshape(-1)
+    return Mesh(vertices=mesh.vertices[first], triangles=inv[mesh.triangles],
+                colors_rgb=None if mesh.colors_rgb is None else mesh.colors_rgb[first],
+                normals=None if mesh.normals is None else mesh.normals[first])
+
+
+def iter_submaps(store: SubmapStore) -> Iterable[Submap]:
+    """Every stored submap in id order."""
+    for sid in store.ids():
+        yield store.get(sid)
+
+
+__all__ += ["MergedMap", "iter_submaps"]

@@ -1,0 +1,153 @@
+"""Data types of the reconstruction stage: meshes, voxel blocks and submaps.
+
+Frames: a submap's voxels live in its own ``grid`` frame; ``T_anchor_grid`` fixes the grid to
+the submap's anchor keyframe (a raw left camera pose), so that the submap's place in the world
+is ``T_world_grid = T_world_anchor @ T_anchor_grid`` with whatever ``T_world_anchor`` the
+odometry holds now: a loop closure that moves the keyframe moves the submap, no voxel changes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sea3d.errors import ReconError
+
+__all__ = ["Mesh", "Submap", "VoxelBlocks"]
+
+F64 = NDArray[np.float64]
+F32 = NDArray[np.float32]
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class Mesh:
+    """A triangle mesh.
+
+    Attributes:
+        vertices: (V, 3) float64 metres.
+        triangles: (T, 3) int64 vertex indices, counter-clockwise seen from outside.
+        colors_rgb: (V, 3) uint8 vertex colours, or None.
+        normals: (V, 3) float64 unit vertex normals, or None.
+    """
+
+    vertices: F64
+    triangles: NDArray[np.int64]
+    colors_rgb: NDArray[np.uint8] | None = None
+    normals: F64 | None = None
+
+    def __post_init__(self) -> None:
+        v, f = self.vertices, self.triangles
+        if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
+            raise ReconError(f"a mesh needs vertices (V, 3) and triangles (T, 3), got {v.shape} "
+                             f"and {f.shape}")
+        for name, a in (("colors_rgb", self.colors_rgb), ("normals", self.normals)):
+            if a is not None and a.shape != v.shape:
+                raise ReconError(f"mesh {name} {a.shape} do not match vertices {v.shape}")
+
+    @property
+    def empty(self) -> bool:
+        """True when the mesh has no triangles."""
+        return len(self.triangles) == 0
+
+    def transformed(self, T_b_a: F64) -> Mesh:
+        """The mesh moved from frame a to frame b (normals rotated)."""
+        R, t = T_b_a[:3, :3], T_b_a[:3, 3]
+        return Mesh(vertices=self.vertices @ R.T + t, triangles=self.triangles,
+                    colors_rgb=self.colors_rgb,
+                    normals=None if self.normals is None else self.normals @ R.T)
+
+    @staticmethod
+    def concatenate(meshes: list[Mesh]) -> Mesh:
+        """One mesh holding all of ``meshes`` (colours and normals kept if all have them)."""
+        meshes = [m for m in meshes if len(m.vertices)]
+        if not meshes:
+            return Mesh(vertices=np.zeros((0, 3)), triangles=np.zeros((0, 3), np.int64))
+        offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
+        cols = None
+        if all(m.colors_rgb is not None for m in meshes):
+            cols = np.concatenate([m.colors_rgb for m in meshes if m.colors_rgb is not None])
+        nrm = None
+        if all(m.normals is not None for m in meshes):
+            nrm = np.concatenate([m.normals for m in meshes if m.normals is not None])
+        return Mesh(
+            vertices=np.concatenate([m.vertices for m in meshes]),
+            triangles=np.concatenate([m.triangles + o for m, o in zip(meshes, offsets,
+                                                                        strict=True)]),
+            colors_rgb=cols,
+            normals=nrm,
+        )
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class VoxelBlocks:
+    """The observed voxel blocks of a TSDF volume, as plain arrays.
+
+    A block of key ``k`` holds the voxels with integer coordinates ``k * R + (x, y, z)`` for
+    ``0 <= x, y, z < R`` (``R = block_resolution``), stored ``[z, y, x]``; a voxel of integer
+    coordinates ``c`` sits at ``c * voxel_m`` in the volume's frame.
+
+    Attributes:
+        keys: (M, 3) int32 block coordinates.
+        tsdf: (M, R, R, R) float32 truncated signed distance in units of the truncation
+            distance, in [-1, 1].
+        weight: (M, R, R, R) float32 number of observations (0 = never seen).
+        color: (M, R, R, R, 3) float32 mean colour in [0, 1], RGB.
+        voxel_m: voxel edge, metres.
+        trunc_voxels: truncation distance in voxels.
+    """
+
+    keys: NDArray[np.int32]
+    tsdf: F32
+    weight: F32
+    color: F32
+    voxel_m: float
+    trunc_voxels: float
+
+    def __post_init__(self) -> None:
+        m = self.keys.shape[0]
+        r = self.tsdf.shape[1] if self.tsdf.ndim == 4 else -1
+        if (self.keys.ndim != 2 or self.keys.shape[1] != 3 or self.tsdf.shape != (m, r, r, r)
+                or self.weight.shape != (m, r, r, r) or self.color.shape != (m, r, r, r, 3)):
+            raise ReconError(
+                f"voxel blocks have inconsistent shapes: keys {self.keys.shape}, tsdf "
+                f"{self.tsdf.shape}, weight {self.weight.shape}, color {self.color.shape}"
+            )
+
+    @property
+    def block_resolution(self) -> int:
+        """Voxels along a block edge."""
+        return int(self.tsdf.shape[1])
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held by the arrays."""
+        return int(self.keys.nbytes + self.tsdf.nbytes + self.weight.nbytes + self.color.nbytes)
+
+    def __len__(self) -> int:
+        return int(self.keys.shape[0])
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class Submap:
+    """A finished part of the map: voxels in its grid frame, fixed to an anchor keyframe.
+
+    Attributes:
+        submap_id: 0, 1, ... in creation order.
+        anchor_keyframe_id: the odometry keyframe it is fixed to.
+        T_anchor_grid: (4, 4) float64, the grid frame in the anchor camera's frame.
+        blocks: the voxels (:class:`VoxelBlocks`).
+        frames: frames integrated.
+        keyframe_ids: keyframes integrated (the anchor first).
+        t_first_ns, t_last_ns: stamps of the first and last integrated frame.
+    """
+
+    submap_id: int
+    anchor_keyframe_id: int
+    T_anchor_grid: F64
+    blocks: VoxelBlocks
+    frames: int
+    keyframe_ids: tuple[int, ...] = field(default_factory=tuple)
+    t_first_ns: int = 0
+    t_last_ns: int = 0

@@ -1,0 +1,261 @@
+"""``sea3d process`` end to end on a short simulated survey: outputs, ground truth, statuses,
+loop closures, resuming, local processes and a Dask cluster.
+
+Every run after the first reuses its cached per-frame results (copied), so only the first
+pays for stereo matching.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from scripted_odometry import ScriptedOdometry
+from sea3d.cli import main
+from sea3d.errors import ConfigError, SessionError
+from sea3d.geometry.se3 import rotvec_to_R
+from sea3d.io.mesh_files import read_mesh
+from sea3d.io.result_cache import FrameCache
+from sea3d.io.session import SessionWriter, open_session
+from sea3d.io.trajectory_files import read_trajectory
+from sea3d.pipeline.process import ProcessConfig, run_process
+
+# Mesh accuracy with true poses at 320x180 and 2 cm voxels (measured median 3.7 mm, 90th
+# percentile 12 mm): the budget leaves room for noise, and a scale or refraction error (5 %
+# of 1-2 m = 5-10 cm) or a misplaced submap (the planted drift below, 8 cm) fails it.
+MESH_MEDIAN_TOL_M = 0.008
+MESH_P90_TOL_M = 0.025
+KEYFRAMES_PER_SUBMAP = 2
+
+
+def _config(out: Path, **kw) -> ProcessConfig:
+    base = {"out_dir": out, "workers": 0, "keyframes_per_submap": KEYFRAMES_PER_SUBMAP}
+    base.update(kw)
+    return ProcessConfig(**base)
+
+
+def _gt_dir(session: Path) -> Path:
+    return session.with_name(session.stem + "_gt")
+
+
+def _gt(session: Path):
+    return read_trajectory(_gt_dir(session) / "poses_left.tum")
+
+
+def _with_cache(src: Path, dst: Path) -> Path:
+    shutil.copytree(src / "cache", dst / "cache")
+    return dst
+
+
+@pytest.fixture(scope="module")
+def first_run(sim_session, tmp_path_factory):
+    """The session processed with its true poses, per-frame stage in this process."""
+    out = tmp_path_factory.mktemp("process") / "gt_poses"
+    gt = _gt(sim_session)
+    result = run_process(sim_session, _config(out), odometry=lambda rig, maps: ScriptedOdometry(
+        gt.t_ns, gt.T_world_x))
+    return out, result
+
+
+def test_outputs_and_summary(first_run, sim_session):
+    out, _ = first_run
+    for name in ("trajectory.tum", "mesh.ply", "cloud.ply", "status.csv", "summary.json",
+                 "report.html"):
+        assert (out / name).is_file(), name
+    s = json.loads((out / "summary.json").read_text())
+    for key in ("frames", "keyframes", "frames_lost", "loop_closures", "path_length_m",
+                "timings_s"):
+        assert key in s, key
+    assert s["frames"] == 30 and s["keyframes"] == 10 and s["frames_lost"] == 0
+    # T_world_left for every stereo frame, stamped with the session's time.
+    traj = read_trajectory(out / "trajectory.tum")
+    with open_session(sim_session) as session:
+        left = session.stamps("left").tolist()
+    assert traj.t_ns.tolist() == left
+    np.testing.assert_allclose(traj.T_world_x, _gt(sim_session).T_world_x, atol=1e-8)
+    assert s["path_length_m"] == pytest.approx(
+        float(np.linalg.norm(np.diff(traj.T_world_x[:, :3, 3], axis=0), axis=1).sum()))
+    assert s["timings_s"]["total_s"] > 0 and "match_s" in s["worker_timings_s"]
+    assert "rectify_maps_s" in s["one_off_s"]
+    html = (out / "report.html").read_text()
+    assert html.count("data:image/") >= 3 and "Status timeline" in html
+
+
+def test_mesh_matches_the_scene(first_run):
+    out, result = first_run
+    mv = result.summary["mesh_vs_gt"]
+    assert mv["completeness_reference"].startswith("surface seen")
+    assert mv["accuracy_m"]["median"] < MESH_MEDIAN_TOL_M
+    assert mv["accuracy_m"]["p90"] < MESH_P90_TOL_M
+    assert mv["completeness_m"]["median"] < MESH_MEDIAN_TOL_M
+    mesh = read_mesh(out / "mesh.ply")
+    assert len(mesh.triangles) == result.summary["mesh"]["triangles"] > 10_000
+    assert mesh.colors_rgb is not None and mesh.colors_rgb.std() > 5  # coloured, not flat
+
+
+def _scripted_run(sim_session, first_run, tmp_path, **script):
+    out = _with_cache(first_run[0], tmp_path / "run")
+    gt = _gt(sim_session)
+    return run_process(sim_session, _config(out), odometry=lambda rig, maps: ScriptedOdometry(
+        gt.t_ns, gt.T_world_x, **script))
+
+
+# The planted drift lifts the camera 8 cm and rolls it 2 degrees: off the floor, which is what
+# surface accuracy sees (a shift along the floor would hardly change it).
+_DRIFT = np.eye(4)
+_DRIFT[:3, :3] = rotvec_to_R(np.array([np.deg2rad(2.0), 0.0, 0.0]))
+_DRIFT[:3, 3] = (0.0, 0.0, 0.08)
+# Keyframes every 3 frames and 2 per submap: submaps start at frames 0, 6, 12, 18, 24, so the
+# drift (frames 12-23) fills submaps 2 and 3, and the loop closes at frame 24.
+_LOOP = {"drift_from": 12, "loop_at": 24, "drift": _DRIFT}
+
+
+def test_a_loop_closure_re_anchors_the_drifted_submaps(sim_session, first_run, tmp_path):
+    res = _scripted_run(sim_session, first_run, tmp_path, **_LOOP)
+    s = res.summary
+    assert s["loop_closures"] == 1 and s["submaps_moved_by_loop_closures"] == 2
+    assert s["frames_from_cache"] == 30
+    good = first_run[1].summary["mesh_vs_gt"]["accuracy_m"]
+    fixed = s["mesh_vs_gt"]["accuracy_m"]
+    assert fixed["p90"] < good["p90"] + 0.003
+
+
+def test_without_re_anchoring_the_drift_stays_in_the_mesh(sim_session, first_run, tmp_path):
+    res = _scripted_run(sim_session, first_run, tmp_path, forget_loop=True, **_LOOP)
+    good = first_run[1].summary["mesh_vs_gt"]["accuracy_m"]
+    assert res.summary["mesh_vs_gt"]["accuracy_m"]["p90"] > good["p90"] + 0.01
+
+
+def test_lost_frames_are_in_the_trajectory_but_not_fused(sim_session, first_run, tmp_path):
+    res = _scripted_run(sim_session, first_run, tmp_path, lost=(5, 6, 7, 20))
+    s = res.summary
+    assert s["frames_lost"] == 4 and s["frames_fused"] == 26
+    with open(res.files["status"], newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 30
+    assert [r["fusion"] for r in rows[5:8]] == ["skipped_untrusted"] * 3
+    assert rows[5]["status"] == "lost"
+    # The planted 0.5 m pose error of the lost frames did not reach the mesh.
+    good = first_run[1].summary["mesh_vs_gt"]["accuracy_m"]
+    assert s["mesh_vs_gt"]["accuracy_m"]["p90"] < good["p90"] + 0.003
+
+
+def test_an_interrupted_run_resumes_from_its_cache(sim_session, first_run, tmp_path):
+    out = _with_cache(first_run[0], tmp_path / "resume")
+    cache = FrameCache(out / "cache", {})
+    stamps = sorted(cache.stamps())
+    for t in stamps[10:]:
+        cache.path(t).unlink()  # as if killed after 10 frames
+    p = cache.path(stamps[3])
+    p.write_bytes(p.read_bytes()[:-100])  # a damaged entry is computed again
+    gt = _gt(sim_session)
+    res = run_process(sim_session, _config(out, max_frames=14),
+                      odometry=lambda rig, maps: ScriptedOdometry(gt.t_ns, gt.T_world_x))
+    assert res.summary["frames_from_cache"] == 9 and res.summary["frames"] == 14
+    assert len(cache.stamps()) == 14
+
+
+def test_a_cache_of_another_configuration_is_refused(sim_session, first_run, tmp_path):
+    out = _with_cache(first_run[0], tmp_path / "other")
+    with pytest.raises(ConfigError, match="another configuration"):
+        run_process(sim_session, _config(out, max_depth_m=3.0,
+                                         poses_path=_gt_dir(sim_session) / "poses_left.tum"))
+
+
+def test_local_processes_give_the_inline_depth(sim_session, first_run, tmp_path):
+    """Two worker processes (the default executor) and the same frames inline agree exactly."""
+    gt = _gt(sim_session)
+    res = run_process(sim_session, _config(tmp_path / "procs", workers=2, max_frames=6),
+                      odometry=lambda rig, maps: ScriptedOdometry(gt.t_ns, gt.T_world_x))
+    assert res.summary["executor"]["kind"] == "processes"
+    _same_depth(tmp_path / "procs", first_run[0], 6)
+
+
+@pytest.mark.cluster
+def test_dask_local_cluster_gives_the_inline_depth(sim_session, first_run, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    gt = _gt(sim_session)
+    with (
+        # TCP on loopback, so frames and results are serialised as between machines.
+        distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                                 protocol="tcp", host="127.0.0.1",
+                                 dashboard_address=None) as cluster,
+        distributed.Client(cluster) as client,
+    ):
+        res = run_process(sim_session, _config(tmp_path / "dask", workers=None,
+                                               scheduler=client, max_frames=6),
+                          odometry=lambda rig, maps: ScriptedOdometry(gt.t_ns, gt.T_world_x))
+    assert res.summary["executor"] == {"kind": "dask", "workers": 2, "in_flight": 6}
+    _same_depth(tmp_path / "dask", first_run[0], 6)
+
+
+def _same_depth(out_a: Path, out_b: Path, n: int) -> None:
+    a, b = FrameCache(out_a / "cache", {}), FrameCache(out_b / "cache", {})
+    stamps = sorted(a.stamps())
+    assert len(stamps) == n
+    for t in stamps:
+        ea, eb = a.get(t), b.get(t)
+        assert ea is not None and eb is not None
+        np.testing.assert_array_equal(ea[0]["depth_m"], eb[0]["depth_m"])
+        np.testing.assert_array_equal(ea[0]["fusion_depth_m"], eb[0]["fusion_depth_m"])
+
+
+def test_cli_process_with_known_poses(sim_session, first_run, tmp_path, capsys):
+    out = _with_cache(first_run[0], tmp_path / "cli")
+    code = main(["process", str(sim_session), "-o", str(out), "--poses",
+                 str(_gt_dir(sim_session) / "poses_left.tum"), "--workers", "0", "--json"])
+    assert code == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["frames_from_cache"] == 30 and s["odometry"].startswith("known poses")
+    assert s["ground_truth"].endswith("lake_gt")  # found beside the MCAP file
+    assert s["trajectory_vs_gt"]["ate_m"]["rmse"] < 1e-6
+
+
+def test_cli_process_bad_input_is_one_line(tmp_path, sim_session, capsys):
+    empty = tmp_path / "empty"
+    (empty / "left").mkdir(parents=True)
+    (empty / "right").mkdir()
+    assert main(["process", str(empty), "-o", str(tmp_path / "o"), "--workers", "0"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("sea3d: error:") and err.count("\n") == 1
+    with pytest.raises(SystemExit) as stop:  # argparse refuses both
+        main(["process", str(sim_session), "-o", str(tmp_path / "o2"), "--workers", "2",
+              "--scheduler", "tcp://127.0.0.1:1"])
+    assert stop.value.code == 2
+    assert main(["process", str(sim_session), "-o", str(tmp_path / "o3"),
+                 "--scheduler", "tcp://127.0.0.1:9"]) == 2
+    assert "cannot reach the Dask scheduler tcp://127.0.0.1:9" in capsys.readouterr().err
+
+
+def test_no_rig_is_a_clear_error(tmp_path, rng):
+    bare = tmp_path / "bare"
+    img = rng.integers(0, 255, (48, 64, 3), dtype=np.uint8)
+    with SessionWriter(bare, format="folder") as w:
+        w.write_stereo(0, img, img)
+        w.write_stereo(100_000_000, img, img)
+    with pytest.raises(SessionError, match="stores no rig; pass --rig"):
+        run_process(bare, _config(tmp_path / "o"))
+    from sea3d.io.rig_file import save_rig
+    from sea3d.refraction.presets import paper_rig
+
+    save_rig(paper_rig("dome"), tmp_path / "rig.yaml")
+    with pytest.raises(SessionError, match="images are 64x48 but the rig is 1920x1080"):
+        run_process(bare, _config(tmp_path / "o", rig_path=tmp_path / "rig.yaml",
+                                  size_px=(64, 48)))
+
+
+def test_the_enhancement_hook_colours_the_mesh(sim_session, first_run, tmp_path):
+    from scripted_odometry import tint_red
+
+    gt = _gt(sim_session)
+    res = run_process(sim_session, _config(tmp_path / "enh", enhance=tint_red, max_frames=3),
+                      odometry=lambda rig, maps: ScriptedOdometry(gt.t_ns, gt.T_world_x))
+    plain = read_mesh(first_run[0] / "mesh.ply").colors_rgb.astype(float).mean(axis=0)
+    tinted = res.mesh.colors_rgb.astype(float).mean(axis=0)
+    assert tinted[0] == pytest.approx(plain[0], rel=0.1)
+    assert tinted[1] < 0.6 * plain[1] and tinted[2] < 0.6 * plain[2]

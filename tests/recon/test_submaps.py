@@ -1,0 +1,170 @@
+"""Keyframe-anchored submaps: exact merge, loop closures move anchors, bounded memory."""
+
+import numpy as np
+import pytest
+
+from sea3d.errors import ReconError
+from sea3d.geometry.se3 import rotvec_to_R
+from sea3d.io.result_cache import DiskSubmapStore
+from sea3d.recon.submaps import FusionConfig, MemorySubmapStore, SubmapFusion, merge_submaps
+from sea3d.recon.tsdf import TsdfConfig, TsdfVolume
+from synthetic_views import BOX_HI, K, render, survey_poses
+
+VOXEL_M = 0.02
+TSDF = TsdfConfig(voxel_m=VOXEL_M)
+# Merging submaps whose grids coincide with the world is a weighted mean of the same values a
+# single volume accumulates: equal up to float32 rounding.
+EXACT_MERGE_TOL_M = 1e-6
+# Where the box top must be after fusion (a quarter voxel; a wrongly placed submap is off by
+# the whole planted error, 10 cm).
+PLACE_TOL_M = VOXEL_M / 4
+
+
+def _sorted(v):
+    return v[np.lexsort(v.T[::-1])]
+
+
+def _run(poses_used, keyframes, fusion, store, kf_poses=None):
+    kf = {} if kf_poses is None else kf_poses
+    for i, T in enumerate(poses_used):
+        d, c = render(_TRUE[i])  # images from the true poses, integrated with poses_used
+        kid = keyframes.get(i)
+        if kid is not None:
+            kf[kid] = T
+        st = fusion.step(t_ns=i, trusted=True, keyframe_id=kid, depth_m=d, color_rgb=c, K=K,
+                         T_world_cam=T, keyframe_poses=kf)
+        for sm in st.finished:
+            store.put(sm)
+    last = fusion.finish()
+    if last is not None:
+        store.put(last)
+    return kf
+
+
+_TRUE = survey_poses(12)
+_KEYFRAMES = {i: i // 2 for i in range(0, 12, 2)}
+
+
+@pytest.fixture(scope="module")
+def single_volume_mesh():
+    vol = TsdfVolume(TSDF)
+    for T in _TRUE:
+        d, c = render(T)
+        vol.integrate(d, c, K, T)
+    return vol.extract_mesh()
+
+
+def test_merge_without_loop_closure_equals_one_volume(single_volume_mesh):
+    store = MemorySubmapStore()
+    fusion = SubmapFusion(FusionConfig(tsdf=TSDF, keyframes_per_submap=2))
+    kf = _run(_TRUE, _KEYFRAMES, fusion, store)
+    assert store.ids() == [0, 1, 2]
+    merged = merge_submaps(store, kf, TSDF, tile_m=None)
+    assert merged.moved == 0
+    a, b = _sorted(merged.mesh.vertices), _sorted(single_volume_mesh.vertices)
+    assert a.shape == b.shape
+    np.testing.assert_allclose(a, b, atol=EXACT_MERGE_TOL_M)
+
+
+def test_tiled_merge_equals_the_whole_merge():
+    store = MemorySubmapStore()
+    kf = _run(_TRUE, _KEYFRAMES, SubmapFusion(FusionConfig(tsdf=TSDF, keyframes_per_submap=3)),
+              store)
+    whole = merge_submaps(store, kf, TSDF, tile_m=None).mesh
+    tiled = merge_submaps(store, kf, TSDF, tile_m=1.2).mesh  # several tiles: seams cross the map
+    assert len(tiled.triangles) == len(whole.triangles)
+    np.testing.assert_allclose(_sorted(tiled.vertices), _sorted(whole.vertices), atol=1e-9)
+
+
+def _box_top(mesh):
+    v = mesh.vertices
+    top = v[(v[:, 2] > 0.15) & (np.abs(v[:, 0]) < 0.15) & (np.abs(v[:, 1]) < 0.1)]
+    return np.median(top, axis=0), len(top)
+
+
+def test_a_loop_closure_moves_the_submaps_anchor_not_its_voxels():
+    # The odometry drifted: from frame 6 on every pose is 10 cm too high and turned 3 degrees.
+    drift = np.eye(4)
+    drift[:3, :3] = rotvec_to_R(np.array([0.0, 0.0, np.deg2rad(3.0)]))
+    drift[:3, 3] = (0.0, 0.0, 0.10)
+    drifted = [T if i < 6 else drift @ T for i, T in enumerate(_TRUE)]
+    only_late = {i: k for i, k in _KEYFRAMES.items() if i >= 6}
+    store = MemorySubmapStore()
+    fusion = SubmapFusion(FusionConfig(tsdf=TSDF, keyframes_per_submap=3))
+    # Frames 6-11 only, so the drifted part is one submap we can look at alone.
+    kf: dict[int, np.ndarray] = {}
+    for i in range(6, 12):
+        d, c = render(_TRUE[i])
+        kid = only_late.get(i)
+        if kid is not None:
+            kf[kid] = drifted[i]
+        for sm in fusion.step(t_ns=i, trusted=True, keyframe_id=kid, depth_m=d, color_rgb=c,
+                              K=K, T_world_cam=drifted[i], keyframe_poses=kf).finished:
+            store.put(sm)
+    store.put(fusion.finish())
+    before = merge_submaps(store, kf, TSDF, tile_m=None)
+    top_before, _ = _box_top(before.mesh)
+    assert top_before[2] == pytest.approx(BOX_HI[2] + 0.10, abs=PLACE_TOL_M)
+    # The loop closure puts the keyframes back where they belong; no frame is integrated again.
+    corrected = {k: _TRUE[i] for i, k in only_late.items()}
+    after = merge_submaps(store, corrected, TSDF, tile_m=None)
+    assert after.moved == 1
+    top_after, n = _box_top(after.mesh)
+    assert n > 100
+    assert top_after[2] == pytest.approx(BOX_HI[2], abs=PLACE_TOL_M)
+    assert abs(top_after[0]) < 0.02
+
+
+def test_memory_is_bounded_by_the_active_submap():
+    cfg = FusionConfig(tsdf=TSDF, keyframes_per_submap=100, max_blocks=150)
+    fusion = SubmapFusion(cfg)
+    store = MemorySubmapStore()
+    poses = survey_poses(16, span_m=3.0)
+    kf: dict[int, np.ndarray] = {}
+    for i, T in enumerate(poses):
+        d, c = render(T)
+        kid = i if i % 4 == 0 else None  # full submaps end between keyframes too
+        if kid is not None:
+            kf[kid] = T
+        for sm in fusion.step(t_ns=i, trusted=True, keyframe_id=kid, depth_m=d, color_rgb=c,
+                              K=K, T_world_cam=T, keyframe_poses=kf).finished:
+            assert len(sm.blocks) <= 2 * cfg.max_blocks  # one frame's blocks past the limit
+            store.put(sm)
+        # What fusion holds stays bounded however far the survey goes.
+        assert fusion.memory_bytes() <= 1024 * TSDF.block_bytes
+    store.put(fusion.finish())
+    assert len(store.ids()) >= 3
+
+
+def test_untrusted_frames_and_non_keyframes_by_policy():
+    d, c = render(_TRUE[0])
+    f = SubmapFusion(FusionConfig(tsdf=TSDF, integrate="keyframes"))
+    kf = {0: _TRUE[0]}
+    args = {"depth_m": d, "color_rgb": c, "K": K, "T_world_cam": _TRUE[0]}
+    assert f.step(t_ns=0, trusted=False, keyframe_id=0, keyframe_poses=kf,
+                  **args).status == "skipped_untrusted"
+    assert f.step(t_ns=1, trusted=True, keyframe_id=None, keyframe_poses=kf,
+                  **args).status == "skipped_not_keyframe"
+    assert f.step(t_ns=2, trusted=True, keyframe_id=0, keyframe_poses=kf,
+                  **args).status == "integrated"
+    g = SubmapFusion(FusionConfig(tsdf=TSDF))
+    assert g.step(t_ns=0, trusted=True, keyframe_id=None, keyframe_poses={},
+                  **args).status == "skipped_no_anchor"
+
+
+def test_disk_store_round_trip_and_damage(tmp_path):
+    store = DiskSubmapStore(tmp_path / "submaps")
+    fusion = SubmapFusion(FusionConfig(tsdf=TSDF, keyframes_per_submap=2))
+    kf = _run(_TRUE[:6], {0: 0, 2: 1, 4: 2}, fusion, store)
+    mem = merge_submaps(store, kf, TSDF).mesh
+    back = store.get(0)
+    assert back.frames == 4 and back.keyframe_ids == (0, 1)
+    assert len(mem.triangles) > 1000
+    p = tmp_path / "submaps" / "1.s3c"
+    data = bytearray(p.read_bytes())
+    data[-10] ^= 0xFF
+    p.write_bytes(bytes(data))
+    with pytest.raises(ReconError, match=r"submap 1 .* damaged.*checksum"):
+        store.get(1)
+    with pytest.raises(ReconError, match="anchor keyframe"):
+        merge_submaps(store, {}, TSDF)
