@@ -22,7 +22,7 @@ Sections (all by default; pick with --only):
   pinhole at the rays' closest point, and that plus refractive bundle adjustment.
 
 Rendered sequences are cached in ``--cache`` (default ``benchmarks/.cache``). Trajectory errors
-use a private Umeyama alignment (``sea3d.sfm._align``) until ``sea3d.eval.trajectory`` lands.
+use ``sea3d.eval.trajectory.umeyama`` (Sim(3) for the scale, SE(3) for the ATE).
 
     python benchmarks/bench_sfm.py [--only ports|sift|field|stereo|refraction] [--size 640x360]
         [--frames 40] [--no-reference]
@@ -44,7 +44,7 @@ from sea3d.geometry.rig import StereoRig
 from sea3d.geometry.se3 import invert_T
 from sea3d.refraction.presets import paper_rig
 from sea3d.sfm import SfmConfig, SfmFrame, run_sfm
-from sea3d.sfm._align import umeyama
+from sea3d.eval.trajectory import umeyama
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("SEA3D_TEST_DATA", str(ROOT / ".." / "shared" / "data")))
@@ -223,8 +223,8 @@ def _errors(res: Any, data: dict[str, np.ndarray], scale: float = 1.0) -> dict[s
     idx = [int(np.nonzero(data["t_ns"] == int(n))[0][0]) for n in res.names]
     est = res.T_world_left[:, :3, 3] * scale
     gt = data["T_world_left"][idx][:, :3, 3]
-    s, _, _ = umeyama(est, gt, True)
-    _, R, t = umeyama(est, gt, False)
+    _, _, s = umeyama(est, gt, with_scale=True)
+    R, t, _ = umeyama(est, gt, with_scale=False)
     ate = float(np.sqrt(np.mean(np.sum((est @ R.T + t - gt) ** 2, axis=1))))
     pts = (res.points_world * scale) @ R.T + t
     # rotation error: mean angle between estimated and true orientations after alignment

@@ -16,15 +16,27 @@ import numpy as np
 import pytest
 
 from sea3d.cli import main
-from sea3d.io.tum import read_tum
+from sea3d.eval.trajectory import umeyama
+from sea3d.geometry.se3 import R_to_quat_wxyz
+from sea3d.io.trajectory_files import read_trajectory
 from sea3d.refraction.presets import PAPER_BASELINE_M
-from sea3d.sfm._align import ate_rmse
 
 STEREO_SCALE_REL = 0.03  # metric scale of --camera stereo at 320x180 (measured 1.5 %)
 STEREO_ATE_M = 0.01  # SE(3)-aligned (no scale) ATE of the stereo model (measured 2.5 mm)
 PRIOR_POSITION_M = 0.01  # pose priors from ground truth: positions with no alignment (2 mm)
 SELFCAL_ATE_M = 0.02  # Sim(3)-aligned ATE of a self-calibrated monocular model (5 mm)
 BASELINE_M = 1e-9  # the rig's baseline in rigs.bin, held fixed
+
+
+def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    tr = read_trajectory(path, "tum")
+    return tr.t_ns.astype(np.float64) * 1e-9, tr.T_world_x
+
+
+def ate_rmse(est: np.ndarray, gt: np.ndarray, with_scale: bool) -> tuple[float, float]:
+    R, t, s = umeyama(est, gt, with_scale=with_scale)
+    err = s * est @ R.T + t - gt
+    return float(np.sqrt(np.mean(np.sum(err**2, axis=1)))), s
 
 
 def _gt_positions(session: Path, t_s: np.ndarray) -> np.ndarray:
@@ -74,10 +86,17 @@ def test_stereo_session_gives_a_metric_model_and_all_files(
 def test_monocular_with_pose_priors_lands_in_the_priors_world(
     sim_session: Path, tmp_path: Path
 ) -> None:
+    # the priors as a EuRoC CSV (stamps in ns, quaternion w first): any trajectory file works
+    tr = read_trajectory(sim_session / "gt" / "poses_left.tum")
+    euroc = tmp_path / "priors.csv"
+    rows = ["#timestamp [ns],p_x,p_y,p_z,q_w,q_x,q_y,q_z"]
+    for t_ns, T in zip(tr.t_ns, tr.T_world_x, strict=True):
+        q = R_to_quat_wxyz(T[:3, :3])
+        rows.append(",".join([str(int(t_ns))] + [f"{v:.9f}" for v in (*T[:3, 3], *q)]))
+    euroc.write_text("\n".join(rows) + "\n")
     out = tmp_path / "out"
-    gt_tum = sim_session / "gt" / "poses_left.tum"
     assert main(["-q", "sfm", str(sim_session), "-o", str(out), "--pose-priors",
-                 str(gt_tum)]) == 0
+                 str(euroc)]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["metric"] is True and summary["metric_source"] == "pose_priors"
     t, T = read_tum(out / "trajectory.tum")

@@ -60,9 +60,14 @@ def register(sub: Any) -> None:
     p.add_argument("--refractive-ba", choices=["auto", "on", "off"], default="auto",
                    help="refractive bundle adjustment (auto: when the virtual pinhole's "
                         "residual over the working range exceeds 0.25 px)")
-    p.add_argument("--pose-priors", metavar="TRAJ.tum",
-                   help="TUM trajectory of the left camera (odometry, ground truth) used as "
+    p.add_argument("--pose-priors", metavar="TRAJ",
+                   help="trajectory of the left camera (TUM, KITTI with --pose-priors-times, "
+                        "or EuRoC CSV; sea3d odometry/process output or ground truth) used as "
                         "position priors; the model is then in its (metric) world")
+    p.add_argument("--pose-priors-format", choices=["tum", "kitti", "euroc"],
+                   help="format of --pose-priors (default: from its extension and first line)")
+    p.add_argument("--pose-priors-times", metavar="TIMES.txt",
+                   help="KITTI times.txt (one stamp in seconds per pose) for --pose-priors")
     p.add_argument("--prior-std", type=float, default=0.05,
                    help="pose-prior position standard deviation, metres")
     p.add_argument("--imu-scale", action="store_true",
@@ -193,13 +198,15 @@ def _imu_extrinsics(args: argparse.Namespace, rig: Any) -> Any:
 def _cmd_sfm(args: argparse.Namespace) -> int:
     import contextlib
 
+    import numpy as np
+
     from tqdm import tqdm
 
     from sea3d.errors import SfmError
     from sea3d.io.depth_files import write_ply
     from sea3d.io.rig_file import load_rig, rig_from_yaml
     from sea3d.io.sfm_files import write_colmap_model, write_summary
-    from sea3d.io.tum import read_tum, write_tum
+    from sea3d.io.trajectory_files import read_trajectory, write_tum
     from sea3d.sfm import PosePriors, SfmConfig, run_sfm
 
     make = SfmConfig.fast if args.fast else SfmConfig
@@ -218,8 +225,13 @@ def _cmd_sfm(args: argparse.Namespace) -> int:
                        "with IMU samples")
     priors = None
     if args.pose_priors:
-        t_p, T_p = read_tum(args.pose_priors)
-        priors = PosePriors(t_s=t_p, T_world_left=T_p, source=str(args.pose_priors))
+        traj = read_trajectory(args.pose_priors, args.pose_priors_format,
+                               kitti_times=args.pose_priors_times)
+        if not traj.timed:
+            raise SfmError(f"{args.pose_priors}: a KITTI trajectory has no stamps; give its "
+                           "times.txt with --pose-priors-times")
+        priors = PosePriors(t_s=traj.t_ns.astype(np.float64) * 1e-9,
+                            T_world_left=traj.T_world_x, source=str(args.pose_priors))
     with contextlib.ExitStack() as stack:
         rig = load_rig(args.rig) if args.rig else None
         imu = None
@@ -289,14 +301,17 @@ def _cmd_sfm(args: argparse.Namespace) -> int:
         T = result.T_world_left.copy()
         T[:, :3, 3] *= scale
         if scale != 1.0:
-            import numpy as np
             import pycolmap
 
             result.reconstruction.transform(
                 pycolmap.Sim3d(scale, pycolmap.Rotation3d(np.eye(3)), np.zeros(3)))
         write_colmap_model(result.reconstruction, out / "sparse")
         write_ply(out / "points.ply", result.points_world * scale, result.colors_rgb)
-        write_tum(out / "trajectory.tum", result.t_s, T)
+        # sessions name frames by their integer stamp (exact); a glob's t is the image index
+        t_ns = (np.array([int(n) for n in result.names], dtype=np.int64) if session else
+                np.round(np.asarray(result.t_s) * 1e9).astype(np.int64))
+        write_tum(out / "trajectory.tum", t_ns, T,
+                  header="t x y z qx qy qz qw (T_world_left, metres when metric)")
     write_summary(out / "summary.json", summary)
     if result.status == "failed":
         raise SfmError(f"{src}: {result.message}")
