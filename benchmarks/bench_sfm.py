@@ -40,11 +40,11 @@ from typing import Any
 
 import numpy as np
 
+from sea3d.eval.trajectory import umeyama
 from sea3d.geometry.rig import StereoRig
 from sea3d.geometry.se3 import invert_T
 from sea3d.refraction.presets import paper_rig
 from sea3d.sfm import SfmConfig, SfmFrame, run_sfm
-from sea3d.eval.trajectory import umeyama
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("SEA3D_TEST_DATA", str(ROOT / ".." / "shared" / "data")))

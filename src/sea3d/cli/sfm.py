@@ -199,7 +199,6 @@ def _cmd_sfm(args: argparse.Namespace) -> int:
     import contextlib
 
     import numpy as np
-
     from tqdm import tqdm
 
     from sea3d.errors import SfmError
