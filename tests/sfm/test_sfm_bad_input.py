@@ -78,3 +78,19 @@ def test_config_is_validated() -> None:
         SfmConfig(matcher="vocabtree")
     with pytest.raises(ConfigError, match="depth_range_m"):
         SfmConfig(depth_range_m=(2.0, 1.0))
+
+
+def test_pose_priors_must_be_a_stamped_trajectory(tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    # the priors are read before the input is opened, so any input will do
+    sim_session = tmp_path
+    kitti = tmp_path / "poses.txt"  # KITTI: 12 values a line, no stamps
+    kitti.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n" * 3)
+    out = str(tmp_path / "o")
+    err = _err(capsys, ["sfm", str(sim_session), "-o", out, "--pose-priors", str(kitti)])
+    assert str(kitti) in err and "--pose-priors-times" in err
+    bad = tmp_path / "bad.tum"
+    bad.write_text("0.0 1 2 3 0 0 0\n")
+    err = _err(capsys, ["sfm", str(sim_session), "-o", out, "--pose-priors", str(bad),
+                        "--pose-priors-format", "tum"])
+    assert str(bad) in err and "expected 8" in err
