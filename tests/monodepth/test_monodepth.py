@@ -174,3 +174,52 @@ def test_providers_and_dynamic_input_size(make_net: object) -> None:
     assert y.shape == (1080, 1920)
     with pytest.raises(ConfigError):
         MonoDepthConfig(output_kind="disparity")
+
+
+SFM_REL = 1e-3  # oracle network aligned to exact SfM points (float32 map; measured ~1e-6);
+# a half-pixel slip in COLMAP's pixel convention costs about 1 % on this plane
+
+
+def test_cli_aligns_to_the_points_of_a_colmap_model(
+    make_net: object, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import pycolmap
+
+    h, w, f = 48, 64, 50.0
+    vv, uu = np.mgrid[0:h, 0:w].astype(np.float64)
+    z = 1.0 + 5.0 * uu / (w - 1) + 0.5 * vv / (h - 1)  # a tilted plane, 1-6.5 m
+    net = make_net("constant", h, w, constant=2.3 / z + 0.1)  # type: ignore[operator]
+    cv2.imwrite(str(tmp_path / "left.png"), np.full((h, w), 128, np.uint8))
+    # a COLMAP model of one image seeing 200 points on the plane at whole pixels
+    rng = np.random.default_rng(0)
+    uv = np.round(rng.uniform([2, 2], [w - 3, h - 3], (200, 2)))
+    zp = z[uv[:, 1].astype(int), uv[:, 0].astype(int)]
+    cx, cy = w / 2 - 0.5, h / 2 - 0.5  # our convention: the top-left pixel centre is (0, 0)
+    xyz = np.column_stack([(uv[:, 0] - cx) / f * zp, (uv[:, 1] - cy) / f * zp, zp])
+    rec = pycolmap.Reconstruction()
+    rec.add_camera_with_trivial_rig(pycolmap.Camera(
+        model="PINHOLE", width=w, height=h, params=[f, f, cx + 0.5, cy + 0.5], camera_id=1))
+    rec.add_image_with_trivial_frame(
+        pycolmap.Image(name="left.png", keypoints=uv + 0.5, camera_id=1, image_id=1),
+        pycolmap.Rigid3d())
+    for k in range(len(xyz)):
+        track = pycolmap.Track()
+        track.add_element(1, k)
+        rec.add_point3D(xyz[k], track)
+    model = tmp_path / "sparse"
+    model.mkdir()
+    rec.write_binary(str(model))
+    out = tmp_path / "depth.npy"
+    assert main(["mono-depth", str(tmp_path / "left.png"), "--model", str(net), "-o", str(out),
+                 "--align-sfm", str(model), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    n_pixels = len(np.unique(uv, axis=0))  # one sample per pixel (the nearest point)
+    assert summary["alignment"]["status"] == "ok"
+    assert summary["alignment"]["samples"] == n_pixels
+    depth = np.load(out)
+    assert float(np.max(np.abs(depth - z) / z)) < SFM_REL
+    # an image the model does not hold is named
+    cv2.imwrite(str(tmp_path / "other.png"), np.full((h, w), 128, np.uint8))
+    assert main(["mono-depth", str(tmp_path / "other.png"), "--model", str(net), "-o",
+                 str(out), "--align-sfm", str(model)]) == 2
+    assert "no registered image named like 'other.png'" in capsys.readouterr().err
