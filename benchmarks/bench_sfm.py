@@ -24,7 +24,7 @@ Sections (all by default; pick with --only):
 Rendered sequences are cached in ``--cache`` (default ``benchmarks/.cache``). Trajectory errors
 use ``sea3d.eval.trajectory.umeyama`` (Sim(3) for the scale, SE(3) for the ATE).
 
-    python benchmarks/bench_sfm.py [--only ports|sift|field|stereo|refraction] [--size 640x360]
+    python benchmarks/bench_sfm.py [--only ports|sift|field|stereo|imu|refraction] [--size 640x360]
         [--frames 40] [--refraction-frames 20] [--no-reference]
 """
 
@@ -247,17 +247,31 @@ def _row(label: str, res: Any, err: dict[str, float], extra: str = "") -> None:
 
 
 def _imu_row(label: str, res: Any, data: dict[str, np.ndarray]) -> None:
+    """The monocular model scaled by the IMU: slerped rotations (what ``sea3d sfm --imu-scale``
+    does) and smoothed with the gyroscope (``gyro_radps=``)."""
     from sea3d.sfm.imu_scale import estimate_imu_scale
 
     imu = data["imu"]
-    est = estimate_imu_scale(res.t_s, res.T_world_left, imu[:, 0] * 1e-9, imu[:, 1:4],
-                             invert_T(data["T_body_left"]))
-    if est.status == "failed":
-        print(f"  {label:34s} IMU scale failed: {est.message}")
-        return
-    err = _errors(res, data, scale=est.scale)
-    _row(label, res, err, f"  [IMU {est.status}: +-{100 * est.relative_std:.2f} % 1 sigma, "
-                          f"chi2/dof {est.chi2_per_dof:.2f}]")
+    for how, gyro in (("", None), (" + gyro", imu[:, 4:7])):
+        est = estimate_imu_scale(res.t_s, res.T_world_left, imu[:, 0] * 1e-9, imu[:, 1:4],
+                                 invert_T(data["T_body_left"]), gyro_radps=gyro)
+        if est.status == "failed":
+            print(f"  {label + how:34s} IMU scale failed: {est.message}")
+            continue
+        err = _errors(res, data, scale=est.scale)
+        _row(label + how, res, err, f"  [IMU {est.status}: +-{100 * est.relative_std:.2f} % "
+                                    f"1 sigma, chi2/dof {est.chi2_per_dof:.2f}]")
+
+
+def bench_imu(cache: Path, size: tuple[int, int], frames: int, fps: float) -> None:
+    """Only the monocular runs of the stereo section, scaled by the IMU."""
+    rig = paper_rig("dome", size_px=size)
+    print(f"imu: monocular SfM scaled by the IMU, paper dome rig at {size[0]}x{size[1]}, "
+          f"{frames} frames at {fps:g} fps, {_load()}")
+    for traj in ("lawnmower", "handheld"):
+        data = simulate(cache, rig, "paper_dome", traj, frames, fps, size)
+        mono = run_sfm(_frames(data), SfmConfig(camera="left"), rig=rig)
+        _imu_row(f"{traj} monocular x IMU scale", mono, data)
 
 
 def bench_stereo(cache: Path, size: tuple[int, int], frames: int, fps: float) -> None:
@@ -338,7 +352,8 @@ def bench_ports(size: tuple[int, int] = (960, 540), depth_range_m: tuple[float, 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--only", choices=["ports", "sift", "field", "stereo", "refraction"])
+    parser.add_argument("--only",
+                        choices=["ports", "sift", "field", "stereo", "imu", "refraction"])
     parser.add_argument("--size", default="640x360")
     parser.add_argument("--frames", type=int, default=40)
     parser.add_argument("--fps", type=float, default=2.0)
@@ -357,6 +372,8 @@ def main() -> None:
         bench_field(not args.no_reference, args.overlap)
     if args.only in (None, "stereo"):
         bench_stereo(args.cache, (w, h), args.frames, args.fps)
+    if args.only == "imu":
+        bench_imu(args.cache, (w, h), args.frames, args.fps)
     if args.only in (None, "refraction"):
         bench_refraction(args.cache, (w, h), args.frames, args.fps, args.refraction_frames)
 
