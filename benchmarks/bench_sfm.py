@@ -247,8 +247,8 @@ def _row(label: str, res: Any, err: dict[str, float], extra: str = "") -> None:
 
 
 def _imu_row(label: str, res: Any, data: dict[str, np.ndarray]) -> None:
-    """The monocular model scaled by the IMU: slerped rotations (what ``sea3d sfm --imu-scale``
-    does) and smoothed with the gyroscope (``gyro_radps=``)."""
+    """The monocular model scaled by the IMU: slerped SfM rotations, and the rotations smoothed
+    with the gyroscope (``gyro_radps=``, what ``sea3d sfm --imu-scale`` does)."""
     from sea3d.sfm.imu_scale import estimate_imu_scale
 
     imu = data["imu"]
