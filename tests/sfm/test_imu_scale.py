@@ -75,7 +75,7 @@ def test_no_imu_over_the_frames_is_a_failed_result_and_bad_shapes_raise() -> Non
 
 ROT_NOISE_RAD = np.radians(0.2)  # white SfM rotation noise put on the trajectory
 SMOOTH_GAIN_MIN = 3.0  # measured 5-10x lower RMS rotation error with the MTi-300 gyroscope
-GYRO_SCALE_TOL = 0.02  # measured 0.30, 0.37, 1.15 % over seeds 0-2 (docstring of gyro_radps)
+GYRO_SCALE_TOL = 0.02  # measured 0.35, 0.36, 1.15 % over seeds 0-2 (docstring of gyro_radps)
 
 
 def test_gyroscope_smooths_noisy_rotations_and_keeps_the_scale() -> None:

@@ -249,7 +249,7 @@ def estimate_imu_scale(
             otherwise they are interpolated (slerp). Rotation errors tilt gravity into the
             integrated acceleration. Measured (tests/sfm/test_imu_scale.py's lawnmower, 15 s,
             10 fps, MTi-300, 0.2 degrees of white rotation noise, seeds 0-2): scale errors
-            1.06, 0.63, 0.24 % without the gyroscope and 0.30, 0.37, 1.15 % with it. The
+            1.06, 0.63, 0.24 % without the gyroscope and 0.35, 0.36, 1.15 % with it. The
             smoothed rotations are 5-10x closer to the truth, but what remains is a slowly
             varying tilt (the gyroscope's angle random walk, about 4e-4 rad) that double
             integration does not average out, while white per-frame noise partly does: the
