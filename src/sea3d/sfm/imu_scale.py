@@ -252,8 +252,9 @@ def estimate_imu_scale(
             1.06, 0.63, 0.24 % without the gyroscope and 0.35, 0.36, 1.15 % with it. The
             smoothed rotations are 5-10x closer to the truth, but what remains is a slowly
             varying tilt (the gyroscope's angle random walk, about 4e-4 rad) that double
-            integration does not average out, while white per-frame noise partly does: the
-            gyroscope pays off for noisy or low-rate trajectories, not for SfM at 10 fps.
+            integration does not average out, while white per-frame noise partly does. On a
+            real monocular SfM model, whose rotation errors drift slowly, the gyroscope (with
+            the bias prior below) is what makes the scale usable (docs/sfm.md).
         gyro_noise_density_radps_sqrthz: gyroscope white noise density (the smoother's
             weight of the gyroscope).
         rotation_noise_rad: the trajectory's rotation noise (the smoother's weight of it).
