@@ -334,7 +334,7 @@ def _imu_scale(result: Any, imu: Any, T_cam_body: Any,
     if result.metric:
         summary["imu_scale"] = {"status": "skipped", "message": "the model is metric already"}
         return None, 1.0
-    # with the gyroscope: measured -1.1 % against -6.7 % (lawnmower) and -0.04 % against
+    # with the gyroscope: measured -0.9 % against -5.9 % (lawnmower) and -0.17 % against
     # +1.0 % (hand-held) without it, benchmarks/bench_sfm.py --only imu
     est = estimate_imu_scale(result.t_s, result.T_world_left,
                              imu.t_ns.astype(np.float64) * 1e-9, imu.accel_mps2, T_cam_body,

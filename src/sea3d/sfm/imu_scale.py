@@ -261,9 +261,9 @@ def estimate_imu_scale(
         gyro_bias_std_radps: prior standard deviation of the gyroscope bias (zero mean), or
             None to estimate it freely. A free bias absorbs a slow rotation drift of the
             trajectory (the gyroscope then inherits it): on the simulated lawnmower's monocular
-            SfM (0.28 degrees rotation error) the scale error was -4.4 % with a free bias,
-            -1.1 % with this default (the MTi-300's in-run stability, 10 deg/h) and -0.7 % with
-            2e-5 rad/s (benchmarks/bench_sfm.py --only imu).
+            SfM (0.29 degrees rotation error) the scale error was -4.2 % with a free bias and
+            -0.9 % with this default (the MTi-300's in-run stability, 10 deg/h), against
+            -5.9 % without the gyroscope (benchmarks/bench_sfm.py --only imu).
 
     Returns:
         :class:`ImuScaleResult` (a status, never an exception, for valid input that does not
