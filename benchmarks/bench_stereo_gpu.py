@@ -4,11 +4,14 @@ Accuracy on Middlebury (bad-2.0 %, density) and speed at 1920x1080 and 3840x2160
 disparities. Needs CuPy and an NVIDIA GPU; run it where one is lent:
 
     python benchmarks/bench_stereo_gpu.py --data ../shared/data [--repeats 5]
+
+``--cpu-only`` prints the CPU columns alone (sea3d CPU SGM, OpenCV) on a machine without a GPU.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 from pathlib import Path
@@ -53,42 +56,52 @@ def _median_time(fn, repeats: int) -> float:
     return statistics.median(ts)
 
 
-def accuracy(data: Path) -> None:
+def accuracy(data: Path, gpu: bool = True) -> None:
     print("Middlebury bad-2.0 % (lower is better) / density %")
     print(f"{'scene':8s} {'gpu sgm':>16s} {'cpu sgm':>16s} {'opencv hh':>16s}")
     for name, (l, r, g, scale, dmax) in SCENES.items():
         folder = data / "stereo_gt" / name
         left, right = _read(_find(folder, l)), _read(_find(folder, r))
         gt = read_disparity(_find(folder, g), scale=scale)
-        gpu, _ = match_gpu_sgm(left, right, GpuSgmConfig(max_disparity_px=dmax))
         cpu = match(left, right, make_config("sea3d", dmax)).disparity_px
         ocv = match(left, right, make_config("opencv-hh", dmax)).disparity_px
-        cells = []
-        for est in (gpu, cpu, ocv):
+        cells = [] if gpu else ["-"]
+        ests = [cpu, ocv]
+        if gpu:
+            ests.insert(0, match_gpu_sgm(left, right, GpuSgmConfig(max_disparity_px=dmax))[0])
+        for est in ests:
             m = disparity_metrics(est, gt)
             cells.append(f"{m.bad_2:6.2f} / {m.density:5.1f}")
         print(f"{name:8s} " + " ".join(f"{c:>16s}" for c in cells))
 
 
-def speed(repeats: int) -> None:
+def speed(repeats: int, gpu: bool = True, sizes: tuple[tuple[int, int], ...] = ((1920, 1080),
+                                                                             (3840, 2160))) -> None:
     rng = np.random.default_rng(0)
-    for w, h in ((1920, 1080), (3840, 2160)):
+    for w, h in sizes:
         base = cv2.GaussianBlur(rng.integers(0, 256, (h, w + 64)).astype(np.uint8), (3, 3), 0)
-        _speed_one(base[:, :w].copy(), base[:, 64:].copy(), repeats)  # disparity 64
+        _speed_one(base[:, :w].copy(), base[:, 64:].copy(), repeats, gpu)  # disparity 64
 
 
-def _speed_one(left: np.ndarray, right: np.ndarray, repeats: int) -> None:
+def _speed_one(left: np.ndarray, right: np.ndarray, repeats: int, gpu: bool = True) -> None:
     h, w = left.shape
     gpu_cfg = GpuSgmConfig(max_disparity_px=255)
-    t_gpu = _median_time(lambda: match_gpu_sgm(left, right, gpu_cfg), repeats)
-    _, tim = match_gpu_sgm(left, right, gpu_cfg)
+    if gpu:
+        t_gpu = _median_time(lambda: match_gpu_sgm(left, right, gpu_cfg), repeats)
+        _, tim = match_gpu_sgm(left, right, gpu_cfg)
     ocv = make_config("opencv", 255)
     t_ocv = _median_time(lambda: match(left, right, ocv), max(1, repeats // 2))
     ocv3 = make_config("opencv-3way", 255)
     t_ocv3 = _median_time(lambda: match(left, right, ocv3), max(1, repeats // 2))
     cpu = make_config("sea3d", 255)
     t_cpu = _median_time(lambda: match(left, right, cpu), max(1, repeats // 2))
-    print(f"{w}x{h}, 256 disparities, median of {repeats}:")
+    print(f"{w}x{h}, 256 disparities, median of {repeats} (CPU engines: {max(1, repeats // 2)}"
+          f"); load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}:")
+    if not gpu:
+        print(f"  sea3d CPU SGM         {t_cpu:8.3f} s  wall ratio sea3d/3WAY {t_cpu / t_ocv3:.3f}")
+        print(f"  OpenCV MODE_SGBM      {t_ocv:8.3f} s")
+        print(f"  OpenCV SGBM_3WAY      {t_ocv3:8.3f} s")
+        return
     print(
         f"  sea3d GPU SGM         {t_gpu:8.3f} s  (device match {tim['match_s']:.3f} s, "
         f"upload {tim['upload_s']:.3f} s, download {tim['download_s']:.3f} s)"
@@ -102,10 +115,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=Path("../shared/data"))
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--cpu-only", action="store_true",
+                        help="no GPU: print the CPU engines' columns only (1080p speed)")
     args = parser.parse_args()
+    gpu = not args.cpu_only
     if (args.data / "stereo_gt").is_dir():
-        accuracy(args.data)
-    speed(args.repeats)
+        accuracy(args.data, gpu)
+    speed(args.repeats, gpu, ((1920, 1080), (3840, 2160)) if gpu else ((1920, 1080),))
 
 
 if __name__ == "__main__":

@@ -50,6 +50,10 @@ def register(sub: Any) -> None:
                         help="also start the refinement from OpenCV's stereoCalibrate")
     stereo.set_defaults(handler=_stereo)
 
+    from sea3d.cli.odometry import register_calibrate_imu
+
+    register_calibrate_imu(csub)  # sea3d calibrate imu: camera-IMU rotation and time offset
+
     port = csub.add_parser("port", help="refractive dome/flat-port calibration from in-water "
                                         "board images and an in-air rig")
     port.add_argument("--rig", required=True, metavar="RIG", help="in-air rig (pinhole)")

@@ -485,7 +485,7 @@ def export_session(
                     w.write_sonar(t, float(m.range), float("nan"))
                 except SessionError as err:
                     _log.warning("echosounder sample skipped: %s", err)
-        counts = dict(w.counts)
+    counts = dict(w.counts)  # after close: the writer counts only what reached the file
     return {
         "counts": counts,
         "unpaired_left": len(lefts) - len(pairs),

@@ -123,7 +123,7 @@ def run_demo(
     from sea3d.pipeline.report import write_process_report
     from sea3d.refraction.presets import paper_rig
     from sea3d.sim import builtin_scene, load_scene, scale_rig
-    from sea3d.sim.survey import SurveyConfig, simulate_survey
+    from sea3d.sim.survey import SurveyConfig, simulate_survey, with_survey_sensors
 
     def step(msg: str) -> None:
         log.debug(msg)
@@ -155,10 +155,12 @@ def run_demo(
     )
     t0 = time.perf_counter()
     bar = bars("dive", config.frames) if bars is not None else None
-    with SessionWriter(session, format="folder", rig_yaml=rig_to_yaml(rig)) as writer:
-        simulate_survey(scene, rig, SurveyConfig(frames=config.frames, water=config.water,
-                                                 seed=config.seed),
-                        writer, session / "gt", progress=bar.update if bar else None)
+    survey = SurveyConfig(frames=config.frames, water=config.water, seed=config.seed)
+    # the session's rig describes the simulated IMU (and echosounder), so the odometry uses it
+    session_rig = with_survey_sensors(rig, survey)
+    with SessionWriter(session, format="folder", rig_yaml=rig_to_yaml(session_rig)) as writer:
+        simulate_survey(scene, rig, survey, writer, session / "gt",
+                        progress=bar.update if bar else None)
     if bar is not None:
         bar.close()
     timings["simulate_s"] = time.perf_counter() - t0
@@ -218,7 +220,7 @@ def _intro_html(config: DemoConfig, summary: dict[str, Any]) -> str:
 def _depth_check(config: DemoConfig, rig: Any, session: Path, out: Path
                  ) -> tuple[str, dict[str, Any], float]:
     """The first pair's depth against ground truth (HTML fragment, figures, compile seconds)."""
-    from sea3d.eval.depth_gt import point_depth_errors
+    from sea3d.eval.depth_gt import depth_error_map, point_depth_errors
     from sea3d.io.session import open_session
     from sea3d.pipeline.report import depth_check_html
     from sea3d.rectify import rectify_rig
@@ -280,24 +282,12 @@ def _depth_check(config: DemoConfig, rig: Any, session: Path, out: Path
         disparity_range=(0.0, float(max_disp)),
         depth_rgb=_colorize(depth.depth_m, 0.5, 5.0),
         depth_range_m=(0.5, 5.0),
-        error_rgb=_colorize(_rectified_error(depth, rig, gt_depth), -0.05, 0.05),
+        error_rgb=_colorize(depth_error_map(depth, gt_depth), -0.05, 0.05),
         error_range_m=(-0.05, 0.05),
         cloud_rgb=_cloud_picture(depth.points_left, depth.colors_rgb),
         summary=summary,
     )
     return fragment, summary, compile_s
-
-
-def _rectified_error(depth: Any, rig: Any, gt_depth_m: NDArray[np.floating]) -> NDArray[np.float64]:
-    """Signed depth error (m) of each point, drawn at its pixel in the raw left image."""
-    h, w = gt_depth_m.shape
-    err = np.full((h, w), np.nan)
-    uv, ok = rig.left.project(depth.points_left)
-    u = np.rint(np.where(ok, uv[:, 0], -1)).astype(np.int64)
-    v = np.rint(np.where(ok, uv[:, 1], -1)).astype(np.int64)
-    inside = ok & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    err[v[inside], u[inside]] = depth.points_left[inside, 2] - gt_depth_m[v[inside], u[inside]]
-    return err
 
 
 def _cloud_picture(points: NDArray[np.float64], colors: NDArray[np.uint8]) -> NDArray[np.uint8]:

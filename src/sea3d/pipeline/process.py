@@ -216,21 +216,22 @@ def make_odometry(rig: Any, maps: Any, *, use_imu: bool, poses: Any | None,
 
         return KnownPoses(poses.t_ns, poses.T_world_x), f"known poses from {poses.path}"
     try:
-        from sea3d.odometry import create_odometry  # type: ignore[attr-defined]
-    except ImportError as err:
+        from sea3d.odometry import create_odometry
+    except ImportError as err:  # pragma: no cover - a build without the odometry package
         raise ConfigError(
             "this sea3d has no odometry yet (sea3d.odometry.create_odometry); give known poses "
             "with --poses TRAJ.tum"
         ) from err
     odo = create_odometry(rig, maps, use_imu=use_imu, config=config)
-    mode = "stereo-inertial" if use_imu else "visual"
-    return odo, f"sea3d {mode} odometry"
+    reason = odo.imu_disabled_reason
+    mode = "stereo-inertial" if use_imu and reason is None else "visual"
+    return odo, f"sea3d {mode} odometry" + (f" ({reason})" if mode == "visual" and reason else "")
 
 
 def odometry_available() -> bool:
     """True when this build has sea3d's own odometry (``sea3d.odometry.create_odometry``)."""
     try:
-        from sea3d.odometry import create_odometry  # type: ignore[attr-defined]  # noqa: F401
+        from sea3d.odometry import create_odometry  # noqa: F401
     except ImportError:
         return False
     return True
@@ -693,6 +694,32 @@ def _write_status_csv(path: Path, estimates: list[OdometryEstimate], fuse: list[
     os.replace(tmp, path)
 
 
+def _pose_alignment(t_est: NDArray[np.int64], T_est: F64, t_ref: NDArray[np.int64],
+                    T_ref: F64, axis_m: float = 1.0) -> F64:
+    """The rigid ``T_ref_est`` that puts the estimate's world (and its mesh) onto the reference's.
+
+    The ATE's alignment fits positions only, and a short survey leg is nearly a straight line:
+    the rotation about it is then undetermined (an 8-frame demo dive came out upside down, the
+    mesh 2.6 m off). Here every matched pose also gives the tips of its three axes, ``axis_m``
+    out, so orientations pin the rotation even when the positions are collinear.
+    """
+    from sea3d.eval.trajectory import associate, umeyama
+
+    i, j = associate(t_est, t_ref, 1_000_000)
+    if i.size == 0:
+        return np.eye(4)
+
+    def points(T: F64) -> F64:
+        p = T[:, :3, 3]
+        tips = [p + axis_m * T[:, :3, a] for a in range(3)]
+        return np.concatenate([p, *tips])
+
+    R, t, _ = umeyama(points(T_est[i]), points(T_ref[j]), with_scale=False)
+    S = np.eye(4)
+    S[:3, :3], S[:3, 3] = R, t
+    return S
+
+
 def _evaluate(session_path: Path, result: ProcessResult, rig_yaml: str,
               config: ProcessConfig) -> dict[str, Any]:
     """Trajectory and surface figures against the simulator's ground truth, if present."""
@@ -717,7 +744,8 @@ def _evaluate(session_path: Path, result: ProcessResult, rig_yaml: str,
                                     gt_traj.t_ns, gt_traj.T_world_x, align="se3",
                                     max_diff_s=0.001)
             out["trajectory_vs_gt"] = m.as_dict()
-            T_ref_est = np.asarray(m.T_ref_est)
+            T_ref_est = _pose_alignment(result.t_ns[trusted], result.T_world_left[trusted],
+                                        gt_traj.t_ns, gt_traj.T_world_x)
         except Sea3dError as err:
             out["trajectory_vs_gt"] = {"error": str(err)}
     if gt.scene_mesh is not None and not result.mesh.empty:

@@ -1,0 +1,324 @@
+"""The odometry's front end: corners, KLT tracking, left-right matching, pose by PnP RANSAC.
+
+All of it runs in the rectified images. Features are Shi-Tomasi corners, tracked frame to frame
+by pyramidal Lucas-Kanade (OpenCV) with a forward-backward check; predicted positions (from the
+IMU or a constant-velocity model) seed the search. Each tracked corner is matched into the
+rectified right image by Lucas-Kanade seeded with the depth map's disparity, checked backwards,
+on the row and against the depth map; the match is triangulated exactly
+(:meth:`RectifiedStereo.points_from_stereo`). Without a right image (RGB-D mode) the depth alone
+gives the point. The pose of a frame comes from OpenCV's PnP RANSAC on the landmarks' world
+positions, refined by Levenberg-Marquardt on the inliers.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from sea3d.odometry.config import OdometryConfig
+from sea3d.odometry.stereo_geometry import RectifiedStereo
+
+_NO_DIST = np.zeros(4)  # rectified, virtual-pinhole consistent pixels: no distortion
+
+__all__ = [
+    "StereoPoints",
+    "detect_corners",
+    "sample_depth",
+    "solve_pnp",
+    "stereo_points",
+    "to_grey",
+    "track_klt",
+]
+
+F64 = NDArray[np.float64]
+F32 = NDArray[np.float32]
+B = NDArray[np.bool_]
+
+
+def to_grey(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    """``(H, W)`` uint8 grey of a grey or RGB image."""
+    if image.ndim == 2:
+        return np.ascontiguousarray(image)
+    return np.ascontiguousarray(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY))
+
+
+def sample_depth(depth_m: NDArray[np.float32], uv: F64, *, max_step: float = 0.05) -> F64:
+    """Depth at pixels ``uv`` (nearest pixel), NaN where the 3x3 neighbourhood is incomplete or
+    spans a depth step larger than ``max_step`` of the depth (edges, where a corner's depth is
+    ambiguous)."""
+    h, w = depth_m.shape
+    u = np.rint(uv[:, 0]).astype(np.int64)
+    v = np.rint(uv[:, 1]).astype(np.int64)
+    inside = (u >= 1) & (u < w - 1) & (v >= 1) & (v < h - 1)
+    out = np.full(uv.shape[0], np.nan)
+    if not inside.any():
+        return out
+    ui, vi = u[inside], v[inside]
+    patch = np.stack(
+        [depth_m[vi + dv, ui + du] for dv in (-1, 0, 1) for du in (-1, 0, 1)], axis=1
+    ).astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        lo, hi = patch.min(axis=1), patch.max(axis=1)
+        centre = patch[:, 4]
+        ok = np.isfinite(patch).all(axis=1) & (hi - lo <= max_step * centre) & (centre > 0)
+    vals = np.where(ok, centre, np.nan)
+    out[inside] = vals
+    return out
+
+
+def detect_corners(
+    grey: NDArray[np.uint8],
+    existing_uv: F64,
+    count: int,
+    config: OdometryConfig,
+    valid_mask: NDArray[np.bool_] | None = None,
+) -> F64:
+    """Up to ``count`` new Shi-Tomasi corners away from ``existing_uv`` and the border.
+
+    Returns:
+        ``(M, 2)`` float64 pixels.
+    """
+    if count <= 0:
+        return np.zeros((0, 2))
+    h, w = grey.shape
+    scale = w / 640.0
+    min_dist = max(3.0, config.min_feature_distance_px * scale)
+    border = int(max(8, round(10 * scale)))
+    mask = np.zeros((h, w), np.uint8)
+    mask[border : h - border, border : w - border] = 255
+    if valid_mask is not None:
+        mask[~valid_mask] = 0
+    r = round(min_dist)
+    for u, v in existing_uv:
+        if np.isfinite(u) and np.isfinite(v):
+            cv2.circle(mask, (round(u), round(v)), r, 0, -1)
+    pts = cv2.goodFeaturesToTrack(
+        grey,
+        maxCorners=int(count),
+        qualityLevel=config.feature_quality,
+        minDistance=min_dist,
+        mask=mask,
+        blockSize=5,
+    )
+    if pts is None:
+        return np.zeros((0, 2))
+    pts = cv2.cornerSubPix(
+        grey,
+        pts.astype(np.float32),
+        (3, 3),
+        (-1, -1),
+        (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 20, 0.01),
+    )
+    return np.asarray(pts.reshape(-1, 2), dtype=np.float64)
+
+
+def track_klt(
+    prev: NDArray[np.uint8],
+    cur: NDArray[np.uint8],
+    prev_uv: F64,
+    guess_uv: F64 | None,
+    config: OdometryConfig,
+) -> tuple[F64, B]:
+    """Track ``prev_uv`` from ``prev`` into ``cur``; ``guess_uv`` seeds the search.
+
+    Returns:
+        ``uv (N, 2)`` and ``ok (N,)``: found, inside the image, forward-backward error below
+        ``config.forward_backward_px``.
+    """
+    n = prev_uv.shape[0]
+    if n == 0:
+        return np.zeros((0, 2)), np.zeros(0, bool)
+    win = (config.klt_window_px, config.klt_window_px)
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 40, 0.001)
+    p0 = prev_uv.astype(np.float32).reshape(-1, 1, 2)
+    seed = p0.copy() if guess_uv is None else guess_uv.astype(np.float32).reshape(-1, 1, 2)
+    p1, st, _ = cv2.calcOpticalFlowPyrLK(
+        prev,
+        cur,
+        p0,
+        np.ascontiguousarray(seed),
+        winSize=win,
+        maxLevel=config.klt_levels,
+        criteria=crit,
+        flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+    )
+    p0b, stb, _ = cv2.calcOpticalFlowPyrLK(
+        cur,
+        prev,
+        p1,
+        p0.copy(),
+        winSize=win,
+        maxLevel=config.klt_levels,
+        criteria=crit,
+        flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+    )
+    uv = p1.reshape(-1, 2).astype(np.float64)
+    fb = np.linalg.norm(p0b.reshape(-1, 2) - prev_uv, axis=1)
+    h, w = cur.shape
+    ok = (
+        (st.ravel() == 1)
+        & (stb.ravel() == 1)
+        & (fb < config.forward_backward_px)
+        & (uv[:, 0] >= 2)
+        & (uv[:, 0] <= w - 3)
+        & (uv[:, 1] >= 2)
+        & (uv[:, 1] <= h - 3)
+    )
+    return uv, ok
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class StereoPoints:
+    """Stereo measurements of features.
+
+    Attributes:
+        ok: ``(N,)`` features with a good match and a point in range.
+        points_rect: ``(N, 3)`` exact points in ``rect_left`` (NaN where not ok).
+        measurement: ``(N, 3)`` virtual stereo projection ``(u_left, u_right, v)`` of the
+            points (what the back end's stereo factors measure), NaN where not ok.
+    """
+
+    ok: B
+    points_rect: F64
+    measurement: F64
+
+
+def stereo_points(
+    left: NDArray[np.uint8],
+    right: NDArray[np.uint8] | None,
+    depth_m: NDArray[np.float32],
+    uv: F64,
+    geometry: RectifiedStereo,
+    config: OdometryConfig,
+) -> StereoPoints:
+    """3D points and stereo measurements of left features ``uv``.
+
+    With a right image the depth map seeds a Lucas-Kanade match on the row; without one (RGB-D)
+    the depth is used as it is.
+    """
+    n = uv.shape[0]
+    nan3 = np.full((n, 3), np.nan)
+    if n == 0:
+        return StereoPoints(ok=np.zeros(0, bool), points_rect=nan3, measurement=nan3)
+    z_seed = sample_depth(depth_m, uv)
+    fb = geometry.focal_baseline
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d_seed = fb / z_seed
+    seeded = np.isfinite(d_seed) & (d_seed > 0)
+    ok = seeded.copy()
+    if right is None:
+        pts, okp = geometry.points_from_depth(uv, z_seed)
+        ok &= okp
+    else:
+        idx = np.flatnonzero(seeded)
+        pts = nan3.copy()
+        if idx.size:
+            pl = uv[idx].astype(np.float32).reshape(-1, 1, 2)
+            guess = pl.copy()
+            guess[:, 0, 0] -= d_seed[idx].astype(np.float32)
+            win = (config.stereo_window_px, config.stereo_window_px)
+            crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 40, 0.001)
+            pr, st, _ = cv2.calcOpticalFlowPyrLK(
+                left,
+                right,
+                pl,
+                guess,
+                winSize=win,
+                maxLevel=1,
+                criteria=crit,
+                flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+            )
+            pb, stb, _ = cv2.calcOpticalFlowPyrLK(
+                right,
+                left,
+                pr,
+                pl.copy(),
+                winSize=win,
+                maxLevel=1,
+                criteria=crit,
+                flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+            )
+            uv_r = pr.reshape(-1, 2).astype(np.float64)
+            back = np.linalg.norm(pb.reshape(-1, 2) - uv[idx], axis=1)
+            disp = uv[idx, 0] - uv_r[:, 0]
+            w = right.shape[1]
+            good = (
+                (st.ravel() == 1)
+                & (stb.ravel() == 1)
+                & (back < 0.5)
+                & (np.abs(uv_r[:, 1] - uv[idx, 1]) < config.stereo_row_px)
+                & (np.abs(disp - d_seed[idx]) < config.stereo_depth_agreement_px)
+                & (uv_r[:, 0] >= 1)
+                & (uv_r[:, 0] <= w - 2)
+            )
+            p, okp = geometry.points_from_stereo(uv[idx], uv_r)
+            good &= okp
+            pts[idx[good]] = p[good]
+            ok[idx[~good]] = False
+        ok &= np.isfinite(pts).all(axis=1)
+    z = pts[:, 2]
+    with np.errstate(invalid="ignore"):
+        ok &= (z > config.min_depth_m) & (z < config.max_depth_m)
+    meas = geometry.project(pts)
+    with np.errstate(invalid="ignore"):
+        ok &= (meas[:, 0] - meas[:, 1]) > config.min_disparity_px
+    pts[~ok] = np.nan
+    meas[~ok] = np.nan
+    return StereoPoints(ok=ok, points_rect=pts, measurement=meas)
+
+
+def solve_pnp(
+    points_world: F64,
+    uv: F64,
+    K: F64,
+    T_rect_world_guess: F64 | None,
+    config: OdometryConfig,
+) -> tuple[F64 | None, NDArray[np.int64]]:
+    """Pose of the rectified left camera from 3D-2D correspondences.
+
+    Returns:
+        ``(T_rect_world 4x4 or None, inlier indices)``.
+    """
+    n = points_world.shape[0]
+    if n < max(6, config.min_inliers):
+        return None, np.zeros(0, np.int64)
+    obj = np.ascontiguousarray(points_world, dtype=np.float64)
+    img = np.ascontiguousarray(uv, dtype=np.float64)
+    if T_rect_world_guess is not None:
+        rvec0, _ = cv2.Rodrigues(T_rect_world_guess[:3, :3])
+        tvec0 = T_rect_world_guess[:3, 3].reshape(3, 1).copy()
+    else:
+        rvec0, tvec0 = np.zeros((3, 1)), np.zeros((3, 1))
+    try:
+        found, rvec, tvec, inl = cv2.solvePnPRansac(
+            obj,
+            img,
+            K,
+            _NO_DIST,
+            rvec0.copy(),
+            tvec0.copy(),
+            useExtrinsicGuess=T_rect_world_guess is not None,
+            iterationsCount=100,
+            reprojectionError=config.pnp_threshold_px,
+            confidence=0.999,
+            flags=cv2.SOLVEPNP_ITERATIVE if T_rect_world_guess is not None else cv2.SOLVEPNP_AP3P,
+        )
+    except cv2.error:
+        return None, np.zeros(0, np.int64)
+    if not found or inl is None or len(inl) < config.min_inliers:
+        return None, np.zeros(0, np.int64)
+    inl = inl.ravel()
+    rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], K, _NO_DIST, rvec, tvec)
+    proj, _ = cv2.projectPoints(obj, rvec, tvec, K, _NO_DIST)
+    err = np.linalg.norm(proj.reshape(-1, 2) - img, axis=1)
+    inl = np.flatnonzero(err < config.pnp_threshold_px)
+    if inl.size < config.min_inliers:
+        return None, np.zeros(0, np.int64)
+    R, _ = cv2.Rodrigues(rvec)
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = tvec.ravel()
+    return T, inl.astype(np.int64)

@@ -1,0 +1,310 @@
+"""Place recognition without downloaded weights, and geometric verification of loop candidates.
+
+- :class:`Vocabulary`: a tree of binary words (k-majority clustering of ORB descriptors, as in
+  DBoW2: Galvez-Lopez and Tardos, T-RO 2012) trained on the dive's own first keyframes, with
+  inverse-document-frequency weights.
+- :class:`KeyframeDatabase`: an inverted index of the keyframes' bag-of-words vectors; the score
+  of two L1-normalised vectors is ``sum_w min(a_w, b_w)`` (DBoW2's L1 score, in [0, 1]).
+- :func:`verify_loop`: ORB matches between the query and a candidate, PnP RANSAC of the
+  candidate's 3D points (exact, from its refraction-corrected depth) against the query's pixels,
+  then a 3D-3D check of the inliers that have depth in both.
+"""
+
+from __future__ import annotations
+
+import logging
+from array import array
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+_NO_DIST = np.zeros(4)  # rectified, virtual-pinhole consistent pixels: no distortion
+
+__all__ = [
+    "KeyframeDatabase",
+    "LoopCandidate",
+    "PlaceFeatures",
+    "Vocabulary",
+    "verify_loop",
+]
+
+log = logging.getLogger(__name__)
+F64 = NDArray[np.float64]
+U8 = NDArray[np.uint8]
+
+_POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.uint8)
+
+
+def hamming(a: U8, b: U8) -> NDArray[np.int32]:
+    """Hamming distances ``(N, M)`` between binary descriptors ``a (N, 32)`` and ``b (M, 32)``."""
+    x = np.bitwise_xor(a[:, None, :], b[None, :, :])
+    return _POPCOUNT[x].sum(axis=2, dtype=np.int32)
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class PlaceFeatures:
+    """What a keyframe keeps for place recognition and verification.
+
+    Attributes:
+        uv: (N, 2) float32 rectified left pixels of its ORB features (virtual-pinhole consistent
+            where a depth is known: see :mod:`sea3d.odometry.stereo_geometry`).
+        descriptors: (N, 32) uint8 ORB descriptors.
+        points_rect: (N, 3) float32 exact 3D points in ``rect_left``, NaN where no depth.
+    """
+
+    uv: NDArray[np.float32]
+    descriptors: U8
+    points_rect: NDArray[np.float32]
+
+    @property
+    def nbytes(self) -> int:
+        """Memory held, bytes."""
+        return int(self.uv.nbytes + self.descriptors.nbytes + self.points_rect.nbytes)
+
+
+class Vocabulary:
+    """A vocabulary tree of binary words.
+
+    Args:
+        centres: per level ``l`` an array ``(k ** (l + 1), 32)`` uint8; the children of node
+            ``i`` of level ``l - 1`` are ``i * k ... i * k + k - 1`` of level ``l``.
+        idf: ``(k ** depth,)`` inverse document frequency of each word.
+        branching: ``k``.
+    """
+
+    def __init__(self, centres: list[U8], idf: NDArray[np.float32], branching: int) -> None:
+        self.centres = centres
+        self.idf = idf
+        self.branching = branching
+
+    @property
+    def words(self) -> int:
+        """Number of words (leaves)."""
+        return int(self.centres[-1].shape[0])
+
+    @classmethod
+    def train(
+        cls,
+        descriptors: U8,
+        documents: Sequence[NDArray[np.integer[Any]]],
+        *,
+        branching: int = 10,
+        depth: int = 3,
+        iterations: int = 6,
+        seed: int = 0,
+    ) -> Vocabulary:
+        """Train on ``descriptors (N, 32)``; ``documents`` lists each training keyframe's rows
+        (for the inverse document frequencies)."""
+        rng = np.random.default_rng(seed)
+        k = branching
+        centres: list[U8] = []
+        assign = np.zeros(descriptors.shape[0], dtype=np.int64)
+        for _level in range(depth):
+            n_nodes = int(assign.max()) + 1 if centres else 1
+            level_centres = np.zeros((n_nodes * k, descriptors.shape[1]), dtype=np.uint8)
+            new_assign = np.zeros_like(assign)
+            for node in range(n_nodes):
+                rows = np.flatnonzero(assign == node)
+                c = _kmajority(descriptors[rows], k, iterations, rng)
+                level_centres[node * k : node * k + k] = c
+                if rows.size:
+                    new_assign[rows] = node * k + np.argmin(hamming(descriptors[rows], c), axis=1)
+            centres.append(level_centres)
+            assign = new_assign
+        vocab = cls(centres, np.zeros(centres[-1].shape[0], np.float32), k)
+        df = np.zeros(vocab.words, dtype=np.float64)
+        for doc in documents:
+            df[np.unique(assign[doc])] += 1
+        n_docs = max(len(documents), 1)
+        vocab.idf = np.log(n_docs / np.maximum(df, 1.0)).astype(np.float32) + np.float32(1e-3)
+        return vocab
+
+    def quantise(self, descriptors: U8) -> NDArray[np.int64]:
+        """Word id of each descriptor ``(N, 32)``."""
+        idx = np.zeros(descriptors.shape[0], dtype=np.int64)
+        k = self.branching
+        for level in self.centres:
+            cand = idx[:, None] * k + np.arange(k)[None, :]
+            c = level[cand]  # (N, k, 32)
+            x = np.bitwise_xor(descriptors[:, None, :], c)
+            d = _POPCOUNT[x].sum(axis=2, dtype=np.int32)
+            idx = cand[np.arange(idx.size), np.argmin(d, axis=1)]
+        return idx
+
+    def bow(self, descriptors: U8) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
+        """L1-normalised tf-idf vector as sorted ``(word ids, weights)``."""
+        if descriptors.shape[0] == 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.float32)
+        words, counts = np.unique(self.quantise(descriptors), return_counts=True)
+        w = counts.astype(np.float32) * self.idf[words]
+        total = float(w.sum())
+        return words, (w / total if total > 0 else w).astype(np.float32)
+
+
+def _kmajority(desc: U8, k: int, iterations: int, rng: np.random.Generator) -> U8:
+    """k-majority clustering of binary descriptors (k-means with Hamming distance and bitwise
+    majority centres), seeded k-means++ style."""
+    n = desc.shape[0]
+    if n == 0:
+        return np.zeros((k, 32), dtype=np.uint8)
+    if n <= k:
+        out = np.zeros((k, desc.shape[1]), dtype=np.uint8)
+        out[:n] = desc
+        out[n:] = desc[0]
+        return out
+    first = int(rng.integers(n))
+    chosen = [first]
+    dmin = hamming(desc, desc[[first]])[:, 0].astype(np.float64)
+    for _ in range(1, k):
+        p = dmin**2
+        s = p.sum()
+        nxt = int(rng.choice(n, p=p / s)) if s > 0 else int(rng.integers(n))
+        chosen.append(nxt)
+        dmin = np.minimum(dmin, hamming(desc, desc[[nxt]])[:, 0])
+    centres = desc[chosen].copy()
+    bits = np.unpackbits(desc, axis=1)
+    for _ in range(iterations):
+        lab = np.argmin(hamming(desc, centres), axis=1)
+        for c in range(k):
+            members = bits[lab == c]
+            if members.shape[0]:
+                centres[c] = np.packbits(members.mean(axis=0) > 0.5)
+    return centres
+
+
+class KeyframeDatabase:
+    """Inverted index of keyframe bag-of-words vectors."""
+
+    def __init__(self, words: int) -> None:
+        self._kf: list[array[int]] = [array("q") for _ in range(words)]
+        self._w: list[array[float]] = [array("f") for _ in range(words)]
+        self.size = 0
+
+    def add(self, kf: int, bow: tuple[NDArray[np.int64], NDArray[np.float32]]) -> None:
+        """Index keyframe ``kf``."""
+        for word, weight in zip(bow[0].tolist(), bow[1].tolist(), strict=True):
+            self._kf[word].append(kf)
+            self._w[word].append(weight)
+        self.size += 1
+
+    def query(
+        self, bow: tuple[NDArray[np.int64], NDArray[np.float32]], n_keyframes: int
+    ) -> NDArray[np.float64]:
+        """Scores ``(n_keyframes,)`` of every indexed keyframe against ``bow`` (0 when absent)."""
+        score = np.zeros(n_keyframes, dtype=np.float64)
+        ids, ws = [], []
+        for word, weight in zip(bow[0].tolist(), bow[1].tolist(), strict=True):
+            if self._kf[word]:
+                kf = np.frombuffer(self._kf[word], dtype=np.int64)
+                w = np.frombuffer(self._w[word], dtype=np.float32)
+                ids.append(kf)
+                ws.append(np.minimum(w, weight))
+        if ids:
+            kf_all = np.concatenate(ids)
+            keep = kf_all < n_keyframes
+            score += np.bincount(
+                kf_all[keep],
+                weights=np.concatenate(ws)[keep].astype(np.float64),
+                minlength=n_keyframes,
+            )[:n_keyframes]
+        return score
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class LoopCandidate:
+    """A verified loop.
+
+    Attributes:
+        candidate: the earlier keyframe's id.
+        T_cand_query: 4x4, maps the query's ``rect_left`` points into the candidate's.
+        inliers: PnP inliers.
+        consistent_3d: inliers whose two 3D points agree after the transform.
+    """
+
+    candidate: int
+    T_cand_query: F64
+    inliers: int
+    consistent_3d: int
+
+
+def verify_loop(
+    query: PlaceFeatures,
+    cand: PlaceFeatures,
+    cand_id: int,
+    K: F64,
+    *,
+    min_inliers: int,
+    threshold_px: float = 2.0,
+    ratio: float = 0.8,
+) -> LoopCandidate | None:
+    """Geometric verification of a loop candidate.
+
+    The candidate's 3D points and the query's pixels give ``T_query_cand`` by PnP RANSAC; the
+    loop is kept when at least ``min_inliers`` inliers remain and most inliers with depth in both
+    keyframes agree in 3D (within 3 cm plus 3 % of their depth).
+
+    Returns:
+        A :class:`LoopCandidate`, or None when the geometry does not hold.
+    """
+    if query.descriptors.shape[0] < min_inliers or cand.descriptors.shape[0] < min_inliers:
+        return None
+    matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+    knn = matcher.knnMatch(query.descriptors, cand.descriptors, k=2)
+    qi, ci = [], []
+    for m in knn:
+        if len(m) == 2 and m[0].distance < ratio * m[1].distance and m[0].distance < 64:
+            qi.append(m[0].queryIdx)
+            ci.append(m[0].trainIdx)
+    if len(qi) < min_inliers:
+        return None
+    q_idx, c_idx = np.asarray(qi), np.asarray(ci)
+    P = cand.points_rect[c_idx].astype(np.float64)
+    ok = np.isfinite(P).all(axis=1)
+    if ok.sum() < min_inliers:
+        return None
+    q_idx, c_idx, P = q_idx[ok], c_idx[ok], P[ok]
+    uv = query.uv[q_idx].astype(np.float64)
+    try:
+        found, rvec, tvec, inl = cv2.solvePnPRansac(
+            P,
+            uv,
+            K,
+            _NO_DIST,
+            iterationsCount=200,
+            reprojectionError=threshold_px,
+            confidence=0.999,
+            flags=cv2.SOLVEPNP_AP3P,
+        )
+    except cv2.error:
+        return None
+    if not found or inl is None or len(inl) < min_inliers:
+        return None
+    inl = inl.ravel()
+    rvec, tvec = cv2.solvePnPRefineLM(P[inl], uv[inl], K, _NO_DIST, rvec, tvec)
+    R, _ = cv2.Rodrigues(rvec)
+    T_qc = np.eye(4)
+    T_qc[:3, :3] = R
+    T_qc[:3, 3] = tvec.ravel()
+    proj, _ = cv2.projectPoints(P, rvec, tvec, K, _NO_DIST)
+    err = np.linalg.norm(proj.reshape(-1, 2) - uv, axis=1)
+    inl = np.flatnonzero(err < threshold_px)
+    if inl.size < min_inliers:
+        return None
+    Pq = query.points_rect[q_idx[inl]].astype(np.float64)
+    both = np.isfinite(Pq).all(axis=1)
+    moved = P[inl] @ R.T + T_qc[:3, 3]
+    gap = np.linalg.norm(moved - Pq, axis=1)
+    tol = 0.03 + 0.03 * np.abs(Pq[:, 2])
+    consistent = int(np.count_nonzero(both & (gap < tol)))
+    if both.sum() >= min_inliers // 2 and consistent < 0.6 * both.sum():
+        return None
+    T_cq = np.eye(4)
+    T_cq[:3, :3] = R.T
+    T_cq[:3, 3] = -R.T @ T_qc[:3, 3]
+    return LoopCandidate(
+        candidate=cand_id, T_cand_query=T_cq, inliers=int(inl.size), consistent_3d=consistent
+    )

@@ -1,0 +1,117 @@
+"""The keyframe pose graph: odometry edges within segments, loop edges with a robust kernel.
+
+Nodes are keyframe poses ``T_world_rect``. Consecutive keyframes of one segment are joined by
+the relative pose the smoother estimated; a loop adds the verified relative pose with a Cauchy
+kernel, so one wrong loop cannot drag the map. The first segment's first keyframe is held
+(the world's gauge); every later segment's first keyframe has only a loose prior, so segments
+started after a tracking loss float until a loop joins them. Solved by gtsam's
+Levenberg-Marquardt whenever a loop is added.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["PoseGraph"]
+
+log = logging.getLogger(__name__)
+F64 = NDArray[np.float64]
+
+
+@dataclass
+class _Loop:
+    a: int
+    b: int
+    T_a_b: F64
+
+
+@dataclass
+class PoseGraph:
+    """Keyframe pose graph.
+
+    Attributes:
+        rotation_sigma_rad, translation_sigma_m: odometry edge standard deviations at rest.
+        drift_per_m: growth of the odometry edge deviations per metre (and radian) moved.
+        loop_rotation_sigma_rad, loop_translation_sigma_m: loop edge standard deviations.
+        loop_kernel: Cauchy threshold of the loop edges, in standard deviations.
+    """
+
+    rotation_sigma_rad: float = 0.001
+    translation_sigma_m: float = 0.002
+    drift_per_m: float = 0.02
+    loop_rotation_sigma_rad: float = 0.005
+    loop_translation_sigma_m: float = 0.01
+    loop_kernel: float = 3.0
+    loops: list[_Loop] = field(default_factory=list)
+
+    def _edge_noise(self, rel: F64) -> Any:
+        """Odometry edge noise that grows with the edge's motion: ``sigma_t = a + d * dist``,
+        ``sigma_r = a_r + d * (angle + dist / 1 m)`` (drift per metre ``d``)."""
+        import gtsam
+
+        dist = float(np.linalg.norm(rel[:3, 3]))
+        c = (float(np.trace(rel[:3, :3])) - 1.0) / 2.0
+        angle = float(np.arccos(np.clip(c, -1.0, 1.0)))
+        st = self.translation_sigma_m + self.drift_per_m * dist
+        sr = self.rotation_sigma_rad + self.drift_per_m * (angle + dist)
+        return gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sr] * 3, [st] * 3])
+
+    def add_loop(self, a: int, b: int, T_a_b: F64) -> None:
+        """A loop edge: keyframe ``b``'s pose in keyframe ``a``'s frame."""
+        self.loops.append(_Loop(a, b, np.asarray(T_a_b, dtype=np.float64)))
+
+    def optimise(
+        self,
+        odometry: dict[int, F64],
+        segments: dict[int, int],
+        initial: dict[int, F64],
+    ) -> dict[int, F64]:
+        """Solve the graph.
+
+        Args:
+            odometry: per keyframe its pose in its segment's odometry frame (4x4).
+            segments: per keyframe its segment.
+            initial: per keyframe the current corrected pose (the starting point).
+
+        Returns:
+            Per keyframe the optimised ``T_world_rect``.
+        """
+        import gtsam
+
+        graph = gtsam.NonlinearFactorGraph()
+        values = gtsam.Values()
+        loop_noise = gtsam.noiseModel.Robust.Create(
+            gtsam.noiseModel.mEstimator.Cauchy.Create(self.loop_kernel),
+            gtsam.noiseModel.Diagonal.Sigmas(
+                np.r_[[self.loop_rotation_sigma_rad] * 3, [self.loop_translation_sigma_m] * 3]
+            ),
+        )
+        held = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[1e-6] * 3, [1e-6] * 3])
+        loose = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[3.0] * 3, [100.0] * 3])
+        ids = sorted(odometry)
+        first_of: dict[int, int] = {}
+        prev_of: dict[int, int] = {}
+        for k in ids:
+            values.insert(k, gtsam.Pose3(initial[k]))
+            s = segments[k]
+            if s not in first_of:
+                first_of[s] = k
+                noise = held if s == min(segments.values()) else loose
+                graph.add(gtsam.PriorFactorPose3(k, gtsam.Pose3(initial[k]), noise))
+            else:
+                p = prev_of[s]
+                rel = np.linalg.inv(odometry[p]) @ odometry[k]
+                graph.add(gtsam.BetweenFactorPose3(p, k, gtsam.Pose3(rel), self._edge_noise(rel)))
+            prev_of[s] = k
+        for lp in self.loops:
+            if lp.a in odometry and lp.b in odometry:
+                graph.add(gtsam.BetweenFactorPose3(lp.a, lp.b, gtsam.Pose3(lp.T_a_b), loop_noise))
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(50)
+        result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+        return {k: np.asarray(result.atPose3(k).matrix(), dtype=np.float64) for k in ids}

@@ -1,0 +1,461 @@
+"""Odometry of a whole recording, one frame at a time: ``sea3d odometry SESSION`` and
+``sea3d odometry rgbd``.
+
+This module wires the parts: a frame source (a sea3d session, an EuRoC folder, or RGB-D image
+files), depth per frame (:class:`sea3d.odometry.observe.Observer`), the odometry, and the
+trajectory with its summary. ``sea3d process`` does the same with depth in parallel workers.
+
+Bad input is checked before anything runs, and every decision is said in ``notes``: a session
+without IMU samples or a rig without an IMU block runs visual-only; IMU stamps that do not
+overlap the camera's disable the IMU; stamps out of order are sorted by the reader; dropped
+frames are counted as gaps; no stored rig and no ``--rig`` is an error naming the session.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import re
+import time
+from collections import Counter
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sea3d.errors import ConfigError, OdometryError, SessionError
+from sea3d.geometry.rig import StereoRig
+from sea3d.odometry.config import OdometryConfig
+from sea3d.odometry.observe import ObserveConfig, Observer, imu_chunks
+from sea3d.odometry.types import FrameObservation, ImuChunk, TrackingStatus
+
+__all__ = [
+    "OdometryRun",
+    "StereoSource",
+    "open_stereo_source",
+    "rgbd_observations",
+    "run_odometry",
+    "session_odometry",
+]
+
+log = logging.getLogger(__name__)
+F64 = NDArray[np.float64]
+
+
+@dataclass
+class StereoSource:
+    """Stereo frames of a recording with its rig and IMU.
+
+    Attributes:
+        path: the session or folder.
+        rig: the rig (from ``--rig`` or stored with the session).
+        t_ns: (N,) frame stamps, increasing.
+        load: ``load(i) -> (left, right)`` raw images of frame ``i``.
+        imu_t_ns, accel_mps2, gyro_radps: the IMU series (empty arrays without IMU).
+        notes: what was noticed about the input (for the user).
+        frame_gaps: frame intervals longer than 1.5 times the median (dropped frames).
+        close: releases the reader.
+    """
+
+    path: Path
+    rig: StereoRig
+    t_ns: NDArray[np.int64]
+    load: Callable[[int], tuple[NDArray[Any], NDArray[Any]]]
+    imu_t_ns: NDArray[np.int64]
+    accel_mps2: F64
+    gyro_radps: F64
+    notes: list[str] = field(default_factory=list)
+    frame_gaps: int = 0
+    close: Callable[[], None] = lambda: None
+
+
+def _frame_gaps(t_ns: NDArray[np.int64]) -> int:
+    if t_ns.size < 3:
+        return 0
+    d = np.diff(t_ns)
+    return int(np.count_nonzero(d > 1.5 * np.median(d)))
+
+
+def open_stereo_source(
+    path: str | os.PathLike[str], rig_path: str | os.PathLike[str] | None = None
+) -> StereoSource:
+    """Open a sea3d session (MCAP or folder) or an EuRoC folder.
+
+    Raises:
+        SessionError: unreadable input. RigFileError: a bad ``--rig``. OdometryError: no rig
+            (neither stored with the session nor given), or fewer than two stereo pairs.
+    """
+    from sea3d.io.euroc import is_euroc, read_euroc
+    from sea3d.io.rig_file import load_rig, rig_from_yaml
+
+    p = Path(path)
+    rig_given = load_rig(rig_path) if rig_path is not None else None
+    if is_euroc(p):
+        seq = read_euroc(p)
+        src = StereoSource(
+            path=p,
+            rig=rig_given or seq.rig,
+            t_ns=seq.t_ns,
+            load=lambda i: (seq.image("left", i), seq.image("right", i)),
+            imu_t_ns=seq.imu_t_ns,
+            accel_mps2=seq.accel_mps2,
+            gyro_radps=seq.gyro_radps,
+        )
+    else:
+        from sea3d.io.session import open_session
+
+        reader = open_session(p)
+        try:
+            if rig_given is not None:
+                rig = rig_given
+            elif reader.rig_yaml is not None:
+                rig = rig_from_yaml(reader.rig_yaml, f"{p} (stored rig)")
+            else:
+                raise OdometryError(
+                    f"{p}: the session stores no rig; pass --rig RIG (a rig.yaml from "
+                    "'sea3d rig create' or 'sea3d calibrate')"
+                )
+            match = reader.match_pairs()
+            ls, rs = reader.stamps("left"), reader.stamps("right")
+            li, ri = match.left_index, match.right_index
+            imu = reader.imu()
+        except BaseException:
+            reader.close()
+            raise
+        notes = []
+        if match.unpaired_left or match.unpaired_right:
+            notes.append(
+                f"{match.unpaired_left} left and {match.unpaired_right} right frames have no "
+                f"partner within {match.tolerance_ns * 1e-6:.1f} ms and are skipped"
+            )
+
+        def load(i: int) -> tuple[NDArray[Any], NDArray[Any]]:
+            return (
+                reader.image("left", int(li[i]), by="index"),
+                reader.image("right", int(ri[i]), by="index"),
+            )
+
+        src = StereoSource(
+            path=p,
+            rig=rig,
+            t_ns=np.asarray(ls[li], dtype=np.int64),
+            load=load,
+            imu_t_ns=np.asarray(imu.t_ns, dtype=np.int64),
+            accel_mps2=np.asarray(imu.accel_mps2, dtype=np.float64).reshape(-1, 3),
+            gyro_radps=np.asarray(imu.gyro_radps, dtype=np.float64).reshape(-1, 3),
+            notes=notes,
+            close=reader.close,
+        )
+        del rs
+    if src.t_ns.size < 2:
+        src.close()
+        raise OdometryError(f"{p}: {src.t_ns.size} stereo pairs; odometry needs at least two")
+    src.frame_gaps = _frame_gaps(src.t_ns)
+    if src.frame_gaps:
+        src.notes.append(
+            f"{src.frame_gaps} gaps in the frame stamps (dropped frames): bridged by the IMU or "
+            "re-tracked"
+        )
+    return src
+
+
+def imu_decision(src: StereoSource, use_imu: bool) -> tuple[bool, str | None]:
+    """Whether the IMU can be used, and why not."""
+    if not use_imu:
+        return False, "--no-imu: visual-only"
+    if src.imu_t_ns.size == 0:
+        return False, "the session has no IMU samples: visual-only"
+    if src.rig.imu is None:
+        return False, (
+            "the rig has no imu block (T_left_imu): visual-only; add it with 'sea3d rig create "
+            "--kalibr' or estimate it with 'sea3d calibrate imu'"
+        )
+    off = src.rig.imu.time_offset_s
+    ti = src.imu_t_ns.astype(np.float64) * 1e-9 - off
+    tc = src.t_ns.astype(np.float64) * 1e-9
+    overlap = min(ti[-1], tc[-1]) - max(ti[0], tc[0])
+    span = max(tc[-1] - tc[0], 1e-9)
+    if overlap < 0.5 * span:
+        return False, (
+            f"the IMU stamps ({ti[0]:.3f}..{ti[-1]:.3f} s) cover {max(overlap, 0) / span:.0%} of "
+            f"the camera's ({tc[0]:.3f}..{tc[-1]:.3f} s): clocks not synchronised, visual-only"
+        )
+    return True, None
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class OdometryRun:
+    """The result of a run.
+
+    Attributes:
+        t_ns: (N,) frame stamps.
+        T_world_left: (N, 4, 4) final poses (after the last loop closure).
+        statuses: per frame :class:`TrackingStatus`.
+        segments: per frame segment id (as reported when the frame was processed).
+        summary: ``frames``, ``keyframes``, ``frames_lost``, ``loop_closures``,
+            ``path_length_m``, ``seconds``, per-status counts, IMU use, notes.
+    """
+
+    t_ns: NDArray[np.int64]
+    T_world_left: F64
+    statuses: list[TrackingStatus]
+    segments: list[int]
+    summary: dict[str, Any]
+
+
+def path_length_m(T: F64, statuses: list[TrackingStatus] | None = None) -> float:
+    """Length of the camera path, metres (LOST frames are left out)."""
+    if T.shape[0] < 2:
+        return 0.0
+    p = T[:, :3, 3]
+    if statuses is not None:
+        keep = np.array([s is not TrackingStatus.LOST for s in statuses], dtype=bool)
+        p = p[keep]
+    if p.shape[0] < 2:
+        return 0.0
+    return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
+
+
+def run_odometry(
+    frames: Iterator[FrameObservation],
+    odometry: Any,
+    *,
+    progress: Callable[[int], None] | None = None,
+    notes: list[str] | None = None,
+    seconds_depth: Callable[[], float] | None = None,
+) -> OdometryRun:
+    """Feed frames in order to an odometry and collect the trajectory and the summary."""
+    t0 = time.perf_counter()
+    statuses: list[TrackingStatus] = []
+    segments: list[int] = []
+    seconds_odo = 0.0
+    for frame in frames:
+        t1 = time.perf_counter()
+        est = odometry.step(frame)
+        seconds_odo += time.perf_counter() - t1
+        statuses.append(est.status)
+        segments.append(int(est.segment))
+        if progress is not None:
+            progress(1)
+    t_ns, T = odometry.trajectory()
+    counts = Counter(s.value for s in statuses)
+    n = len(statuses)
+    summary: dict[str, Any] = {
+        "frames": n,
+        "keyframes": int(getattr(odometry, "keyframe_count", 0)),
+        "frames_lost": int(counts.get(TrackingStatus.LOST.value, 0)),
+        "loop_closures": int(getattr(odometry, "loop_closures", 0)),
+        "path_length_m": path_length_m(T, statuses),
+        "seconds": time.perf_counter() - t0,
+        "seconds_odometry": seconds_odo,
+        "ms_per_frame_odometry": 1e3 * seconds_odo / max(n, 1),
+        "statuses": {s.value: int(counts.get(s.value, 0)) for s in TrackingStatus},
+        "segments": len(set(segments)) if segments else 0,
+        "imu": getattr(odometry, "imu_disabled_reason", None) is None,
+        "imu_note": getattr(odometry, "imu_disabled_reason", None),
+        "notes": list(notes or []),
+    }
+    if seconds_depth is not None:
+        summary["seconds_depth"] = seconds_depth()
+    return OdometryRun(
+        t_ns=t_ns, T_world_left=T, statuses=statuses, segments=segments, summary=summary
+    )
+
+
+def session_odometry(
+    path: str | os.PathLike[str],
+    *,
+    rig_path: str | os.PathLike[str] | None = None,
+    use_imu: bool = True,
+    observe: ObserveConfig | None = None,
+    config: OdometryConfig | None = None,
+    max_frames: int | None = None,
+    progress: Callable[[int], None] | None = None,
+    on_open: Callable[[StereoSource, bool, str | None], None] | None = None,
+) -> OdometryRun:
+    """Stereo(-inertial) odometry of a recorded session or an EuRoC folder.
+
+    Raises:
+        SessionError, RigFileError, OdometryError: unusable input (see the module docstring).
+    """
+    from sea3d.odometry import create_odometry
+    from sea3d.rectify import rectify_rig
+
+    src = open_stereo_source(path, rig_path)
+    try:
+        imu_ok, why = imu_decision(src, use_imu)
+        notes = list(src.notes)
+        if why:
+            notes.append(why)
+        if on_open is not None:
+            on_open(src, imu_ok, why)
+        maps = rectify_rig(src.rig)
+        odo = create_odometry(src.rig, maps, use_imu=imu_ok, config=config)
+        if why:
+            odo.imu_disabled_reason = why
+        observer = Observer(maps, observe or ObserveConfig())
+        n = src.t_ns.size if max_frames is None else min(src.t_ns.size, int(max_frames))
+        chunks: list[ImuChunk | None] = [None] * n
+        if imu_ok and src.rig.imu is not None:
+            # slice by camera time (t_cam = t_imu - offset); the odometry shifts the stamps
+            off_ns = round(src.rig.imu.time_offset_s * 1e9)
+            chunks = imu_chunks(src.t_ns[:n] + off_ns, src.imu_t_ns, src.accel_mps2, src.gyro_radps)
+        depth_s = [0.0]
+
+        def frames() -> Iterator[FrameObservation]:
+            for i in range(n):
+                left, right = src.load(i)
+                t1 = time.perf_counter()
+                obs = observer.observe(int(src.t_ns[i]), left, right, chunks[i])
+                depth_s[0] += time.perf_counter() - t1
+                yield obs
+
+        run = run_odometry(
+            frames(), odo, progress=progress, notes=notes, seconds_depth=lambda: depth_s[0]
+        )
+        run.summary["frame_gaps"] = src.frame_gaps
+        return run
+    finally:
+        src.close()
+
+
+# ---------------------------------------------------------------------- RGB-D
+def _natural_key(path: Path) -> list[Any]:
+    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", str(path))]
+
+
+def _expand(pattern: str, what: str) -> list[Path]:
+    import glob
+
+    paths = sorted((Path(p) for p in glob.glob(pattern)), key=_natural_key)
+    if not paths:
+        raise ConfigError(f"--{what} {pattern!r} matches no files")
+    return paths
+
+
+def frame_times_s(paths: list[Path]) -> F64:
+    """Times of frames from their file names when every name is a number (seconds, or
+    nanoseconds when above 1e12), else the frame index."""
+    vals_list = []
+    for p in paths:
+        value = None
+        for cand in (p.stem, p.name.split(".")[0]):
+            try:
+                value = float(cand)
+                break
+            except ValueError:
+                continue
+        if value is None:
+            return np.arange(len(paths), dtype=np.float64)
+        vals_list.append(value)
+    vals = np.asarray(vals_list, dtype=np.float64)
+    if np.all(np.diff(vals) > 0):
+        return vals * 1e-9 if vals.max() > 1e12 else vals
+    return np.arange(len(paths), dtype=np.float64)
+
+
+def rgbd_observations(
+    color: str,
+    depth: str,
+    intrinsics: tuple[float, float, float, float],
+    *,
+    depth_scale: float = 1000.0,
+) -> tuple[list[Path], list[Path], F64, tuple[int, int]]:
+    """Resolve and check RGB-D inputs: sorted colour and depth files, their times (seconds),
+    and the image size.
+
+    Raises:
+        ConfigError: no files, different counts, bad intrinsics or scale.
+        SessionError: an unreadable first image, or colour and depth of different sizes.
+    """
+    import cv2
+
+    if not depth_scale > 0:
+        raise ConfigError(f"--depth-scale must be > 0, got {depth_scale}")
+    fx, fy, _, _ = intrinsics
+    if not (fx > 0 and fy > 0):
+        raise ConfigError(f"--intrinsics: focal lengths must be > 0, got {intrinsics}")
+    cp, dp = _expand(color, "color"), _expand(depth, "depth")
+    if len(cp) != len(dp):
+        raise ConfigError(
+            f"--color matches {len(cp)} files but --depth {len(dp)}; they must "
+            "pair up one to one in sorted order"
+        )
+    c0 = cv2.imread(str(cp[0]), cv2.IMREAD_COLOR)
+    d0 = cv2.imread(str(dp[0]), cv2.IMREAD_UNCHANGED)
+    if c0 is None:
+        raise SessionError(f"{cp[0]}: cannot read the colour image")
+    if d0 is None:
+        raise SessionError(f"{dp[0]}: cannot read the depth image")
+    if c0.shape[:2] != d0.shape[:2]:
+        raise SessionError(
+            f"{cp[0]} is {c0.shape[1]}x{c0.shape[0]} but {dp[0]} is {d0.shape[1]}x{d0.shape[0]}: "
+            "colour must be registered to depth"
+        )
+    return cp, dp, frame_times_s(cp), (int(c0.shape[1]), int(c0.shape[0]))
+
+
+def read_rgbd_frame(
+    color_path: Path, depth_path: Path, depth_scale: float
+) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+    """Colour (RGB uint8) and depth (float32 metres, NaN where the file has 0)."""
+    import cv2
+
+    c = cv2.imread(str(color_path), cv2.IMREAD_COLOR)
+    d = cv2.imread(str(depth_path), cv2.IMREAD_UNCHANGED)
+    if c is None:
+        raise SessionError(f"{color_path}: cannot read the colour image")
+    if d is None:
+        raise SessionError(f"{depth_path}: cannot read the depth image")
+    if d.ndim == 3:
+        raise SessionError(f"{depth_path}: depth must have one channel, it has {d.shape[2]}")
+    z = d.astype(np.float32) / np.float32(depth_scale)
+    z[(d == 0) | ~np.isfinite(z)] = np.nan
+    return np.ascontiguousarray(c[:, :, ::-1]), z
+
+
+def rgbd_odometry(
+    color: str,
+    depth: str,
+    intrinsics: tuple[float, float, float, float],
+    *,
+    depth_scale: float = 1000.0,
+    config: OdometryConfig | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> OdometryRun:
+    """Keyframe-based RGB-D odometry over image files (one pose per input frame, in sorted
+    order; ``t`` from the file names when they are numbers, else the frame index)."""
+    from sea3d.odometry import create_rgbd_odometry
+
+    cp, dp, t_s, (w, h) = rgbd_observations(color, depth, intrinsics, depth_scale=depth_scale)
+    fx, fy, cx, cy = intrinsics
+    odo = create_rgbd_odometry(fx, fy, cx, cy, w, h, config=config)
+    K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
+    t_ns = np.round(t_s * 1e9).astype(np.int64)
+
+    def frames() -> Iterator[FrameObservation]:
+        for i, (c, d) in enumerate(zip(cp, dp, strict=True)):
+            rgb, z = read_rgbd_frame(c, d, depth_scale)
+            if rgb.shape[:2] != (h, w) or z.shape != (h, w):
+                raise SessionError(f"{c} or {d}: size differs from the first frame's {w}x{h}")
+            yield FrameObservation(
+                t_ns=int(t_ns[i]),
+                rect_left=rgb,
+                rect_right=rgb,
+                depth_m=z,
+                K_rect=K,
+                baseline_m=odo.geometry.baseline_m,
+                R_rect_left_left=np.eye(3),
+            )
+
+    run = run_odometry(frames(), odo, progress=progress, notes=["RGB-D mode: no IMU"])
+    return OdometryRun(
+        t_ns=t_ns,
+        T_world_left=run.T_world_left,
+        statuses=run.statuses,
+        segments=run.segments,
+        summary=run.summary,
+    )
