@@ -15,6 +15,7 @@ __all__ = [
     "ConfigError",
     "EnhanceError",
     "GeometryError",
+    "MonoDepthError",
     "OdometryError",
     "ReconError",
     "RectifyError",
@@ -22,6 +23,7 @@ __all__ = [
     "RigFileError",
     "Sea3dError",
     "SessionError",
+    "SfmError",
     "SimulationError",
     "StereoError",
 ]
@@ -85,3 +87,11 @@ class ReconError(Sea3dError):
 
 class SimulationError(Sea3dError):
     """A simulated scene or session cannot be built from the given configuration."""
+
+
+class SfmError(Sea3dError):
+    """Structure-from-motion input is unusable (too few images, mixed sizes, no rig ...)."""
+
+
+class MonoDepthError(Sea3dError, ValueError):
+    """A monocular depth model or its input is unusable (not ONNX, unexpected input shape ...)."""

@@ -35,6 +35,7 @@ from sea3d.geometry.rig import StereoRig
 __all__ = [
     "RectifyMaps",
     "VirtualPinholeReport",
+    "closest_point_of_rays",
     "fit_virtual_pinhole",
     "rectify_images",
     "rectify_rig",
@@ -63,6 +64,8 @@ class VirtualPinholeReport:
     """RMS residual at each depth, pixels."""
     max_by_depth_px: tuple[float, ...]
     """Largest residual at each depth, pixels."""
+    center_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Where the virtual pinhole sits in the camera frame, metres (zero: at the camera centre)."""
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -120,33 +123,69 @@ def _project_pinhole(points: F64, K: F64, dist: F64) -> F64:
     return np.asarray(uv.reshape(-1, 2), dtype=np.float64)
 
 
+def closest_point_of_rays(rays_origins: F64, rays_directions: F64) -> F64:
+    """The point nearest to a bundle of lines in the least-squares sense.
+
+    Minimises ``sum_i |(I - d_i d_i^T)(c - o_i)|^2`` over ``c``: the normal equations
+    ``(sum_i P_i) c = sum_i P_i o_i`` with the projectors ``P_i = I - d_i d_i^T``.
+
+    Args:
+        rays_origins: ``(N, 3)`` points on the lines, metres.
+        rays_directions: ``(N, 3)`` unit directions.
+
+    Returns:
+        ``(3,)`` float64, the closest point, metres (same frame as the rays).
+
+    Raises:
+        RectifyError: fewer than two lines, or the lines are all parallel (no unique point).
+    """
+    o = np.asarray(rays_origins, dtype=np.float64)
+    d = np.asarray(rays_directions, dtype=np.float64)
+    if o.shape != d.shape or o.ndim != 2 or o.shape[1] != 3 or o.shape[0] < 2:
+        raise RectifyError(f"need (N >= 2, 3) origins and directions, got {o.shape}, {d.shape}")
+    P = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
+    A = P.sum(axis=0)
+    b = np.einsum("nij,nj->i", P, o)
+    if np.linalg.cond(A) > 1e12:
+        raise RectifyError("the rays are (nearly) parallel: no closest point")
+    return np.asarray(np.linalg.solve(A, b), dtype=np.float64)
+
+
 def fit_virtual_pinhole(
     camera: CameraModel,
     depth_range_m: tuple[float, float] = (0.5, 10.0),
     *,
     grid_step_px: int = 40,
     n_depths: int = 6,
+    center: str | F64 = "camera",
     name: str = "camera",
 ) -> tuple[PinholeCamera, VirtualPinholeReport]:
     """Best-fitting pinhole (with 5-term OpenCV distortion) for a refractive camera.
 
-    The virtual pinhole sits at the camera's own centre with its axes, so the rig's
-    extrinsics carry over unchanged. Points on the true water rays of a pixel grid, at
-    ``n_depths`` depths spaced evenly in inverse depth over ``depth_range_m``, are fitted by
-    least squares (scipy) in the image.
+    The virtual pinhole has the camera's axes. By default (``center="camera"``) it sits at the
+    camera's own centre, so the rig's extrinsics carry over unchanged (what rectification
+    needs). With ``center="rays"`` it sits where the water rays of the pixel grid pass closest
+    (:func:`closest_point_of_rays`): for a decentred dome that is the apparent centre of
+    projection, and the residual over a working range is smaller (what structure from motion
+    wants; the caller then moves the pose by ``report.center_m``). An explicit ``(3,)`` centre
+    in the camera frame (metres) is accepted too. Points on the true water rays of a pixel
+    grid, at ``n_depths`` depths spaced evenly in inverse depth over ``depth_range_m``, are
+    fitted by least squares (scipy) in the image.
 
     Args:
         camera: any :class:`CameraModel` (pinhole, dome- or flat-port).
         depth_range_m: nearest and farthest working depth along z, metres (0 < near < far).
         grid_step_px: pixel grid spacing.
         n_depths: number of depths sampled.
+        center: ``"camera"``, ``"rays"`` or a ``(3,)`` point in the camera frame, metres.
         name: how the log line names the camera (``left``, ``right``).
 
     Returns:
-        The fitted :class:`PinholeCamera` and its :class:`VirtualPinholeReport`.
+        The fitted :class:`PinholeCamera` (in the frame of the virtual centre) and its
+        :class:`VirtualPinholeReport` (``center_m`` says where it sits).
 
     Raises:
-        RectifyError: bad range, or too few pixels have water rays.
+        RectifyError: bad range or centre, or too few pixels have water rays.
     """
     from scipy.optimize import least_squares
 
@@ -165,11 +204,23 @@ def fit_virtual_pinhole(
     if ok.sum() < 20:
         raise RectifyError(f"only {int(ok.sum())} grid pixels have water rays; cannot fit")
     uv, o, dvec = uv[ok], rays.origins[ok], rays.directions[ok]
+    c: F64
+    if isinstance(center, str):
+        if center == "camera":
+            c = np.zeros(3)
+        elif center == "rays":
+            c = closest_point_of_rays(o, dvec)
+        else:
+            raise RectifyError(f"center must be 'camera', 'rays' or a 3-vector, got {center!r}")
+    else:
+        c = np.asarray(center, dtype=np.float64).reshape(-1)
+        if c.shape != (3,) or not np.all(np.isfinite(c)):
+            raise RectifyError(f"center must be 3 finite values in metres, got {center!r}")
     depths = 1.0 / np.linspace(1.0 / near, 1.0 / far, n_depths)
     pts, obs = [], []
     for z in depths:
         s = (z - o[:, 2]) / dvec[:, 2]
-        pts.append(o + s[:, None] * dvec)
+        pts.append(o + s[:, None] * dvec - c)
         obs.append(uv)
     points = np.concatenate(pts)
     observed = np.concatenate(obs)
@@ -194,9 +245,11 @@ def fit_virtual_pinhole(
         max_px=float(err.max()),
         rms_by_depth_px=tuple(float(np.sqrt(np.mean(e**2))) for e in err),
         max_by_depth_px=tuple(float(e.max()) for e in err),
+        center_m=(float(c[0]), float(c[1]), float(c[2])),
     )
-    log.info("virtual pinhole of the %s camera: fx %.1f px, residual RMS %.3f px, max %.3f px "
-             "over %.2f-%.2f m", name, virtual.fx, report.rms_px, report.max_px, near, far)
+    log.info("virtual pinhole of the %s camera: fx %.1f px at %s mm, residual RMS %.3f px, "
+             "max %.3f px over %.2f-%.2f m", name, virtual.fx, np.round(c * 1e3, 3).tolist(),
+             report.rms_px, report.max_px, near, far)
     return virtual, report
 
 

@@ -1,0 +1,393 @@
+"""``sea3d sfm``: structure from motion of an image glob or a session (pycolmap).
+
+Writes ``OUT/sparse/`` (the COLMAP model, binary and text), ``OUT/points.ply``,
+``OUT/trajectory.tum`` (``T_world_left`` of every registered frame; ``t`` is the session's time
+in seconds, or the image's 0-based index in sorted order for a glob) and ``OUT/summary.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+import re
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+__all__ = ["register"]
+
+_IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm")
+
+
+def register(sub: Any) -> None:
+    """Add ``sfm`` to the top-level parser."""
+    p = sub.add_parser(
+        "sfm",
+        help="structure from motion (COLMAP) of images or a session, metric with a stereo rig",
+        description="Structure from motion on pycolmap: SIFT (CPU), sequential or exhaustive "
+        "matching, incremental mapping and bundle adjustment. Without a rig the intrinsics "
+        "are self-calibrated; with one they are used and held fixed; --camera stereo puts "
+        "both cameras into one COLMAP rig with the calibrated extrinsics held fixed, so the "
+        "model is metric. Port cameras are remapped into a virtual pinhole at their rays' "
+        "closest point (residual reported); flat ports and large dome offsets are refined "
+        "by refractive bundle adjustment.",
+    )
+    p.add_argument("input", metavar="INPUT",
+                   help="image glob ('frames/*.jpg'), image folder, or session (.mcap or folder)")
+    p.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
+    p.add_argument("--rig", metavar="RIG", help="rig file (default: the session's own rig)")
+    p.add_argument("--self-calibrate", action="store_true",
+                   help="ignore the session's rig and self-calibrate the camera")
+    p.add_argument("--camera", choices=["left", "right", "stereo"], default="left",
+                   help="which camera(s) of each frame (stereo: metric, needs a rig)")
+    p.add_argument("--matcher", choices=["sequential", "exhaustive"], default="sequential",
+                   help="sequential for video (default), exhaustive for small unordered sets")
+    p.add_argument("--overlap", type=int, default=6,
+                   help="sequential matcher: frames ahead each frame is matched with")
+    p.add_argument("--max-image-px", type=int, default=1600,
+                   help="SIFT on images downscaled to this longer side (default 1600)")
+    p.add_argument("--max-features", type=int, default=4096, help="SIFT features per image")
+    p.add_argument("--fast", action="store_true",
+                   help="SIFT without upsampling (first octave 0): about 2.5x less extraction "
+                        "time, less precise features (see docs/sfm.md)")
+    p.add_argument("--camera-model", default="SIMPLE_RADIAL",
+                   choices=["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"],
+                   help="COLMAP model refined when self-calibrating")
+    p.add_argument("--depth-range", type=float, nargs=2, default=(0.5, 10.0),
+                   metavar=("NEAR", "FAR"),
+                   help="working range in metres for port cameras' virtual pinholes")
+    p.add_argument("--refractive-ba", choices=["auto", "on", "off"], default="auto",
+                   help="refractive bundle adjustment (auto: when the virtual pinhole's "
+                        "residual over the working range exceeds 0.25 px)")
+    p.add_argument("--pose-priors", metavar="TRAJ",
+                   help="trajectory of the left camera (TUM, KITTI with --pose-priors-times, "
+                        "or EuRoC CSV; sea3d odometry/process output or ground truth) used as "
+                        "position priors; the model is then in its (metric) world")
+    p.add_argument("--pose-priors-format", choices=["tum", "kitti", "euroc"],
+                   help="format of --pose-priors (default: from its extension and first line)")
+    p.add_argument("--pose-priors-times", metavar="TIMES.txt",
+                   help="KITTI times.txt (one stamp in seconds per pose) for --pose-priors")
+    p.add_argument("--prior-std", type=float, default=0.05,
+                   help="pose-prior position standard deviation, metres")
+    p.add_argument("--imu-scale", action="store_true",
+                   help="monocular sessions: scale the model to metres from the IMU")
+    p.add_argument("--imu-extrinsics", metavar="FILE",
+                   help="JSON/YAML with T_body_left (4x4, e.g. a simulation's gt/sim.json) or "
+                        "T_left_imu; default: the rig's IMU block")
+    p.add_argument("--export-images", action="store_true",
+                   help="also write the images as COLMAP saw them to OUT/images/")
+    p.add_argument("--threads", type=int, default=-1, help="threads/processes (-1: all cores)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (same seed, same model)")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.set_defaults(handler=_cmd_sfm)
+
+
+# ---------------------------------------------------------------------- inputs
+def _natural_key(path: Path) -> list[Any]:
+    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", str(path))]
+
+
+def _is_session(path: Path) -> bool:
+    if path.is_file():
+        with open(path, "rb") as fh:
+            return path.suffix.lower() == ".mcap" or fh.read(8).startswith(b"\x89MCAP")
+    return path.is_dir() and ((path / "left").is_dir() or (path / "session.json").is_file())
+
+
+def _glob_images(pattern: str) -> list[Path]:
+    from sea3d.errors import SfmError
+
+    p = Path(pattern)
+    if p.is_dir():
+        paths = [q for q in p.iterdir() if q.suffix.lower() in _IMAGE_SUFFIXES]
+    else:
+        paths = [Path(q) for q in glob.glob(pattern)]
+        paths = [q for q in paths if q.is_file()]
+    if not paths:
+        raise SfmError(f"{pattern}: matches no image files")
+    return sorted(paths, key=_natural_key)
+
+
+def _read_image(path: Path) -> Any:
+    import cv2
+
+    from sea3d.errors import SfmError
+
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise SfmError(f"{path}: cannot read the image (not an image file or damaged)")
+    if img.ndim == 3 and img.shape[2] == 4:
+        img = img[:, :, :3]
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    return img
+
+
+def _glob_frames(paths: list[Path]) -> list[Any]:
+    from sea3d.sfm import SfmFrame
+
+    stems = [re.sub(r"[^A-Za-z0-9._-]", "_", q.stem) for q in paths]
+    unique = len(set(stems)) == len(stems)
+    return [
+        SfmFrame(name=stems[i] if unique else f"{i:06d}", t_s=float(i),
+                 left=partial(_read_image, q), source=str(q))
+        for i, q in enumerate(paths)
+    ]
+
+
+def _session_frames(reader: Any, camera: str, where: str) -> list[Any]:
+    from sea3d.errors import SfmError
+    from sea3d.sfm import SfmFrame
+
+    n_left = int(reader.stamps("left").size)
+    n_right = int(reader.stamps("right").size)
+    if camera in ("right", "stereo") and n_right == 0:
+        raise SfmError(f"{where}: the session has no right camera images; --camera {camera} "
+                       f"needs a right camera")
+    if camera == "left":
+        if n_left == 0:
+            raise SfmError(f"{where}: the session has no left camera images")
+        stamps = reader.stamps("left")
+        return [SfmFrame(name=str(int(t)), t_s=int(t) * 1e-9,
+                         left=partial(reader.image, "left", i, by="index"),
+                         source=f"{where} left t_ns={int(t)}")
+                for i, t in enumerate(stamps)]
+    match = reader.match_pairs()
+    ls, rs = reader.stamps("left"), reader.stamps("right")
+    return [SfmFrame(name=str(int(ls[li])), t_s=int(ls[li]) * 1e-9,
+                     left=partial(reader.image, "left", int(li), by="index"),
+                     right=partial(reader.image, "right", int(ri), by="index"),
+                     source=f"{where} t_ns={int(ls[li])} (right t_ns={int(rs[ri])})")
+            for li, ri in zip(match.left_index, match.right_index, strict=True)]
+
+
+def _imu_extrinsics(args: argparse.Namespace, rig: Any) -> Any:
+    """``T_cam_body`` (the IMU in the left camera frame) for --imu-scale."""
+    import numpy as np
+    import yaml
+
+    from sea3d.errors import SfmError
+    from sea3d.geometry.se3 import check_T, invert_T
+
+    if args.imu_extrinsics:
+        path = Path(args.imu_extrinsics)
+        try:
+            data = yaml.safe_load(path.read_text())
+        except (OSError, yaml.YAMLError) as err:
+            raise SfmError(f"{path}: cannot read IMU extrinsics: {err}") from err
+        if isinstance(data, dict) and isinstance(data.get("imu"), dict):
+            data = data["imu"]
+        for key, inverse in (("T_left_imu", False), ("T_body_left", True)):
+            if isinstance(data, dict) and key in data:
+                try:
+                    T = check_T(np.asarray(data[key], dtype=np.float64), key)
+                except (ValueError, TypeError) as err:
+                    raise SfmError(f"{path}: {key} is not a rigid 4x4 transform: {err}") from err
+                return invert_T(T) if inverse else T
+        raise SfmError(f"{path}: holds neither T_left_imu nor T_body_left")
+    imu = getattr(rig, "imu", None) if rig is not None else None
+    T_rig = getattr(imu, "T_left_imu", None)
+    if T_rig is None:
+        raise SfmError("--imu-scale needs the IMU's place on the camera: the rig has no IMU "
+                       "block; pass --imu-extrinsics FILE (T_left_imu or T_body_left)")
+    return np.asarray(T_rig, dtype=np.float64)
+
+
+# ---------------------------------------------------------------------- command
+def _cmd_sfm(args: argparse.Namespace) -> int:
+    import contextlib
+
+    import numpy as np
+    from tqdm import tqdm
+
+    from sea3d.errors import SfmError
+    from sea3d.io.depth_files import write_ply
+    from sea3d.io.rig_file import load_rig, rig_from_yaml
+    from sea3d.io.sfm_files import write_colmap_model, write_summary
+    from sea3d.io.trajectory_files import read_trajectory, write_tum
+    from sea3d.sfm import PosePriors, SfmConfig, run_sfm
+
+    make = SfmConfig.fast if args.fast else SfmConfig
+    config = make(
+        camera=args.camera, matcher=args.matcher, max_image_px=args.max_image_px,
+        max_features=args.max_features, sequential_overlap=args.overlap,
+        self_calibration_model=args.camera_model, depth_range_m=tuple(args.depth_range),
+        refractive_ba=args.refractive_ba, prior_position_std_m=args.prior_std,
+        num_threads=args.threads, seed=args.seed,
+    )
+    src = Path(args.input)
+    out = Path(args.output)
+    session = _is_session(src)
+    if args.imu_scale and (not session or args.camera == "stereo"):
+        raise SfmError("--imu-scale needs a monocular run (--camera left/right) of a session "
+                       "with IMU samples")
+    priors = None
+    if args.pose_priors:
+        traj = read_trajectory(args.pose_priors, args.pose_priors_format,
+                               kitti_times=args.pose_priors_times)
+        if not traj.timed:
+            raise SfmError(f"{args.pose_priors}: a KITTI trajectory has no stamps; give its "
+                           "times.txt with --pose-priors-times")
+        priors = PosePriors(t_s=traj.t_ns.astype(np.float64) * 1e-9,
+                            T_world_left=traj.T_world_x, source=str(args.pose_priors))
+    with contextlib.ExitStack() as stack:
+        rig = load_rig(args.rig) if args.rig else None
+        imu = None
+        if session:
+            from sea3d.io.session import open_session
+
+            reader = stack.enter_context(open_session(src))
+            if rig is None and reader.rig_yaml and not args.self_calibrate:
+                rig = rig_from_yaml(reader.rig_yaml, f"{src} (stored rig.yaml)")
+            frames = _session_frames(reader, args.camera, str(src))
+            if args.imu_scale:
+                imu = reader.imu()
+                if len(imu) < 10:
+                    raise SfmError(f"{src}: --imu-scale needs IMU samples; the session has "
+                                   f"{len(imu)}")
+        else:
+            if args.camera != "left":
+                raise SfmError(f"{src}: an image glob has one camera; --camera {args.camera} "
+                               "needs a session with left and right images")
+            frames = _glob_frames(_glob_images(args.input))
+        T_cam_body = _imu_extrinsics(args, rig) if imu is not None else None
+        if args.self_calibrate:
+            if args.camera == "stereo":
+                raise SfmError("--camera stereo needs the rig's extrinsics; drop "
+                               "--self-calibrate")
+            rig = None
+        out.mkdir(parents=True, exist_ok=True)
+        sink = None
+        if args.export_images:
+            import cv2
+
+            def sink(name: str, img: Any) -> None:
+                path = out / "images" / name
+                path.parent.mkdir(parents=True, exist_ok=True)
+                arr = cv2.cvtColor(img, cv2.COLOR_RGB2BGR) if img.ndim == 3 else img
+                if not cv2.imwrite(str(path), arr):
+                    raise SfmError(f"cannot write {path}")
+
+        bars: dict[str, Any] = {}
+
+        def progress(stage: str, done: int, total: int) -> None:
+            if args.json:
+                return
+            bar = bars.get(stage)
+            if bar is None:
+                for b in bars.values():
+                    b.close()
+                bar = bars[stage] = tqdm(total=total, desc=stage, unit="img" if stage ==
+                                         "prepare" else "frame", leave=False)
+            bar.n = done
+            bar.refresh()
+
+        try:
+            result = run_sfm(frames, config, rig=rig, pose_priors=priors,
+                             workdir=out / ".work", progress=progress, image_sink=sink)
+        finally:
+            for b in bars.values():
+                b.close()
+            import shutil
+
+            shutil.rmtree(out / ".work", ignore_errors=True)
+    summary = _summary(args, result, rig, priors)
+    imu_result, scale = None, 1.0
+    if imu is not None and result.status != "failed":
+        imu_result, scale = _imu_scale(result, imu, T_cam_body, summary)
+    if result.reconstruction is not None:
+        T = result.T_world_left.copy()
+        T[:, :3, 3] *= scale
+        if scale != 1.0:
+            import pycolmap
+
+            result.reconstruction.transform(
+                pycolmap.Sim3d(scale, pycolmap.Rotation3d(np.eye(3)), np.zeros(3)))
+        write_colmap_model(result.reconstruction, out / "sparse")
+        write_ply(out / "points.ply", result.points_world * scale, result.colors_rgb)
+        # sessions name frames by their integer stamp (exact); a glob's t is the image index
+        t_ns = (np.array([int(n) for n in result.names], dtype=np.int64) if session else
+                np.round(np.asarray(result.t_s) * 1e9).astype(np.int64))
+        write_tum(out / "trajectory.tum", t_ns, T,
+                  header="t x y z qx qy qz qw (T_world_left, metres when metric)")
+    write_summary(out / "summary.json", summary)
+    if result.status == "failed":
+        raise SfmError(f"{src}: {result.message}")
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        imu_note = f"; {imu_result.message}" if imu_result is not None else ""
+        print(f"{result.message}; {'metric' if summary['metric'] else 'up to scale'}{imu_note} "
+              f"-> {out}/ (sparse/, points.ply, trajectory.tum, summary.json) in "
+              f"{result.timings_s.get('total_s', 0.0):.1f} s")
+    return 0
+
+
+def _imu_scale(result: Any, imu: Any, T_cam_body: Any,
+               summary: dict[str, Any]) -> tuple[Any, float]:
+    """The IMU's scale estimate and the factor to apply (1 unless it is trustworthy)."""
+    import numpy as np
+
+    from sea3d.sfm.imu_scale import estimate_imu_scale
+
+    if result.metric:
+        summary["imu_scale"] = {"status": "skipped", "message": "the model is metric already"}
+        return None, 1.0
+    # with the gyroscope: measured -0.9 % against -5.9 % (lawnmower) and -0.17 % against
+    # +1.0 % (hand-held) without it, benchmarks/bench_sfm.py --only imu
+    est = estimate_imu_scale(result.t_s, result.T_world_left,
+                             imu.t_ns.astype(np.float64) * 1e-9, imu.accel_mps2, T_cam_body,
+                             gyro_radps=imu.gyro_radps)
+    summary["imu_scale"] = {
+        "status": est.status, "message": est.message, "scale": est.scale,
+        "scale_std": est.scale_std, "relative_std": est.relative_std,
+        "gravity_model_mps2": list(est.gravity_model_mps2),
+        "accel_bias_mps2": list(est.accel_bias_mps2), "windows": est.windows,
+        "chi2_per_dof": est.chi2_per_dof, "applied": est.status == "ok",
+    }
+    if est.status != "ok":
+        return est, 1.0
+    summary["metric"] = True
+    summary["metric_source"] = "imu"
+    return est, float(est.scale)
+
+
+def _summary(args: argparse.Namespace, result: Any, rig: Any, priors: Any) -> dict[str, Any]:
+    metric_source = None
+    if result.metric:
+        metric_source = "pose_priors" if priors is not None and args.camera != "stereo" else (
+            "stereo_rig")
+    return {
+        "input": str(args.input),
+        "status": result.status,
+        "message": result.message,
+        "camera": args.camera,
+        "matcher": args.matcher,
+        "frames": result.frames,
+        "registered_frames": result.registered,
+        "images": result.images,
+        "registered": result.registered_images,
+        "points3d": len(result.points_world),
+        "mean_reprojection_error_px": result.mean_reprojection_error_px,
+        "metric": bool(result.metric),
+        "metric_source": metric_source,
+        "models": result.models,
+        "intrinsics": "rig" if rig is not None else "self-calibrated",
+        "trajectory_camera": "right" if args.camera == "right" and rig is None else "left",
+        "cameras": result.cameras,
+        "virtual_pinhole": {
+            k: {"center_mm": [1e3 * c for c in v.center_m], "rms_px": v.rms_px,
+                "max_px": v.max_px, "depths_m": list(v.depths_m),
+                "rms_by_depth_px": list(v.rms_by_depth_px)}
+            for k, v in result.virtual.items()
+        },
+        "refractive_ba": None if result.refractive_ba is None else {
+            "observations": result.refractive_ba.observations,
+            "rms_before_px": result.refractive_ba.rms_before_px,
+            "rms_after_px": result.refractive_ba.rms_after_px,
+            "time_s": result.refractive_ba.time_s,
+        },
+        "pose_priors": None if priors is None else str(priors.source),
+        "timings_s": result.timings_s,
+    }

@@ -1,0 +1,67 @@
+"""Files of structure from motion: the COLMAP model and the run summary.
+
+``OUT/sparse/`` holds the COLMAP model twice, in COLMAP's binary (``cameras.bin``,
+``images.bin``, ``points3D.bin``, ``rigs.bin``, ``frames.bin``) and text (``*.txt``) formats, as
+``pycolmap.Reconstruction.write_binary``/``write_text`` write them (COLMAP reads the binary
+files when both are present). COLMAP's pixel convention: the centre of the top-left pixel is at
+``(0.5, 0.5)``. Image names are ``left/<name>.png`` and ``right/<name>.png``; for port cameras
+they refer to the images remapped into the virtual pinhole (``sea3d sfm --export-images``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from sea3d.errors import SfmError
+
+__all__ = ["read_colmap_model", "write_colmap_model", "write_summary"]
+
+
+def write_colmap_model(reconstruction: Any, out_dir: str | os.PathLike[str]) -> None:
+    """Write a ``pycolmap.Reconstruction`` as binary and text files into ``out_dir``.
+
+    Raises:
+        SfmError: the folder cannot be written.
+    """
+    d = Path(out_dir)
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+        reconstruction.write_binary(str(d))
+        reconstruction.write_text(str(d))
+    except (OSError, RuntimeError, ValueError) as err:
+        raise SfmError(f"cannot write the COLMAP model to {d}: {err}") from err
+
+
+def read_colmap_model(model_dir: str | os.PathLike[str]) -> Any:
+    """Read a COLMAP model folder (binary or text) as a ``pycolmap.Reconstruction``.
+
+    Raises:
+        SfmError: the folder holds no readable COLMAP model.
+    """
+    import pycolmap
+
+    d = Path(model_dir)
+    if not ((d / "cameras.bin").is_file() or (d / "cameras.txt").is_file()):
+        raise SfmError(f"{d}: not a COLMAP model folder (no cameras.bin or cameras.txt)")
+    try:
+        return pycolmap.Reconstruction(str(d))
+    except (RuntimeError, ValueError) as err:
+        raise SfmError(f"{d}: cannot read the COLMAP model: {err}") from err
+
+
+def write_summary(path: str | os.PathLike[str], summary: dict[str, Any]) -> None:
+    """Write a JSON summary atomically (a temporary file, then renamed).
+
+    Raises:
+        SfmError: the file cannot be written.
+    """
+    p = Path(path)
+    tmp = p.with_name(p.name + ".tmp")
+    try:
+        tmp.write_text(json.dumps(summary, indent=2, allow_nan=True) + "\n")
+        os.replace(tmp, p)
+    except OSError as err:
+        raise SfmError(f"cannot write {p}: {err}") from err
