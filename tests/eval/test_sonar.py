@@ -31,9 +31,8 @@ from sea3d.geometry.rig import SonarSpec, StereoRig
 from sea3d.geometry.se3 import invert_T
 from sea3d.io.rig_file import rig_to_yaml
 from sea3d.io.session import SessionWriter
-from sea3d.io.trajectory_files import read_trajectory
+from sea3d.io.trajectory_files import read_trajectory, write_tum
 from sea3d.sim.motion import Mount
-from sea3d.sim.survey import write_tum
 
 W, H, FX, B = 320, 180, 220.0, 0.12
 Z0, SX, SY = -1.5, 0.08, -0.05  # seafloor 1.5 m below the start, gently sloped

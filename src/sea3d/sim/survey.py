@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Protocol
@@ -43,7 +43,8 @@ from sea3d.errors import SimulationError
 from sea3d.geometry.camera import CameraModel
 from sea3d.geometry.pinhole import PinholeCamera
 from sea3d.geometry.rig import ImuSpec, SonarSpec, StereoRig
-from sea3d.geometry.se3 import R_to_quat_wxyz, invert_T
+from sea3d.geometry.se3 import invert_T
+from sea3d.io.trajectory_files import write_tum
 from sea3d.sim.motion import (
     GRAVITY_WORLD,
     HandHeld,
@@ -652,22 +653,6 @@ def estimate_survey_cost(
     )
 
 
-def _tum_line(t_ns: int, T: FloatArray) -> str:
-    q = R_to_quat_wxyz(T[:3, :3])
-    x, y, z = T[:3, 3]
-    return (
-        f"{t_ns * 1e-9:.9f} {x:.9f} {y:.9f} {z:.9f} {q[1]:.12f} {q[2]:.12f} {q[3]:.12f} {q[0]:.12f}"
-    )
-
-
-def write_tum(path: Path, t_ns: Sequence[int], T: FloatArray) -> None:
-    """Poses as a TUM trajectory file: ``t x y z qx qy qz qw`` per line, t in seconds."""
-    lines = ["# t x y z qx qy qz qw"] + [
-        _tum_line(int(t), Ti) for t, Ti in zip(t_ns, T, strict=True)
-    ]
-    path.write_text("\n".join(lines) + "\n")
-
-
 def _write_clean_reference(
     renderer: Renderer,
     rig: StereoRig,
@@ -920,5 +905,4 @@ __all__ += [
     "with_survey_sensors",
     "write_calibration_set",
     "write_gt_depth",
-    "write_tum",
 ]
