@@ -86,6 +86,28 @@ def test_outputs_and_summary(first_run, sim_session):
     assert html.count("data:image/") >= 3 and "Status timeline" in html
 
 
+def test_results_mcap_holds_the_trajectory_cloud_and_mesh(first_run):
+    """OUT/results.mcap (Foxglove schemas) carries the same poses as trajectory.tum, with one
+    status per frame, and the cloud and mesh once each."""
+    from mcap.reader import make_reader
+
+    from sea3d.io.foxglove_msgs import TOPICS
+
+    out, _ = first_run
+    traj = read_trajectory(out / "trajectory.tum")
+    stamps: dict[str, list[int]] = {}
+    statuses = []
+    with open(out / "results.mcap", "rb") as f:
+        for _schema, channel, message in make_reader(f).iter_messages(log_time_order=True):
+            stamps.setdefault(channel.topic, []).append(message.log_time)
+            if channel.topic == "/odometry/status":
+                statuses.append(json.loads(message.data)["status"])
+    assert stamps[TOPICS["pose"]] == traj.t_ns.tolist()
+    assert len(statuses) == len(traj) and set(statuses) <= {"tracking", "initialising"}
+    assert len(stamps[TOPICS["cloud"]]) == 1 and len(stamps[TOPICS["mesh"]]) == 1
+    assert not list(out.glob("*.partial"))
+
+
 def test_mesh_matches_the_scene(first_run):
     out, result = first_run
     mv = result.summary["mesh_vs_gt"]

@@ -9,7 +9,8 @@
     ordered stages, in time order:  odometry ─► fusion into keyframe-anchored TSDF submaps
                                     (finished submaps spilled to OUT/submaps/)
     after the last frame:           final keyframe poses ─► merged mesh and cloud
-    ──► OUT/trajectory.tum, mesh.ply, cloud.ply, status.csv, summary.json, report.html
+    ──► OUT/trajectory.tum, mesh.ply, cloud.ply, status.csv, summary.json, report.html,
+        results.mcap (Foxglove)
 
 Memory: at most ``in_flight`` frames are between the reader and the ordered stages at any
 time (submitted, running, or finished and waiting for their turn), and fusion holds one
@@ -29,7 +30,7 @@ import logging
 import os
 import resource
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Protocol
@@ -187,11 +188,31 @@ class ProcessResult:
     files: dict[str, Path] = field(default_factory=dict)
 
 
+def _write_results_mcap(path: Path, t_ns: NDArray[np.int64], T: F64, estimates: Sequence[Any],
+                        mesh: Any, cloud: Any, rig: Any) -> None:
+    """OUT/results.mcap: trajectory (with each frame's status), cloud and mesh in Foxglove
+    schemas, so a finished dive opens in Foxglove beside its recording. Rewritten whole on
+    every run (a resumed run replaces the previous file)."""
+    from sea3d.io.foxglove_mcap import write_results_mcap
+
+    tmp = path.with_name(path.name + ".partial")
+    tmp.unlink(missing_ok=True)
+    write_results_mcap(
+        tmp,
+        trajectory=(t_ns, T),
+        status=[str(getattr(e.status, "value", e.status)) for e in estimates],
+        cloud=(cloud.points, cloud.colors),
+        mesh=(mesh.vertices, mesh.triangles, mesh.colors_rgb),
+        rig=rig,
+    )
+    tmp.replace(path)
+
+
 def publish_results(result: ProcessResult) -> None:
     """Hook for live viewers, called once per run with the final trajectory, mesh and cloud.
 
-    The Foxglove output of process results (the field area) is wired here; until it is, this
-    does nothing. Callers of :func:`run_process` can also pass ``on_result``.
+    Does nothing by default (the results are on disk, OUT/results.mcap for Foxglove);
+    callers of :func:`run_process` can also pass ``on_result``.
     """
     return None
 
@@ -584,6 +605,7 @@ def run_process(
         "cloud": out / "cloud.ply",
         "status": out / "status.csv",
         "summary": out / "summary.json",
+        "results_mcap": out / "results.mcap",
     }
     write_tum(files["trajectory"], t_traj, T_traj,
               header="t x y z qx qy qz qw: T_world_left of every stereo frame (t in seconds "
@@ -592,6 +614,8 @@ def run_process(
     write_mesh(files["mesh"], merged.mesh)
     write_point_cloud(files["cloud"], cloud.points, cloud.colors, cloud.normals)
     _write_status_csv(files["status"], estimates, fuse_status, frame_status, valid_fraction)
+    _write_results_mcap(files["results_mcap"], t_traj, T_traj, estimates, merged.mesh, cloud,
+                        rig)
     timer.add("write_s", time.perf_counter() - tw)
 
     statuses = [e.status for e in estimates]
