@@ -331,14 +331,16 @@ def bench_chess(args: argparse.Namespace) -> None:
     cols = sorted(glob.glob(str(root / "*.color.jpg")))
     deps = sorted(glob.glob(str(root / "*.depth.png")))
     intr = (585.0, 585.0, 320.0, 240.0)
-    ours_t, ours = [], None
+    runs: dict[str, list] = {"dense": [], "features": []}
+    res: dict = {}
     for _ in range(args.repeat):
-        c0 = time.process_time()
-        w0 = time.perf_counter()
-        ours = rgbd_odometry(str(root / "*.color.jpg"), str(root / "*.depth.png"), intr)
-        ours_t.append(((time.perf_counter() - w0) / len(cols), (time.process_time() - c0)
-                       / len(cols)))
-    assert ours is not None
+        for method in runs:
+            c0 = time.process_time()
+            w0 = time.perf_counter()
+            res[method] = rgbd_odometry(str(root / "*.color.jpg"), str(root / "*.depth.png"),
+                                        intr, method=method)
+            runs[method].append(((time.perf_counter() - w0) / len(cols),
+                                 (time.process_time() - c0) / len(cols)))
     K = o3d.core.Tensor([[585.0, 0, 320], [0, 585, 240], [0, 0, 1]], dtype=o3d.core.Dtype.Float64)
     ref_t, ref = [], None
     for _ in range(args.repeat):
@@ -357,21 +359,36 @@ def bench_chess(args: argparse.Namespace) -> None:
         ref = np.stack(T)
     assert ref is not None
     idx_t = np.arange(len(gt), dtype=np.int64) * 10**9  # frames paired by index
-    m_ours = metrics(idx_t, ours.T_world_left, idx_t, gt, rpe_m=0.1)
     m_ref = metrics(idx_t, ref, idx_t, gt, rpe_m=0.1)
-    a_ours, a_ref = m_ours["ate_m"], m_ref["ate_m"]
-    w_o, c_o = (statistics.median(x) for x in zip(*ours_t, strict=True))
     w_r, c_r = (statistics.median(x) for x in zip(*ref_t, strict=True))
-    print(f"\n7-Scenes chess, {len(cols)} frames, path {m_ours['path_m']:.3f} m "
+    rows = []
+    for method, label in (("dense", "sea3d RGB-D dense (default)"),
+                          ("features", "sea3d RGB-D features")):
+        m = metrics(idx_t, res[method].T_world_left, idx_t, gt, rpe_m=0.1)
+        w, c = (statistics.median(x) for x in zip(*runs[method], strict=True))
+        rows.append((label, m, w, c, res[method].summary))
+    print(f"\n7-Scenes chess, {len(cols)} frames, path {m_ref['path_m']:.3f} m "
           f"(medians of {args.repeat} runs; RPE per 0.1 m):")
-    print(f"  {'method':<34}{'ATE cm':>9}{'RPE %':>8}{'RPE deg':>8}{'ms wall':>9}{'ms cpu':>8}")
-    for label, m, w, c in (("sea3d RGB-D (keyframes, BA, loops)", m_ours, w_o, c_o),
-                           ("Open3D rgbd_odometry_multi_scale", m_ref, w_r, c_r)):
+    print(f"  {'method':<34}{'ATE cm':>9}{'RPE %':>8}{'RPE deg':>8}{'ms wall':>9}{'ms cpu':>8}"
+          f"{'kf':>5}{'lost':>6}")
+    for label, m, w, c, summ in rows:
         print(f"  {label:<34}{m['ate_m'] * 100:>9.2f}{m['rpe_pct']:>8.2f}{m['rpe_deg']:>8.2f}"
-              f"{w * 1e3:>9.1f}{c * 1e3:>8.1f}")
-    print(f"  ratio sea3d/Open3D: ATE {a_ours / a_ref:.3f}, wall {w_o / w_r:.2f}, "
-          f"CPU {c_o / c_r:.2f}  (sea3d: {ours.summary['keyframes']} keyframes, "
-          f"{ours.summary['loop_closures']} loops)")
+              f"{w * 1e3:>9.1f}{c * 1e3:>8.1f}{summ['keyframes']:>5}{summ['frames_lost']:>6}")
+    print(f"  {'Open3D rgbd_odometry_multi_scale':<34}{m_ref['ate_m'] * 100:>9.2f}"
+          f"{m_ref['rpe_pct']:>8.2f}{m_ref['rpe_deg']:>8.2f}{w_r * 1e3:>9.1f}{c_r * 1e3:>8.1f}")
+    for label, m, w, c, _ in rows:
+        print(f"  ratio {label}/Open3D: ATE {m['ate_m'] / m_ref['ate_m']:.3f}, wall "
+              f"{w / w_r:.2f}, CPU {c / c_r:.2f}")
+    # both are causal, so the first n poses are what a run on the first n frames gives
+    prefixes = [n for n in (20, 30, 40, 50) if n < len(gt)] + [len(gt)]
+    dense_T = res["dense"].T_world_left
+    parts = []
+    for n in prefixes:
+        a_d = metrics(idx_t[:n], dense_T[:n], idx_t[:n], gt[:n])["ate_m"]
+        a_r = metrics(idx_t[:n], ref[:n], idx_t[:n], gt[:n])["ate_m"]
+        parts.append(f"{n}: {a_d * 100:.2f} / {a_r * 100:.2f}")
+    line = ", ".join(parts)
+    print(f"  ATE cm on the first n frames, dense / Open3D: {line}")
 
 
 # ------------------------------------------------------------------------------ EuRoC

@@ -69,6 +69,13 @@ def register(sub: Any) -> None:
         help="depth camera intrinsics, pixels",
     )
     g.add_argument(
+        "--method",
+        choices=("dense", "features"),
+        default="dense",
+        help="dense: frame-to-keyframe dense alignment (default); features: sparse features, "
+        "keyframes and windowed BA through the stereo engine",
+    )
+    g.add_argument(
         "--depth-scale",
         type=float,
         default=1000.0,
@@ -186,6 +193,7 @@ def _run_rgbd(args: argparse.Namespace) -> int:
             depth_scale=args.depth_scale,
             config=_config(args),
             progress=bar.update,
+            method=args.method,
         )
     return _report(args, run)
 

@@ -1,17 +1,22 @@
 """sea3d.odometry: stereo(-inertial) odometry, loop closure and RGB-D odometry.
 
 :func:`create_odometry` builds the odometry of a rig for the process pipeline (the contract is
-in :mod:`sea3d.odometry.types`); :func:`create_rgbd_odometry` the same engine for RGB-D frames
-(depth from any source); :mod:`sea3d.odometry.observe` turns raw stereo pairs into
-:class:`FrameObservation` s one at a time. See ``docs/odometry.md``.
+in :mod:`sea3d.odometry.types`); :func:`create_dense_rgbd_odometry` dense frame-to-keyframe
+RGB-D odometry (depth from any source; the default of ``sea3d odometry rgbd``);
+:func:`create_rgbd_odometry` the stereo engine's sparse features on RGB-D frames;
+:mod:`sea3d.odometry.observe` turns raw stereo pairs into :class:`FrameObservation` s one at a
+time. See ``docs/odometry.md``.
 """
 
 from __future__ import annotations
 
 import logging
 
+import numpy as np
+
 from sea3d.geometry.rig import StereoRig
 from sea3d.odometry.config import OdometryConfig
+from sea3d.odometry.rgbd_dense import DenseRgbdConfig, DenseRgbdOdometry
 from sea3d.odometry.stereo_geometry import RectifiedStereo
 from sea3d.odometry.types import (
     FrameObservation,
@@ -24,6 +29,8 @@ from sea3d.odometry.vio import StereoInertialOdometry
 from sea3d.rectify.maps import RectifyMaps
 
 __all__ = [
+    "DenseRgbdConfig",
+    "DenseRgbdOdometry",
     "FrameObservation",
     "ImuChunk",
     "Odometry",
@@ -32,6 +39,7 @@ __all__ = [
     "RectifiedStereo",
     "StereoInertialOdometry",
     "TrackingStatus",
+    "create_dense_rgbd_odometry",
     "create_odometry",
     "create_rgbd_odometry",
 ]
@@ -93,3 +101,17 @@ def create_rgbd_odometry(
     odo = StereoInertialOdometry(geometry, imu=None, config=cfg, use_right=False)
     odo.imu_disabled_reason = "RGB-D mode"
     return odo
+
+
+def create_dense_rgbd_odometry(
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    *,
+    config: DenseRgbdConfig | None = None,
+) -> DenseRgbdOdometry:
+    """Dense frame-to-keyframe RGB-D odometry (:mod:`sea3d.odometry.rgbd_dense`) for a
+    depth-registered camera with these intrinsics (pixels)."""
+    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    return DenseRgbdOdometry(K, config)

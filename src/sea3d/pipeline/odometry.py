@@ -30,6 +30,7 @@ from sea3d.errors import ConfigError, OdometryError, SessionError
 from sea3d.geometry.rig import StereoRig
 from sea3d.odometry.config import OdometryConfig
 from sea3d.odometry.observe import ObserveConfig, Observer, imu_chunks
+from sea3d.odometry.rgbd_dense import DenseRgbdConfig
 from sea3d.odometry.types import FrameObservation, ImuChunk, TrackingStatus
 
 __all__ = [
@@ -425,14 +426,29 @@ def rgbd_odometry(
     depth_scale: float = 1000.0,
     config: OdometryConfig | None = None,
     progress: Callable[[int], None] | None = None,
+    method: str = "dense",
+    dense_config: DenseRgbdConfig | None = None,
 ) -> OdometryRun:
-    """Keyframe-based RGB-D odometry over image files (one pose per input frame, in sorted
-    order; ``t`` from the file names when they are numbers, else the frame index)."""
-    from sea3d.odometry import create_rgbd_odometry
+    """RGB-D odometry over image files (one pose per input frame, in sorted order; ``t`` from
+    the file names when they are numbers, else the frame index).
 
+    ``method`` ``"dense"`` (default): dense frame-to-keyframe alignment
+    (:class:`~sea3d.odometry.rgbd_dense.DenseRgbdOdometry`, ``dense_config``); ``"features"``:
+    the stereo engine's sparse features, keyframes and windowed BA (``config``).
+    """
+    from sea3d.odometry import create_dense_rgbd_odometry, create_rgbd_odometry
+
+    if method not in ("dense", "features"):
+        raise ConfigError(f"RGB-D method must be 'dense' or 'features', got {method!r}")
     cp, dp, t_s, (w, h) = rgbd_observations(color, depth, intrinsics, depth_scale=depth_scale)
     fx, fy, cx, cy = intrinsics
-    odo = create_rgbd_odometry(fx, fy, cx, cy, w, h, config=config)
+    odo: Any
+    if method == "dense":
+        odo = create_dense_rgbd_odometry(fx, fy, cx, cy, config=dense_config)
+        baseline = 0.0
+    else:
+        odo = create_rgbd_odometry(fx, fy, cx, cy, w, h, config=config)
+        baseline = odo.geometry.baseline_m
     K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
     t_ns = np.round(t_s * 1e9).astype(np.int64)
 
@@ -447,11 +463,12 @@ def rgbd_odometry(
                 rect_right=rgb,
                 depth_m=z,
                 K_rect=K,
-                baseline_m=odo.geometry.baseline_m,
+                baseline_m=baseline,
                 R_rect_left_left=np.eye(3),
             )
 
-    run = run_odometry(frames(), odo, progress=progress, notes=["RGB-D mode: no IMU"])
+    run = run_odometry(frames(), odo, progress=progress,
+                       notes=[f"RGB-D mode ({method}): no IMU"])
     return OdometryRun(
         t_ns=t_ns,
         T_world_left=run.T_world_left,
