@@ -143,15 +143,8 @@ def _port_to_dict(cam: CameraModel) -> dict[str, Any]:
     return {"type": "none"}
 
 
-def _pinhole_of(cam: CameraModel) -> PinholeCamera:
-    pin = getattr(cam, "pinhole", cam)
-    if not isinstance(pin, PinholeCamera):
-        raise RigFileError(f"cannot store a camera of type {type(cam).__name__} in a rig file")
-    return pin
-
-
 def _camera_to_dict(cam: CameraModel) -> dict[str, Any]:
-    pin = _pinhole_of(cam)
+    pin = cam.lens
     return {
         "fx_px": pin.fx,
         "fy_px": pin.fy,
@@ -681,7 +674,7 @@ FOLD_ERROR_FRACTION = 0.5
 
 
 def _check_port(cam: CameraModel, name: str, source: str) -> None:
-    port = getattr(cam, "port", None)
+    port = cam.port
     if port is None:
         return
     key = f"{name}.port"
@@ -729,7 +722,7 @@ def check_rig_physics(rig: StereoRig, source: str) -> None:
     check_image_size(rig.width, rig.height, source)
     for name in ("left", "right"):
         cam = getattr(rig, name)
-        _check_intrinsics(_pinhole_of(cam), name, source)
+        _check_intrinsics(cam.lens, name, source)
         _check_port(cam, name, source)
     baseline = rig.baseline_m
     if not 0.0 < baseline <= MAX_BASELINE_M:
@@ -871,7 +864,7 @@ def rig_to_opencv_yaml(rig: StereoRig) -> str:
 
     if any(hasattr(c, "port") for c in (rig.left, rig.right)):
         log.warning("OpenCV stereo YAML has no place for port parameters; they are dropped")
-    left, right = _pinhole_of(rig.left), _pinhole_of(rig.right)
+    left, right = rig.left.lens, rig.right.lens
     T_rl = rig.T_right_left
     fd, tmp = tempfile.mkstemp(suffix=".yml")
     os.close(fd)
@@ -904,7 +897,7 @@ def rig_to_colmap(rig: StereoRig) -> str:
         "# CAMERA_ID FLATPORT Nx Ny Nz int_dist int_thick na ng nw",
     ]
     for cam_id, cam in ((1, rig.left), (2, rig.right)):
-        pin = _pinhole_of(cam)
+        pin = cam.lens
         coeffs = np.zeros(8)
         n = min(pin.dist.size, 8)
         coeffs[:n] = pin.dist[:n]
