@@ -133,7 +133,7 @@ def test_cli_calibration_writes_images_and_true_board_poses(tmp_path: Path) -> N
     from sea3d.io.rig_file import load_rig
 
     true_rig = load_rig(out / "rig_true.yaml")
-    assert not hasattr(true_rig.left, "port") and not hasattr(true_rig.right, "port")
+    assert true_rig.left.port is None and true_rig.right.port is None
 
 
 def test_cli_rejects_a_missing_output_and_unknown_scene(tmp_path: Path) -> None:

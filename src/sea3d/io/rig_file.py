@@ -59,7 +59,7 @@ import secrets
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 import numpy as np
 import yaml
@@ -78,6 +78,7 @@ __all__ = [
     "imu_to_dict",
     "load_rig",
     "read_rig_text",
+    "resolve_rig",
     "rig_from_dict",
     "rig_from_yaml",
     "rig_to_colmap",
@@ -862,7 +863,7 @@ def rig_to_opencv_yaml(rig: StereoRig) -> str:
     """
     import cv2
 
-    if any(hasattr(c, "port") for c in (rig.left, rig.right)):
+    if rig.left.port is not None or rig.right.port is not None:
         log.warning("OpenCV stereo YAML has no place for port parameters; they are dropped")
     left, right = rig.left.lens, rig.right.lens
     T_rl = rig.T_right_left
@@ -1022,3 +1023,34 @@ def save_rig(
         raise RigFileError(f"{p}: unknown rig format {format!r}")
     _atomic_write(p, text)
     return p
+
+
+class _StoresRig(Protocol):
+    """What :func:`resolve_rig` needs of a session reader."""
+
+    path: Path
+
+    @property
+    def rig_yaml(self) -> str | None: ...
+
+
+def resolve_rig(path: str | os.PathLike[str] | None, session: _StoresRig) -> StereoRig:
+    """The rig to process ``session`` with: the rig file ``path`` if given, else the rig stored
+    in the session, else an error.
+
+    Args:
+        path: a rig file (any format :func:`load_rig` reads), or None.
+        session: an open :class:`~sea3d.io.session_common.SessionReader`.
+
+    Raises:
+        RigFileError: the rig file is missing or invalid, or the stored rig is invalid.
+        SessionError: no file was given and the session stores no rig (or a damaged one).
+    """
+    from sea3d.errors import SessionError
+
+    if path is not None:
+        return load_rig(path)
+    text = session.rig_yaml
+    if not text:
+        raise SessionError(f"{session.path} stores no rig; pass --rig rig.yaml")
+    return rig_from_yaml(text, f"{session.path} (stored rig.yaml)")
