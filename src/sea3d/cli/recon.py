@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import image_size
+from sea3d.cli._args import add_depth_range, image_size
 
 __all__ = ["register", "register_eval"]
 
@@ -249,10 +249,7 @@ def register(sub: Any) -> None:
     p.add_argument("--engine", default="sea3d",
                    choices=["sea3d", "sea3d-gpu", "opencv", "opencv-hh", "opencv-3way"],
                    help="stereo matching engine (default sea3d)")
-    p.add_argument("--min-depth", type=float, default=0.5, metavar="M",
-                   help="nearest depth resolved, metres (default 0.5)")
-    p.add_argument("--max-depth", type=float, default=4.0, metavar="M",
-                   help="farthest depth fused, metres (default 4)")
+    add_depth_range(p, near="nearest depth resolved", far="farthest depth fused")
     p.add_argument("--integrate", choices=["trusted", "keyframes"], default="trusted",
                    help="fuse every frame with a trusted pose (default) or keyframes only")
     p.add_argument("--fresh", action="store_true",

@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from sea3d.geometry.rig import StereoRig
 from sea3d.sim.optics import Imaging
-from sea3d.sim.render import GroundTruth, Renderer
+from sea3d.sim.render import Renderer, ViewTruth
 from sea3d.sim.scene import Scene, load_scene
 
 __all__ = [
@@ -97,7 +97,7 @@ class ReferencePair:
     right_clean: Image
     left_unattenuated: Image
     right_unattenuated: Image
-    gt: GroundTruth
+    gt: ViewTruth
     exposure_clean: float
     exposure_unattenuated: float
     water: dict[str, Any]
