@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from sea3d._text import plural
+
 __all__ = ["add_depth_range", "depth_config", "image_size", "plural", "positive_depth"]
 
 
@@ -19,9 +21,6 @@ def image_size(text: str) -> tuple[int, int]:
     return w, h
 
 
-def plural(n: int, noun: str, nouns: str | None = None) -> str:
-    """``1 pair``, ``2 pairs``, ``0 pairs`` (``nouns`` for irregular plurals)."""
-    return f"{n} {noun}" if n == 1 else f"{n} {nouns or noun + 's'}"
 
 
 def positive_depth(text: str) -> float:

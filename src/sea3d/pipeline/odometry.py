@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.errors import ConfigError, OdometryError, SessionError
 from sea3d.geometry.rig import StereoRig
 from sea3d.odometry.config import OdometryConfig
@@ -44,7 +45,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-F64 = NDArray[np.float64]
 
 
 @dataclass

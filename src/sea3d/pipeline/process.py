@@ -38,6 +38,7 @@ from typing import Any, Literal, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.errors import ConfigError, Sea3dError, SessionError
 from sea3d.odometry.types import (
     FrameObservation,
@@ -66,7 +67,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-F64 = NDArray[np.float64]
 TRUSTED = (TrackingStatus.TRACKING, TrackingStatus.RELOCALISED)
 
 

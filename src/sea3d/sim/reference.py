@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import FloatArray
 from sea3d.geometry.rig import StereoRig
 from sea3d.sim.optics import Imaging
 from sea3d.sim.render import Renderer, ViewTruth
@@ -40,7 +41,6 @@ __all__ = [
 ]
 
 Image = NDArray[np.uint8]
-FloatArray = NDArray[np.float64]
 
 
 def water_model_dict(imaging: Imaging) -> dict[str, Any]:

@@ -31,6 +31,7 @@ import numpy as np
 import open3d as o3d
 from numpy.typing import NDArray
 
+from sea3d._typing import F32, FloatArray
 from sea3d.errors import SimulationError
 from sea3d.geometry.camera import CameraModel
 from sea3d.sim._kernels import (
@@ -52,9 +53,6 @@ from sea3d.sim.scene import Scene
 __all__ = ["Hits", "RenderedView", "Renderer", "ViewTruth"]
 
 _log = logging.getLogger(__name__)
-
-FloatArray = NDArray[np.float64]
-F32 = NDArray[np.float32]
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)

@@ -39,6 +39,7 @@ import numpy as np
 import open3d as o3d
 from numpy.typing import NDArray
 
+from sea3d._typing import FloatArray
 from sea3d.calib.targets import BoardSpec
 from sea3d.errors import SimulationError
 from sea3d.geometry.camera import CameraModel
@@ -75,7 +76,6 @@ __all__ = [
 
 _log = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
 Image = NDArray[np.uint8]
 
 
