@@ -788,9 +788,17 @@ class SessionReader(ABC):
         (intervals longer than 1.5 median intervals) and ``max_interval_s``."""
         return {s: stream_stats(self.stamps(s)) for s in ("left", "right", "imu", "sonar")}
 
+    def checks(self) -> tuple[str, str]:
+        """What opening the session checked, and what it did not (read by ``session info``,
+        which must not show counts as if they were verified)."""
+        return ("nothing", "every record (run `sea3d session verify`)")
+
     def summary(self, tolerance_ns: int | None = None) -> dict[str, Any]:
-        """Session-level report: path, format, size, duration, rig, streams and pairing."""
+        """Session-level report: path, format, size, duration, rig, streams and pairing,
+        what was checked on opening and not (``checked``, ``not_checked``) and the
+        ``problems`` found so far."""
         streams = self.info()
+        checked, not_checked = self.checks()
         firsts = [v["first_t_ns"] for v in streams.values() if v["count"]]
         lasts = [v["last_t_ns"] for v in streams.values() if v["count"]]
         match = self.match_pairs(tolerance_ns)
@@ -808,4 +816,7 @@ class SessionReader(ABC):
                 "unpaired_right": match.unpaired_right,
                 "tolerance_ns": match.tolerance_ns,
             },
+            "checked": checked,
+            "not_checked": not_checked,
+            "problems": list(self.problems),
         }

@@ -76,6 +76,12 @@ def _atomic_write(path: Path, data: bytes) -> None:
         raise
 
 
+def _meta_crc(meta: dict[str, Any]) -> str:
+    """CRC-32 of session.json's content without its own ``crc32`` key (8 hex digits)."""
+    body = {k: v for k, v in meta.items() if k != "crc32"}
+    return f"{zlib.crc32(json.dumps(body, sort_keys=True).encode()):08x}"
+
+
 def _why(err: OSError) -> str:
     return err.strerror or str(err)
 
@@ -110,12 +116,14 @@ class FolderSessionWriter:
         self.broken: str | None = None
         self._csv: dict[str, IO[str]] = {}
         self._created = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+        self._rig_sum: dict[str, int] | None = None
         try:
             for s in ("left", "right"):
                 (path / s).mkdir(parents=True, exist_ok=True)
             rig_bytes = None if rig_yaml is None else rig_yaml.encode("utf-8")
             if rig_bytes is not None:
                 _atomic_write(path / "rig.yaml", rig_bytes)
+                self._rig_sum = {"bytes": len(rig_bytes), "crc32": zlib.crc32(rig_bytes)}
             self._write_json({}, complete=False)
             for name, header in (
                 ("imu", IMU_HEADER),
@@ -184,7 +192,12 @@ class FolderSessionWriter:
             "created_utc": self._created,
             "counts": counts,
             "complete": complete,
+            # Every image (and the rig) has a line in checksums.csv; the rig's is kept here
+            # too, so that a damaged or deleted line never leaves the rig unchecked.
+            "checksums": True,
+            "rig": self._rig_sum,
         }
+        meta["crc32"] = _meta_crc(meta)
         _atomic_write(self.path / "session.json", (json.dumps(meta, indent=2) + "\n").encode())
 
     def _line(self, name: str, line: str) -> None:
@@ -277,37 +290,38 @@ class FolderSessionReader(SessionReader):
             raise SessionError(f"name_unit must be 'ns' or 'us', got {name_unit!r}")
         self.meta: dict[str, Any] = {}
         meta_path = self.path / "session.json"
+        meta_damaged = False
         if meta_path.is_file():
             try:
                 self.meta = json.loads(meta_path.read_text(encoding="utf-8"))
+                if not isinstance(self.meta, dict):
+                    raise ValueError("not a JSON object")
             except (OSError, ValueError) as err:
+                self.meta, meta_damaged = {}, True
+                self.problems.append(f"{meta_path}: cannot parse ({err}); ignoring it")
                 _log.warning("%s: cannot parse (%s); ignoring it", meta_path, err)
+            if "crc32" in self.meta and self.meta["crc32"] != _meta_crc(self.meta):
+                self.meta, meta_damaged = {}, True
+                self.problems.append(f"{meta_path} is damaged (CRC-32 mismatch); ignoring it")
+                _log.warning("%s is damaged (CRC-32 mismatch); ignoring it", meta_path)
         if self.meta.get("stamp_unit") == "us":
             name_unit = "us"
         self._scale = 1000 if name_unit == "us" else 1
-        rig_path = self.path / "rig.yaml"
-        self._rig = None
-        if rig_path.is_file():
-            from sea3d.errors import RigFileError
-            from sea3d.io.rig_file import read_rig_text
-
+        # A folder written by sea3d lists every image (and the rig) in checksums.csv and says
+        # so in session.json: then nothing unlisted or mismatching is handed out. Folders
+        # without (the paper's) are read unchecked, as before.
+        self.checksummed = bool(self.meta.get("checksums")) or meta_damaged
+        sums_path = self.path / "checksums.csv"
+        if self.meta.get("checksums") and not sums_path.is_file():
+            raise SessionError(
+                f"{sums_path} is missing, so the images of this session cannot be checked "
+                "(session.json says it was written)"
+            )
         self._checksums = self._read_checksums()
-        if rig_path.is_file():
-            try:
-                want = self._checksums.get(("rig", "rig.yaml"))
-                if want is not None:
-                    data = rig_path.read_bytes()
-                    if (len(data), zlib.crc32(data)) != want:
-                        raise RigFileError(
-                            f"{rig_path}: the stored rig is damaged ({len(data)} bytes with "
-                            f"CRC-32 {zlib.crc32(data)}; checksums.csv says {want[0]} bytes "
-                            f"with {want[1]})"
-                        )
-                self._rig = read_rig_text(rig_path)
-            except (RigFileError, OSError) as err:
-                self._rig_problem = str(err)
-                self.problems.append(str(err))
-                _log.warning("%s", err)
+        if sums_path.is_file():
+            self.checksummed = True
+        self._rig = None
+        self._read_rig()
         self._files: dict[str, list[str]] = {}
         self._stamps: dict[str, np.ndarray] = {}
         for s in ("left", "right"):
@@ -320,8 +334,87 @@ class FolderSessionReader(SessionReader):
                 f"{self.path} holds no session: no left/ or right/ images, imu.csv, sonar.csv "
                 "or session.json"
             )
+        if self.checksummed:
+            self._check_listed_images()
         self._imu: ImuSeries | None = None
         self._sonar: SonarSeries | None = None
+
+    def _problem(self, message: str) -> None:
+        self.problems.append(message)
+        _log.warning("%s", message)
+
+    def _read_rig(self) -> None:
+        """Read ``rig.yaml``, checked against checksums.csv or session.json's copy of its
+        checksum; a rig that cannot be checked in a checked folder is refused, not guessed."""
+        from sea3d.errors import RigFileError
+        from sea3d.io.rig_file import read_rig_text
+
+        rig_path = self.path / "rig.yaml"
+        want = self._checksums.get(("rig", "rig.yaml"))
+        recorded = self.meta.get("rig")
+        if isinstance(recorded, dict):
+            try:
+                from_meta = (int(recorded["bytes"]), int(recorded["crc32"]))
+            except (KeyError, TypeError, ValueError):
+                from_meta = None
+            if want is None:
+                want = from_meta
+                if from_meta is not None and (self.path / "checksums.csv").is_file():
+                    self._problem(
+                        f"{self.path / 'checksums.csv'}: the line of rig.yaml is missing or "
+                        "damaged; the rig is checked against session.json's copy instead"
+                    )
+            elif from_meta is not None and from_meta != want:
+                want = from_meta  # session.json is written once, at start and at close
+        if not rig_path.is_file():
+            if want is not None or isinstance(recorded, dict):
+                self._rig_problem = (
+                    f"{rig_path} is missing, though the session was recorded with a rig"
+                )
+                self._problem(self._rig_problem)
+            return
+        try:
+            data = rig_path.read_bytes()
+            if want is None and self.checksummed:
+                raise RigFileError(
+                    f"{rig_path} cannot be checked: its line in checksums.csv is missing or "
+                    "damaged; give the rig with --rig"
+                )
+            if want is not None and (len(data), zlib.crc32(data)) != want:
+                raise RigFileError(
+                    f"{rig_path}: the stored rig is damaged ({len(data)} bytes with "
+                    f"CRC-32 {zlib.crc32(data)}; it was written with {want[0]} bytes "
+                    f"and CRC-32 {want[1]})"
+                )
+            self._rig = read_rig_text(rig_path)
+        except (RigFileError, OSError) as err:
+            self._rig_problem = str(err)
+            self._problem(str(err))
+
+    def _check_listed_images(self) -> None:
+        """Every image listed in checksums.csv must be on disk (a deleted or renamed image
+        is reported, never silently absent); the counts session.json recorded at close
+        must match."""
+        for stream in ("left", "right"):
+            present = set(self._files[stream])
+            missing = sorted(
+                name for (st, name) in self._checksums if st == stream and name not in present
+            )
+            if missing:
+                self._problem(
+                    f"{self.path / stream}: {len(missing)} images listed in checksums.csv are "
+                    f"missing (deleted or renamed), e.g. {missing[0]}"
+                )
+        counts = self.meta.get("counts") if self.meta.get("complete") else None
+        if isinstance(counts, dict):
+            for stream in ("left", "right"):
+                want = counts.get(stream)
+                have = len(self._files[stream]) + self.skipped.get(stream, 0)
+                if isinstance(want, int) and want != have:
+                    self._problem(
+                        f"{self.path}: session.json counts {want} {stream} records, the "
+                        f"folder holds {have}"
+                    )
 
     def _index_images(self, stream: str) -> None:
         folder = self.path / stream
@@ -369,6 +462,16 @@ class FolderSessionReader(SessionReader):
                 )
                 continue
             kept.append(i)
+        if self.checksummed:
+            unlisted = [i for i in kept if (stream, names[i]) not in self._checksums]
+            if unlisted:
+                self.skipped[stream] = self.skipped.get(stream, 0) + len(unlisted)
+                self._problem(
+                    f"{folder}: {len(unlisted)} images have no line in checksums.csv (renamed, "
+                    f"added, or cut short?) and cannot be checked; not used, e.g. "
+                    f"{names[unlisted[0]]}"
+                )
+                kept = [i for i in kept if (stream, names[i]) in self._checksums]
         names = [names[i] for i in kept]
         arr = np.asarray([stamps[i] for i in kept], dtype=np.int64)
         order = np.arange(arr.size)
@@ -395,14 +498,26 @@ class FolderSessionReader(SessionReader):
         except OSError as err:
             _log.warning("%s: cannot read (%s); images are not checked", path, err)
             return out
+        if not lines or lines[0].strip() != CHECKSUM_HEADER:
+            _log.warning("%s: header %r differs from %r", path, lines[:1], CHECKSUM_HEADER)
+        ambiguous: set[tuple[str, str]] = set()
         for lineno, line in enumerate(lines[1:], start=2):
             parts = line.split(",")
             try:
                 if len(parts) != 4 or parts[0] not in ("left", "right", "rig"):
                     raise ValueError(f"{len(parts)} fields")
-                out[(parts[0], parts[1])] = (int(parts[2]), int(parts[3]))
+                key, value = (parts[0], parts[1]), (int(parts[2]), int(parts[3]))
             except ValueError:
+                self.problems.append(f"{path} line {lineno}: {line!r} is not a checksum line")
                 _log.warning("%s line %d: %r is not a checksum line; skipped", path, lineno, line)
+                continue
+            if key in out and out[key] != value:
+                ambiguous.add(key)
+            out[key] = value
+        for key in ambiguous:  # two different checksums: neither can be trusted
+            del out[key]
+            self.problems.append(f"{path}: {key[0]}/{key[1]} has two different checksums")
+            _log.warning("%s: %s/%s has two different checksums; not used", path, *key)
         return out
 
     def _record_name(self, stream: str, index: int) -> str:
@@ -437,44 +552,40 @@ class FolderSessionReader(SessionReader):
         return self._stored_bytes(stream, index), fmt
 
     def check(self) -> list[str]:
-        """Compare what is readable with the counts ``session.json`` recorded at close
-        (a CSV or image folder cut at a line or file boundary shows no damage of its own).
+        """Read the CSVs too, so that every problem the readers see is in :attr:`problems`
+        (images, the rig and the counts of session.json are checked when the folder is
+        opened, the CSVs when they are first read).
 
         Returns the new problems (also in :attr:`problems`).
         """
         before = len(self.problems)
-        if (self.path / "checksums.csv").is_file():
-            unchecked = [
-                f"{stream}/{name}"
-                for stream in ("left", "right")
-                for name in self._files[stream]
-                if (stream, name) not in self._checksums
-            ]
-            if unchecked:
-                message = (
-                    f"{self.path}: {len(unchecked)} images have no line in checksums.csv (cut "
-                    f"short?) and cannot be checked, e.g. {unchecked[0]}"
-                )
-                self.problems.append(message)
-                _log.warning("%s", message)
-        counts = self.meta.get("counts") if self.meta.get("complete") else None
-        if isinstance(counts, dict):
-            found = {
-                "left": int(self.stamps("left").size),
-                "right": int(self.stamps("right").size),
-                "imu": len(self.imu()) + self.skipped.get("imu", 0),
-                "sonar": len(self.sonar()) + self.skipped.get("sonar", 0),
-            }
-            for stream, n in found.items():
-                want = counts.get(stream)
-                if isinstance(want, int) and want != n:
-                    message = (
-                        f"{self.path}: session.json counts {want} {stream} records, the folder "
-                        f"holds {n}"
-                    )
-                    self.problems.append(message)
-                    _log.warning("%s", message)
+        self.imu()
+        self.sonar()
         return self.problems[before:]
+
+    def checks(self) -> tuple[str, str]:
+        if not self.checksummed:
+            return (
+                "nothing (a folder without checksums.csv, as the paper's)",
+                "images, rig and CSV lines (damage cannot be detected)",
+            )
+        return (
+            "the image list and rig against checksums.csv and session.json, the counts of "
+            "session.json, every CSV line's CRC-32",
+            "image bytes (checked as each image is read; run `sea3d session verify`)",
+        )
+
+    def _check_count(self, stream: str, readable: int) -> None:
+        """A CSV cut or with lines deleted at a line boundary shows no damage of its own: its
+        count must match the one session.json recorded at close."""
+        counts = self.meta.get("counts") if self.meta.get("complete") else None
+        want = counts.get(stream) if isinstance(counts, dict) else None
+        have = readable + self.skipped.get(stream, 0)
+        if isinstance(want, int) and want != have:
+            self._problem(
+                f"{self.path}: session.json counts {want} {stream} records, the folder holds "
+                f"{have} ({stream}.csv lines deleted or added?); using the {readable} intact ones"
+            )
 
     @property
     def image_encoding(self) -> str | None:
@@ -494,6 +605,8 @@ class FolderSessionReader(SessionReader):
                 text = line.strip()
                 if not text:
                     continue
+                if lineno == 1 and text[0].isdigit() and self.checksummed:
+                    self._problem(f"{path}: the header line {columns},crc32 is missing")
                 if lineno == 1 and not text[0].isdigit():
                     with_crc = text.replace(" ", "") == columns + ",crc32"
                     if text.replace(" ", "") not in (columns, columns + ",crc32"):
@@ -541,6 +654,7 @@ class FolderSessionReader(SessionReader):
         if self._imu is None:
             t, v = self._read_csv("imu.csv", IMU_COLUMNS, 7)
             self._imu = ImuSeries(t_ns=t, accel_mps2=v[:, :3].copy(), gyro_radps=v[:, 3:].copy())
+            self._check_count("imu", len(self._imu))
         return self._imu
 
     def sonar(self) -> SonarSeries:
@@ -549,6 +663,7 @@ class FolderSessionReader(SessionReader):
             self._sonar = SonarSeries(
                 t_ns=t, range_m=v[:, 0].astype(np.float32), confidence=v[:, 1].astype(np.float32)
             )
+            self._check_count("sonar", len(self._sonar))
         return self._sonar
 
     def size_bytes(self) -> int:

@@ -976,6 +976,14 @@ class McapSessionReader(SessionReader):
             self._f.close()
             raise
 
+    def checks(self) -> tuple[str, str]:
+        indexed = "the summary and message indexes" if self.complete else "a scan of the file"
+        return (
+            f"{indexed} and the rig attachment's CRC-32",
+            "chunk CRCs and image data: the counts are what the index lists (run "
+            "`sea3d session verify`)",
+        )
+
     # -- problems ------------------------------------------------------------------------
     def _problem(self, message: str) -> None:
         self.problems.append(message)
