@@ -17,6 +17,7 @@ __all__ = [
     "GeometryError",
     "MonoDepthError",
     "OdometryError",
+    "OutputInUseError",
     "ReconError",
     "RectifyError",
     "RefractionError",
@@ -55,6 +56,10 @@ class RigFileError(Sea3dError, ValueError):
 
 class SessionError(Sea3dError):
     """A recorded session (MCAP file or folder layout) cannot be read or written."""
+
+
+class OutputInUseError(SessionError):
+    """An output folder is held by another running ``sea3d`` process (its lock is taken)."""
 
 
 class CaptureError(Sea3dError):

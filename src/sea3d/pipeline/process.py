@@ -53,6 +53,7 @@ from sea3d.pipeline.frame_stage import (
     process_frame,
     stage_geometry,
 )
+from sea3d.pipeline.lock import locks_out_dir
 
 __all__ = [
     "ProcessConfig",
@@ -314,6 +315,7 @@ def _cached_result(cache: Any, t_ns: int) -> FrameResult | None:
 # ------------------------------------------------------------------------------------ runner
 
 
+@locks_out_dir  # two runs into one folder: the second is refused (OutputInUseError)
 def run_process(
     session_path: str | os.PathLike[str],
     config: ProcessConfig,
