@@ -173,3 +173,32 @@ def test_session_info_says_what_was_and_was_not_checked(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "checked   the image list" in out
     assert "problems  2, first:" in out
+
+
+# free bytes: the CSVs (or the MCAP preamble and first chunk) fit, the 60 images do not
+@pytest.mark.parametrize(("out_name", "room"), [("out", 6_000), ("out.mcap", 20_000)])
+def test_a_disk_full_convert_keeps_the_imu_and_sonar(tmp_path, monkeypatch, out_name, room):
+    from types import SimpleNamespace
+
+    from sea3d.io.session_common import SessionWriteError
+
+    src = _session(tmp_path / "s", n=30)
+    out = tmp_path / out_name
+    real = os.statvfs
+
+    def statvfs(path):  # a disk whose free space is what the output has not used yet
+        used = sum(f.stat().st_size for f in out.rglob("*") if f.is_file()) if out.is_dir() else (
+            out.stat().st_size if out.exists() else 0
+        )
+        st = real(path)
+        return SimpleNamespace(f_bavail=max(0, room + 65536 - used), f_frsize=1,
+                               f_blocks=st.f_blocks, f_bsize=1)  # fmt: skip
+
+    monkeypatch.setattr(os, "statvfs", statvfs)
+    with pytest.raises(SessionWriteError) as err:
+        convert_session(src, out)
+    assert "full" in str(err.value) or "reserve" in str(err.value)
+    monkeypatch.setattr(os, "statvfs", real)
+    with open_session(out) as s:
+        assert len(s.imu()) == 30 and len(s.sonar()) == 30
+        assert s.stamps("left").size + s.stamps("right").size < 60

@@ -537,6 +537,16 @@ def convert_session(
         writer = SessionWriter(dst_path, rig_yaml=rig_yaml, image_encoding=enc)
         try:
             with writer:
+                # The small streams first: a disk that fills up with images keeps them.
+                imu = reader.imu()
+                for k in range(len(imu)):
+                    writer.write_imu(int(imu.t_ns[k]), imu.accel_mps2[k], imu.gyro_radps[k])
+                sonar = reader.sonar()
+                for k in range(len(sonar)):
+                    writer.write_sonar(
+                        int(sonar.t_ns[k]), float(sonar.range_m[k]), float(sonar.confidence[k])
+                    )
+                writer.flush()
                 for stream in IMAGE_STREAMS:
                     stamps = reader.stamps(stream)
                     for i in range(stamps.size):
@@ -556,14 +566,6 @@ def convert_session(
                         done += 1
                         if progress is not None:
                             progress(done, total)
-                imu = reader.imu()
-                for k in range(len(imu)):
-                    writer.write_imu(int(imu.t_ns[k]), imu.accel_mps2[k], imu.gyro_radps[k])
-                sonar = reader.sonar()
-                for k in range(len(sonar)):
-                    writer.write_sonar(
-                        int(sonar.t_ns[k]), float(sonar.range_m[k]), float(sonar.confidence[k])
-                    )
                 for stream, n in reader.skipped.items():
                     if n:
                         damaged(f"{src}: {n} damaged {stream} records left out", n)
