@@ -187,8 +187,10 @@ def test_a_disk_full_convert_keeps_the_imu_and_sonar(tmp_path, monkeypatch, out_
     real = os.statvfs
 
     def statvfs(path):  # a disk whose free space is what the output has not used yet
-        used = sum(f.stat().st_size for f in out.rglob("*") if f.is_file()) if out.is_dir() else (
-            out.stat().st_size if out.exists() else 0
+        used = (
+            sum(f.stat().st_size for f in out.rglob("*") if f.is_file())
+            if out.is_dir()
+            else (out.stat().st_size if out.exists() else 0)
         )
         st = real(path)
         return SimpleNamespace(f_bavail=max(0, room + 65536 - used), f_frsize=1,
