@@ -32,6 +32,12 @@ def write_mesh(path: str | os.PathLike[str], mesh: Mesh) -> None:
     import open3d as o3d
 
     p = Path(path)
+    if len(mesh.vertices) == 0 or len(mesh.triangles) == 0:
+        raise ReconError(
+            f"cannot write mesh {p}: the mesh is empty ({len(mesh.vertices)} vertices, "
+            f"{len(mesh.triangles)} triangles): nothing was fused into it (no depth inside "
+            "the fusion volume?)"
+        )
     m = o3d.geometry.TriangleMesh()
     m.vertices = o3d.utility.Vector3dVector(np.ascontiguousarray(mesh.vertices, np.float64))
     m.triangles = o3d.utility.Vector3iVector(np.ascontiguousarray(mesh.triangles, np.int32))
