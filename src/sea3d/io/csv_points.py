@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.errors import Sea3dError
+from sea3d.io._atomic import atomic_open
 
 __all__ = ["CsvError", "read_columns", "write_columns"]
 
@@ -67,12 +68,10 @@ def write_columns(
     """Write a CSV with a header row; floats with 12 significant digits, booleans as 0/1."""
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(f".{p.name}.tmp")
-    with tmp.open("w", newline="") as fh:
+    with atomic_open(p, "w", newline="") as fh:
         writer = csv.writer(fh)
         writer.writerow(columns)
         for row in values:
             writer.writerow(
                 [str(int(v)) if isinstance(v, bool | np.bool_) else f"{float(v):.12g}" for v in row]
             )
-    os.replace(tmp, p)

@@ -55,7 +55,6 @@ import logging
 import math
 import os
 import reprlib
-import secrets
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -1035,19 +1034,9 @@ def load_rig(
 
 
 def _atomic_write(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    # Created with mode 0666 less the umask, like any file the user writes (mkstemp's files
-    # are readable by their owner only); O_EXCL keeps the name from being raced.
-    tmp = path.parent / f".{path.name}.{secrets.token_hex(6)}.tmp"
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    from sea3d.io._atomic import atomic_write
+
+    atomic_write(path, text)
 
 
 _EXTENSION_FORMATS = {".yaml": "sea3d", ".yml": "sea3d", ".json": "json", ".txt": "colmap"}

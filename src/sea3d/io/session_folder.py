@@ -14,7 +14,8 @@ The ``crc32`` column (8 hex digits, CRC-32 of the line before it) and ``checksum
 reader refuse damaged readings and images instead of passing them on; folders without them
 (the paper's) are read as before, unchecked.
 
-Every image is written under a temporary name (``.<t_ns>.png.tmp``) and renamed when complete,
+Every image is written under a temporary name (``.<t_ns>.<pid>-<token>.tmp.png``, see
+:mod:`sea3d.io._atomic`) and renamed when complete,
 so a crash never leaves a half-written image under its final name. CSV lines are flushed as they
 are written; a torn last line is skipped with a warning when read.
 """
@@ -34,6 +35,7 @@ from typing import IO, Any
 import numpy as np
 
 from sea3d.errors import SessionError
+from sea3d.io._atomic import atomic_write, is_temp_name
 from sea3d.io.session_common import (
     ImuSeries,
     SessionReader,
@@ -59,21 +61,6 @@ CHECKSUM_HEADER = "stream,file,bytes,crc32"
 _EXT = {"png": ".png", "jpeg": ".jpg", "jxl": ".jxl"}
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".jxl", ".tif", ".tiff", ".pgm", ".ppm")
 _NAME_RE = re.compile(r"^(\d+)$")
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    """Write ``data`` under a temporary name and rename it; on failure nothing is left."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        with open(tmp, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
 
 
 def _meta_crc(meta: dict[str, Any]) -> str:
@@ -122,7 +109,7 @@ class FolderSessionWriter:
                 (path / s).mkdir(parents=True, exist_ok=True)
             rig_bytes = None if rig_yaml is None else rig_yaml.encode("utf-8")
             if rig_bytes is not None:
-                _atomic_write(path / "rig.yaml", rig_bytes)
+                atomic_write(path / "rig.yaml", rig_bytes)
                 self._rig_sum = {"bytes": len(rig_bytes), "crc32": zlib.crc32(rig_bytes)}
             self._write_json({}, complete=False)
             for name, header in (
@@ -198,7 +185,7 @@ class FolderSessionWriter:
             "rig": self._rig_sum,
         }
         meta["crc32"] = _meta_crc(meta)
-        _atomic_write(self.path / "session.json", (json.dumps(meta, indent=2) + "\n").encode())
+        atomic_write(self.path / "session.json", json.dumps(meta, indent=2) + "\n")
 
     def _line(self, name: str, line: str) -> None:
         f = self._csv[name]
@@ -209,7 +196,8 @@ class FolderSessionWriter:
         self._check(len(data))
         name = f"{t_ns}{self.ext}"
         try:
-            _atomic_write(self.path / stream / name, data)
+            # no fsync per frame: a frame lost to a power cut fails its CRC-32 when read
+            atomic_write(self.path / stream / name, data, fsync=False)
         except OSError as err:
             raise self._failed(f"{stream}/{name}", err) from err
         self._done(stream, t_ns, len(data))
@@ -423,7 +411,7 @@ class FolderSessionReader(SessionReader):
         if folder.is_dir():
             for entry in sorted(os.listdir(folder)):
                 full = folder / entry
-                if entry.startswith(".") and entry.endswith(".tmp"):
+                if is_temp_name(entry):
                     _log.warning(
                         "%s: incomplete write left by an interrupted recording; ignored", full
                     )
