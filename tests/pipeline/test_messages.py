@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from sea3d.errors import ConfigError, ReconError
+from sea3d.geometry.mesh import Mesh
 from sea3d.io.mesh_files import write_mesh
 from sea3d.monodepth.align import align_depth
 from sea3d.pipeline.frame_stage import FrameStageConfig
-from sea3d.recon.types import Mesh
 
 
 def test_an_empty_mesh_is_named_empty_not_a_refused_format(tmp_path):

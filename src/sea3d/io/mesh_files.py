@@ -14,14 +14,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.errors import ReconError
+from sea3d.geometry.mesh import Mesh
 from sea3d.io._atomic import atomic_path
-from sea3d.recon.types import Mesh
 
 __all__ = ["read_mesh", "read_point_cloud", "write_mesh", "write_point_cloud"]
 
 
 def write_mesh(path: str | os.PathLike[str], mesh: Mesh) -> None:
-    """Write a :class:`~sea3d.recon.types.Mesh` (format from the extension, PLY binary).
+    """Write a :class:`~sea3d.geometry.mesh.Mesh` (format from the extension, PLY binary).
 
     Raises:
         ReconError: the file cannot be written.

@@ -33,8 +33,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.errors import ReconError
+from sea3d.geometry.mesh import Mesh
 from sea3d.recon.tsdf import TsdfConfig, TsdfVolume
-from sea3d.recon.types import Mesh, Submap, VoxelBlocks
+from sea3d.recon.types import Submap, VoxelBlocks
 
 __all__ = [
     "FuseStatus",

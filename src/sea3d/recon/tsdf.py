@@ -30,7 +30,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.errors import ReconError
-from sea3d.recon.types import Mesh, VoxelBlocks
+from sea3d.geometry.mesh import Mesh
+from sea3d.recon.types import VoxelBlocks
 
 __all__ = ["TsdfConfig", "TsdfVolume"]
 
