@@ -47,7 +47,7 @@ from sea3d.io.rig_file import (
     rig_to_yaml,
 )
 from sea3d.io.session import SessionWriter, convert_session, open_session, verify_session
-from sea3d.io.session_common import decode_image, encode_image
+from sea3d.io.session.common import decode_image, encode_image
 from sea3d.refraction.presets import paper_rig
 
 FRAME_NS = 33_333_333

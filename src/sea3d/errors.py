@@ -9,10 +9,12 @@ boundary, with ``raise XError(msg) from err``.
 from __future__ import annotations
 
 __all__ = [
+    "CacheEntryError",
     "CalibrationError",
     "CameraModelError",
     "CaptureError",
     "ConfigError",
+    "CsvError",
     "EnhanceError",
     "GeometryError",
     "MonoDepthError",
@@ -24,6 +26,7 @@ __all__ = [
     "RigFileError",
     "Sea3dError",
     "SessionError",
+    "SessionWriteError",
     "SfmError",
     "SimulationError",
     "StereoError",
@@ -60,6 +63,28 @@ class SessionError(Sea3dError):
 
 class OutputInUseError(SessionError):
     """An output folder is held by another running ``sea3d`` process (its lock is taken)."""
+
+
+class SessionWriteError(SessionError):
+    """Writing a session failed (disk full, free space at the reserve, no permission, I/O
+    error). Everything written before stays readable; ``kept`` says what that is.
+
+    Attributes:
+        kept: the records on disk, e.g. ``"120 left, 120 right, 2400 imu up to t_ns=..."``.
+    """
+
+    def __init__(self, message: str, *, kept: str) -> None:
+        super().__init__(message + (f"; kept {kept}" if kept else ""))
+        self.kept = kept
+
+
+class CacheEntryError(SessionError):
+    """A cache entry of ``sea3d process`` is damaged (truncated, wrong checksum, unreadable
+    arrays)."""
+
+
+class CsvError(Sea3dError, ValueError):
+    """A CSV file is missing, lacks a column, or holds a non-numeric value."""
 
 
 class CaptureError(Sea3dError):

@@ -180,7 +180,7 @@ def test_session_info_says_what_was_and_was_not_checked(tmp_path, capsys):
 def test_a_disk_full_convert_keeps_the_imu_and_sonar(tmp_path, monkeypatch, out_name, room):
     from types import SimpleNamespace
 
-    from sea3d.io.session_common import SessionWriteError
+    from sea3d.errors import SessionWriteError
 
     src = _session(tmp_path / "s", n=30)
     out = tmp_path / out_name

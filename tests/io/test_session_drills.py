@@ -31,7 +31,7 @@ from hypothesis import strategies as st
 from sea3d.errors import SessionError
 from sea3d.io.rig_file import rig_to_yaml
 from sea3d.io.session import SessionWriter, convert_session, open_session, verify_session
-from sea3d.io.session_common import decode_image, encode_image
+from sea3d.io.session.common import decode_image, encode_image
 from sea3d.refraction.presets import paper_rig
 
 
@@ -447,7 +447,7 @@ def test_a_flipped_bit_in_a_png_is_refused_by_its_chunk_crcs(bit):
 
 
 def test_truncated_jpeg_file_is_refused_by_read_image_file(tmp_path):
-    from sea3d.io.session_common import read_image_file
+    from sea3d.io.session.common import read_image_file
 
     path = tmp_path / "left.jpg"
     path.write_bytes(_ENCODED["jpeg"][: len(_ENCODED["jpeg"]) // 2])

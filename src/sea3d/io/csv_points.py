@@ -10,14 +10,10 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from sea3d.errors import Sea3dError
+from sea3d.errors import CsvError
 from sea3d.io._atomic import atomic_open
 
 __all__ = ["CsvError", "read_columns", "write_columns"]
-
-
-class CsvError(Sea3dError, ValueError):
-    """A CSV file is missing, lacks a column, or holds a non-numeric value."""
 
 
 def read_columns(path: str | os.PathLike[str], columns: Sequence[str]) -> NDArray[np.float64]:

@@ -44,7 +44,7 @@ def write_mesh(path: str | os.PathLike[str], mesh: Mesh) -> None:
         m.vertex_normals = o3d.utility.Vector3dVector(np.ascontiguousarray(mesh.normals))
     try:
         with atomic_path(p) as tmp:
-            ok = o3d.io.write_triangle_mesh(str(tmp), m, write_ascii=False, compressed=False)
+            ok = o3d.io.write_triangle_mesh(tmp, m, write_ascii=False, compressed=False)
             if not ok:
                 raise ReconError(
                     f"cannot write mesh {p} (Open3D refused the format {p.suffix!r})"
@@ -84,7 +84,7 @@ def write_point_cloud(
         pc.normals = o3d.utility.Vector3dVector(np.asarray(normals, np.float64))
     try:
         with atomic_path(p) as tmp:
-            if not o3d.io.write_point_cloud(str(tmp), pc, write_ascii=False, compressed=False):
+            if not o3d.io.write_point_cloud(tmp, pc, write_ascii=False, compressed=False):
                 raise ReconError(f"cannot write point cloud {p} (format {p.suffix!r})")
     except OSError as err:
         raise ReconError(f"cannot write point cloud {p}: {err}") from err

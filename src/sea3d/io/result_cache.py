@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sea3d.errors import ReconError, SessionError
+from sea3d.errors import CacheEntryError, ReconError, SessionError
 from sea3d.io._atomic import atomic_write
 from sea3d.recon.types import Submap, VoxelBlocks
 
@@ -40,10 +40,6 @@ log = logging.getLogger(__name__)
 _MAGIC = b"SEA3DC1\n"
 _HEAD = struct.Struct("<QI")
 _SUFFIX = ".s3c"
-
-
-class CacheEntryError(SessionError):
-    """A cache entry is damaged (truncated, wrong checksum, unreadable arrays)."""
 
 
 def write_entry(path: Path, arrays: dict[str, NDArray[Any]], meta: dict[str, Any]) -> int:

@@ -36,14 +36,15 @@ import numpy as np
 
 from sea3d.errors import SessionError
 from sea3d.io._atomic import atomic_write, is_temp_name
-from sea3d.io.session_common import (
+from sea3d.io.session.common import (
     ImuSeries,
-    SessionReader,
     SessionWriteError,
     SonarSeries,
+    check_rig_yaml,
     decode_image,
     sort_stamps,
 )
+from sea3d.io.session.reader import SessionReader
 
 __all__ = ["FolderSessionReader", "FolderSessionWriter"]
 
@@ -71,6 +72,27 @@ def _meta_crc(meta: dict[str, Any]) -> str:
 
 def _why(err: OSError) -> str:
     return err.strerror or str(err)
+
+
+def create_writer(
+    path: Path, rig_yaml: str | None, image_encoding: str, *, min_free_bytes: int = 0, **_: Any
+) -> FolderSessionWriter:
+    """The folder storage's writer (chunk options of other storages do not apply).
+
+    Raises:
+        SessionError: a raw encoding, an invalid rig, or a folder holding a session;
+            SessionWriteError: the folder cannot be created.
+    """
+    if image_encoding not in _EXT:
+        raise SessionError(
+            f"{path}: a folder session stores png, jxl or jpeg images, not {image_encoding!r}"
+        )
+    check_rig_yaml(rig_yaml, path)  # the same check as for MCAP
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise SessionWriteError(f"cannot create {path}: {err.strerror or err}", kept="") from err
+    return FolderSessionWriter(path, rig_yaml, image_encoding, min_free_bytes=min_free_bytes)
 
 
 class FolderSessionWriter:
@@ -192,7 +214,10 @@ class FolderSessionWriter:
         f.write(line)
         f.flush()
 
-    def write_encoded(self, stream: str, t_ns: int, data: bytes) -> None:
+    def write_encoded(
+        self, stream: str, t_ns: int, data: bytes, fmt: str = "", height: int = 0, width: int = 0
+    ) -> None:
+        del fmt, height, width  # the file name and the image's own header say them
         self._check(len(data))
         name = f"{t_ns}{self.ext}"
         try:
@@ -205,6 +230,9 @@ class FolderSessionWriter:
             self._line("checksums", f"{stream},{name},{len(data)},{zlib.crc32(data)}\n")
         except OSError as err:
             raise self._failed("checksums.csv", err) from err
+
+    def write_raw(self, stream: str, t_ns: int, image: np.ndarray) -> None:
+        raise SessionError(f"{self.path}: a folder session stores no raw images")
 
     def write_imu(self, t_ns: int, accel: np.ndarray, gyro: np.ndarray) -> None:
         text = f"{t_ns}," + ",".join(repr(float(v)) for v in (*accel, *gyro))

@@ -1,27 +1,6 @@
-"""Recorded sessions: one writer and one reader interface over two layouts.
-
-- An MCAP file of ROS 2 messages (``*.mcap``), readable by other ROS 2 tools; see
-  :mod:`sea3d.io.session_mcap` for topics and types.
-- The paper's folder layout (``left/<t_ns>.png``, ``right/<t_ns>.png``, ``imu.csv``,
-  ``sonar.csv``, ``rig.yaml``, ``session.json``); see :mod:`sea3d.io.session_folder`.
-
-Write::
-
-    with SessionWriter("dive.mcap", rig_yaml=rig_text) as w:
-        w.write_stereo(t_ns, left_rgb, right_rgb)
-        w.write_imu(t_ns, accel_mps2, gyro_radps)
-        w.write_sonar(t_ns, range_m, confidence)
-
-Read::
-
-    with open_session("dive.mcap") as s:
-        for pair in s.pairs():          # nearest stamps within half a frame interval
-            ...
-        imu = s.imu()                   # ImuSeries: t_ns (N,), accel_mps2 (N,3), gyro_radps (N,3)
-
-Stamps are integer nanoseconds. Within one stream the writer accepts only increasing stamps;
-readers sort what they find and warn about duplicates and disorder.
-"""
+"""The writer side of a session: :class:`SessionWriter` checks every record (stream names,
+stamps in order, image shapes), encodes images, defers SIGTERM/SIGINT to a safe point, and
+hands the records to a storage (:mod:`sea3d.io.session.storage`) chosen by name."""
 
 from __future__ import annotations
 
@@ -36,72 +15,21 @@ from typing import Any
 import numpy as np
 
 from sea3d.errors import SessionError
-from sea3d.io.session_common import (
+from sea3d.io.session.common import (
     IMAGE_ENCODINGS,
     IMAGE_STREAMS,
-    ImuSample,
-    ImuSeries,
-    PairMatch,
-    SessionReader,
-    SessionWriteError,
-    SonarSample,
-    SonarSeries,
-    StereoPair,
     check_encoded_image,
     check_image,
     check_stamp,
     encode_image,
     image_size_of,
 )
+from sea3d.io.session.reader import layout_of
+from sea3d.io.session.storage import STORAGES, StorageWriter, create_storage_writer
 
-__all__ = [
-    "ImuSample",
-    "ImuSeries",
-    "PairMatch",
-    "SessionReader",
-    "SessionWriteError",
-    "SessionWriter",
-    "SonarSample",
-    "SonarSeries",
-    "StereoPair",
-    "convert_session",
-    "layout_of",
-    "open_session",
-    "verify_session",
-]
+__all__ = ["SessionWriter"]
 
 _log = logging.getLogger(__name__)
-
-
-def layout_of(path: str | os.PathLike[str]) -> str:
-    """``"mcap"`` for a path ending in ``.mcap``, ``"folder"`` otherwise."""
-    return "mcap" if os.fspath(path).lower().endswith(".mcap") else "folder"
-
-
-def open_session(path: str | os.PathLike[str], *, name_unit: str = "ns") -> SessionReader:
-    """Open a recorded session, choosing the reader from what ``path`` is.
-
-    Args:
-        path: an ``.mcap`` file (or any file starting with the MCAP magic) or a session folder.
-        name_unit: for folders only: unit of the numbers in image file names, ``"ns"`` or
-            ``"us"`` (the paper's recordings use microseconds).
-
-    Returns:
-        A :class:`SessionReader`; use it as a context manager.
-
-    Raises:
-        SessionError: if the path does not exist or is neither an MCAP file nor a session folder.
-    """
-    p = Path(path)
-    if p.is_dir():
-        from sea3d.io.session_folder import FolderSessionReader
-
-        return FolderSessionReader(p, name_unit=name_unit)
-    if p.is_file():
-        from sea3d.io.session_mcap import McapSessionReader
-
-        return McapSessionReader(p)
-    raise SessionError(f"session {p} does not exist")
 
 
 class SessionWriter:
@@ -156,12 +84,8 @@ class SessionWriter:
     ) -> None:
         self.path = Path(path)
         self.format = format or layout_of(self.path)
-        if self.format not in ("mcap", "folder"):
+        if self.format not in STORAGES:
             raise SessionError(f"format must be 'mcap' or 'folder', got {self.format!r}")
-        if self.format == "folder" and image_encoding == "raw":
-            raise SessionError(
-                f"{self.path}: a folder session stores png, jxl or jpeg images, not 'raw'"
-            )
         if image_encoding not in IMAGE_ENCODINGS:
             raise SessionError(
                 f"image_encoding must be one of {IMAGE_ENCODINGS}, got {image_encoding!r}"
@@ -180,41 +104,16 @@ class SessionWriter:
         self._busy = 0
         self._pending_signal: int | None = None
         self._old_handlers: dict[int, Any] = {}
-        self._backend: Any
-        if self.format == "mcap":
-            from sea3d.io.session_mcap import McapSessionWriter
-
-            try:
-                self.path.parent.mkdir(parents=True, exist_ok=True)
-            except OSError as err:
-                raise SessionWriteError(
-                    f"cannot create {self.path.parent}: {err.strerror or err}", kept=""
-                ) from err
-            self._backend = McapSessionWriter(
-                self.path,
-                rig_yaml,
-                image_encoding,
-                chunk_size=chunk_size,
-                chunk_interval_s=chunk_interval_s,
-                chunk_compression=chunk_compression,
-                min_free_bytes=min_free_bytes,
-            )
-        else:
-            from sea3d.io.session_folder import FolderSessionWriter
-
-            if rig_yaml is not None:
-                from sea3d.io.session_mcap import _camera_info_params
-
-                _camera_info_params(rig_yaml, self.path)  # the same check as for MCAP
-            try:
-                self.path.mkdir(parents=True, exist_ok=True)
-            except OSError as err:
-                raise SessionWriteError(
-                    f"cannot create {self.path}: {err.strerror or err}", kept=""
-                ) from err
-            self._backend = FolderSessionWriter(
-                self.path, rig_yaml, image_encoding, min_free_bytes=min_free_bytes
-            )
+        self._backend: StorageWriter = create_storage_writer(
+            self.format,
+            self.path,
+            rig_yaml,
+            image_encoding,
+            chunk_size=chunk_size,
+            chunk_interval_s=chunk_interval_s,
+            chunk_compression=chunk_compression,
+            min_free_bytes=min_free_bytes,
+        )
         if handle_signals:
             self._install_signal_handlers()
 
@@ -323,15 +222,12 @@ class SessionWriter:
         try:
             with self._lock:
                 self._check_order(stream, t_ns)
-                if self.format == "mcap":
-                    if self.image_encoding == "raw":
-                        self._backend.write_raw(stream, t_ns, image)
-                    else:
-                        self._backend.write_encoded(
-                            stream, t_ns, data, self.image_encoding, image.shape[0], image.shape[1]
-                        )
+                if self.image_encoding == "raw":
+                    self._backend.write_raw(stream, t_ns, image)
                 else:
-                    self._backend.write_encoded(stream, t_ns, data)
+                    self._backend.write_encoded(
+                        stream, t_ns, data, self.image_encoding, image.shape[0], image.shape[1]
+                    )
                 self._last[stream] = t_ns
         finally:
             self._leave()
@@ -340,7 +236,7 @@ class SessionWriter:
         """Write an already-encoded PNG, JPEG XL or JPEG image as it is (lossless conversion).
 
         ``fmt`` must match this writer's ``image_encoding``; the bytes are checked for
-        completeness first (:func:`~sea3d.io.session_common.check_encoded_image`), so damage
+        completeness first (:func:`~sea3d.io.session.common.check_encoded_image`), so damage
         is never copied.
 
         Raises:
@@ -361,10 +257,7 @@ class SessionWriter:
         try:
             with self._lock:
                 self._check_order(stream, t_ns)
-                if self.format == "mcap":
-                    self._backend.write_encoded(stream, t_ns, data, fmt, height, width)
-                else:
-                    self._backend.write_encoded(stream, t_ns, data)
+                self._backend.write_encoded(stream, t_ns, data, fmt, height, width)
                 self._last[stream] = t_ns
         finally:
             self._leave()
@@ -460,227 +353,3 @@ class SessionWriter:
             self.close()
         except SessionError as err:
             _log.warning("%s", err)
-
-
-def _remove_output(path: Path) -> None:
-    import shutil
-
-    if path.is_dir():
-        shutil.rmtree(path, ignore_errors=True)
-    elif path.exists():
-        path.unlink()
-
-
-def convert_session(
-    src: str | os.PathLike[str],
-    dst: str | os.PathLike[str],
-    *,
-    image_encoding: str | None = None,
-    strict: bool = False,
-    progress: Any = None,
-) -> dict[str, Any]:
-    """Copy a session into the other layout (chosen by ``dst``'s extension).
-
-    PNG, JPEG XL and JPEG images are copied byte for byte when the encoding stays the same
-    (after a completeness check), so a lossless session converts losslessly both ways. Damage
-    is never copied silently: damaged records are skipped and listed in ``problems``, or, with
-    ``strict``, the conversion is refused before anything is left behind.
-
-    Args:
-        src: session to read (MCAP file or folder).
-        dst: output path; ``*.mcap`` writes MCAP, anything else a folder. Must not exist.
-        image_encoding: output encoding; None keeps the source's (png when it is raw and the
-            output is a folder).
-        strict: refuse (raise, and remove the partial output) at the first damaged record.
-        progress: optional callable ``progress(done, total)`` called after each image.
-
-    Returns:
-        ``{"left", "right", "imu", "sonar"}`` records written, ``"skipped"`` (damaged records
-        left out) and ``"problems"`` (one message per problem, naming file and stamp).
-
-    Raises:
-        SessionError: unreadable input, an existing output, or damage with ``strict``;
-            :class:`SessionWriteError` when the output cannot be written (disk full...).
-    """
-    dst_path = Path(dst)
-    problems: list[str] = []
-    skipped = 0
-
-    def damaged(message: str, records: int = 1) -> None:
-        nonlocal skipped
-        if strict:
-            raise SessionError(f"{message}; refusing to convert a damaged session (--strict)")
-        problems.append(message)
-        skipped += records
-
-    with open_session(src) as reader:
-        if strict:
-            check = getattr(reader, "check", None)
-            if check is not None:
-                check()
-            if reader.problems:
-                raise SessionError(
-                    f"{reader.problems[0]}; refusing to convert a damaged session (--strict)"
-                )
-        try:
-            rig_yaml = reader.rig_yaml
-        except SessionError as err:
-            damaged(str(err))
-            rig_yaml = None
-        enc = image_encoding or reader.image_encoding or "png"
-        if enc == "raw" and layout_of(dst_path) == "folder":
-            enc = "png"
-        if dst_path.exists() and not (dst_path.is_dir() and not any(dst_path.iterdir())):
-            raise SessionError(f"{dst_path} already exists; refusing to overwrite it")
-        total = sum(int(reader.stamps(s).size) for s in IMAGE_STREAMS)
-        done = 0
-        writer = SessionWriter(dst_path, rig_yaml=rig_yaml, image_encoding=enc)
-        try:
-            with writer:
-                # The small streams first: a disk that fills up with images keeps them.
-                imu = reader.imu()
-                for k in range(len(imu)):
-                    writer.write_imu(int(imu.t_ns[k]), imu.accel_mps2[k], imu.gyro_radps[k])
-                sonar = reader.sonar()
-                for k in range(len(sonar)):
-                    writer.write_sonar(
-                        int(sonar.t_ns[k]), float(sonar.range_m[k]), float(sonar.confidence[k])
-                    )
-                writer.flush()
-                for stream in IMAGE_STREAMS:
-                    stamps = reader.stamps(stream)
-                    for i in range(stamps.size):
-                        t_ns = int(stamps[i])
-                        try:
-                            data, fmt = reader.image_bytes(stream, i)
-                            if fmt == enc:
-                                writer.write_image_bytes(stream, t_ns, data, fmt)
-                            else:
-                                writer.write_image(
-                                    stream, t_ns, reader.image(stream, i, by="index")
-                                )
-                        except SessionWriteError:
-                            raise
-                        except SessionError as err:
-                            damaged(f"{stream} t_ns={t_ns}: {err}")
-                        done += 1
-                        if progress is not None:
-                            progress(done, total)
-                for stream, n in reader.skipped.items():
-                    if n:
-                        damaged(f"{src}: {n} damaged {stream} records left out", n)
-                for msg in reader.problems:
-                    if msg not in problems:
-                        problems.append(msg)
-                if strict and reader.problems:
-                    raise SessionError(
-                        f"{reader.problems[0]}; refusing to convert a damaged session (--strict)"
-                    )
-        except SessionWriteError:
-            raise
-        except BaseException:
-            if strict:
-                _remove_output(dst_path)
-            raise
-        counts: dict[str, Any] = dict(writer.counts)
-    counts["skipped"] = skipped
-    counts["problems"] = problems
-    return counts
-
-
-class _WarningCollector(logging.Handler):
-    def __init__(self) -> None:
-        super().__init__(level=logging.WARNING)
-        self.messages: list[str] = []
-
-    def emit(self, record: logging.LogRecord) -> None:
-        self.messages.append(record.getMessage())
-
-
-def verify_session(path: str | os.PathLike[str], *, name_unit: str = "ns") -> dict[str, Any]:
-    """Read, check and decode every record of a session and collect every problem found.
-
-    For MCAP files this checks every chunk's CRC and records, the message indexes, the data
-    section and summary CRCs, the attachments' CRCs and the summary's record counts; for
-    folders the images against ``checksums.csv``. Every image is decoded (incomplete PNG,
-    JPEG and JPEG XL data is refused), every IMU and sonar record read, and the stored rig
-    parsed and checked as a rig.
-
-    Returns:
-        ``{"path", "ok", "records": {stream: readable count}, "problems": [message, ...],
-        "damaged_chunks": [{offset, start_ns, end_ns, streams, reason}], "damaged_frames":
-        [{stream, t_ns, reason}]}``; each problem names the file or topic and the stamp.
-
-    Raises:
-        SessionError: if the path is not a session at all.
-    """
-    from dataclasses import asdict
-
-    collector = _WarningCollector()
-    io_logger = logging.getLogger("sea3d.io")
-    io_logger.addHandler(collector)
-    # The verdict must not depend on the caller's logging set-up: warnings reach the collector
-    # even where the application logs only errors or called logging.disable, and only the
-    # collector (they come back in "problems").
-    old_level, old_propagate = io_logger.level, io_logger.propagate
-    old_disable = logging.root.manager.disable
-    if io_logger.getEffectiveLevel() > logging.WARNING:
-        io_logger.setLevel(logging.WARNING)
-    io_logger.propagate = False
-    if old_disable >= logging.WARNING:
-        logging.disable(logging.NOTSET)
-    problems: list[str] = []
-    records: dict[str, int] = {}
-    frames: list[dict[str, Any]] = []
-    chunks: list[dict[str, Any]] = []
-    try:
-        with open_session(path, name_unit=name_unit) as reader:
-            check = getattr(reader, "check", None)
-            if check is not None:
-                check()
-            for stream in IMAGE_STREAMS:
-                ok = 0
-                stamps = reader.stamps(stream)
-                for i in range(stamps.size):
-                    try:
-                        reader.image(stream, i, by="index")
-                        ok += 1
-                    except SessionError as err:
-                        problems.append(str(err))
-                        frames.append(
-                            {"stream": stream, "t_ns": int(stamps[i]), "reason": str(err)}
-                        )
-                records[stream] = ok
-            records["imu"] = len(reader.imu())
-            records["sonar"] = len(reader.sonar())
-            try:
-                _ = reader.rig_yaml  # parsed and checked as a rig; a problem if unusable
-            except SessionError as err:
-                problems.append(str(err))
-            chunks = [asdict(c) for c in getattr(reader, "damaged_chunks", [])]
-            for c in chunks:
-                c["streams"] = list(c["streams"])
-            problems = reader.problems + problems
-            for stream, n in reader.skipped.items():
-                if n:
-                    problems.append(f"{path}: {n} damaged {stream} records skipped")
-    finally:
-        io_logger.removeHandler(collector)
-        io_logger.setLevel(old_level)
-        io_logger.propagate = old_propagate
-        if old_disable >= logging.WARNING:
-            logging.disable(old_disable)
-    seen: set[str] = set()
-    unique = []
-    for msg in collector.messages + problems:
-        if msg not in seen:
-            seen.add(msg)
-            unique.append(msg)
-    return {
-        "path": os.fspath(path),
-        "ok": not unique,
-        "records": records,
-        "problems": unique,
-        "damaged_chunks": chunks,
-        "damaged_frames": frames,
-    }
