@@ -98,8 +98,8 @@ def create_writer(
 class FolderSessionWriter:
     """Backend of :class:`~sea3d.io.session.SessionWriter` for the folder layout (not public).
 
-    ``counts`` holds what is on disk: an image counts once it is renamed to its final name, a
-    CSV line once it is flushed. Each image's size and CRC-32 go to ``checksums.csv``.
+    ``counts`` holds what a reader will use: an image counts once it is renamed to its final
+    name and listed in ``checksums.csv`` (with its size and CRC-32), a CSV line once flushed.
     """
 
     def __init__(
@@ -225,11 +225,12 @@ class FolderSessionWriter:
             atomic_write(self.path / stream / name, data, fsync=False)
         except OSError as err:
             raise self._failed(f"{stream}/{name}", err) from err
-        self._done(stream, t_ns, len(data))
         try:
             self._line("checksums", f"{stream},{name},{len(data)},{zlib.crc32(data)}\n")
         except OSError as err:
             raise self._failed("checksums.csv", err) from err
+        # counted once listed: a reader uses no image without its line in checksums.csv
+        self._done(stream, t_ns, len(data))
 
     def write_raw(self, stream: str, t_ns: int, image: np.ndarray) -> None:
         raise SessionError(f"{self.path}: a folder session stores no raw images")
