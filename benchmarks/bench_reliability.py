@@ -749,7 +749,7 @@ def print_classes(cuts: Tally, flips: Tally, multi: Tally, folder: Tally) -> Non
     print(
         "round 2 (docs/reliability.md): 650 damaged MCAP sessions, all flagged by verify, no "
         "wrong value; 1,333 hostile runs, no traceback; folder sessions were checked only by "
-        "verify (a renamed image was handed out at its new stamp)\n"
+        "verify (a renamed image was handed out at its new stamp)"
     )
 
 
@@ -773,7 +773,6 @@ def run_file_drills(scratch: Path, rng: np.random.Generator, q: int) -> None:
         (drill_rig_text(2000 // q, rng), False),
         (drill_images(300 // q, rng), False),
     ]
-    print_classes(tallies[0][0], tallies[1][0], tallies[2][0], tallies[3][0])
     killed, worst_s = drill_sigkill(scratch, max(20 // q, 3), rng)
     tallies.append((killed, False))
     examples = []
@@ -792,6 +791,8 @@ def run_file_drills(scratch: Path, rng: np.random.Generator, q: int) -> None:
     )
     for e in examples:
         print("  example:", e)
+    print()
+    print_classes(tallies[0][0], tallies[1][0], tallies[2][0], tallies[3][0])
 
 
 def main() -> None:
