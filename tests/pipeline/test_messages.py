@@ -48,3 +48,32 @@ def test_a_network_that_outputs_nan_is_said_to_give_no_finite_depth():
     # a finite prediction with too few samples keeps the old, true message
     _, how = align_depth(np.ones((20, 30)), np.full((20, 30), np.nan))
     assert how.message.startswith("only 0 sparse depth samples")
+
+
+@pytest.mark.slow  # about 10 s on a loaded 2-core machine; the readers' tests are in tests/io
+def test_process_never_uses_a_renamed_image_of_a_folder_session(sim_session, tmp_path, caplog):
+    """The issue's headline: `mv left/T.png left/T'.png` was processed at the wrong stamp and
+    `process` exited 0 with three times the trajectory error."""
+    import csv
+    import logging
+    import os
+
+    from sea3d.io.session import convert_session, open_session
+    from sea3d.pipeline.process import ProcessConfig, run_process
+
+    folder = tmp_path / "dive"
+    convert_session(sim_session, folder)
+    with open_session(folder) as s:
+        stamps = s.stamps("left").tolist()
+    moved = stamps[1]
+    new = moved + 50_000_000  # half a frame interval later
+    os.replace(folder / "left" / f"{moved}.png", folder / "left" / f"{new}.png")
+    with caplog.at_level(logging.WARNING):
+        res = run_process(folder, ProcessConfig(out_dir=tmp_path / "out", workers=0,
+                                                max_frames=4))  # fmt: skip
+    text = "\n".join(r.getMessage() for r in caplog.records)
+    assert f"{new}.png" in text and "no line in checksums.csv" in text
+    with open(res.out_dir / "status.csv") as fh:
+        used = [int(row["t_ns"]) for row in csv.DictReader(fh)]
+    assert new not in used and moved not in used
+    assert used == [t for t in stamps if t != moved][:4]
