@@ -230,3 +230,28 @@ def test_sender_and_receiver_report_the_same_bit_rate():
     # time both must be the same figure (it was 3,259 against 47,393)
     assert received["bytes"] == sent.bytes_sent
     assert received["kbps"] == pytest.approx(sent.kbps, rel=1e-6)
+
+
+def test_a_receiver_stopped_with_a_backlog_still_hands_out_what_it_received():
+    """A slow consumer (1080p decode on a loaded machine) stopped by SIGTERM after the whole
+    stream arrived: the queued datagrams are demuxed, decoded and handed out, not dropped."""
+    url = f"udp://127.0.0.1:{_port()}"
+    frames = _frames(20)
+    got: list[st.ReceivedFrame] = []
+    with st.StreamReceiver(url) as rx:
+
+        def consume() -> None:
+            for f in rx.frames():
+                got.append(f)
+                time.sleep(0.15)  # slower than the stream
+
+        thread = threading.Thread(target=consume, daemon=True)
+        thread.start()
+        time.sleep(0.3)
+        st.StreamSender(st.StreamConfig(url=url, bitrate_kbps=1500)).run(iter(frames))
+        time.sleep(0.5)
+        assert len(got) < 20  # the backlog is there when the stop comes
+        rx.request_stop("stopped by SIGTERM")
+        thread.join(25)  # DRAIN_S (15 s) and some
+        assert not thread.is_alive()
+    assert [f.t_ns for f in got] == [t for t, _, _ in frames]

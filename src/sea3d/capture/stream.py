@@ -806,6 +806,11 @@ class ReceivedFrame:
     latency_ms: float | None
 
 
+# A receiver asked to stop still demuxes, decodes and writes what it had received, for at
+# most this long (a backlog of 1080p frames on a slow machine takes seconds).
+DRAIN_S = 15.0
+
+
 class _UdpSource(io.RawIOBase):
     """File-like UDP source for the TS demuxer. A thread drains the socket into a queue (so
     the kernel buffer never overflows while a frame decodes); ``readinto`` waits, tells the
@@ -844,6 +849,7 @@ class _UdpSource(io.RawIOBase):
         self._pending = b""
         self._idle = False
         self._ended = False
+        self._drain_until: float | None = None
         self._pump = threading.Thread(target=self._run, name="sea3d-stream-rx", daemon=True)
         self._pump.start()
 
@@ -855,14 +861,26 @@ class _UdpSource(io.RawIOBase):
                 continue
             except OSError:
                 return
-            now = time.monotonic()
-            self.bytes_received += len(data)
-            self.first_byte_s = self.first_byte_s or now
-            self.last_byte_s = now
+            self._keep(data)
+        # Asked to stop: what already reached the socket is received too (and then demuxed,
+        # decoded and written by the owner: a stopped receiver keeps what was sent to it).
+        self.sock.setblocking(False)
+        while True:
             try:
-                self.q.put_nowait(data)
-            except queue.Full:
-                _log.warning("stream: receive queue full; a datagram was dropped")
+                data = self.sock.recv(65536)
+            except OSError:  # BlockingIOError: nothing more; or the socket is closed
+                return
+            self._keep(data)
+
+    def _keep(self, data: bytes) -> None:
+        now = time.monotonic()
+        self.bytes_received += len(data)
+        self.first_byte_s = self.first_byte_s or now
+        self.last_byte_s = now
+        try:
+            self.q.put_nowait(data)
+        except queue.Full:
+            _log.warning("stream: receive queue full; a datagram was dropped")
 
     @property
     def ended(self) -> bool:
@@ -874,8 +892,20 @@ class _UdpSource(io.RawIOBase):
 
     def readinto(self, b: Any) -> int:
         while not self._pending:
-            if self.stop.is_set() or self._ended:
+            if self._ended:
                 return 0
+            if self.stop.is_set():  # drain what was received, for at most DRAIN_S
+                if self._drain_until is None:
+                    self._pump.join(timeout=1.0)
+                    self._drain_until = time.monotonic() + DRAIN_S
+                try:
+                    if time.monotonic() > self._drain_until:
+                        raise queue.Empty
+                    self._pending = self.q.get_nowait()
+                except queue.Empty:
+                    self._ended = True
+                    return 0
+                continue
             try:
                 self._pending = self.q.get(timeout=0.1)
             except queue.Empty:
@@ -1060,7 +1090,8 @@ class StreamReceiver:
         )
 
     def frames(self) -> Iterator[ReceivedFrame]:
-        """Decoded frames until stopped, idle past ``idle_timeout_s``, or the socket closes.
+        """Decoded frames until stopped, idle past ``idle_timeout_s``, or the socket closes;
+        asked to stop, it still hands out what had been received (for at most ``DRAIN_S``).
 
         Raises:
             CaptureError: the remux file cannot be written.
