@@ -532,7 +532,7 @@ def implausible_camera(cameras: dict[str, dict[str, Any]]) -> str | None:
                 f"the self-calibrated {name} camera is implausible: a focal length of {f:,.0f} "
                 f"px on a {width:.0f}-px-wide image is a {fov:.1f} deg field of view, outside "
                 f"the {lo:g}-{hi:g} deg of a physical lens ({f_lo:,.0f}..{f_hi:,.0f} px); "
-                "give the rig (--rig) or more frames with more parallax"
+                "give a calibrated rig, or more frames with more parallax"
             )
     return None
 

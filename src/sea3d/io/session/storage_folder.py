@@ -395,7 +395,7 @@ class FolderSessionReader(SessionReader):
             if want is None and self.checksummed:
                 raise RigFileError(
                     f"{rig_path} cannot be checked: its line in checksums.csv is missing or "
-                    "damaged; give the rig with --rig"
+                    "damaged; give the rig file separately"
                 )
             if want is not None and (len(data), zlib.crc32(data)) != want:
                 raise RigFileError(
