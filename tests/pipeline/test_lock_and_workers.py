@@ -112,3 +112,14 @@ def test_workers_and_the_resource_tracker_die_when_the_parent_is_sigkilled(tmp_p
                 pass
         if proc.poll() is None:
             proc.kill()
+
+
+def test_the_cli_refuses_a_second_process_in_one_line(tmp_path, capsys):
+    from sea3d.cli import main
+
+    out = tmp_path / "out"
+    with output_lock(out):
+        rc = main(["process", str(tmp_path / "dive.mcap"), "-o", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc != 0
+    assert len(err) == 1 and "is in use by another sea3d run (pid" in err[0], err
