@@ -90,7 +90,7 @@ def _codecs() -> dict[str, tuple[str, Codec]]:
     import lz4.frame
     import zstandard
 
-    from sea3d.io.session_common import decode_image, encode_image
+    from sea3d.io.session.common import decode_image, encode_image
 
     zc, zd = zstandard.ZstdCompressor(level=1), zstandard.ZstdDecompressor()
 

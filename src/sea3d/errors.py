@@ -9,20 +9,24 @@ boundary, with ``raise XError(msg) from err``.
 from __future__ import annotations
 
 __all__ = [
+    "CacheEntryError",
     "CalibrationError",
     "CameraModelError",
     "CaptureError",
     "ConfigError",
+    "CsvError",
     "EnhanceError",
     "GeometryError",
     "MonoDepthError",
     "OdometryError",
+    "OutputInUseError",
     "ReconError",
     "RectifyError",
     "RefractionError",
     "RigFileError",
     "Sea3dError",
     "SessionError",
+    "SessionWriteError",
     "SfmError",
     "SimulationError",
     "StereoError",
@@ -55,6 +59,32 @@ class RigFileError(Sea3dError, ValueError):
 
 class SessionError(Sea3dError):
     """A recorded session (MCAP file or folder layout) cannot be read or written."""
+
+
+class OutputInUseError(SessionError):
+    """An output folder is held by another running ``sea3d`` process (its lock is taken)."""
+
+
+class SessionWriteError(SessionError):
+    """Writing a session failed (disk full, free space at the reserve, no permission, I/O
+    error). Everything written before stays readable; ``kept`` says what that is.
+
+    Attributes:
+        kept: the records on disk, e.g. ``"120 left, 120 right, 2400 imu up to t_ns=..."``.
+    """
+
+    def __init__(self, message: str, *, kept: str) -> None:
+        super().__init__(message + (f"; kept {kept}" if kept else ""))
+        self.kept = kept
+
+
+class CacheEntryError(SessionError):
+    """A cache entry of ``sea3d process`` is damaged (truncated, wrong checksum, unreadable
+    arrays)."""
+
+
+class CsvError(Sea3dError, ValueError):
+    """A CSV file is missing, lacks a column, or holds a non-numeric value."""
 
 
 class CaptureError(Sea3dError):

@@ -193,26 +193,26 @@ def test_a_full_disk_mid_recording_stops_with_a_summary_and_a_readable_session(
 ):
     import errno
 
-    from sea3d.io import session_folder, session_mcap
+    from sea3d.io.session import mcap_chunks, storage_folder
 
     budget = {"bytes": 0}
 
     def failing(real):
-        def wrapper(self_or_path, data, *args):
+        def wrapper(self_or_path, data, *args, **kwargs):
             size = sum(len(p) for p in data) if isinstance(data, list) else len(data)
             budget["bytes"] += size
             if budget["bytes"] > 6_000_000:  # the disk is full after about 6 MB
                 raise OSError(errno.ENOSPC, "No space left on device")
-            return real(self_or_path, data, *args)
+            return real(self_or_path, data, *args, **kwargs)
 
         return wrapper
 
     if fmt == "mcap":
         monkeypatch.setattr(
-            session_mcap._FdWriter, "write_all", failing(session_mcap._FdWriter.write_all)
+            mcap_chunks.FdWriter, "write_all", failing(mcap_chunks.FdWriter.write_all)
         )
     else:
-        monkeypatch.setattr(session_folder, "_atomic_write", failing(session_folder._atomic_write))
+        monkeypatch.setattr(storage_folder, "atomic_write", failing(storage_folder.atomic_write))
     rng = np.random.default_rng(0)
     imgs = _imgs(rng, 3, shape=(120, 160, 3))  # about 58 kB per PNG
     out = tmp_path / ("f.mcap" if fmt == "mcap" else "f_dir")

@@ -272,7 +272,7 @@ def test_cli_session_to_session_and_a_stream_that_stops(tmp_path, capsys):
     rcs: dict[str, int] = {}
     rx1 = threading.Thread(
         target=lambda: rcs.update(
-            a=main(["stream", "receive", url, "-o", str(out), "--idle-timeout", "1"])
+            a=main(["stream", "receive", url, "-o", str(out), "--idle-timeout", "3"])
         )
     )
     rx1.start()
@@ -289,7 +289,7 @@ def test_cli_session_to_session_and_a_stream_that_stops(tmp_path, capsys):
     # .ts: the H.264 as it came, playable by any player
     rx2 = threading.Thread(
         target=lambda: rcs.update(
-            b=main(["stream", "receive", url2, "-o", str(ts), "--idle-timeout", "1"])
+            b=main(["stream", "receive", url2, "-o", str(ts), "--idle-timeout", "3"])
         )
     )
     rx2.start()

@@ -9,8 +9,8 @@ import pytest
 from sea3d.cli import main
 from sea3d.errors import ReconError
 from sea3d.eval.surface import surface_metrics
+from sea3d.geometry.mesh import Mesh
 from sea3d.io.mesh_files import read_mesh, write_mesh
-from sea3d.recon.types import Mesh
 
 # Distances are exact point-to-triangle distances, so a known offset comes back to float32
 # rounding of the Open3D query (micrometres).

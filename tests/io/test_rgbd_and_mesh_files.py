@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from sea3d.errors import ReconError
+from sea3d.geometry.mesh import Mesh
 from sea3d.io.mesh_files import read_mesh, read_point_cloud, write_mesh, write_point_cloud
 from sea3d.io.rgbd_files import natural_key, read_color, read_depth
-from sea3d.recon.types import Mesh
 
 
 def test_depth_scales_and_invalid_pixels(tmp_path):

@@ -213,7 +213,8 @@ def test_folder_images_of_different_sizes_are_named_with_their_stamp(tmp_path, c
     with SessionWriter(tmp_path / "other", format="folder") as w:
         w.write_image("left", 5, _frame(9, shape=(10, 10, 3)))
     os.replace(tmp_path / "other" / "left" / "5.png", path / "left" / f"{FRAME_NS}.png")
-    (path / "checksums.csv").unlink()  # as in the paper's folders, which have none
+    (path / "checksums.csv").unlink()  # as in the paper's folders, which have neither
+    (path / "session.json").unlink()
     with caplog.at_level(logging.WARNING), open_session(path) as s:
         with pytest.raises(
             SessionError, match=rf"{FRAME_NS}\.png \(t_ns={FRAME_NS}\) is \(10, 10, 3\)"

@@ -25,13 +25,13 @@ from typing import Any
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from sea3d.errors import SessionError
 from sea3d.io.rig_file import rig_to_yaml
 from sea3d.io.session import SessionWriter, convert_session, open_session, verify_session
-from sea3d.io.session_common import decode_image, encode_image
+from sea3d.io.session.common import decode_image, encode_image
 from sea3d.refraction.presets import paper_rig
 
 
@@ -246,26 +246,156 @@ def test_many_flipped_bits_give_errors_or_true_values_never_wrong_ones(bits):
             assert_nothing_wrong(read_everything(out))
 
 
-@pytest.mark.slow
-@settings(max_examples=_examples(30))
-@given(data=st.data())
-def test_folder_sessions_with_damaged_files_never_hand_out_wrong_values(data, tmp_path_factory):
-    path = tmp_path_factory.mktemp("folder") / "s"
-    _write(path, "folder")
-    files = sorted(p for p in path.rglob("*") if p.is_file() and p.name != "session.json")
-    for _ in range(data.draw(st.integers(1, 4))):
-        victim = data.draw(st.sampled_from(files))
-        raw = bytearray(victim.read_bytes())
-        if not raw:
+# --------------------------------------------------------------------------- folders
+# One damage: (file, kind, where) with ``file`` and ``where`` fractions in [0, 1) picking the
+# file (sorted, session.json included) and the byte, bit or line. Renames and deletions apply
+# to images; line deletions and edits to the CSVs, the rig and checksums.csv.
+_KINDS = ("flip", "cut", "delete", "rename", "delete_line", "edit_line")
+
+
+def _damage_folder(path: Path, ops: list[tuple[float, str, float]]) -> list[str]:
+    """Apply ``ops`` to the folder session at ``path``; returns what was done, for messages."""
+    done = []
+    for pick, kind, where in ops:
+        files = sorted(p for p in path.rglob("*") if p.is_file())
+        images = [p for p in files if p.parent.name in ("left", "right")]
+        texts = [p for p in files if p.suffix in (".csv", ".yaml")]
+        pool = images if kind in ("delete", "rename") else texts if "line" in kind else files
+        if not pool:
             continue
-        if data.draw(st.booleans()):
-            pos = data.draw(st.integers(0, len(raw) * 8 - 1))
-            raw[pos // 8] ^= 1 << (pos % 8)
+        victim = pool[int(pick * len(pool))]
+        raw = bytearray(victim.read_bytes())
+        if kind == "delete":
+            victim.unlink()
+        elif kind == "rename":  # to a stamp that was never written (or onto another image)
+            stamp = int(victim.stem) + int(where * 3 * FRAME_NS) + 1
+            os.replace(victim, victim.with_name(f"{stamp}{victim.suffix}"))
+        elif not raw:
+            continue
+        elif kind == "flip":
+            bit = int(where * len(raw) * 8)
+            raw[bit // 8] ^= 1 << (bit % 8)
+        elif kind == "cut":
+            del raw[int(where * len(raw)) :]
         else:
-            del raw[data.draw(st.integers(0, len(raw) - 1)) :]
-        victim.write_bytes(bytes(raw))
-    assert_nothing_wrong(read_everything(path))
-    _verified(path)
+            lines = bytes(raw).splitlines(keepends=True)
+            k = int(where * len(lines))
+            if kind == "delete_line":
+                del lines[k]
+            else:  # a plausible edit: one digit changed (a different value, same shape)
+                line = bytearray(lines[k])
+                digits = [i for i, c in enumerate(line) if chr(c).isdigit()]
+                if not digits:
+                    continue
+                i = digits[int(where * 7919) % len(digits)]
+                line[i] = ord("0") + (line[i] - ord("0") + 1) % 10
+                lines[k] = bytes(line)
+            raw = bytearray(b"".join(lines))
+        if kind not in ("delete", "rename"):
+            victim.write_bytes(bytes(raw))
+        done.append(f"{kind} {victim.relative_to(path)} at {where:.3f}")
+    return done
+
+
+def _check_damaged_folder(path: Path, ops: list[tuple[float, str, float]]) -> None:
+    _write(path, "folder")
+    done = _damage_folder(path, ops)
+    got = read_everything(path)
+    assert_nothing_wrong(got)
+    ok = _verified(path)
+    lost_any = any(lost(got).values()) or got["rig"] is None
+    # verify agrees with the readers: whatever a reader could not hand out, verify reports.
+    assert not (ok and lost_any), f"verify says OK but the readers lost records after {done}"
+    if any(d.split()[0] in ("delete", "rename", "delete_line") for d in done):
+        assert not ok, f"verify missed {done}"
+    out = path.with_name(path.name + "_converted.mcap")
+    try:
+        convert_session(path, out)
+    except SessionError:
+        return
+    converted = read_everything(out)
+    assert_nothing_wrong(converted)  # never a damaged image at a wrong stamp, verifying clean
+
+
+_FOLDER_CASES = {
+    # the drill's failure: checksums.csv's rig line damaged and a '#' of the rig turned '!'
+    "rig_flip_and_its_checksum_line_damaged": [(0.0, "flip_rig_hash", 0.0)],
+    "renamed_image": [(0.0, "rename", 0.5)],
+    "renamed_last_image": [(0.99, "rename", 0.1)],
+    "deleted_image": [(0.3, "delete", 0.0)],
+    "deleted_imu_line": [(0.0, "delete_line", 0.5)],
+    "deleted_sonar_line": [(0.9, "delete_line", 0.5)],
+    "edited_imu_line": [(0.0, "edit_line", 0.6)],
+    "rig_line_deleted_from_checksums": [(0.0, "delete_rig_checksum", 0.0)],
+    "rig_line_deleted_and_rig_edited": [(0.0, "delete_rig_checksum", 0.0), (0.5, "edit_rig", 0.4)],
+    "edited_rig": [(0.0, "edit_rig", 0.4)],
+    "cut_checksums": [(0.0, "cut_checksums", 0.1)],
+}
+
+
+def _special(path: Path, kind: str, where: float) -> None:
+    rig, sums = path / "rig.yaml", path / "checksums.csv"
+    if kind == "flip_rig_hash":
+        raw = bytearray(rig.read_bytes())
+        raw[raw.index(b"#")] ^= 0x02  # '#' -> '!'
+        rig.write_bytes(bytes(raw))
+        text = bytearray(sums.read_bytes())
+        text[text.index(b"rig,") + 1] ^= 0x01  # 'rig' -> 'rhg': no longer a checksum line
+        sums.write_bytes(bytes(text))
+    elif kind == "delete_rig_checksum":
+        lines = sums.read_text().splitlines(keepends=True)
+        sums.write_text("".join(ln for ln in lines if not ln.startswith("rig,")))
+    elif kind == "edit_rig":
+        text = rig.read_text()
+        rig.write_text(text.replace("fx_px: ", "fx_px: 1", 1))
+    elif kind == "cut_checksums":
+        data = sums.read_bytes()
+        sums.write_bytes(data[: int(where * len(data))])
+
+
+@pytest.mark.parametrize("case", sorted(_FOLDER_CASES))
+def test_damaged_folder_cases_never_hand_out_wrong_values_and_verify_agrees(case, tmp_path):
+    path = tmp_path / "s"
+    ops = _FOLDER_CASES[case]
+    plain = [op for op in ops if op[1] in _KINDS]
+    special = [op for op in ops if op[1] not in _KINDS]
+    _write(path, "folder")
+    for _pick, kind, where in special:
+        _special(path, kind, where)
+    done = _damage_folder(path, plain)
+    got = read_everything(path)
+    assert_nothing_wrong(got)
+    report = verify_session(path)
+    assert not report["ok"], f"verify missed {case} ({done})"
+    out = tmp_path / "converted.mcap"
+    try:
+        convert_session(path, out)
+    except SessionError:
+        return
+    assert_nothing_wrong(read_everything(out))
+
+
+@pytest.mark.slow
+@settings(max_examples=_examples(30), deadline=None)
+@given(
+    ops=st.lists(
+        st.tuples(
+            st.floats(0, 1, exclude_max=True),
+            st.sampled_from(_KINDS),
+            st.floats(0, 1, exclude_max=True),
+        ),
+        min_size=1,
+        max_size=4,
+    )
+)
+@example(ops=[(0.5, "rename", 0.5)])
+@example(ops=[(0.25, "delete_line", 0.0)])  # the header of imu.csv
+@example(ops=[(0.9375, "flip", 0.484375), (0.96875, "cut", 0.0)])  # session.json and sonar
+@example(ops=[(0.0, "delete_line", 0.5), (0.99, "edit_line", 0.3)])
+@example(ops=[(0.99, "delete", 0.0), (0.7, "flip", 0.01)])
+def test_folder_sessions_with_damaged_files_never_hand_out_wrong_values(ops):
+    with _scratch() as path:
+        _check_damaged_folder(path.with_suffix(""), ops)
 
 
 def _verified(path: Path) -> bool:
@@ -317,7 +447,7 @@ def test_a_flipped_bit_in_a_png_is_refused_by_its_chunk_crcs(bit):
 
 
 def test_truncated_jpeg_file_is_refused_by_read_image_file(tmp_path):
-    from sea3d.io.session_common import read_image_file
+    from sea3d.io.session.common import read_image_file
 
     path = tmp_path / "left.jpg"
     path.write_bytes(_ENCODED["jpeg"][: len(_ENCODED["jpeg"]) // 2])

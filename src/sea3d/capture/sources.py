@@ -359,7 +359,7 @@ class ImageFolderSource(Source):
 
     def read(self) -> ImageFrame | None:
         from sea3d.errors import SessionError
-        from sea3d.io.session_common import read_image_file
+        from sea3d.io.session.common import read_image_file
 
         n = len(self.files)
         misses = 0

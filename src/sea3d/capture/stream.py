@@ -25,6 +25,7 @@ length so the demuxer need not wait for the next frame.
 from __future__ import annotations
 
 import io
+import itertools
 import logging
 import os
 import queue
@@ -541,6 +542,19 @@ class StreamSummary:
         return asdict(self)
 
 
+def stream_kbps(
+    n_bytes: int, t_first_ns: int | None, t_last_ns: int | None, frames: int, wall_s: float
+) -> float:
+    """Bit rate of a stream in kbit/s over its own time: the span of the frames' stamps plus
+    one frame interval (``span * frames / (frames - 1)``); the wall-clock ``wall_s`` when
+    fewer than two stamped frames are known. Sender and receiver both report this, so their
+    figures agree whatever the pacing, buffering and bursts between them."""
+    if t_first_ns is not None and t_last_ns is not None and frames >= 2 and t_last_ns > t_first_ns:
+        span_s = (t_last_ns - t_first_ns) * 1e-9 * frames / (frames - 1)
+        return n_bytes * 8 / 1000 / span_s
+    return n_bytes * 8 / 1000 / wall_s if wall_s > 0 else 0.0
+
+
 def _is_idr(access_unit: bytes) -> bool:
     return any(t == 5 for _s, _e, t in h264.nal_units(access_unit))
 
@@ -664,6 +678,7 @@ class StreamSender:
         else:
             enc = _open_ffmpeg_encoder(choice.name, cfg, width, height, fps, gop)
         t_first: int | None = None
+        t_last: int | None = None
         last_pts = -1
         encode_ms: list[float] = []
         skipped = 0
@@ -692,7 +707,7 @@ class StreamSender:
             return [(bytes(p), int(p.pts), bool(p.is_keyframe)) for p in frame_pkts]
 
         try:
-            for t_ns, left, right in (*first, *it):
+            for t_ns, left, right in itertools.chain(first, it):
                 if self._stop.is_set():
                     break
                 if duration_s is not None and time.monotonic() - wall0 >= duration_s:
@@ -705,6 +720,7 @@ class StreamSender:
                     continue
                 if t_first is None:
                     t_first = int(t_ns)
+                t_last = int(t_ns)
                 pts = max(last_pts + 1, round((int(t_ns) - t_first) * PTS_HZ / 1e9))
                 last_pts = pts
                 meta = h264.FrameMeta(
@@ -757,7 +773,7 @@ class StreamSender:
             frames=self.frames_sent,
             skipped=skipped,
             bytes_sent=sink.bytes_sent,
-            kbps=sink.bytes_sent * 8 / 1000 / duration if duration > 0 else 0.0,
+            kbps=stream_kbps(sink.bytes_sent, t_first, t_last, self.frames_sent, duration),
             send_errors=sink.send_errors,
             duration_s=duration,
             encode_ms_median=float(np.median(encode_ms)) if encode_ms else 0.0,
@@ -788,6 +804,11 @@ class ReceivedFrame:
     sent_ns: int | None
     received_ns: int
     latency_ms: float | None
+
+
+# A receiver asked to stop still demuxes, decodes and writes what it had received, for at
+# most this long (a backlog of 1080p frames on a slow machine takes seconds).
+DRAIN_S = 15.0
 
 
 class _UdpSource(io.RawIOBase):
@@ -822,11 +843,13 @@ class _UdpSource(io.RawIOBase):
         self.idle_after_s = idle_after_s
         self.q: queue.Queue[bytes] = queue.Queue(maxsize=20000)
         self.bytes_received = 0
+        self.started_s = time.monotonic()
         self.first_byte_s: float | None = None
         self.last_byte_s: float | None = None
         self._pending = b""
         self._idle = False
         self._ended = False
+        self._drain_until: float | None = None
         self._pump = threading.Thread(target=self._run, name="sea3d-stream-rx", daemon=True)
         self._pump.start()
 
@@ -838,28 +861,57 @@ class _UdpSource(io.RawIOBase):
                 continue
             except OSError:
                 return
-            now = time.monotonic()
-            self.bytes_received += len(data)
-            self.first_byte_s = self.first_byte_s or now
-            self.last_byte_s = now
+            self._keep(data)
+        # Asked to stop: what already reached the socket is received too (and then demuxed,
+        # decoded and written by the owner: a stopped receiver keeps what was sent to it).
+        self.sock.setblocking(False)
+        while True:
             try:
-                self.q.put_nowait(data)
-            except queue.Full:
-                _log.warning("stream: receive queue full; a datagram was dropped")
+                data = self.sock.recv(65536)
+            except OSError:  # BlockingIOError: nothing more; or the socket is closed
+                return
+            self._keep(data)
+
+    def _keep(self, data: bytes) -> None:
+        now = time.monotonic()
+        self.bytes_received += len(data)
+        self.first_byte_s = self.first_byte_s or now
+        self.last_byte_s = now
+        try:
+            self.q.put_nowait(data)
+        except queue.Full:
+            _log.warning("stream: receive queue full; a datagram was dropped")
+
+    @property
+    def ended(self) -> bool:
+        """True once an idle timeout ended the stream."""
+        return self._ended
 
     def readable(self) -> bool:
         return True
 
     def readinto(self, b: Any) -> int:
         while not self._pending:
-            if self.stop.is_set() or self._ended:
+            if self._ended:
                 return 0
+            if self.stop.is_set():  # drain what was received, for at most DRAIN_S
+                if self._drain_until is None:
+                    self._pump.join(timeout=1.0)
+                    self._drain_until = time.monotonic() + DRAIN_S
+                try:
+                    if time.monotonic() > self._drain_until:
+                        raise queue.Empty
+                    self._pending = self.q.get_nowait()
+                except queue.Empty:
+                    self._ended = True
+                    return 0
+                continue
             try:
                 self._pending = self.q.get(timeout=0.1)
             except queue.Empty:
-                if self.last_byte_s is None:
-                    continue  # not started yet: a stream that has not begun cannot stop
-                quiet = time.monotonic() - self.last_byte_s
+                # Before the first datagram the quiet time counts from the start, so that an
+                # idle timeout also ends a receiver that never heard anything.
+                quiet = time.monotonic() - (self.last_byte_s or self.started_s)
                 if quiet >= self.idle_after_s:
                     if not self.on_idle(quiet):
                         self._ended = True
@@ -927,6 +979,9 @@ class StreamReceiver:
         }
         self._latest: dict[str, tuple[int, ImageFrame]] = {}
         self._recent: list[float] = []
+        self._t_first: int | None = None  # stamps of the sender's frames, for kbit/s
+        self._t_last: int | None = None
+        self._stamped = 0
         self._t0 = time.monotonic()
         self._source = _UdpSource(
             self.host,
@@ -939,6 +994,15 @@ class StreamReceiver:
         self.running = True
 
     def _idle(self, quiet_s: float) -> bool:
+        never = self._source.last_byte_s is None
+        if never and self.idle_timeout_s is not None and quiet_s >= self.idle_timeout_s:
+            self.counters["stopped_reason"] = (
+                f"no data arrived in {self.idle_timeout_s:g} s (is the sender running?)"
+            )
+            self.on_event(f"nothing received on {self.url} in {quiet_s:.1f} s; ending")
+            return False
+        if never:
+            return True  # not started yet: a stream that has not begun has not stopped
         if self.idle_timeout_s is not None and quiet_s >= self.idle_timeout_s:
             self.counters["stopped_reason"] = f"no data for {self.idle_timeout_s:g} s"
             self.on_event(f"stream from {self.url} stopped: no data for {quiet_s:.1f} s; ending")
@@ -1017,11 +1081,17 @@ class StreamReceiver:
         src = self._source
         if src.first_byte_s is None or src.last_byte_s is None:
             return 0.0
-        span = src.last_byte_s - src.first_byte_s
-        return src.bytes_received * 8 / 1000 / span if span > 0 else 0.0
+        return stream_kbps(
+            src.bytes_received,
+            self._t_first,
+            self._t_last,
+            self._stamped,
+            src.last_byte_s - src.first_byte_s,
+        )
 
     def frames(self) -> Iterator[ReceivedFrame]:
-        """Decoded frames until stopped, idle past ``idle_timeout_s``, or the socket closes.
+        """Decoded frames until stopped, idle past ``idle_timeout_s``, or the socket closes;
+        asked to stop, it still hands out what had been received (for at most ``DRAIN_S``).
 
         Raises:
             CaptureError: the remux file cannot be written.
@@ -1039,7 +1109,7 @@ class StreamReceiver:
             except av.error.EOFError:
                 return
             except av.FFmpegError as err:
-                if self._stop.is_set():
+                if self._stop.is_set() or self._source.ended:
                     return
                 self.counters["decode_errors"] += 1
                 _log.warning("stream: cannot open the received data yet (%s); retrying", err)
@@ -1102,6 +1172,15 @@ class StreamReceiver:
                     if m is not None:
                         last_seq = m.seq
                     yield self._split(frame, m, now)
+            try:  # the stream ended: the frames the decoder still holds
+                held = vin.decode(None)
+            except av.FFmpegError as err:
+                _log.debug("stream: flushing the decoder failed: %s", err)
+                held = []
+            for frame in held:
+                now = time.time_ns()
+                m = metas.pop(int(frame.pts), None) if frame.pts is not None else None
+                yield self._split(frame, m, now)
         finally:
             if remux is not None:
                 remux.close()
@@ -1120,6 +1199,10 @@ class StreamReceiver:
         else:
             right = rgb
         latency = None if m is None else (now - m.sent_ns) / 1e6
+        if m is not None:
+            self._t_first = m.t_ns if self._t_first is None else min(self._t_first, m.t_ns)
+            self._t_last = m.t_ns if self._t_last is None else max(self._t_last, m.t_ns)
+            self._stamped += 1
         if latency is not None:
             self.counters["latency_ms"].append(latency)
         self.counters["frames"] += 1

@@ -61,7 +61,7 @@ def _check_range(max_disparity: int, width: int, engine: str, what: str) -> None
 
 def _read_image(path: str) -> Any:
     from sea3d.errors import SessionError, StereoError
-    from sea3d.io.session_common import read_image_file
+    from sea3d.io.session.common import read_image_file
 
     p = Path(path)
     if not p.is_file():

@@ -89,7 +89,13 @@ def _info(args: argparse.Namespace) -> int:
     out.write(f"session   {report['path']} ({report['format']})\n")
     out.write(f"size      {report['size_bytes'] / 1e6:.1f} MB\n")
     out.write(f"duration  {report['duration_s']:.3f} s\n")
-    out.write(f"rig       {report['rig_status']}\n\n")
+    out.write(f"rig       {report['rig_status']}\n")
+    out.write(f"checked   {report['checked']}\n")
+    out.write(f"unchecked {report['not_checked']}\n")
+    problems = report["problems"]
+    if problems:
+        out.write(f"problems  {len(problems)}, first: {problems[0]}\n")
+    out.write("\n")
     out.write(
         f"{'stream':<8}{'count':>8} {'rate Hz':>11}{'first s':>21}{'last s':>21}{'gaps':>6}\n"
     )

@@ -278,7 +278,8 @@ def _receive(args: argparse.Namespace) -> int:
     if session_out is not None:
         summary["session_frames_written"] = session_out.written
         summary["session_frames_skipped"] = session_out.skipped
-    summary["output"] = out
+    wrote = bool(out) and Path(out).exists()
+    summary["output"] = out if wrote else None
     if args.json:
         json.dump(summary, sys.stdout, indent=2)
         sys.stdout.write("\n")
@@ -288,7 +289,7 @@ def _receive(args: argparse.Namespace) -> int:
             f"received {summary['frames']} frames ({summary['lost']} lost) at "
             f"{summary['kbps']:.0f} kbit/s"
             + (f", latency {lat:.0f} ms median" if lat is not None else "")
-            + (f"; wrote {out}" if out else "")
+            + (f"; wrote {out}" if wrote else "; nothing written (no frames)" if out else "")
             + f"; {summary['stopped_reason']}"
         )
     return 0

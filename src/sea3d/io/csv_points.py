@@ -10,13 +10,10 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from sea3d.errors import Sea3dError
+from sea3d.errors import CsvError
+from sea3d.io._atomic import atomic_open
 
 __all__ = ["CsvError", "read_columns", "write_columns"]
-
-
-class CsvError(Sea3dError, ValueError):
-    """A CSV file is missing, lacks a column, or holds a non-numeric value."""
 
 
 def read_columns(path: str | os.PathLike[str], columns: Sequence[str]) -> NDArray[np.float64]:
@@ -67,12 +64,10 @@ def write_columns(
     """Write a CSV with a header row; floats with 12 significant digits, booleans as 0/1."""
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(f".{p.name}.tmp")
-    with tmp.open("w", newline="") as fh:
+    with atomic_open(p, "w", newline="") as fh:
         writer = csv.writer(fh)
         writer.writerow(columns)
         for row in values:
             writer.writerow(
                 [str(int(v)) if isinstance(v, bool | np.bool_) else f"{float(v):.12g}" for v in row]
             )
-    os.replace(tmp, p)

@@ -14,17 +14,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.errors import ReconError
-from sea3d.recon.types import Mesh
+from sea3d.geometry.mesh import Mesh
+from sea3d.io._atomic import atomic_path
 
 __all__ = ["read_mesh", "read_point_cloud", "write_mesh", "write_point_cloud"]
 
 
-def _tmp_path(p: Path) -> Path:
-    return p.with_name(f".{p.stem}.tmp{os.getpid()}{p.suffix}")
-
-
 def write_mesh(path: str | os.PathLike[str], mesh: Mesh) -> None:
-    """Write a :class:`~sea3d.recon.types.Mesh` (format from the extension, PLY binary).
+    """Write a :class:`~sea3d.geometry.mesh.Mesh` (format from the extension, PLY binary).
 
     Raises:
         ReconError: the file cannot be written.
@@ -32,6 +29,12 @@ def write_mesh(path: str | os.PathLike[str], mesh: Mesh) -> None:
     import open3d as o3d
 
     p = Path(path)
+    if len(mesh.vertices) == 0 or len(mesh.triangles) == 0:
+        raise ReconError(
+            f"cannot write mesh {p}: the mesh is empty ({len(mesh.vertices)} vertices, "
+            f"{len(mesh.triangles)} triangles): nothing was fused into it (no depth inside "
+            "the fusion volume?)"
+        )
     m = o3d.geometry.TriangleMesh()
     m.vertices = o3d.utility.Vector3dVector(np.ascontiguousarray(mesh.vertices, np.float64))
     m.triangles = o3d.utility.Vector3iVector(np.ascontiguousarray(mesh.triangles, np.int32))
@@ -39,18 +42,15 @@ def write_mesh(path: str | os.PathLike[str], mesh: Mesh) -> None:
         m.vertex_colors = o3d.utility.Vector3dVector(mesh.colors_rgb.astype(np.float64) / 255.0)
     if mesh.normals is not None:
         m.vertex_normals = o3d.utility.Vector3dVector(np.ascontiguousarray(mesh.normals))
-    tmp = _tmp_path(p)
     try:
-        p.parent.mkdir(parents=True, exist_ok=True)
-        ok = o3d.io.write_triangle_mesh(tmp, m, write_ascii=False, compressed=False)
-        if not ok:
-            raise ReconError(f"cannot write mesh {p} (Open3D refused the format {p.suffix!r})")
-        os.replace(tmp, p)
+        with atomic_path(p) as tmp:
+            ok = o3d.io.write_triangle_mesh(tmp, m, write_ascii=False, compressed=False)
+            if not ok:
+                raise ReconError(
+                    f"cannot write mesh {p} (Open3D refused the format {p.suffix!r})"
+                )
     except OSError as err:
         raise ReconError(f"cannot write mesh {p}: {err}") from err
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 def write_point_cloud(
@@ -82,17 +82,12 @@ def write_point_cloud(
         pc.colors = o3d.utility.Vector3dVector(np.asarray(colors_rgb, np.float64) / 255.0)
     if normals is not None:
         pc.normals = o3d.utility.Vector3dVector(np.asarray(normals, np.float64))
-    tmp = _tmp_path(p)
     try:
-        p.parent.mkdir(parents=True, exist_ok=True)
-        if not o3d.io.write_point_cloud(tmp, pc, write_ascii=False, compressed=False):
-            raise ReconError(f"cannot write point cloud {p} (format {p.suffix!r})")
-        os.replace(tmp, p)
+        with atomic_path(p) as tmp:
+            if not o3d.io.write_point_cloud(tmp, pc, write_ascii=False, compressed=False):
+                raise ReconError(f"cannot write point cloud {p} (format {p.suffix!r})")
     except OSError as err:
         raise ReconError(f"cannot write point cloud {p}: {err}") from err
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 def read_mesh(path: str | os.PathLike[str]) -> Mesh:

@@ -21,7 +21,6 @@ from __future__ import annotations
 import io
 import json
 import logging
-import os
 import struct
 import zlib
 from pathlib import Path
@@ -30,7 +29,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sea3d.errors import ReconError, SessionError
+from sea3d.errors import CacheEntryError, ReconError, SessionError
+from sea3d.io._atomic import atomic_write
 from sea3d.recon.types import Submap, VoxelBlocks
 
 __all__ = ["CacheEntryError", "DiskSubmapStore", "FrameCache", "read_entry", "write_entry"]
@@ -40,10 +40,6 @@ log = logging.getLogger(__name__)
 _MAGIC = b"SEA3DC1\n"
 _HEAD = struct.Struct("<QI")
 _SUFFIX = ".s3c"
-
-
-class CacheEntryError(SessionError):
-    """A cache entry is damaged (truncated, wrong checksum, unreadable arrays)."""
 
 
 def write_entry(path: Path, arrays: dict[str, NDArray[Any]], meta: dict[str, Any]) -> int:
@@ -59,17 +55,11 @@ def write_entry(path: Path, arrays: dict[str, NDArray[Any]], meta: dict[str, Any
     np.savez(buf, **members)
     payload = imagecodecs.zstd_encode(buf.getvalue(), level=3)
     data = _MAGIC + _HEAD.pack(len(payload), zlib.crc32(payload) & 0xFFFFFFFF) + payload
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with open(tmp, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
+        # no fsync per frame: a torn entry fails its CRC-32 and the frame is computed again
+        atomic_write(path, data, fsync=False)
     except OSError as err:
         raise SessionError(f"cannot write cache entry {path}: {err}") from err
-    finally:
-        if tmp.exists():
-            tmp.unlink()
     return len(data)
 
 
@@ -134,9 +124,7 @@ class FrameCache:
                 except json.JSONDecodeError:
                     return False
             self.root.mkdir(parents=True, exist_ok=True)
-            tmp = cfg.with_name(".config.json.tmp")
-            tmp.write_text(text + "\n")
-            os.replace(tmp, cfg)
+            atomic_write(cfg, text + "\n")
         except OSError as err:
             raise SessionError(f"cannot use the cache folder {self.root}: {err}") from err
         return True

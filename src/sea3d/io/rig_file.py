@@ -55,7 +55,6 @@ import logging
 import math
 import os
 import reprlib
-import secrets
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -543,6 +542,7 @@ def safe_yaml(text: str, source: str) -> Any:
         root = yaml.compose(text, Loader=yaml.SafeLoader)
         if root is not None:
             _count_yaml_nodes(root, source)
+            _refuse_duplicate_keys(root, source)
         return yaml.safe_load(text)
     except yaml.YAMLError as err:
         message = " ".join(str(err).split())  # one line
@@ -551,6 +551,32 @@ def safe_yaml(text: str, source: str) -> Any:
         raise RigFileError(f"{source}: not valid YAML: {message}") from err
     except RecursionError as err:
         raise RigFileError(f"{source}: YAML nested too deeply for a rig file") from err
+
+
+def _refuse_duplicate_keys(root: yaml.Node, source: str) -> None:
+    """Raise on a key given twice in one mapping (YAML loaders keep the last one silently, so
+    a pasted block would override a calibrated value without a word)."""
+    seen_nodes: set[int] = set()
+    stack = [root]
+    while stack:
+        node = stack.pop()
+        if id(node) in seen_nodes:
+            continue
+        seen_nodes.add(id(node))
+        if isinstance(node, yaml.MappingNode):
+            first: dict[str, int] = {}
+            for key, value in node.value:
+                if isinstance(key, yaml.ScalarNode) and key.value != "<<":
+                    line = key.start_mark.line + 1
+                    if key.value in first:
+                        raise RigFileError(
+                            f"{source}: key '{key.value}' is given twice (lines "
+                            f"{first[key.value]} and {line}); remove one"
+                        )
+                    first[key.value] = line
+                stack.append(value)
+        elif isinstance(node, yaml.SequenceNode):
+            stack.extend(node.value)
 
 
 def _count_yaml_nodes(root: yaml.Node, source: str) -> None:
@@ -612,6 +638,14 @@ def _check_intrinsics(pin: PinholeCamera, name: str, source: str) -> None:
                 f"100 image widths ({0.01 * w:g}..{100.0 * w:g} px)"
             )
     if pin.has_distortion:
+        kept = distortion_coverage(pin)
+        if kept < MIN_COVERAGE_FRACTION:
+            raise RigFileError(
+                f"{source}: key '{name}.distortion': undistorted at its own focal length, the "
+                f"image keeps only {kept:.1%} of its pixels (the coefficients "
+                f"{[float(f'{v:.4g}') for v in pin.dist]} squeeze or spread the picture "
+                "beyond any lens); check the coefficients"
+            )
         bad = distortion_fold(pin)
         if bad is None:
             return
@@ -667,6 +701,32 @@ def distortion_fold(pin: PinholeCamera, n_rays: int = 72) -> tuple[float, float,
             worst = (float(u[i, k]), float(v[i, k]), fraction)
     return worst
 
+
+def distortion_coverage(pin: PinholeCamera, n: int = 64) -> float:
+    """Fraction of the image's own pixel grid that, undistorted at the camera's focal length
+    and principal point (the rectified view of this camera), still comes from inside the
+    image: ``(u - cx) / fx`` of an ``n x n`` grid is distorted back to pixels and counted.
+
+    A lens keeps most of its picture (barrel distortion all of it, mild pincushion 80-100 %);
+    coefficients such as ``k1 = 1e10`` are monotonic, so they never fold, yet squeeze the
+    whole image into a few pixels around the principal point: nearly nothing is kept.
+    """
+    u = (np.arange(n) + 0.5) * pin.width / n
+    v = (np.arange(n) + 0.5) * pin.height / n
+    uu, vv = np.meshgrid(u, v)
+    xy = np.stack([(uu.ravel() - pin.cx) / pin.fx, (vv.ravel() - pin.cy) / pin.fy], axis=1)
+    with np.errstate(all="ignore"):
+        xy_d = pin.distort(xy)
+    ud = pin.fx * xy_d[:, 0] + pin.cx
+    vd = pin.fy * xy_d[:, 1] + pin.cy
+    inside = np.isfinite(ud) & np.isfinite(vd)
+    inside &= (ud >= 0) & (ud <= pin.width) & (vd >= 0) & (vd <= pin.height)
+    return float(np.count_nonzero(inside)) / inside.size
+
+
+# Undistorted at its own focal length, a camera must keep at least this fraction of its
+# image: under it, most of the rectified view is empty and depth has nothing to match.
+MIN_COVERAGE_FRACTION = 0.5
 
 # A fold closer to the principal point than this fraction of the way to the border is a
 # broken model; beyond it (real calibrations whose board never reached the corners, such as
@@ -968,19 +1028,9 @@ def load_rig(
 
 
 def _atomic_write(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    # Created with mode 0666 less the umask, like any file the user writes (mkstemp's files
-    # are readable by their owner only); O_EXCL keeps the name from being raced.
-    tmp = path.parent / f".{path.name}.{secrets.token_hex(6)}.tmp"
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    from sea3d.io._atomic import atomic_write
+
+    atomic_write(path, text)
 
 
 _EXTENSION_FORMATS = {".yaml": "sea3d", ".yml": "sea3d", ".json": "json", ".txt": "colmap"}

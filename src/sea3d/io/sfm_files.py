@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from sea3d.errors import SfmError
+from sea3d.io._atomic import atomic_write
 
 __all__ = ["read_colmap_model", "write_colmap_model", "write_summary"]
 
@@ -59,9 +60,7 @@ def write_summary(path: str | os.PathLike[str], summary: dict[str, Any]) -> None
         SfmError: the file cannot be written.
     """
     p = Path(path)
-    tmp = p.with_name(p.name + ".tmp")
     try:
-        tmp.write_text(json.dumps(summary, indent=2, allow_nan=True) + "\n")
-        os.replace(tmp, p)
+        atomic_write(p, json.dumps(summary, indent=2, allow_nan=True) + "\n")
     except OSError as err:
         raise SfmError(f"cannot write {p}: {err}") from err

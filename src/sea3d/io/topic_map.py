@@ -429,7 +429,7 @@ class MappedBag:
 def _pairs_by_stamp(
     a: list[tuple[int, Any]], b: list[tuple[int, Any]], tol_ns: int
 ) -> list[tuple[tuple[int, Any], tuple[int, Any]]]:
-    from sea3d.io.session_common import match_stamps
+    from sea3d.io.session.common import match_stamps
 
     ta = np.array([t for t, _ in a], dtype=np.int64)
     tb = np.array([t for t, _ in b], dtype=np.int64)

@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from sea3d.errors import GeometryError, OdometryError
 from sea3d.geometry.se3 import R_to_quat_wxyz, quat_wxyz_to_R
+from sea3d.io._atomic import atomic_write
 
 __all__ = [
     "TRAJECTORY_FORMATS",
@@ -253,10 +254,7 @@ def write_tum(
             f"{format_tum_stamp(t)} {x:.9f} {y:.9f} {z:.9f} "
             f"{qi[1]:.12f} {qi[2]:.12f} {qi[3]:.12f} {qi[0]:.12f}"
         )
-    tmp = p.with_name(p.name + ".tmp")
     try:
-        p.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_text("\n".join(lines) + "\n")
-        os.replace(tmp, p)
+        atomic_write(p, "\n".join(lines) + "\n")
     except OSError as err:
         raise OdometryError(f"cannot write trajectory {p}: {err}") from err

@@ -122,6 +122,13 @@ def align_depth(
         idx = rng.choice(idx, max_samples, replace=False)
     n = len(idx)
     nan_map = np.full(pred.shape, np.nan, np.float32)
+    finite_pred = int(np.count_nonzero(np.isfinite(pred)))
+    if n < min_samples and finite_pred == 0:
+        return nan_map, Alignment(status="failed", message=f"the network produced no finite "
+                                  f"depth: all {pred.size} values of its output are NaN or "
+                                  "infinite (a broken model or input?)", kind=kind,
+                                  scale=float("nan"), shift=float("nan"), samples=0, inliers=0,
+                                  median_rel_error=float("nan"))
     if n < min_samples:
         return nan_map, Alignment(status="failed", message=f"only {n} sparse depth samples "
                                   f"(at least {min_samples} are needed)", kind=kind,

@@ -8,7 +8,8 @@ time order, whatever order they finish in.
 - :class:`InlineExecutor` (``workers=0``): runs each call at once in the caller (debugging,
   tests, and machines where processes do not pay).
 - :class:`ProcessExecutor` (``--workers N``, the default): a ``concurrent.futures`` process
-  pool started with ``spawn`` (no forked copies of OpenCV/numba/Open3D thread pools).
+  pool started with ``spawn`` (no forked copies of OpenCV/numba/Open3D thread pools). Its
+  workers die with the parent, even when the parent is killed with SIGKILL.
 - :class:`DaskExecutor` (``--scheduler tcp://HOST:PORT``, or a ``distributed.Client``):
   arrays are scattered straight to a worker, then the call is submitted next to them.
 """
@@ -18,6 +19,8 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
+import threading
+import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor
 from concurrent.futures import wait as cf_wait
@@ -78,9 +81,31 @@ class InlineExecutor:
         return None
 
 
-def _init_worker(threads: int, setup: tuple[Callable[..., Any], tuple[Any, ...]] | None) -> None:
-    """Worker initialiser: keep each worker's library thread pools to its share of cores, then
-    run the caller's set-up (e.g. install the rectification maps)."""
+PARENT_POLL_S = 0.5
+
+
+def _die_with_parent(parent_pid: int) -> None:
+    """Exit this worker as soon as ``parent_pid`` is no longer its parent (it died, even by
+    SIGKILL, and the worker was handed to init): a thread polls ``os.getppid``. Once every
+    worker is gone, multiprocessing's resource tracker sees its pipe close and ends too."""
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(PARENT_POLL_S)
+        os._exit(1)  # no clean-up: the parent that would want results is gone
+
+    threading.Thread(target=watch, name="sea3d-parent-watch", daemon=True).start()
+
+
+def _init_worker(
+    threads: int,
+    setup: tuple[Callable[..., Any], tuple[Any, ...]] | None,
+    parent_pid: int | None = None,
+) -> None:
+    """Worker initialiser: die with the parent, keep each worker's library thread pools to its
+    share of cores, then run the caller's set-up (e.g. install the rectification maps)."""
+    if parent_pid is not None:
+        _die_with_parent(parent_pid)
     for var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
                 "MKL_NUM_THREADS"):
         os.environ.setdefault(var, str(threads))
@@ -109,7 +134,7 @@ class ProcessExecutor:
             max_workers=workers,
             mp_context=multiprocessing.get_context("spawn"),
             initializer=_init_worker,
-            initargs=(threads, setup),
+            initargs=(threads, setup, os.getpid()),
         )
 
     def submit(self, fn: Callable[..., Any], *args: Any) -> Future[Any]:

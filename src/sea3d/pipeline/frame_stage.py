@@ -82,6 +82,8 @@ class FrameStageConfig:
             raise ConfigError(f"--size must be at least 32x24, got {self.size_px}")
         if isinstance(self.enhance, str) and ":" not in self.enhance:
             raise ConfigError(f"enhance must be 'package.module:function', got {self.enhance!r}")
+        if isinstance(self.enhance, str):
+            _resolve_hook(self.enhance)  # a name that cannot be found: a config error, now
         if self.restore_colours not in ("none", "seathru"):
             raise ConfigError(f"restore_colours must be none or seathru, got "
                               f"{self.restore_colours!r}")
@@ -225,7 +227,7 @@ def _resolve_hook(name: str) -> EnhanceHook:
     module, _, attr = name.partition(":")
     try:
         fn = getattr(importlib.import_module(module), attr)
-    except (ImportError, AttributeError) as err:
+    except (ImportError, AttributeError, ValueError) as err:
         raise ConfigError(f"cannot find the enhancement {name!r}: {err}") from err
     if not callable(fn):
         raise ConfigError(f"enhancement {name!r} is not callable")

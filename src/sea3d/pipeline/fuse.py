@@ -18,8 +18,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.errors import ReconError
+from sea3d.geometry.mesh import Mesh
 from sea3d.recon.tsdf import TsdfConfig, TsdfVolume
-from sea3d.recon.types import Mesh
 
 __all__ = ["FuseResult", "fuse_rgbd", "match_frames_to_poses"]
 

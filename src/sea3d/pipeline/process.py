@@ -40,6 +40,7 @@ from numpy.typing import NDArray
 
 from sea3d._typing import F64
 from sea3d.errors import ConfigError, Sea3dError, SessionError
+from sea3d.io._atomic import atomic_open, atomic_write
 from sea3d.odometry.types import (
     FrameObservation,
     ImuChunk,
@@ -54,6 +55,7 @@ from sea3d.pipeline.frame_stage import (
     process_frame,
     stage_depth,
 )
+from sea3d.pipeline.lock import locks_out_dir
 from sea3d.stereo.recipe import DepthConfig
 
 __all__ = [
@@ -317,6 +319,7 @@ def _cached_result(cache: Any, t_ns: int) -> FrameResult | None:
 # ------------------------------------------------------------------------------------ runner
 
 
+@locks_out_dir  # two runs into one folder: the second is refused (OutputInUseError)
 def run_process(
     session_path: str | os.PathLike[str],
     config: ProcessConfig,
@@ -692,9 +695,7 @@ def run_process(
 
 
 def _write_json(path: Path, data: dict[str, Any]) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=_json_default) + "\n")
-    os.replace(tmp, path)
+    atomic_write(path, json.dumps(data, indent=2, default=_json_default) + "\n")
 
 
 def _json_default(o: Any) -> Any:
@@ -709,8 +710,7 @@ def _json_default(o: Any) -> Any:
 
 def _write_status_csv(path: Path, estimates: list[OdometryEstimate], fuse: list[str],
                       frame: list[str], valid: list[float]) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "w", newline="") as fh:
+    with atomic_open(path, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["t_ns", "status", "segment", "keyframe_id", "anchor_keyframe_id",
                     "loop_closure", "tracked_features", "depth", "valid_depth_fraction",
@@ -720,7 +720,6 @@ def _write_status_csv(path: Path, estimates: list[OdometryEstimate], fuse: list[
                         "" if e.keyframe_id is None else e.keyframe_id,
                         "" if e.anchor_keyframe_id is None else e.anchor_keyframe_id,
                         int(e.loop_closure), e.tracked_features, st, f"{vf:.4f}", fs])
-    os.replace(tmp, path)
 
 
 def _pose_alignment(t_est: NDArray[np.int64], T_est: F64, t_ref: NDArray[np.int64],

@@ -1,1 +1,5 @@
-"""sea3d.recon."""
+"""sea3d.recon: point clouds, TSDF fusion, submaps and meshes."""
+
+from sea3d.geometry.mesh import Mesh
+
+__all__ = ["Mesh"]

@@ -9,8 +9,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.errors import ReconError
+from sea3d.geometry.mesh import Mesh
 from sea3d.geometry.se3 import invert_T, look_at, transform_points
-from sea3d.recon.types import Mesh
 
 __all__ = ["render_mesh", "render_points", "view_from_above"]
 

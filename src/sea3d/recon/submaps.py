@@ -34,9 +34,10 @@ from numpy.typing import NDArray
 
 from sea3d._typing import F64
 from sea3d.errors import ReconError
+from sea3d.geometry.mesh import Mesh
 from sea3d.geometry.se3 import invert_T
 from sea3d.recon.tsdf import TsdfConfig, TsdfVolume
-from sea3d.recon.types import Mesh, Submap, VoxelBlocks
+from sea3d.recon.types import Submap, VoxelBlocks
 
 __all__ = [
     "FuseStatus",

@@ -31,7 +31,8 @@ from numpy.typing import NDArray
 
 from sea3d._typing import F64
 from sea3d.errors import ReconError
-from sea3d.recon.types import Mesh, VoxelBlocks
+from sea3d.geometry.mesh import Mesh
+from sea3d.recon.types import VoxelBlocks
 
 __all__ = ["TsdfConfig", "TsdfVolume"]
 

@@ -1,4 +1,5 @@
-"""Data types of the reconstruction stage: meshes, voxel blocks and submaps.
+"""Data types of the reconstruction stage: voxel blocks and submaps (and :class:`Mesh`,
+which lives in :mod:`sea3d.geometry.mesh` and is re-exported here).
 
 Frames: a submap's voxels live in its own ``grid`` frame; ``T_anchor_grid`` fixes the grid to
 the submap's anchor keyframe (a raw left camera pose), so that the submap's place in the world
@@ -15,67 +16,9 @@ from numpy.typing import NDArray
 
 from sea3d._typing import F32, F64
 from sea3d.errors import ReconError
+from sea3d.geometry.mesh import Mesh  # moved down to geometry (io reads and writes meshes)
 
 __all__ = ["Mesh", "Submap", "VoxelBlocks"]
-
-
-@dataclass(frozen=True, kw_only=True, eq=False)
-class Mesh:
-    """A triangle mesh.
-
-    Attributes:
-        vertices: (V, 3) float64 metres.
-        triangles: (T, 3) int64 vertex indices, counter-clockwise seen from outside.
-        colors_rgb: (V, 3) uint8 vertex colours, or None.
-        normals: (V, 3) float64 unit vertex normals, or None.
-    """
-
-    vertices: F64
-    triangles: NDArray[np.int64]
-    colors_rgb: NDArray[np.uint8] | None = None
-    normals: F64 | None = None
-
-    def __post_init__(self) -> None:
-        v, f = self.vertices, self.triangles
-        if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
-            raise ReconError(f"a mesh needs vertices (V, 3) and triangles (T, 3), got {v.shape} "
-                             f"and {f.shape}")
-        for name, a in (("colors_rgb", self.colors_rgb), ("normals", self.normals)):
-            if a is not None and a.shape != v.shape:
-                raise ReconError(f"mesh {name} {a.shape} do not match vertices {v.shape}")
-
-    @property
-    def empty(self) -> bool:
-        """True when the mesh has no triangles."""
-        return len(self.triangles) == 0
-
-    def transformed(self, T_b_a: F64) -> Mesh:
-        """The mesh moved from frame a to frame b (normals rotated)."""
-        R, t = T_b_a[:3, :3], T_b_a[:3, 3]
-        return Mesh(vertices=self.vertices @ R.T + t, triangles=self.triangles,
-                    colors_rgb=self.colors_rgb,
-                    normals=None if self.normals is None else self.normals @ R.T)
-
-    @staticmethod
-    def concatenate(meshes: list[Mesh]) -> Mesh:
-        """One mesh holding all of ``meshes`` (colours and normals kept if all have them)."""
-        meshes = [m for m in meshes if len(m.vertices)]
-        if not meshes:
-            return Mesh(vertices=np.zeros((0, 3)), triangles=np.zeros((0, 3), np.int64))
-        offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
-        cols = None
-        if all(m.colors_rgb is not None for m in meshes):
-            cols = np.concatenate([m.colors_rgb for m in meshes if m.colors_rgb is not None])
-        nrm = None
-        if all(m.normals is not None for m in meshes):
-            nrm = np.concatenate([m.normals for m in meshes if m.normals is not None])
-        return Mesh(
-            vertices=np.concatenate([m.vertices for m in meshes]),
-            triangles=np.concatenate([m.triangles + o for m, o in zip(meshes, offsets,
-                                                                        strict=True)]),
-            colors_rgb=cols,
-            normals=nrm,
-        )
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)

@@ -491,6 +491,41 @@ def _failed(frames: Sequence[SfmFrame], n_img: int, message: str, timings: dict[
     )
 
 
+# The horizontal field of view of a physical lens on a camera COLMAP can model: a long
+# telephoto narrows to about 10 degrees, a fisheye (as a pinhole with distortion) widens to
+# about 170. A self-calibrated focal length outside is a degenerate model, not a camera.
+FOV_RANGE_DEG = (10.0, 170.0)
+
+
+def implausible_camera(cameras: dict[str, dict[str, Any]]) -> str | None:
+    """Why a self-calibrated camera cannot be a real one, or None.
+
+    Args:
+        cameras: :attr:`SfmResult.cameras` (model, params, width, height, fixed per sensor).
+
+    Returns:
+        A one-line reason when a focal length (not fixed by a rig) gives a horizontal field of
+        view outside :data:`FOV_RANGE_DEG`, i.e. outside ``width / (2 tan(fov / 2))``.
+    """
+    lo, hi = FOV_RANGE_DEG
+    for name, cam in cameras.items():
+        if cam.get("fixed") or not cam.get("params"):
+            continue
+        width = float(cam["width"])
+        f = float(cam["params"][0])  # f (SIMPLE_*, RADIAL) or fx (PINHOLE, OPENCV...)
+        fov = float(np.degrees(2.0 * np.arctan2(width, 2.0 * f))) if f > 0 else 180.0
+        if not lo <= fov <= hi:
+            f_lo = width / (2.0 * np.tan(np.radians(hi) / 2.0))
+            f_hi = width / (2.0 * np.tan(np.radians(lo) / 2.0))
+            return (
+                f"the self-calibrated {name} camera is implausible: a focal length of {f:,.0f} "
+                f"px on a {width:.0f}-px-wide image is a {fov:.1f} deg field of view, outside "
+                f"the {lo:g}-{hi:g} deg of a physical lens ({f_lo:,.0f}..{f_hi:,.0f} px); "
+                "give a calibrated rig, or more frames with more parallax"
+            )
+    return None
+
+
 def _camera_info(sensors: list[_Sensor], rec: Any) -> dict[str, dict[str, Any]]:
     out: dict[str, dict[str, Any]] = {}
     for s in sensors:
@@ -531,6 +566,9 @@ def _result(rec: Any, frames: Sequence[SfmFrame], sensors: list[_Sensor],
     status = "ok" if n_reg == len(frames) else "partial"
     message = (f"{n_reg}/{len(frames)} frames registered, {len(pts)} points, mean reprojection "
                f"error {rec.compute_mean_reprojection_error():.3f} px")
+    implausible = implausible_camera(_camera_info(sensors, rec))
+    if implausible is not None:
+        status, message = "failed", f"{implausible}; {message}"
     if n_models > 1:
         message += f" ({n_models} separate models; the largest is kept)"
     return SfmResult(
