@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from _rigs import real_sea3d_rig
 from sea3d.errors import ConfigError, ReconError
 from sea3d.geometry.mesh import Mesh
 from sea3d.io.mesh_files import write_mesh
@@ -24,7 +25,7 @@ def test_an_empty_mesh_is_named_empty_not_a_refused_format(tmp_path):
 @pytest.mark.parametrize("name", ["nosuch.module:fn", "sea3d.enhance:no_such_function"])
 def test_an_enhancement_that_cannot_be_found_is_a_config_error_before_any_frame(name):
     with pytest.raises(ConfigError, match=rf"cannot find the enhancement '{name}'"):
-        FrameStageConfig(rig_yaml="", enhance=name)
+        FrameStageConfig(rig=real_sea3d_rig(), enhance=name)
 
 
 def test_the_cli_says_the_enhancement_cannot_be_found(sim_session, tmp_path, capsys):
