@@ -46,7 +46,7 @@ def dask_processes(tmp_path):
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
-    log = open(tmp_path / "dask.log", "wb")  # noqa: SIM115 - closed in finally
+    log = open(tmp_path / "dask.log", "wb")
     procs: list[subprocess.Popen[bytes]] = []
     try:
         procs.append(subprocess.Popen(

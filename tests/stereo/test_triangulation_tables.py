@@ -72,8 +72,8 @@ def test_disparity_to_points_uses_tables_built_once(rng):
     t = ray_tables(maps)
     assert t.shape == (maps.height, maps.width) and t.nbytes == 4 * 3 * 4 * 320 * 180
     d = _disparity(maps, rng)
-    p1, z1, m1 = disparity_to_points(maps, d)
-    p2, z2, m2 = triangulate_with_tables(t, d)
+    _p1, z1, m1 = disparity_to_points(maps, d)
+    _p2, z2, m2 = triangulate_with_tables(t, d)
     np.testing.assert_array_equal(m1, m2)
     np.testing.assert_array_equal(z1, z2)
 
