@@ -120,9 +120,9 @@ def _triangulate_kernel(disp: F32, lo: F32, ld: F32, ro: F32, rd: F32, rz: F64,
                 continue
             ur = np.float64(u) - np.float64(d)
             if ur < 0.0:
-                ur = 0.0
+                ur = np.float64(0.0)
             elif ur > w - 1:
-                ur = float(w - 1)
+                ur = np.float64(w - 1)
             u0 = int(np.floor(ur))
             u1 = min(u0 + 1, w - 1)
             al = ur - u0
