@@ -197,6 +197,8 @@ def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
             cluster.close()
     wall = time.perf_counter() - t0
     s = res.summary
+    first_pose = _first_pose_mesh_mm(session, res.t_ns, res.T_world_left, res.mesh.vertices,
+                                     res.mesh.triangles)
     mv, tv = s.get("mesh_vs_gt", {}), s.get("trajectory_vs_gt", {})
     return {
         "kind": kind,
@@ -218,6 +220,7 @@ def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
         "fusion_s": s["timings_s"].get("fusion_s", 0.0),
         "mesh_accuracy_mm": [1000 * mv["accuracy_m"]["median"], 1000 * mv["accuracy_m"]["p90"]]
         if "accuracy_m" in mv else None,
+        "mesh_first_pose_mm": first_pose,
         "mesh_completeness_mm": [1000 * mv["completeness_m"]["median"],
                                  1000 * mv["completeness_m"]["p90"]]
         if "completeness_m" in mv else None,
@@ -249,7 +252,8 @@ def main() -> None:
     print(f"lake, {args.frames} frames at {args.size}, coastal water, dome ports; each run in a "
           "fresh process, per-frame results recomputed")
     print(f"{'run':10} {'fps':>6} {'loop s':>7} {'wall s':>7} {'CPU s':>7} {'client MB':>10} "
-          f"{'worker MB':>10} {'mesh acc mm (med/p90)':>22} {'compl mm':>12} {'ATE mm':>7}")
+          f"{'worker MB':>10} {'mesh acc mm (med/p90)':>22} {'compl mm':>12} {'ATE mm':>7} "
+          f"{'CPU s/fr':>8} {'mesh 1st mm':>14}")
     results = []
     for kind in args.runs.split(","):
         policies = ["trusted", "keyframes"] if args.integrate == "both" else [args.integrate]
@@ -274,7 +278,9 @@ def main() -> None:
                   f"{cpu:7.1f} "
                   f"{r['peak_rss_client_mb']:10.0f} {r['peak_rss_worker_mb']:10.0f} "
                   f"{acc[0]:10.1f} / {acc[1]:7.1f} {comp[0]:5.1f} / {comp[1]:4.1f} "
-                  f"{r['ate_rmse_mm'] if r['ate_rmse_mm'] is not None else float('nan'):7.2f}")
+                  f"{r['ate_rmse_mm'] if r['ate_rmse_mm'] is not None else float('nan'):7.2f} "
+                  f"{cpu / r['frames']:8.3f} "
+                  f"{r['mesh_first_pose_mm'][0]:6.1f} / {r['mesh_first_pose_mm'][1]:5.1f}")
     if results:
         r = results[0]
         print(f"poses: {r['odometry']}; path {r['path_length_m']:.2f} m; after the frame loop "
@@ -288,6 +294,14 @@ def main() -> None:
                 print(f"  {x['kind']} integrate={x['integrate']}: {x['frames_fused']} frames "
                       f"fused in {x['fusion_s']:.1f} s, active submap peak "
                       f"{x['active_submap_peak_mb']:.0f} MB")
+    paper = [x for x in results if x["kind"] == "paper"]
+    ours = [x for x in results if x["kind"] != "paper"]
+    if paper and ours:
+        p, o = paper[0], ours[0]
+        p_cpu = (p["cpu_client_s"] + p["cpu_workers_s"]) / p["frames"]
+        o_cpu = (o["cpu_client_s"] + o["cpu_workers_s"]) / o["frames"]
+        print(f"ratio sea3d ({o['kind']}) / paper's chain: frames/s {o['fps'] / p['fps']:.2f}, "
+              f"CPU-s per frame {o_cpu / p_cpu:.2f} (paper {p_cpu:.3f}, sea3d {o_cpu:.3f})")
     (base / "last_results.json").write_text(json.dumps(results, indent=1))
 
 
