@@ -33,7 +33,7 @@ from sea3d.recon.depth_resample import ResampleMethod, virtual_pinhole_depth
 from sea3d.stereo.recipe import DepthConfig, StereoDepth
 
 __all__ = ["FrameResult", "FrameStageConfig", "install_stereo", "process_frame",
-           "stage_stereo"]
+           "rectify_pair", "stage_stereo"]
 
 log = logging.getLogger(__name__)
 
@@ -258,6 +258,20 @@ def _to_u8(img: NDArray[Any]) -> NDArray[np.uint8]:
         return (img >> 8).astype(np.uint8)
     top = float(np.nanmax(img)) or 1.0
     return np.clip(img * (255.0 / top), 0, 255).astype(np.uint8)
+
+
+def rectify_pair(stereo: StereoDepth, left: NDArray[Any], right: NDArray[Any]
+                 ) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
+    """The rectified uint8 ``(left, right)`` of a raw pair at the rig's size, without depth
+    (what the odometry needs of a frame whose depth is skipped)."""
+    from sea3d.rectify import rectify_images
+
+    size = (stereo.maps.width, stereo.maps.height)
+    if left.shape[:2] != size[::-1]:
+        left = cv2.resize(left, size, interpolation=cv2.INTER_AREA)
+        right = cv2.resize(right, size, interpolation=cv2.INTER_AREA)
+    rl, rr = rectify_images(stereo.maps, _to_u8(left), _to_u8(right))
+    return np.ascontiguousarray(rl, np.uint8), np.ascontiguousarray(rr, np.uint8)
 
 
 def process_frame(config: FrameStageConfig, t_ns: int, left: NDArray[Any],

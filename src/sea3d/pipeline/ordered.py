@@ -65,8 +65,11 @@ class OrderedStages:
         self.failed = 0
         self.loop_closures = 0
 
-    def step(self, res: FrameResult, imu: ImuChunk | None) -> OdometryEstimate | None:
-        """One frame: odometry (every frame with images), then fusion (trusted poses).
+    def step(self, res: FrameResult, imu: ImuChunk | None, *, fuse: bool = True
+             ) -> OdometryEstimate | None:
+        """One frame: odometry (every frame with images), then fusion (trusted poses; not
+        when ``fuse`` is False: live, a frame whose depth was dropped to keep up, whose
+        ``depth_m`` is only the odometry's seed, is recorded as ``no-depth``).
 
         Returns:
             The odometry's estimate, or None for a frame whose per-frame stage failed (no
@@ -94,6 +97,9 @@ class OrderedStages:
         if est.keyframe_id is not None:
             self.kf_rect[est.keyframe_id] = np.asarray(est.T_world_left) @ self.T_left_rect
         self.timer.add("odometry_s", time.perf_counter() - to)
+        if not fuse:
+            self.fuse_status.append("no-depth")
+            return est
         tf = time.perf_counter()
         if res.colour_status:
             self.colour_status[res.colour_status] = (
