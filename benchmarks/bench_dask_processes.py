@@ -42,10 +42,12 @@ def _cpu_s(pid: int) -> float:
 
 def _tree(pid: int) -> list[int]:
     """A process and all its descendants (the worker command, its nannies, their workers)."""
-    try:
-        kids = [int(p) for p in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
-    except OSError:
-        kids = []
+    kids: list[int] = []
+    for task in Path(f"/proc/{pid}/task").glob("*"):  # children of every thread
+        try:
+            kids += [int(p) for p in (task / "children").read_text().split()]
+        except OSError:
+            continue
     return [pid] + [q for k in kids for q in _tree(k)]
 
 
