@@ -82,3 +82,12 @@ def test_tables_refuse_a_disparity_of_another_size():
     maps = rectify_rig(real_sea3d_rig("dome", SIZE), depth_range_m=(0.5, 4.0))
     with pytest.raises(StereoError, match="does not match the ray tables 180x320"):
         triangulate_with_tables(ray_tables(maps), np.zeros((10, 10), np.float32))
+
+
+def test_stereo_depth_holds_the_tables_of_its_maps():
+    from sea3d.stereo.recipe import DepthConfig, StereoDepth
+
+    dome = StereoDepth(real_sea3d_rig("dome", SIZE), DepthConfig(min_depth_m=0.5,
+                                                                  max_depth_m=4.0))
+    assert dome.tables is ray_tables(dome.maps) and dome.tables.shape == (180, 320)
+    assert StereoDepth(real_sea3d_rig("none", SIZE)).tables is None
