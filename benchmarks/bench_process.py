@@ -171,8 +171,9 @@ def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
         return paper_run(session, None)
     use_gt = odometry == "gt"
     poses = session / "gt" / "poses_left.tum" if use_gt else None
+    # The depth range of the paper's chain below, so both fuse the same slab of the scene.
     kw: dict = {"out_dir": out, "poses_path": poses, "fresh": fresh, "integrate": integrate,
-                "report": False}
+                "report": False, "min_depth_m": 0.5, "max_depth_m": 4.0}
     cluster = client = None
     if kind == "inline":
         kw["workers"] = 0

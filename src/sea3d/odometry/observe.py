@@ -1,15 +1,15 @@
 """Frame observations from raw stereo pairs, one at a time (the sequential path).
 
-``sea3d odometry SESSION`` uses :class:`Observer` to rectify each pair, compute its
-refraction-corrected depth with :func:`sea3d.stereo.depth.compute_depth` and hand both to the
-odometry; ``sea3d process`` computes depth in parallel workers instead and builds the same
-:class:`~sea3d.odometry.types.FrameObservation`. :func:`imu_chunks` slices a session's IMU
+``sea3d odometry SESSION`` uses :class:`Observer` to compute each pair's refraction-corrected
+depth with one :class:`~sea3d.stereo.recipe.StereoDepth` and hand it, with the rectified pair,
+to the odometry; ``sea3d process`` computes depth in parallel workers instead and builds the
+same :class:`~sea3d.odometry.types.FrameObservation`. :func:`imu_chunks` slices a session's IMU
 series into the samples between consecutive frames.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -17,34 +17,14 @@ from numpy.typing import NDArray
 from sea3d.errors import ConfigError
 from sea3d.odometry.types import FrameObservation, ImuChunk
 from sea3d.rectify.maps import RectifyMaps, rectify_images
-from sea3d.stereo.depth import compute_depth, max_disparity_for_depth
-from sea3d.stereo.engine import EngineConfig, make_config
+from sea3d.stereo.engine import EngineConfig
+from sea3d.stereo.recipe import DepthConfig, StereoDepth
 
 __all__ = ["ObserveConfig", "Observer", "imu_chunks"]
 
-
-@dataclass(frozen=True, kw_only=True)
-class ObserveConfig:
-    """How depth is computed for the odometry.
-
-    Attributes:
-        engine: stereo engine (``sea3d``, ``sea3d-gpu``, ``opencv``, ...; see
-            :func:`sea3d.stereo.make_config`).
-        min_depth_m: nearest depth searched (sets the disparity range), metres.
-        max_depth_m: depths beyond this are dropped, metres (None keeps all).
-    """
-
-    engine: str = "sea3d"
-    min_depth_m: float = 0.5
-    max_depth_m: float | None = 12.0
-
-    def __post_init__(self) -> None:
-        if not self.min_depth_m > 0:
-            raise ConfigError(f"min_depth_m must be > 0, got {self.min_depth_m}")
-        if self.max_depth_m is not None and not self.max_depth_m > self.min_depth_m:
-            raise ConfigError(
-                f"max_depth_m ({self.max_depth_m}) must exceed min_depth_m ({self.min_depth_m})"
-            )
+ObserveConfig = DepthConfig
+"""How depth is computed for the odometry: a :class:`~sea3d.stereo.recipe.DepthConfig`
+(engine, disparity and depth range; None ranges come from the rig)."""
 
 
 @dataclass
@@ -52,20 +32,24 @@ class Observer:
     """Builds :class:`FrameObservation` s of one rig.
 
     Args:
-        maps: the rig's rectification.
-        config: :class:`ObserveConfig`.
+        stereo: the rig's :class:`~sea3d.stereo.recipe.StereoDepth` (its maps are the
+            odometry's rectification).
     """
 
-    maps: RectifyMaps
-    config: ObserveConfig = field(default_factory=ObserveConfig)
-    _engine: EngineConfig | None = None
+    stereo: StereoDepth
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.stereo, StereoDepth):
+            raise ConfigError(f"Observer needs a StereoDepth, got {type(self.stereo).__name__}")
+
+    @property
+    def maps(self) -> RectifyMaps:
+        """The rig's rectification."""
+        return self.stereo.maps
 
     def engine(self) -> EngineConfig:
         """The stereo engine config in use."""
-        if self._engine is None:
-            max_d = max_disparity_for_depth(self.maps, self.config.min_depth_m)
-            self._engine = make_config(self.config.engine, max_d)
-        return self._engine
+        return self.stereo.engine_config
 
     def observe(
         self,
@@ -81,18 +65,17 @@ class Observer:
         """
         left8 = _to_uint8(left)
         right8 = _to_uint8(right)
-        res = compute_depth(
-            self.maps, left8, right8, self.engine(), max_depth_m=self.config.max_depth_m
-        )
-        _, rect_right = rectify_images(self.maps, left8, right8)
+        res = self.stereo.compute(left8, right8)
+        maps = self.stereo.maps
+        _, rect_right = rectify_images(maps, left8, right8)
         return FrameObservation(
             t_ns=int(t_ns),
             rect_left=np.asarray(res.rect_left, dtype=np.uint8),
             rect_right=np.asarray(rect_right, dtype=np.uint8),
             depth_m=res.depth_m,
-            K_rect=np.asarray(self.maps.P_left[:3, :3], dtype=np.float64),
-            baseline_m=float(self.maps.baseline_m),
-            R_rect_left_left=np.asarray(self.maps.R_rect_left_left, dtype=np.float64),
+            K_rect=np.asarray(maps.P_left[:3, :3], dtype=np.float64),
+            baseline_m=float(maps.baseline_m),
+            R_rect_left_left=np.asarray(maps.R_rect_left_left, dtype=np.float64),
             imu=imu,
         )
 

@@ -52,20 +52,17 @@ class SessionFrames:
     Args:
         session: an open session (:func:`sea3d.io.session.open_session`).
         path: its path (for messages).
-        rig_yaml: the rig's YAML text (``--rig``'s or the session's).
+        rig: the rig at the recorded size (``--rig``'s or the session's).
         max_frames: only the first N pairs.
 
     Raises:
         SessionError: no stereo pairs, or images of another size than the rig.
     """
 
-    def __init__(self, session: Any, path: Path, rig_yaml: str, *,
+    def __init__(self, session: Any, path: Path, rig: Any, *,
                  max_frames: int | None = None) -> None:
-        from sea3d.io.rig_file import rig_from_yaml
-
         self.session = session
         self.path = Path(path)
-        self.rig_yaml = rig_yaml
         self.match = session.match_pairs()
         self.pairs_in_session = len(self.match)
         if self.pairs_in_session == 0:
@@ -77,7 +74,7 @@ class SessionFrames:
                                 left_index=int(self.match.left_index[i]),
                                 right_index=int(self.match.right_index[i]))
                       for i in range(n)]
-        native = rig_from_yaml(rig_yaml, "the rig")
+        native = rig
         first = session.image("left", self.pairs[0].left_index, by="index")
         if first.shape[:2] != (native.height, native.width):
             raise SessionError(

@@ -3,10 +3,11 @@
 :func:`process_frame` is a pure function of a :class:`FrameStageConfig` and one raw stereo
 pair (arrays, not paths), so it runs unchanged in the client, in a local worker process or on
 a Dask worker on another machine, which needs only the sea3d package: the rig travels inside
-the config as its YAML text, the client hands each worker the
-:class:`~sea3d.stereo.recipe.StereoDepth` it built once (:func:`install_stereo`: no worker fits
-the virtual pinholes again), and each process compiles the matcher's kernels once (loaded
-from numba's cache, timed as ``warmup_s`` so that reports can say it is one-off).
+the config (a :class:`~sea3d.geometry.rig.StereoRig` pickles), the client hands each worker the
+:class:`~sea3d.stereo.recipe.StereoDepth` it built once (:func:`install_geometry`: no worker
+fits the virtual pinholes again), and each process
+compiles the matcher's kernels once (loaded from numba's cache, timed as ``warmup_s`` so that
+reports can say it is one-off).
 
 Depth comes out twice: ``depth_m``, exactly triangulated on the rectified grid (what the
 odometry gets), and ``fusion_depth_m``, the same surface re-sampled where the rectified
@@ -17,11 +18,13 @@ view's virtual pinhole sees it (what the pinhole TSDF integrates;
 from __future__ import annotations
 
 import functools
+import hashlib
 import importlib
 import logging
+import pickle
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Literal
 
 import cv2
@@ -29,11 +32,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.errors import ConfigError, Sea3dError
+from sea3d.geometry.rig import StereoRig
 from sea3d.recon.depth_resample import ResampleMethod, virtual_pinhole_depth
 from sea3d.stereo.recipe import DepthConfig, StereoDepth
 
-__all__ = ["FrameResult", "FrameStageConfig", "install_stereo", "process_frame",
-           "rectify_pair", "stage_stereo"]
+__all__ = ["FrameResult", "FrameStageConfig", "install_geometry", "process_frame",
+           "rectify_pair", "stage_depth", "stage_geometry"]
 
 log = logging.getLogger(__name__)
 
@@ -45,19 +49,14 @@ EnhanceHook = Callable[[NDArray[np.uint8]], NDArray[np.uint8]]
 class FrameStageConfig:
     """Everything the per-frame stage needs (shipped to every worker)."""
 
-    rig_yaml: str
-    """The rig file's YAML text (at the session's recorded image size)."""
+    rig: StereoRig
+    """The rig at the session's recorded image size."""
     size_px: tuple[int, int] | None = None
     """Process at ``(width, height)`` (raw images resized, intrinsics scaled); None: as
     recorded."""
-    engine: str = "sea3d"
-    """Matching engine (``sea3d``, ``sea3d-gpu``, ``opencv``, ...)."""
-    max_disparity_px: int | None = None
-    """Disparity search range; None derives it from ``min_depth_m``."""
-    min_depth_m: float = 0.5
-    """Nearest depth resolved, metres (sets the disparity range and the virtual-pinhole fit)."""
-    max_depth_m: float = 6.0
-    """Farther depth is dropped, metres."""
+    depth: DepthConfig = field(default_factory=DepthConfig)
+    """Engine, disparity range and depth range (None ranges: from the rig, see
+    :mod:`sea3d.stereo.recipe`)."""
     resample: ResampleMethod = "resample"
     """How exact depth is put into the virtual pinhole for fusion (see
     :mod:`sea3d.recon.depth_resample`)."""
@@ -75,11 +74,10 @@ class FrameStageConfig:
     """Threads for numba and OpenCV inside one worker (None: the libraries' default)."""
 
     def __post_init__(self) -> None:
-        if not (0 < self.min_depth_m < self.max_depth_m):
-            raise ConfigError(f"need 0 < min_depth_m < max_depth_m, got {self.min_depth_m}, "
-                              f"{self.max_depth_m}")
-        if self.max_disparity_px is not None and self.max_disparity_px < 1:
-            raise ConfigError(f"--max-disparity must be >= 1, got {self.max_disparity_px}")
+        if not isinstance(self.rig, StereoRig):
+            raise ConfigError(f"rig must be a StereoRig, got {type(self.rig).__name__}")
+        if not isinstance(self.depth, DepthConfig):
+            raise ConfigError(f"depth must be a DepthConfig, got {type(self.depth).__name__}")
         if self.size_px is not None and (self.size_px[0] < 32 or self.size_px[1] < 24):
             raise ConfigError(f"--size must be at least 32x24, got {self.size_px}")
         if isinstance(self.enhance, str) and ":" not in self.enhance:
@@ -88,14 +86,13 @@ class FrameStageConfig:
             raise ConfigError(f"restore_colours must be none or seathru, got "
                               f"{self.restore_colours!r}")
 
-    def depth_config(self) -> DepthConfig:
-        """The stereo-depth recipe's configuration (:class:`~sea3d.stereo.recipe.DepthConfig`)."""
-        return DepthConfig(engine=self.engine, max_disparity_px=self.max_disparity_px,
-                           min_depth_m=self.min_depth_m, max_depth_m=self.max_depth_m)
-
     def fingerprint(self) -> dict[str, Any]:
         """What identifies the per-frame results (the cache is valid only for the same one)."""
-        d = asdict(self)
+        from sea3d.io.rig_file import rig_to_yaml
+
+        d = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("rig", "depth")}
+        d["rig_yaml"] = rig_to_yaml(self.rig)
+        d["depth"] = asdict(self.depth)
         d.pop("threads")
         if self.restore_colours == "none":
             d.pop("restore_colours")  # caches written before the option stay valid
@@ -177,43 +174,50 @@ class FrameResult:
                    colour_status=str(meta.get("colour_status", "")))
 
 
-@functools.lru_cache(maxsize=4)
-def _build_stereo(rig_yaml: str, size_px: tuple[int, int] | None, depth: DepthConfig
-                  ) -> StereoDepth:
-    from sea3d.io.rig_file import rig_from_yaml
-
-    rig = rig_from_yaml(rig_yaml, "the session's rig")
-    if size_px is not None:
-        rig = rig.scaled(*size_px)
-    return StereoDepth(rig, depth)
-
-
 _INSTALLED: dict[tuple[Any, ...], StereoDepth] = {}
+_BUILT: dict[tuple[Any, ...], StereoDepth] = {}
 
 
-def _stereo_key(config: FrameStageConfig) -> tuple[Any, ...]:
-    return (config.rig_yaml, config.size_px, config.depth_config())
+def _geometry_key(config: FrameStageConfig) -> tuple[Any, ...]:
+    rig_digest = hashlib.sha1(pickle.dumps(config.rig), usedforsecurity=False).hexdigest()
+    return (rig_digest, config.size_px, config.depth)
 
 
-def install_stereo(config: FrameStageConfig, stereo: StereoDepth) -> None:
+def install_geometry(config: FrameStageConfig, stereo: StereoDepth) -> None:
     """Give this process the :class:`~sea3d.stereo.recipe.StereoDepth` of ``config``, built
     elsewhere (the client), so that a worker does not fit the virtual pinholes again (seconds
     per worker at 640x360)."""
-    _INSTALLED[_stereo_key(config)] = stereo
+    _INSTALLED[_geometry_key(config)] = stereo
 
 
-def stage_stereo(config: FrameStageConfig) -> StereoDepth:
-    """The :class:`~sea3d.stereo.recipe.StereoDepth` of ``config`` (the scaled rig, its
-    rectification, disparity range and engine): as installed by :func:`install_stereo`, or
-    built once per process and configuration.
+def stage_depth(config: FrameStageConfig) -> StereoDepth:
+    """The :class:`~sea3d.stereo.recipe.StereoDepth` of ``config`` (its rig scaled to
+    ``size_px``): as installed by :func:`install_geometry`, or built once per process and
+    configuration.
 
     Raises:
-        RigFileError, RectifyError, ConfigError: an invalid rig or configuration.
+        ConfigError, RectifyError: a rig or depth configuration that cannot be used.
     """
-    got = _INSTALLED.get(_stereo_key(config))
+    key = _geometry_key(config)
+    got = _INSTALLED.get(key) or _BUILT.get(key)
     if got is not None:
         return got
-    return _build_stereo(config.rig_yaml, config.size_px, config.depth_config())
+    rig = config.rig if config.size_px is None else config.rig.scaled(*config.size_px)
+    if len(_BUILT) >= 4:
+        _BUILT.pop(next(iter(_BUILT)))
+    stereo = _BUILT[key] = StereoDepth(rig, config.depth)
+    return stereo
+
+
+def stage_geometry(config: FrameStageConfig) -> tuple[Any, Any]:
+    """``(rig, maps)`` of :func:`stage_depth`: the (scaled)
+    :class:`~sea3d.geometry.rig.StereoRig` and its :class:`~sea3d.rectify.maps.RectifyMaps`.
+
+    Raises:
+        ConfigError, RectifyError: an invalid rig.
+    """
+    stereo = stage_depth(config)
+    return stereo.rig, stereo.maps
 
 
 @functools.lru_cache(maxsize=8)
@@ -241,14 +245,10 @@ def _prepare_process(config: FrameStageConfig) -> float:
         numba.set_num_threads(max(1, min(config.threads, numba.config.NUMBA_NUM_THREADS)))
         cv2.setNumThreads(config.threads)
         _THREADS[:] = [config.threads]
-    if config.engine in _WARM:
+    if config.depth.engine in _WARM:
         return 0.0
-    _WARM.add(config.engine)
-    if config.engine == "sea3d":
-        from sea3d.stereo.sgm import warm_up
-
-        return warm_up()
-    return 0.0
+    _WARM.add(config.depth.engine)
+    return stage_depth(config).warm_up()
 
 
 def _to_u8(img: NDArray[Any]) -> NDArray[np.uint8]:
@@ -262,8 +262,8 @@ def _to_u8(img: NDArray[Any]) -> NDArray[np.uint8]:
 
 def rectify_pair(stereo: StereoDepth, left: NDArray[Any], right: NDArray[Any]
                  ) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
-    """The rectified uint8 ``(left, right)`` of a raw pair at the rig's size, without depth
-    (what the odometry needs of a frame whose depth is skipped)."""
+    """The rectified uint8 ``(left, right)`` of a raw pair (at the recorded or the rig's size),
+    without depth: what the odometry needs of a frame whose depth is skipped (live)."""
     from sea3d.rectify import rectify_images
 
     size = (stereo.maps.width, stereo.maps.height)
@@ -275,15 +275,15 @@ def rectify_pair(stereo: StereoDepth, left: NDArray[Any], right: NDArray[Any]
 
 
 def process_frame(config: FrameStageConfig, t_ns: int, left: NDArray[Any],
-                  right: NDArray[Any], stereo: StereoDepth | None = None) -> FrameResult:
+                  right: NDArray[Any], geometry: StereoDepth | None = None) -> FrameResult:
     """Enhance (if configured), rectify, match and triangulate one raw stereo pair.
 
     Args:
         config: :class:`FrameStageConfig`.
         t_ns: the pair's stamp.
         left, right: raw images (H, W) or (H, W, 3) RGB, uint8 or uint16, at the recorded size.
-        stereo: the :class:`~sea3d.stereo.recipe.StereoDepth` of ``config`` built by the
-            caller (see :func:`install_stereo`); None builds or reuses this process's own.
+        geometry: the :class:`~sea3d.stereo.recipe.StereoDepth` of ``config`` built by the
+            caller (see :func:`install_geometry`); None builds or reuses this process's own.
 
     Returns:
         :class:`FrameResult` (``failed`` with a message for images it cannot use, never an
@@ -293,12 +293,12 @@ def process_frame(config: FrameStageConfig, t_ns: int, left: NDArray[Any],
         RigFileError, RectifyError, ConfigError: the configuration itself is unusable.
     """
     timings: dict[str, float] = {}
-    if stereo is not None and _stereo_key(config) not in _INSTALLED:
-        install_stereo(config, stereo)
+    if geometry is not None and _geometry_key(config) not in _INSTALLED:
+        install_geometry(config, geometry)
     warm = _prepare_process(config)
     if warm > 0:
         timings["warmup_s"] = warm
-    stereo = stage_stereo(config)
+    stereo = stage_depth(config)
     maps = stereo.maps
     try:
         if left.shape[:2] != (maps.height, maps.width):

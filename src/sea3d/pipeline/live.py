@@ -223,8 +223,8 @@ def run_live_replay(session_path: Any, config: Any, live: LiveConfig | None = No
     from sea3d.pipeline.depth_scheduler import StageTimer
     from sea3d.pipeline.executors import ProcessExecutor
     from sea3d.pipeline.finish import finish_reconstruction, frame_rows, run_summary
-    from sea3d.pipeline.frame_stage import install_stereo, stage_stereo
-    from sea3d.pipeline.process import _no_progress, _odometry, _rig_yaml
+    from sea3d.pipeline.frame_stage import install_geometry, stage_depth
+    from sea3d.pipeline.process import _no_progress, _odometry, _rig
     from sea3d.pipeline.submap_store import DiskSubmapStore
     from sea3d.recon.submaps import SubmapFusion
 
@@ -232,18 +232,18 @@ def run_live_replay(session_path: Any, config: Any, live: LiveConfig | None = No
     out.mkdir(parents=True, exist_ok=True)
     timer = StageTimer()
     with open_session(path) as session:
-        source = SessionFrames(session, path, _rig_yaml(session, path, config),
+        source = SessionFrames(session, path, _rig(session, config),
                                max_frames=config.max_frames)
-        stage = config.frame_stage(source.rig_yaml)
-        stereo = stage_stereo(stage)
+        stage = config.frame_stage(source.native_rig)
+        stereo = stage_depth(stage)
         odo, odometry_name, imu_used = _odometry(config, stereo, path, len(source.imu) > 0,
                                                  None)
         store = DiskSubmapStore(out / "submaps")
         store.clear()
-        fusion_cfg = config.fusion()
+        fusion_cfg = config.fusion(stereo.depth_range_m)
         stages = OrderedStages(odo, SubmapFusion(fusion_cfg), store, stereo.maps,
                                use_imu=config.use_imu and len(source.imu) > 0, timer=timer)
-        executor = ProcessExecutor(1, setup=(install_stereo, (stage, stereo)))
+        executor = ProcessExecutor(1, setup=(install_geometry, (stage, stereo)))
         try:
             stats = run_live(ReplayFrames(source, rate=rate), stage, stereo, stages, executor,
                              live)

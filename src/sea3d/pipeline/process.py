@@ -43,13 +43,15 @@ from typing import Any, Literal, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.errors import ConfigError, SessionError
 from sea3d.odometry.types import Odometry, TrackingStatus
 from sea3d.pipeline.depth_scheduler import StageTimer
-from sea3d.pipeline.frame_stage import FrameStageConfig, install_stereo, stage_stereo
+from sea3d.pipeline.frame_stage import FrameStageConfig, install_geometry, stage_depth
 from sea3d.pipeline.ordered import TRUSTED, OrderedStages
 from sea3d.recon.submaps import FusionConfig
 from sea3d.recon.tsdf import TsdfConfig
+from sea3d.stereo.recipe import DepthConfig
 
 __all__ = [
     "ProcessConfig",
@@ -61,7 +63,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-F64 = NDArray[np.float64]
 
 
 class ProgressBar(Protocol):
@@ -110,12 +111,14 @@ class ProcessConfig:
     """Known poses (TUM, KITTI or EuRoC CSV of ``T_world_left``) instead of odometry."""
     engine: str = "sea3d"
     """Stereo matching engine."""
-    min_depth_m: float = 0.5
-    """Nearest depth resolved, metres."""
-    max_depth_m: float = 4.0
-    """Farthest depth used (stereo and TSDF), metres."""
+    min_depth_m: float | None = None
+    """Nearest depth resolved, metres; None: from the rig and the disparity range
+    (:mod:`sea3d.stereo.recipe`)."""
+    max_depth_m: float | None = None
+    """Farthest depth used (stereo and TSDF), metres; None: from the rig (the smallest useful
+    disparity, :mod:`sea3d.stereo.recipe`)."""
     max_disparity_px: int | None = None
-    """Disparity range; None derives it from ``min_depth_m``."""
+    """Disparity range; None derives it from ``min_depth_m``, else from the image width."""
     integrate: Literal["trusted", "keyframes"] = "trusted"
     """Fuse every frame with a trusted pose, or keyframes only."""
     keyframes_per_submap: int = 20
@@ -144,22 +147,23 @@ class ProcessConfig:
     max_frames: int | None = None
     """Process only the first N stereo pairs."""
 
-    def frame_stage(self, rig_yaml: str) -> FrameStageConfig:
-        """The per-frame stage's configuration for the rig ``rig_yaml`` (threads per worker:
-        the cores shared among the local workers; a Dask worker keeps its own)."""
+    def frame_stage(self, rig: Any) -> FrameStageConfig:
+        """The per-frame stage's configuration for ``rig`` (at the recorded size; threads per
+        worker: the cores shared among the local workers; a Dask worker keeps its own)."""
         n_local = self.workers if self.workers is not None else min(os.cpu_count() or 1, 8)
         return FrameStageConfig(
-            rig_yaml=rig_yaml, size_px=self.size_px, engine=self.engine,
-            max_disparity_px=self.max_disparity_px, min_depth_m=self.min_depth_m,
-            max_depth_m=self.max_depth_m, enhance=self.enhance,
+            rig=rig, size_px=self.size_px,
+            depth=DepthConfig(engine=self.engine, max_disparity_px=self.max_disparity_px,
+                              min_depth_m=self.min_depth_m, max_depth_m=self.max_depth_m),
+            enhance=self.enhance,
             restore_colours=self.restore_colours,
             threads=max(1, (os.cpu_count() or 1) // max(1, n_local))
             if self.scheduler is None else None)
 
-    def fusion(self) -> FusionConfig:
-        """The fusion stage's configuration (its TSDF over the depth range)."""
-        return FusionConfig(tsdf=TsdfConfig(voxel_m=self.voxel_m, depth_min_m=self.min_depth_m,
-                                            depth_max_m=self.max_depth_m),
+    def fusion(self, depth_range_m: tuple[float, float]) -> FusionConfig:
+        """The fusion stage's configuration (its TSDF over the stereo depth's range)."""
+        return FusionConfig(tsdf=TsdfConfig(voxel_m=self.voxel_m, depth_min_m=depth_range_m[0],
+                                            depth_max_m=depth_range_m[1]),
                             integrate=self.integrate,
                             keyframes_per_submap=self.keyframes_per_submap,
                             max_blocks=self.max_submap_blocks)
@@ -233,15 +237,11 @@ def _rss_mb(who: int) -> float:
     return float(resource.getrusage(who).ru_maxrss) / 1024.0
 
 
-def _rig_yaml(session: Any, session_path: Path, config: ProcessConfig) -> str:
-    """``--rig``'s YAML, else the session's (the rig travels to workers as this text)."""
-    from sea3d.io.rig_file import load_rig, rig_to_yaml
+def _rig(session: Any, config: ProcessConfig) -> Any:
+    """``--rig``'s rig, else the session's stored one (:func:`~sea3d.io.rig_file.resolve_rig`)."""
+    from sea3d.io.rig_file import resolve_rig
 
-    if config.rig_path is not None:
-        return rig_to_yaml(load_rig(config.rig_path))
-    if session.rig_yaml:
-        return str(session.rig_yaml)
-    raise SessionError(f"{session_path} stores no rig; pass --rig rig.yaml")
+    return resolve_rig(config.rig_path, session)
 
 
 def _frame_cache(out: Path, stage: FrameStageConfig, session_path: Path, fresh: bool) -> Any:
@@ -317,19 +317,19 @@ def run_process(
     except OSError as err:
         raise SessionError(f"cannot create the output folder {out}: {err}") from err
     with open_session(session_path) as session:
-        source = SessionFrames(session, session_path, _rig_yaml(session, session_path, config),
+        source = SessionFrames(session, session_path, _rig(session, config),
                                max_frames=config.max_frames)
-        stage_cfg = config.frame_stage(source.rig_yaml)
+        stage_cfg = config.frame_stage(source.native_rig)
         t0 = time.perf_counter()
-        stereo = stage_stereo(stage_cfg)
+        stereo = stage_depth(stage_cfg)
         timer.add("rectify_maps_s", time.perf_counter() - t0)
         executor = make_executor(config.workers, config.scheduler,
-                                 setup=(install_stereo, (stage_cfg, stereo)))
+                                 setup=(install_geometry, (stage_cfg, stereo)))
         try:
             odo, odometry_name, imu_used = _odometry(config, stereo, session_path,
                                                      len(source.imu) > 0, odometry)
             cache = _frame_cache(out, stage_cfg, session_path, config.fresh)
-            fusion_cfg = config.fusion()
+            fusion_cfg = config.fusion(stereo.depth_range_m)
             store = DiskSubmapStore(out / "submaps")
             store.clear()
             stages = OrderedStages(odo, SubmapFusion(fusion_cfg), store, stereo.maps,
@@ -388,6 +388,7 @@ def _finish(session_path: Path, out: Path, config: ProcessConfig, stages: Ordere
         odometry=odometry_name, imu_used=imu_used,
         executor={"kind": executor.name, "workers": executor.workers, "in_flight": window},
         image_size_px=[int(maps.width), int(maps.height)], refractive=bool(maps.refractive),
+        depth_range_m=list(stereo.depth_range_m), max_disparity_px=stereo.max_disparity_px,
         virtual_pinhole_rms_px=(maps.report_left.rms_px if maps.report_left else 0.0),
         voxel_m=config.voxel_m, integrate=config.integrate)
     summary["colours"] = {"enhance": str(config.enhance or "none"),
@@ -406,7 +407,7 @@ def _finish(session_path: Path, out: Path, config: ProcessConfig, stages: Ordere
         summary.update(evaluate_against_ground_truth(
             session_path, t_ns=rec.t_ns, T_world_left=rec.T_world_left,
             trusted=np.array([s in TRUSTED for s in statuses]), mesh=rec.mesh,
-            camera=source.native_rig.left, max_depth_m=config.max_depth_m))
+            camera=source.native_rig.left, max_depth_m=stereo.max_depth_m))
         timer.add("evaluate_s", time.perf_counter() - te)
     timings = dict(timer.s)
     timings["total_s"] = time.perf_counter() - t_start
