@@ -7,7 +7,15 @@ the per-frame stage
 - ``inline``: in the client process;
 - ``procs1``, ``procs2``: one or two local worker processes (``--workers N``);
 - ``dask2``: a ``distributed.LocalCluster`` of two single-threaded worker processes on
-  loopback TCP (``--scheduler``), as a user would run it across machines.
+  loopback TCP (``--scheduler``), as a user would run it across machines;
+- ``paper``: the paper's chain from the reference libraries, on the same dive and the same
+  rectification: OpenCV ``StereoSGBM`` (``MODE_SGBM_3WAY``) depth ``z = f B / d``, Open3D
+  frame-to-frame RGB-D odometry (``rgbd_odometry_multi_scale``, Hybrid), Open3D
+  ``VoxelBlockGrid`` TSDF at the same voxel size, one mesh at the end.
+
+Meshes are placed by their first pose (``T_gt[0] @ T_est[0]^-1``) for the ``mesh 1st``
+column, for sea3d and the paper's chain alike; ``mesh acc`` is sea3d's own figure (its poses
+aligned to the ground truth). The last line gives the ratio of frames per second.
 
 Each run is a fresh subprocess, so its peak memory is its own: ``peak_rss_mb`` of the client
 and of the largest worker (``ru_maxrss``). Printed per run: frames per second of the frame
@@ -16,8 +24,8 @@ listed apart), wall time, CPU time (client and workers, whole run), peak memory,
 mesh's accuracy and completeness against the scene (median and 90th percentile, mm) with the
 ATE. On a shared machine wall times depend on the load; CPU seconds much less.
 
-Poses: ``--odometry gt`` (the simulator's, default while this build has no odometry),
-``real`` (sea3d's, once merged) or ``auto``. ``--integrate keyframes`` compares fusing only
+Poses: ``--odometry real`` (sea3d's stereo-inertial odometry, default) or ``gt`` (the
+simulator's). ``--integrate keyframes`` compares fusing only
 keyframes with every trusted frame on the cached per-frame results.
 
     python benchmarks/bench_process.py [--frames 60] [--size 640x360] [--runs inline,procs2,dask2]
@@ -32,6 +40,8 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -52,15 +62,118 @@ def _cpu(who: int) -> float:
     return float(r.ru_utime + r.ru_stime)
 
 
+def _first_pose_mesh_mm(session: Path, t_ns: np.ndarray, T_world_left: np.ndarray,
+                        vertices: np.ndarray, triangles: np.ndarray) -> list[float]:
+    """Mesh accuracy (median, p90, mm) against the scene, the mesh placed by its first pose."""
+    from sea3d.eval.surface import surface_metrics
+    from sea3d.io.mesh_files import read_mesh
+    from sea3d.io.trajectory_files import read_trajectory
+
+    gt = read_trajectory(session / "gt" / "poses_left.tum")
+    i0 = int(np.searchsorted(gt.t_ns, t_ns[0]))
+    S = gt.T_world_x[i0] @ np.linalg.inv(T_world_left[0])
+    v = vertices @ S[:3, :3].T + S[:3, 3]
+    ref = read_mesh(session / "gt" / "scene.ply")
+    m = surface_metrics(v, triangles, ref.vertices, ref.triangles, samples=100_000)
+    return [1000 * m.accuracy_m.median, 1000 * m.accuracy_m.p90]
+
+
+def paper_run(session: Path, frames: int | None, voxel_m: float = 0.02,
+              depth_range_m: tuple[float, float] = (0.5, 4.0)) -> dict:
+    """The paper's chain (see the module docstring), timed frame by frame in this process."""
+    import cv2
+    import open3d as o3d
+    import open3d.core as o3c
+
+    from sea3d.eval.trajectory import evaluate_trajectory
+    from sea3d.io.rig_file import rig_from_yaml
+    from sea3d.io.session import open_session
+    from sea3d.io.trajectory_files import read_trajectory
+    from sea3d.rectify import rectify_images, rectify_rig
+    from sea3d.stereo.depth import max_disparity_for_depth
+
+    with open_session(session) as s:
+        rig = rig_from_yaml(s.rig_yaml, "the session's rig")
+        maps = rectify_rig(rig, depth_range_m=depth_range_m)
+        match = s.match_pairs()
+        stamps = s.stamps("left")
+        n = len(match) if frames is None else min(frames, len(match))
+        nd = max_disparity_for_depth(maps, depth_range_m[0]) + 1
+        sgbm = cv2.StereoSGBM_create(minDisparity=0, numDisparities=nd, blockSize=5,
+                                     P1=8 * 5 * 5, P2=32 * 5 * 5, uniquenessRatio=10,
+                                     speckleWindowSize=100, speckleRange=2,
+                                     mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+        K = np.asarray(maps.P_left[:3, :3], np.float64)
+        Kt = o3c.Tensor(K, dtype=o3c.float64)
+        fb = maps.focal_px * maps.baseline_m
+        vbg = o3d.t.geometry.VoxelBlockGrid(
+            attr_names=("tsdf", "weight", "color"),
+            attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
+            attr_channels=((1), (1), (3)), voxel_size=voxel_m, block_resolution=8,
+            block_count=50_000, device=o3c.Device("CPU:0"))
+        T_rect = [np.eye(4)]
+        prev = None
+        w0, c0 = time.perf_counter(), time.process_time()
+        for i in range(n):
+            left = s.image("left", int(match.left_index[i]), by="index")
+            right = s.image("right", int(match.right_index[i]), by="index")
+            rl, rr = rectify_images(maps, left, right)
+            gl = cv2.cvtColor(rl, cv2.COLOR_RGB2GRAY) if rl.ndim == 3 else rl
+            gr = cv2.cvtColor(rr, cv2.COLOR_RGB2GRAY) if rr.ndim == 3 else rr
+            d = sgbm.compute(gl, gr).astype(np.float32) / 16.0
+            with np.errstate(divide="ignore"):
+                z = np.where(d > 0, fb / d, 0.0).astype(np.float32)
+            z[(z < depth_range_m[0]) | (z > depth_range_m[1])] = 0.0
+            colour = np.ascontiguousarray(rl if rl.ndim == 3 else np.repeat(rl[..., None], 3, 2))
+            cur = o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(colour),
+                                           o3d.t.geometry.Image(z))
+            if prev is not None:
+                try:
+                    r = o3d.t.pipelines.odometry.rgbd_odometry_multi_scale(
+                        cur, prev, Kt, o3c.Tensor(np.eye(4)), 1.0, depth_range_m[1],
+                        method=o3d.t.pipelines.odometry.Method.Hybrid)
+                    step = r.transformation.numpy()
+                except RuntimeError:
+                    step = np.eye(4)
+                T_rect.append(T_rect[-1] @ step)
+            prev = cur
+            ext = o3c.Tensor(np.linalg.inv(T_rect[-1]), dtype=o3c.float64)
+            dimg = o3d.t.geometry.Image(z)
+            blocks = vbg.compute_unique_block_coordinates(dimg, Kt, ext, 1.0, depth_range_m[1])
+            vbg.integrate(blocks, dimg, o3d.t.geometry.Image(colour.astype(np.float32) / 255.0),
+                          Kt, Kt, ext, 1.0, depth_range_m[1])
+        mesh = vbg.extract_triangle_mesh(weight_threshold=1.0).to_legacy()
+        wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+    R1 = np.eye(4)
+    R1[:3, :3] = maps.R_rect_left_left
+    T_left = np.stack(T_rect) @ R1
+    t = np.asarray(stamps[match.left_index[:n]], np.int64)
+    gt = read_trajectory(session / "gt" / "poses_left.tum")
+    ate = evaluate_trajectory(t, T_left, gt.t_ns, gt.T_world_x, align="se3", max_diff_s=0.001)
+    acc = _first_pose_mesh_mm(session, t, T_left, np.asarray(mesh.vertices),
+                              np.asarray(mesh.triangles))
+    return {"kind": "paper", "frames": n, "wall_s": wall, "fps": n / wall,
+            "frame_loop_s": wall, "cpu_client_s": cpu, "cpu_workers_s": 0.0,
+            "peak_rss_client_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+            "peak_rss_worker_mb": 0.0, "mesh_accuracy_mm": None, "mesh_first_pose_mm": acc,
+            "mesh_completeness_mm": None, "ate_rmse_mm": 1000 * ate.ate_m.rmse,
+            "odometry": "Open3D f2f RGB-D", "path_length_m": float("nan"),
+            "after_loop_s": {}, "one_off_s": {}, "worker_timings_s": {}, "frames_fused": n,
+            "fusion_s": 0.0, "active_submap_peak_mb": 0.0}
+
+
 def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
             fresh: bool) -> dict:
     """Process once in this process and return the figures (run in a subprocess)."""
-    from sea3d.pipeline.process import ProcessConfig, odometry_available, run_process
+    from sea3d.pipeline.process import ProcessConfig, run_process
 
-    use_gt = odometry == "gt" or (odometry == "auto" and not odometry_available())
+    if kind == "paper":
+        return paper_run(session, None)
+    use_gt = odometry == "gt"
     poses = session / "gt" / "poses_left.tum" if use_gt else None
+    # The depth range of the paper's chain below, so both fuse the same slab of the scene.
     kw: dict = {"out_dir": out, "poses_path": poses, "fresh": fresh, "integrate": integrate,
-                "report": False}
+                "report": False, "min_depth_m": 0.5, "max_depth_m": 4.0}
     cluster = client = None
     if kind == "inline":
         kw["workers"] = 0
@@ -85,6 +198,8 @@ def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
             cluster.close()
     wall = time.perf_counter() - t0
     s = res.summary
+    first_pose = _first_pose_mesh_mm(session, res.t_ns, res.T_world_left, res.mesh.vertices,
+                                     res.mesh.triangles)
     mv, tv = s.get("mesh_vs_gt", {}), s.get("trajectory_vs_gt", {})
     return {
         "kind": kind,
@@ -106,6 +221,7 @@ def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
         "fusion_s": s["timings_s"].get("fusion_s", 0.0),
         "mesh_accuracy_mm": [1000 * mv["accuracy_m"]["median"], 1000 * mv["accuracy_m"]["p90"]]
         if "accuracy_m" in mv else None,
+        "mesh_first_pose_mm": first_pose,
         "mesh_completeness_mm": [1000 * mv["completeness_m"]["median"],
                                  1000 * mv["completeness_m"]["p90"]]
         if "completeness_m" in mv else None,
@@ -119,8 +235,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--size", default="640x360")
-    ap.add_argument("--runs", default="inline,procs1,procs2,dask2")
-    ap.add_argument("--odometry", choices=["auto", "gt", "real"], default="auto")
+    ap.add_argument("--runs", default="inline,procs2,dask2,paper")
+    ap.add_argument("--odometry", choices=["gt", "real"], default="real")
     ap.add_argument("--integrate", choices=["trusted", "keyframes", "both"], default="trusted")
     ap.add_argument("--one", help=argparse.SUPPRESS)
     ap.add_argument("--no-fresh", action="store_true", help=argparse.SUPPRESS)
@@ -137,7 +253,8 @@ def main() -> None:
     print(f"lake, {args.frames} frames at {args.size}, coastal water, dome ports; each run in a "
           "fresh process, per-frame results recomputed")
     print(f"{'run':10} {'fps':>6} {'loop s':>7} {'wall s':>7} {'CPU s':>7} {'client MB':>10} "
-          f"{'worker MB':>10} {'mesh acc mm (med/p90)':>22} {'compl mm':>12} {'ATE mm':>7}")
+          f"{'worker MB':>10} {'mesh acc mm (med/p90)':>22} {'compl mm':>12} {'ATE mm':>7} "
+          f"{'CPU s/fr':>8} {'mesh 1st mm':>14}")
     results = []
     for kind in args.runs.split(","):
         policies = ["trusted", "keyframes"] if args.integrate == "both" else [args.integrate]
@@ -162,7 +279,9 @@ def main() -> None:
                   f"{cpu:7.1f} "
                   f"{r['peak_rss_client_mb']:10.0f} {r['peak_rss_worker_mb']:10.0f} "
                   f"{acc[0]:10.1f} / {acc[1]:7.1f} {comp[0]:5.1f} / {comp[1]:4.1f} "
-                  f"{r['ate_rmse_mm'] if r['ate_rmse_mm'] is not None else float('nan'):7.2f}")
+                  f"{r['ate_rmse_mm'] if r['ate_rmse_mm'] is not None else float('nan'):7.2f} "
+                  f"{cpu / r['frames']:8.3f} "
+                  f"{r['mesh_first_pose_mm'][0]:6.1f} / {r['mesh_first_pose_mm'][1]:5.1f}")
     if results:
         r = results[0]
         print(f"poses: {r['odometry']}; path {r['path_length_m']:.2f} m; after the frame loop "
@@ -176,6 +295,14 @@ def main() -> None:
                 print(f"  {x['kind']} integrate={x['integrate']}: {x['frames_fused']} frames "
                       f"fused in {x['fusion_s']:.1f} s, active submap peak "
                       f"{x['active_submap_peak_mb']:.0f} MB")
+    paper = [x for x in results if x["kind"] == "paper"]
+    ours = [x for x in results if x["kind"] != "paper"]
+    if paper and ours:
+        p, o = paper[0], ours[0]
+        p_cpu = (p["cpu_client_s"] + p["cpu_workers_s"]) / p["frames"]
+        o_cpu = (o["cpu_client_s"] + o["cpu_workers_s"]) / o["frames"]
+        print(f"ratio sea3d ({o['kind']}) / paper's chain: frames/s {o['fps'] / p['fps']:.2f}, "
+              f"CPU-s per frame {o_cpu / p_cpu:.2f} (paper {p_cpu:.3f}, sea3d {o_cpu:.3f})")
     (base / "last_results.json").write_text(json.dumps(results, indent=1))
 
 

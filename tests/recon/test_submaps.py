@@ -5,7 +5,7 @@ import pytest
 
 from sea3d.errors import ReconError
 from sea3d.geometry.se3 import rotvec_to_R
-from sea3d.io.result_cache import DiskSubmapStore
+from sea3d.pipeline.submap_store import DiskSubmapStore
 from sea3d.recon.submaps import FusionConfig, MemorySubmapStore, SubmapFusion, merge_submaps
 from sea3d.recon.tsdf import TsdfConfig, TsdfVolume
 from synthetic_views import BOX_HI, K, render, survey_poses

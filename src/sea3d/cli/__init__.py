@@ -23,7 +23,7 @@ __all__ = ["build_parser", "main"]
 # Modules under sea3d.cli that add subcommands, in the order they appear in --help.
 _COMMAND_MODULES = (
     "rig", "session", "record", "stream", "bag", "sim", "calibrate", "depth", "enhance",
-    "odometry", "sfm", "monodepth", "recon", "eval", "demo",
+    "odometry", "sfm", "monodepth", "recon", "live", "eval", "demo",
 )  # fmt: skip
 
 

@@ -1,19 +1,26 @@
-"""On-disk caches of the process pipeline: per-frame results and finished TSDF submaps.
+"""On-disk caches of the process pipeline: per-frame results (and finished TSDF submaps).
 
-Both hold named numpy arrays plus a JSON header in one file per entry, in this container::
+They hold named numpy arrays plus a JSON header in one file per entry, in this container::
 
     b"SEA3DC1\\n" | uint64 payload length | uint32 CRC-32 of the payload | payload
 
 where the payload is an uncompressed ``.npz`` archive (``allow_pickle`` off) compressed with
-Zstandard (level 3). An entry is written under a temporary name and renamed into place
+Zstandard (level 3). Before compression, lossless filters make the arrays compress better
+(listed in the archive's ``__codec__`` member, so entries written without them still read):
+float arrays are byte-shuffled (all first bytes, then all second bytes...: exponents and high
+mantissa bytes compress, noise bytes stay apart) and 2-D-or-more uint8 arrays (images) are
+delta-coded along their second axis (PNG's "Sub" filter). At 640x360 a frame's entry (two
+RGB rectified images, two float32 depth maps) drops from 2.65 MB to about 1.7 MB.
+
+An entry is written under a temporary name and renamed into place
 (atomic on POSIX), so a killed run leaves whole entries or none; on reading, the magic,
 length and checksum are checked and a damaged entry is reported (and recomputed by the
 pipeline), never passed on as good.
 
 - :class:`FrameCache`: ``OUT/cache/frames/<t_ns>.s3c``; ``OUT/cache/config.json`` holds the
   fingerprint of the per-frame configuration the entries were made with.
-- :class:`DiskSubmapStore`: ``OUT/submaps/<id>.s3c``, a
-  :class:`~sea3d.recon.submaps.SubmapStore` that keeps finished submaps out of memory.
+- finished TSDF submaps (``OUT/submaps/<id>.s3c``) use the same entries:
+  :class:`sea3d.pipeline.submap_store.DiskSubmapStore`.
 """
 
 from __future__ import annotations
@@ -29,17 +36,41 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sea3d.errors import CacheEntryError, ReconError, SessionError
+from sea3d.errors import CacheEntryError, SessionError
 from sea3d.io._atomic import atomic_write
-from sea3d.recon.types import Submap, VoxelBlocks
 
-__all__ = ["CacheEntryError", "DiskSubmapStore", "FrameCache", "read_entry", "write_entry"]
+__all__ = ["CacheEntryError", "FrameCache", "read_entry", "write_entry"]
 
 log = logging.getLogger(__name__)
 
 _MAGIC = b"SEA3DC1\n"
 _HEAD = struct.Struct("<QI")
 _SUFFIX = ".s3c"
+
+
+_MIN_FILTERED = 4096  # bytes: smaller arrays are stored as they are
+
+
+def _encode(a: NDArray[Any]) -> tuple[NDArray[Any], list[Any] | None]:
+    """A lossless filtered copy of ``a`` and how to undo it (None: stored as it is)."""
+    a = np.ascontiguousarray(a)
+    if a.nbytes < _MIN_FILTERED:
+        return a, None
+    if a.dtype.kind == "f":
+        shuffled = a.reshape(-1).view(np.uint8).reshape(-1, a.dtype.itemsize).T
+        return np.ascontiguousarray(shuffled), ["shuffle", a.dtype.str, list(a.shape)]
+    if a.dtype == np.uint8 and a.ndim >= 2:
+        return np.diff(a, axis=1, prepend=np.uint8(0)), ["delta1", a.dtype.str, list(a.shape)]
+    return a, None
+
+
+def _decode(a: NDArray[Any], how: list[Any]) -> NDArray[Any]:
+    kind, dtype, shape = how[0], np.dtype(how[1]), tuple(int(n) for n in how[2])
+    if kind == "shuffle":
+        return np.ascontiguousarray(a.T).view(dtype).reshape(shape)
+    if kind == "delta1":
+        return np.cumsum(a, axis=1, dtype=np.uint8).reshape(shape)
+    raise ValueError(f"unknown array filter {kind!r}")
 
 
 def write_entry(path: Path, arrays: dict[str, NDArray[Any]], meta: dict[str, Any]) -> int:
@@ -51,7 +82,14 @@ def write_entry(path: Path, arrays: dict[str, NDArray[Any]], meta: dict[str, Any
     import imagecodecs
 
     buf = io.BytesIO()
-    members: dict[str, Any] = {"__meta__": np.array(json.dumps(meta)), **arrays}
+    codec: dict[str, list[Any]] = {}
+    filtered: dict[str, NDArray[Any]] = {}
+    for name, arr in arrays.items():
+        filtered[name], how = _encode(np.asarray(arr))
+        if how is not None:
+            codec[name] = how
+    members: dict[str, Any] = {"__meta__": np.array(json.dumps(meta)),
+                               "__codec__": np.array(json.dumps(codec)), **filtered}
     np.savez(buf, **members)
     payload = imagecodecs.zstd_encode(buf.getvalue(), level=3)
     data = _MAGIC + _HEAD.pack(len(payload), zlib.crc32(payload) & 0xFFFFFFFF) + payload
@@ -86,7 +124,9 @@ def read_entry(path: Path) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
         raise CacheEntryError(f"{path} fails its checksum")
     try:
         with np.load(io.BytesIO(imagecodecs.zstd_decode(payload)), allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files if k != "__meta__"}
+            codec = json.loads(str(z["__codec__"])) if "__codec__" in z.files else {}
+            arrays = {k: _decode(z[k], codec[k]) if k in codec else z[k]
+                      for k in z.files if k not in ("__meta__", "__codec__")}
             meta = json.loads(str(z["__meta__"]))
     except Exception as err:  # any decoding failure means a damaged entry
         raise CacheEntryError(f"{path} cannot be decoded: {err}") from err
@@ -178,69 +218,3 @@ class FrameCache:
             p.unlink(missing_ok=True)
             return None
         return arrays, meta
-
-
-class DiskSubmapStore:
-    """Finished TSDF submaps on disk (``<root>/<id>.s3c``): a
-    :class:`~sea3d.recon.submaps.SubmapStore`.
-
-    Args:
-        root: the folder (created; existing entries are removed by :meth:`clear`).
-    """
-
-    def __init__(self, root: Path) -> None:
-        self.root = Path(root)
-        self.bytes_written = 0
-
-    def clear(self) -> None:
-        """Remove every stored submap."""
-        if self.root.is_dir():
-            for p in self.root.glob(f"*{_SUFFIX}"):
-                p.unlink()
-
-    def put(self, submap: Submap) -> None:
-        b = submap.blocks
-        arrays: dict[str, NDArray[Any]] = {
-            "keys": b.keys, "tsdf": b.tsdf, "weight": b.weight, "color": b.color,
-            "T_anchor_grid": submap.T_anchor_grid,
-        }
-        meta = {
-            "submap_id": submap.submap_id,
-            "anchor_keyframe_id": submap.anchor_keyframe_id,
-            "frames": submap.frames,
-            "keyframe_ids": list(submap.keyframe_ids),
-            "t_first_ns": submap.t_first_ns,
-            "t_last_ns": submap.t_last_ns,
-            "voxel_m": b.voxel_m,
-            "trunc_voxels": b.trunc_voxels,
-        }
-        self.bytes_written += write_entry(self.root / f"{submap.submap_id}{_SUFFIX}", arrays, meta)
-
-    def get(self, submap_id: int) -> Submap:
-        try:
-            a, m = read_entry(self.root / f"{int(submap_id)}{_SUFFIX}")
-            return Submap(
-                submap_id=int(m["submap_id"]),
-                anchor_keyframe_id=int(m["anchor_keyframe_id"]),
-                T_anchor_grid=np.asarray(a["T_anchor_grid"], np.float64),
-                blocks=VoxelBlocks(keys=a["keys"], tsdf=a["tsdf"], weight=a["weight"],
-                                   color=a["color"], voxel_m=float(m["voxel_m"]),
-                                   trunc_voxels=float(m["trunc_voxels"])),
-                frames=int(m["frames"]),
-                keyframe_ids=tuple(int(k) for k in m["keyframe_ids"]),
-                t_first_ns=int(m["t_first_ns"]),
-                t_last_ns=int(m["t_last_ns"]),
-            )
-        except (CacheEntryError, KeyError, ValueError) as err:
-            raise ReconError(f"submap {submap_id} in {self.root} is damaged: {err}") from err
-
-    def ids(self) -> list[int]:
-        if not self.root.is_dir():
-            return []
-        out = []
-        for p in self.root.glob(f"*{_SUFFIX}"):
-            try:
-                out.append(int(p.stem))
-            except ValueError:
-                continue
-        return sorted(out)

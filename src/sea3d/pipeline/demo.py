@@ -120,7 +120,7 @@ def run_demo(
     """
     from sea3d.io.rig_file import rig_to_yaml
     from sea3d.io.session import SessionWriter
-    from sea3d.pipeline.process import ProcessConfig, odometry_available, run_process
+    from sea3d.pipeline.process import ProcessConfig, run_process
     from sea3d.pipeline.report import write_process_report
     from sea3d.refraction.presets import paper_rig
     from sea3d.sim import builtin_scene, load_scene
@@ -173,23 +173,19 @@ def run_demo(
     timings["depth_check_s"] = time.perf_counter() - t0 - compile_s
     timings["compile_s"] = compile_s
 
-    have_odometry = odometry_available()
-    poses = None if have_odometry else gt.poses_left_path
-    step("processing the dive: depth, " + ("odometry" if have_odometry else
-         "ground-truth poses (this build has no odometry yet)") + ", TSDF fusion, mesh")
+    step("processing the dive: depth, odometry, TSDF fusion, mesh")
     t0 = time.perf_counter()
     result = run_process(
         session,
         ProcessConfig(out_dir=out / "process", voxel_m=config.voxel_m, workers=config.workers,
-                      engine=config.engine, poses_path=poses, report=False, fresh=True),
+                      engine=config.engine, report=False, fresh=True),
         progress=bars,
     )
     timings["process_s"] = time.perf_counter() - t0
     timings["total_s"] = time.perf_counter() - t_all
     summary: dict[str, Any] = {
         "config": {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(config).items()},
-        "poses": "sea3d odometry" if have_odometry else "simulator ground truth (no odometry "
-                 "in this build)",
+        "poses": "sea3d odometry",
         "depth_check": pair_summary,
         "process": result.summary,
         "timings_s": timings,

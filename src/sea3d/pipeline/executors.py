@@ -202,7 +202,10 @@ class DaskExecutor:
     def wait_first(self, futures: Iterable[Any]) -> None:
         fs = list(futures)
         if fs:
-            self._distributed.wait(fs, return_when="FIRST_COMPLETED")
+            # distributed.wait looks for a default client: a Client made with
+            # set_as_default=False (ours, for a --scheduler address) is not one.
+            with self.client.as_current():
+                self._distributed.wait(fs, return_when="FIRST_COMPLETED")
 
     def close(self) -> None:
         if self._own:

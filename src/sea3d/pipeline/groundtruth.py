@@ -9,10 +9,12 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d.errors import Sea3dError
 from sea3d.geometry.camera import CameraModel
 from sea3d.io.ground_truth import GroundTruth, find_ground_truth, gt_depth_path, read_gt_depth
 
-__all__ = ["GroundTruth", "find_ground_truth", "observed_surface_points"]
+__all__ = ["GroundTruth", "evaluate_against_ground_truth", "find_ground_truth",
+           "observed_surface_points"]
 
 log = logging.getLogger(__name__)
 
@@ -63,3 +65,49 @@ def observed_surface_points(
         T = T_world_left[k]
         out.append(pts @ T[:3, :3].T + T[:3, 3])
     return np.concatenate(out) if out else np.zeros((0, 3))
+
+
+def evaluate_against_ground_truth(session: Path, *, t_ns: NDArray[np.int64],
+                                  T_world_left: NDArray[np.float64],
+                                  trusted: NDArray[np.bool_], mesh: object, camera: CameraModel,
+                                  max_depth_m: float) -> dict[str, object]:
+    """Load the ground truth beside ``session`` (if any) and compare a run with it
+    (:func:`sea3d.eval.process_eval.process_metrics`): ``{"ground_truth": None}`` without
+    one, else its folder, ``trajectory_vs_gt`` and ``mesh_vs_gt``.
+
+    Args:
+        session: the processed session.
+        t_ns, T_world_left, trusted: (N,) stamps, (N, 4, 4) final poses, (N,) trusted flags.
+        mesh: the run's mesh (world frame). camera: the (scaled) left camera.
+        max_depth_m: farthest depth fused (the observed surface is cut there too).
+    """
+    from sea3d.eval.process_eval import process_metrics
+    from sea3d.io.mesh_files import read_mesh
+    from sea3d.io.trajectory_files import read_trajectory
+
+    gt = find_ground_truth(session)
+    if gt is None:
+        return {"ground_truth": None}
+    out: dict[str, object] = {"ground_truth": str(gt.root)}
+    gt_t = gt_T = scene = observed = None
+    if gt.poses_left is not None:
+        try:
+            traj = read_trajectory(gt.poses_left)
+            gt_t, gt_T = traj.t_ns, traj.T_world_x
+        except Sea3dError as err:
+            out["trajectory_vs_gt"] = {"error": str(err)}
+    if gt.scene_mesh is not None:
+        try:
+            scene = read_mesh(gt.scene_mesh)
+        except Sea3dError as err:
+            out["mesh_vs_gt"] = {"error": str(err)}
+        if scene is not None and gt.depth_dir is not None and gt_t is not None and \
+                gt_T is not None:
+            observed = observed_surface_points(gt.depth_dir, camera, gt_t, gt_T,
+                                               max_depth_m=max_depth_m)
+            if len(observed) == 0:
+                observed = None
+    out.update(process_metrics(t_ns=t_ns, T_world_left=T_world_left, trusted=trusted,
+                               mesh=mesh, gt_t_ns=gt_t, gt_T_world_left=gt_T, scene=scene,
+                               observed_points=observed))
+    return out

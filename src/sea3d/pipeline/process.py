@@ -20,17 +20,22 @@ only for the rest (the ordered stages, much cheaper, run again from the start).
 
 The odometry is chosen in one place, :func:`make_odometry`: known poses (``--poses``) or
 sea3d's stereo-inertial odometry (``sea3d.odometry.create_odometry``).
+
+:func:`run_process` wires small stages together: the frame source
+(:mod:`sea3d.pipeline.frame_source`), the depth scheduler over an executor and the cache
+(:mod:`sea3d.pipeline.depth_scheduler`), the ordered stages (:mod:`sea3d.pipeline.ordered`,
+the same that ``sea3d live`` runs) and the finish step (:mod:`sea3d.pipeline.finish`). Files
+are written by :mod:`sea3d.io.process_outputs`; the comparison with ground truth is
+:mod:`sea3d.eval.process_eval`.
 """
 
 from __future__ import annotations
 
-import csv
-import json
 import logging
 import os
 import resource
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Protocol
@@ -39,23 +44,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d._typing import F64
-from sea3d.errors import ConfigError, Sea3dError, SessionError
-from sea3d.io._atomic import atomic_open, atomic_write
-from sea3d.odometry.types import (
-    FrameObservation,
-    ImuChunk,
-    Odometry,
-    OdometryEstimate,
-    TrackingStatus,
-)
-from sea3d.pipeline.frame_stage import (
-    FrameResult,
-    FrameStageConfig,
-    install_geometry,
-    process_frame,
-    stage_depth,
-)
+from sea3d.errors import ConfigError, SessionError
+from sea3d.odometry.types import Odometry, TrackingStatus
+from sea3d.pipeline.depth_scheduler import StageTimer
+from sea3d.pipeline.frame_stage import FrameStageConfig, install_geometry, stage_depth
 from sea3d.pipeline.lock import locks_out_dir
+from sea3d.pipeline.ordered import TRUSTED, OrderedStages
+from sea3d.recon.submaps import FusionConfig
+from sea3d.recon.tsdf import TsdfConfig
 from sea3d.stereo.recipe import DepthConfig
 
 __all__ = [
@@ -63,13 +59,11 @@ __all__ = [
     "ProcessResult",
     "ProgressFactory",
     "make_odometry",
-    "publish_results",
     "run_process",
 ]
 
 log = logging.getLogger(__name__)
 
-TRUSTED = (TrackingStatus.TRACKING, TrackingStatus.RELOCALISED)
 
 
 class ProgressBar(Protocol):
@@ -154,6 +148,27 @@ class ProcessConfig:
     max_frames: int | None = None
     """Process only the first N stereo pairs."""
 
+    def frame_stage(self, rig: Any) -> FrameStageConfig:
+        """The per-frame stage's configuration for ``rig`` (at the recorded size; threads per
+        worker: the cores shared among the local workers; a Dask worker keeps its own)."""
+        n_local = self.workers if self.workers is not None else min(os.cpu_count() or 1, 8)
+        return FrameStageConfig(
+            rig=rig, size_px=self.size_px,
+            depth=DepthConfig(engine=self.engine, max_disparity_px=self.max_disparity_px,
+                              min_depth_m=self.min_depth_m, max_depth_m=self.max_depth_m),
+            enhance=self.enhance,
+            restore_colours=self.restore_colours,
+            threads=max(1, (os.cpu_count() or 1) // max(1, n_local))
+            if self.scheduler is None else None)
+
+    def fusion(self, depth_range_m: tuple[float, float]) -> FusionConfig:
+        """The fusion stage's configuration (its TSDF over the stereo depth's range)."""
+        return FusionConfig(tsdf=TsdfConfig(voxel_m=self.voxel_m, depth_min_m=depth_range_m[0],
+                                            depth_max_m=depth_range_m[1]),
+                            integrate=self.integrate,
+                            keyframes_per_submap=self.keyframes_per_submap,
+                            max_blocks=self.max_submap_blocks)
+
     def __post_init__(self) -> None:
         if not self.voxel_m > 0:
             raise ConfigError(f"--voxel-m must be > 0, got {self.voxel_m}")
@@ -193,35 +208,6 @@ class ProcessResult:
     files: dict[str, Path] = field(default_factory=dict)
 
 
-def _write_results_mcap(path: Path, t_ns: NDArray[np.int64], T: F64, estimates: Sequence[Any],
-                        mesh: Any, cloud: Any, rig: Any) -> None:
-    """OUT/results.mcap: trajectory (with each frame's status), cloud and mesh in Foxglove
-    schemas, so a finished dive opens in Foxglove beside its recording. Rewritten whole on
-    every run (a resumed run replaces the previous file)."""
-    from sea3d.io.foxglove_mcap import write_results_mcap
-
-    tmp = path.with_name(path.name + ".partial")
-    tmp.unlink(missing_ok=True)
-    write_results_mcap(
-        tmp,
-        trajectory=(t_ns, T),
-        status=[str(getattr(e.status, "value", e.status)) for e in estimates],
-        cloud=(cloud.points, cloud.colors),
-        mesh=(mesh.vertices, mesh.triangles, mesh.colors_rgb),
-        rig=rig,
-    )
-    tmp.replace(path)
-
-
-def publish_results(result: ProcessResult) -> None:
-    """Hook for live viewers, called once per run with the final trajectory, mesh and cloud.
-
-    Does nothing by default (the results are on disk, OUT/results.mcap for Foxglove);
-    callers of :func:`run_process` can also pass ``on_result``.
-    """
-    return None
-
-
 def make_odometry(rig: Any, maps: Any, *, use_imu: bool, poses: Any | None,
                   config: Any = None) -> tuple[Odometry, str]:
     """The one place that chooses the ordered pose stage.
@@ -235,88 +221,58 @@ def make_odometry(rig: Any, maps: Any, *, use_imu: bool, poses: Any | None,
 
     Returns:
         ``(odometry, description)``.
-
-    Raises:
-        ConfigError: no poses given and this build has no odometry.
     """
     if poses is not None:
         from sea3d.odometry.reference import KnownPoses
 
         return KnownPoses(poses.t_ns, poses.T_world_x), f"known poses from {poses.path}"
-    try:
-        from sea3d.odometry import create_odometry
-    except ImportError as err:  # pragma: no cover - a build without the odometry package
-        raise ConfigError(
-            "this sea3d has no odometry yet (sea3d.odometry.create_odometry); give known poses "
-            "with --poses TRAJ.tum"
-        ) from err
+    from sea3d.odometry import create_odometry
+
     odo = create_odometry(rig, maps, use_imu=use_imu, config=config)
     reason = odo.imu_disabled_reason
     mode = "stereo-inertial" if use_imu and reason is None else "visual"
     return odo, f"sea3d {mode} odometry" + (f" ({reason})" if mode == "visual" and reason else "")
 
 
-def odometry_available() -> bool:
-    """True when this build has sea3d's own odometry (``sea3d.odometry.create_odometry``)."""
-    try:
-        from sea3d.odometry import create_odometry  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
-# ----------------------------------------------------------------------------------- helpers
-
-
-def _T_left_rect(maps: Any) -> F64:
-    """``T_left_rect``: the rectified left camera in the raw left camera's frame."""
-    T = np.eye(4)
-    T[:3, :3] = np.asarray(maps.R_rect_left_left, np.float64).T
-    return T
-
-
-def _imu_chunk(imu: Any, t_prev: int | None, t: int) -> ImuChunk | None:
-    if imu is None or len(imu) == 0:
-        return None
-    lo = 0 if t_prev is None else int(np.searchsorted(imu.t_ns, t_prev, side="right"))
-    hi = int(np.searchsorted(imu.t_ns, t, side="right"))
-    return ImuChunk(t_ns=np.asarray(imu.t_ns[lo:hi], np.int64),
-                    accel_mps2=np.asarray(imu.accel_mps2[lo:hi], np.float64),
-                    gyro_radps=np.asarray(imu.gyro_radps[lo:hi], np.float64))
-
-
-def _path_length(t_T: F64, trusted: NDArray[np.bool_], segments: NDArray[np.int64]) -> float:
-    p = t_T[:, :3, 3]
-    step = np.linalg.norm(np.diff(p, axis=0), axis=1)
-    ok = trusted[1:] & trusted[:-1] & (segments[1:] == segments[:-1])
-    return float(step[ok].sum())
-
-
 def _rss_mb(who: int) -> float:
     return float(resource.getrusage(who).ru_maxrss) / 1024.0
 
 
-class _Timer:
-    def __init__(self) -> None:
-        self.s: dict[str, float] = {}
+def _rig(session: Any, config: ProcessConfig) -> Any:
+    """``--rig``'s rig, else the session's stored one (:func:`~sea3d.io.rig_file.resolve_rig`)."""
+    from sea3d.io.rig_file import resolve_rig
 
-    def add(self, key: str, seconds: float) -> None:
-        self.s[key] = self.s.get(key, 0.0) + float(seconds)
-
-
-def _cached_result(cache: Any, t_ns: int) -> FrameResult | None:
-    got = cache.get(t_ns)
-    if got is None:
-        return None
-    try:
-        return FrameResult.from_cache(t_ns, *got)
-    except (KeyError, ValueError, TypeError) as err:
-        log.warning("cache entry of frame %d is incomplete (%s); recomputing", t_ns, err)
-        cache.path(t_ns).unlink(missing_ok=True)
-        return None
+    return resolve_rig(config.rig_path, session)
 
 
-# ------------------------------------------------------------------------------------ runner
+def _frame_cache(out: Path, stage: FrameStageConfig, session_path: Path, fresh: bool) -> Any:
+    from sea3d.io.result_cache import FrameCache
+
+    cache = FrameCache(out / "cache", {"stage": stage.fingerprint(),
+                                       "session": str(session_path.resolve())})
+    if fresh:
+        cache.clear()
+    if not cache.check_fingerprint():
+        raise ConfigError(f"{out} holds cached results of another configuration or session; "
+                          "use another -o, or --fresh to discard them")
+    return cache
+
+
+def _odometry(config: ProcessConfig, stereo: Any, session_path: Path, has_imu: bool,
+              factory: Callable[[Any, Any], Odometry] | None) -> tuple[Odometry, str, bool]:
+    """The pose stage, its description, and whether it gets the IMU."""
+    from sea3d.io.trajectory_files import read_trajectory
+
+    use_imu = config.use_imu and has_imu
+    if config.use_imu and not has_imu:
+        log.warning("%s has no IMU samples: the odometry runs visual-only", session_path)
+    if factory is not None:
+        odo = factory(stereo.rig, stereo.maps)
+        return odo, str(getattr(odo, "name", type(odo).__name__)), use_imu
+    poses = read_trajectory(config.poses_path) if config.poses_path else None
+    odo, name = make_odometry(stereo.rig, stereo.maps, use_imu=use_imu, poses=poses,
+                              config=config.odometry_config)
+    return odo, name, use_imu and poses is None
 
 
 @locks_out_dir  # two runs into one folder: the second is refused (OutputInUseError)
@@ -334,7 +290,7 @@ def run_process(
         session_path: an MCAP file or session folder.
         config: :class:`ProcessConfig`.
         progress: progress-bar factory (the CLI's tqdm); None shows nothing.
-        on_result: called with the result at the end (after :func:`publish_results`).
+        on_result: called with the result at the end.
         odometry: ``factory(rig, maps) -> Odometry`` to use instead of :func:`make_odometry`
             (another estimator, or a test double).
 
@@ -344,341 +300,125 @@ def run_process(
     Raises:
         SessionError: unreadable session, no stereo pairs, no rig.
         ConfigError: bad options, a cache made with another configuration (without
-            ``fresh``), no odometry and no ``--poses``.
+            ``fresh``).
         OdometryError, ReconError: invalid data reaching those stages.
     """
-    from sea3d.io.mesh_files import write_mesh, write_point_cloud
-    from sea3d.io.result_cache import DiskSubmapStore, FrameCache
-    from sea3d.io.rig_file import resolve_rig
     from sea3d.io.session import open_session
-    from sea3d.io.trajectory_files import read_trajectory, write_tum
+    from sea3d.pipeline.depth_scheduler import DepthScheduler
     from sea3d.pipeline.executors import make_executor
-    from sea3d.recon.cloud import CloudConfig, clean_point_cloud
-    from sea3d.recon.submaps import FusionConfig, SubmapFusion, merge_submaps
-    from sea3d.recon.tsdf import TsdfConfig
+    from sea3d.pipeline.frame_source import SessionFrames, imu_between
+    from sea3d.pipeline.submap_store import DiskSubmapStore
+    from sea3d.recon.submaps import SubmapFusion
 
     bar = progress or _no_progress
     t_start = time.perf_counter()
-    timer = _Timer()
-    session_path = Path(session_path)
-    out = Path(config.out_dir)
+    timer = StageTimer()
+    session_path, out = Path(session_path), Path(config.out_dir)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise SessionError(f"cannot create the output folder {out}: {err}") from err
-
     with open_session(session_path) as session:
-        # -- rig, geometry, frames ------------------------------------------------------
-        native = resolve_rig(config.rig_path, session)
-        match = session.match_pairs()
-        n_pairs = len(match)
-        if n_pairs == 0:
-            raise SessionError(f"{session_path}: no stereo pairs to process")
-        if config.max_frames is not None:
-            n_pairs = min(n_pairs, config.max_frames)
-        left_stamps = session.stamps("left")
-        order = [int(left_stamps[i]) for i in match.left_index[:n_pairs]]
-        n_local = config.workers if config.workers is not None else min(os.cpu_count() or 1, 8)
-        stage_cfg = FrameStageConfig(
-            rig=native, size_px=config.size_px,
-            depth=DepthConfig(engine=config.engine, max_disparity_px=config.max_disparity_px,
-                              min_depth_m=config.min_depth_m, max_depth_m=config.max_depth_m),
-            enhance=config.enhance,
-            restore_colours=config.restore_colours,
-            threads=max(1, (os.cpu_count() or 1) // max(1, n_local))
-            if config.scheduler is None else None,
-        )
-        executor: Any = None
+        source = SessionFrames(session, session_path, _rig(session, config),
+                               max_frames=config.max_frames)
+        stage_cfg = config.frame_stage(source.native_rig)
+        t0 = time.perf_counter()
+        stereo = stage_depth(stage_cfg)
+        timer.add("rectify_maps_s", time.perf_counter() - t0)
+        executor = make_executor(config.workers, config.scheduler,
+                                 setup=(install_geometry, (stage_cfg, stereo)))
         try:
-            first = session.image("left", int(match.left_index[0]), by="index")
-            if first.shape[:2] != (native.height, native.width):
-                raise SessionError(
-                    f"{session_path}: images are {first.shape[1]}x{first.shape[0]} but the rig "
-                    f"is {native.width}x{native.height}; pass the rig of this camera with --rig"
-                    " (--size then sets the processing size)"
-                )
-            t0 = time.perf_counter()
-            stereo = stage_depth(stage_cfg)
-            rig, maps = stereo.rig, stereo.maps
-            timer.add("rectify_maps_s", time.perf_counter() - t0)
-            executor = make_executor(config.workers, config.scheduler,
-                                     setup=(install_geometry, (stage_cfg, stereo)))
-            n_workers = max(1, executor.workers)
-            geometry_arg = executor.share(stereo)
-            imu = session.imu()
-            has_imu = len(imu) > 0
-            use_imu = config.use_imu and has_imu
-            if config.use_imu and not has_imu:
-                log.warning("%s has no IMU samples: the odometry runs visual-only", session_path)
-            poses = read_trajectory(config.poses_path) if config.poses_path else None
-            if odometry is not None:
-                odo = odometry(rig, maps)
-                odometry_name = str(getattr(odo, "name", type(odo).__name__))
-            else:
-                odo, odometry_name = make_odometry(rig, maps, use_imu=use_imu, poses=poses,
-                                                   config=config.odometry_config)
-            # -- cache ------------------------------------------------------------------
-            cache = FrameCache(out / "cache", {"stage": stage_cfg.fingerprint(),
-                                               "session": str(session_path.resolve())})
-            if config.fresh:
-                cache.clear()
-            if not cache.check_fingerprint():
-                raise ConfigError(
-                    f"{out} holds cached results of another configuration or session; use "
-                    "another -o, or --fresh to discard them"
-                )
-            cached = cache.stamps()
-            # -- ordered stages' state --------------------------------------------------
-            tsdf_cfg = TsdfConfig(voxel_m=config.voxel_m, depth_min_m=stereo.min_depth_m,
-                                  depth_max_m=stereo.max_depth_m)
-            fusion = SubmapFusion(FusionConfig(
-                tsdf=tsdf_cfg, integrate=config.integrate,
-                keyframes_per_submap=config.keyframes_per_submap,
-                max_blocks=config.max_submap_blocks))
+            odo, odometry_name, imu_used = _odometry(config, stereo, session_path,
+                                                     len(source.imu) > 0, odometry)
+            cache = _frame_cache(out, stage_cfg, session_path, config.fresh)
+            fusion_cfg = config.fusion(stereo.depth_range_m)
             store = DiskSubmapStore(out / "submaps")
             store.clear()
-            K = np.asarray(maps.P_left[:3, :3], np.float64)
-            T_left_rect = _T_left_rect(maps)
-            R_rect = np.asarray(maps.R_rect_left_left, np.float64)
-            kf_rect: dict[int, F64] = {}
-            estimates: list[OdometryEstimate] = []
-            fuse_status: list[str] = []
-            frame_status: list[str] = []
-            valid_fraction: list[float] = []
-            colour_status: dict[str, int] = {}
-            worker_t: dict[str, float] = {}
-            n_cached = n_failed = n_unreadable = loop_closures = 0
-            window = config.in_flight or 2 * n_workers + 2
-
-            bar_depth = bar("depth", n_pairs)
-            bar_odo = bar("odometry", n_pairs)
-            bar_fuse = bar("fusion", n_pairs)
-            pending: dict[int, Any] = {}
-            ready: dict[int, FrameResult | None] = {}
-            submit_i = consume_i = 0
-            t_prev: int | None = None
-            t_stage0 = time.perf_counter()
+            stages = OrderedStages(odo, SubmapFusion(fusion_cfg), store, stereo.maps,
+                                   use_imu=config.use_imu and len(source.imu) > 0, timer=timer)
+            window = config.in_flight or 2 * max(1, executor.workers) + 2
+            bars = [bar(name, len(source)) for name in ("depth", "odometry", "fusion")]
+            depth = DepthScheduler(source, executor, stage_cfg, executor.share(stereo), cache,
+                                   window=window, timer=timer, on_depth=bars[0].update)
+            t_loop, t_prev = time.perf_counter(), None
             try:
-                while consume_i < n_pairs:
-                    while submit_i < n_pairs and len(pending) + len(ready) < window:
-                        t = order[submit_i]
-                        li = int(match.left_index[submit_i])
-                        ri = int(match.right_index[submit_i])
-                        submit_i += 1
-                        if t in cached:
-                            tr = time.perf_counter()
-                            res = _cached_result(cache, t)
-                            timer.add("cache_read_s", time.perf_counter() - tr)
-                            if res is not None:
-                                ready[t] = res
-                                n_cached += 1
-                                bar_depth.update(1)
-                                continue
-                        tr = time.perf_counter()
-                        try:
-                            left = session.image("left", li, by="index")
-                            right = session.image("right", ri, by="index")
-                        except SessionError as err:
-                            log.warning("frame t_ns=%d cannot be read (%s); skipped", t, err)
-                            ready[t] = None
-                            n_unreadable += 1
-                            bar_depth.update(1)
-                            continue
-                        finally:
-                            timer.add("read_s", time.perf_counter() - tr)
-                        pending[t] = executor.submit(process_frame, stage_cfg, t, left, right,
-                                                     geometry_arg)
-                    t_next = order[consume_i]
-                    if t_next not in ready:
-                        executor.wait_first(pending.values())
-                        for t_done in [k for k, f in pending.items() if f.done()]:
-                            res = pending.pop(t_done).result()
-                            tw = time.perf_counter()
-                            cache.put(t_done, *res.to_cache())
-                            timer.add("cache_write_s", time.perf_counter() - tw)
-                            ready[t_done] = res
-                            bar_depth.update(1)
-                        continue
-                    res = ready.pop(t_next)
-                    consume_i += 1
+                for _pair, res in depth.results():
                     if res is None:
                         continue
-                    for k, v in res.timings_s.items():
-                        worker_t[k] = worker_t.get(k, 0.0) + v
-                    frame_status.append(res.status)
-                    valid_fraction.append(res.valid_fraction)
-                    if res.status == "failed":
-                        n_failed += 1
-                        log.warning("frame t_ns=%d: %s", res.t_ns, res.message)
-                        # No images: the odometry cannot see this frame.
-                        frame_status.pop()
-                        valid_fraction.pop()
+                    if stages.step(res, imu_between(source.imu, t_prev, res.t_ns)) is None:
                         continue
-                    # -- odometry ---------------------------------------------------------
-                    to = time.perf_counter()
-                    obs = FrameObservation(
-                        t_ns=res.t_ns, rect_left=res.rect_left, rect_right=res.rect_right,
-                        depth_m=res.depth_m, K_rect=K, baseline_m=float(maps.baseline_m),
-                        R_rect_left_left=R_rect,
-                        imu=_imu_chunk(imu, t_prev, res.t_ns) if use_imu else None,
-                    )
-                    est = odo.step(obs)
                     t_prev = res.t_ns
-                    estimates.append(est)
-                    if est.loop_closure:
-                        loop_closures += 1
-                        kf_rect = {k: T @ T_left_rect
-                                   for k, T in odo.keyframe_poses().items()}
-                    if est.keyframe_id is not None:
-                        kf_rect[est.keyframe_id] = np.asarray(est.T_world_left) @ T_left_rect
-                    timer.add("odometry_s", time.perf_counter() - to)
-                    bar_odo.update(1)
-                    # -- fusion -----------------------------------------------------------
-                    tf = time.perf_counter()
-                    color = res.colors()
-                    if res.colour_status:
-                        colour_status[res.colour_status] = (
-                            colour_status.get(res.colour_status, 0) + 1)
-                    step = fusion.step(
-                        t_ns=res.t_ns, trusted=est.status in TRUSTED,
-                        keyframe_id=est.keyframe_id, depth_m=res.fusion_depth_m,
-                        color_rgb=color, K=K,
-                        T_world_cam=np.asarray(est.T_world_left) @ T_left_rect,
-                        keyframe_poses=kf_rect,
-                    )
-                    fuse_status.append(step.status)
-                    for sm in step.finished:
-                        store.put(sm)
-                    timer.add("fusion_s", time.perf_counter() - tf)
-                    bar_fuse.update(1)
+                    bars[1].update(1)
+                    bars[2].update(1)
             finally:
-                for f in pending.values():
-                    f.cancel()
-                executor.close()
-                for b in (bar_depth, bar_odo, bar_fuse):
+                for b in bars:
                     b.close()
-            timer.add("frame_loop_wall_s", time.perf_counter() - t_stage0)
-        except BaseException:
-            if executor is not None:
-                executor.close()
-            raise
-    last = fusion.finish()
-    if last is not None:
-        store.put(last)
-    if not estimates:
+            timer.add("frame_loop_wall_s", time.perf_counter() - t_loop)
+        finally:
+            executor.close()
+    stages.finish_fusion()
+    if not stages.estimates:
         raise SessionError(f"{session_path}: no frame could be processed "
-                           f"({n_unreadable} unreadable, {n_failed} failed)")
+                           f"({depth.unreadable} unreadable, {stages.failed} failed)")
+    return _finish(session_path, out, config, stages, store, fusion_cfg, stereo, source,
+                   depth, executor, window, odometry_name, imu_used, timer, t_start, bar,
+                   on_result)
 
-    # -- final poses, merge ---------------------------------------------------------------
-    t_final, T_final = odo.trajectory()
-    # One pose per processed frame, in frame order: the odometry's final (re-optimised) pose,
-    # or its per-frame estimate for a frame its trajectory lacks.
-    final = {int(t): np.asarray(T, np.float64) for t, T in zip(t_final, T_final, strict=True)}
-    missing = sum(1 for e in estimates if int(e.t_ns) not in final)
-    if missing:
-        log.warning("the odometry's trajectory lacks %d of %d frames; their per-frame "
-                    "estimates are used", missing, len(estimates))
-    t_traj = np.array([e.t_ns for e in estimates], np.int64)
-    T_traj = np.stack([final.get(int(e.t_ns), np.asarray(e.T_world_left, np.float64))
-                       for e in estimates])
-    final_kf = {k: T @ T_left_rect for k, T in odo.keyframe_poses().items()}
-    tm = time.perf_counter()
-    merge_bar = bar("merge", len(store.ids()))
-    try:
-        merged = merge_submaps(store, final_kf, tsdf_cfg, tile_m=config.merge_tile_m,
-                               progress=merge_bar.update)
-    finally:
-        merge_bar.close()
-    timer.add("merge_s", time.perf_counter() - tm)
-    tc = time.perf_counter()
-    cloud = clean_point_cloud(merged.points, merged.colors, merged.normals,
-                              CloudConfig(voxel_m=config.cloud_voxel_m or config.voxel_m / 2))
-    timer.add("cloud_s", time.perf_counter() - tc)
 
-    # -- outputs ----------------------------------------------------------------------------
+def _finish(session_path: Path, out: Path, config: ProcessConfig, stages: OrderedStages,
+            store: Any, fusion_cfg: Any, stereo: Any, source: Any, depth: Any, executor: Any,
+            window: int, odometry_name: str, imu_used: bool, timer: StageTimer,
+            t_start: float, bar: ProgressFactory,
+            on_result: Callable[[ProcessResult], None] | None) -> ProcessResult:
+    """Merge, write the outputs, evaluate, report (the finish step of :func:`run_process`)."""
+    from sea3d.io.process_outputs import write_process_outputs, write_summary_json
+    from sea3d.pipeline.finish import finish_reconstruction, frame_rows, run_summary
+    from sea3d.pipeline.groundtruth import evaluate_against_ground_truth
+
+    maps = stereo.maps
+    rec = finish_reconstruction(stages, store, fusion_cfg.tsdf, tile_m=config.merge_tile_m,
+                                cloud_voxel_m=config.cloud_voxel_m or config.voxel_m / 2,
+                                progress=bar, timer=timer)
     tw = time.perf_counter()
-    files = {
-        "trajectory": out / "trajectory.tum",
-        "mesh": out / "mesh.ply",
-        "cloud": out / "cloud.ply",
-        "status": out / "status.csv",
-        "summary": out / "summary.json",
-        "results_mcap": out / "results.mcap",
-    }
-    write_tum(files["trajectory"], t_traj, T_traj,
-              header="t x y z qx qy qz qw: T_world_left of every stereo frame (t in seconds "
-                     "of session time, metres); trust only frames tracking/relocalised in "
-                     "status.csv")
-    write_mesh(files["mesh"], merged.mesh)
-    write_point_cloud(files["cloud"], cloud.points, cloud.colors, cloud.normals)
-    _write_status_csv(files["status"], estimates, fuse_status, frame_status, valid_fraction)
-    _write_results_mcap(files["results_mcap"], t_traj, T_traj, estimates, merged.mesh, cloud,
-                        rig)
+    files = write_process_outputs(out, t_ns=rec.t_ns, T_world_left=rec.T_world_left,
+                                  rows=frame_rows(stages), mesh=rec.mesh, cloud=rec.cloud,
+                                  rig=stereo.rig)
     timer.add("write_s", time.perf_counter() - tw)
-
-    statuses = [e.status for e in estimates]
-    trusted = np.array([s in TRUSTED for s in statuses])
-    seg = np.array([e.segment for e in estimates], np.int64)
-    est_T = T_traj
-    counts = {s.value: int(sum(1 for x in statuses if x == s)) for s in TrackingStatus}
-    summary: dict[str, Any] = {
-        "session": str(session_path),
-        "frames": len(estimates),
-        "pairs_in_session": len(match),
-        "keyframes": int(sum(1 for e in estimates if e.keyframe_id is not None)),
-        "frames_lost": counts[TrackingStatus.LOST.value],
-        "frames_imu_only": counts[TrackingStatus.IMU_ONLY.value],
-        "frames_relocalised": counts[TrackingStatus.RELOCALISED.value],
-        "frames_tracking": counts[TrackingStatus.TRACKING.value],
-        "frames_initialising": counts[TrackingStatus.INITIALISING.value],
-        "frames_unreadable": n_unreadable,
-        "frames_failed": n_failed,
-        "frames_fused": int(sum(1 for s in fuse_status if s == "integrated")),
-        "frames_from_cache": n_cached,
-        "loop_closures": loop_closures,
-        "segments": int(seg.max() + 1) if len(seg) else 0,
-        "path_length_m": _path_length(est_T, trusted, seg) if len(est_T) > 1 else 0.0,
-        "odometry": odometry_name,
-        "imu_used": bool(use_imu and poses is None),
-        "executor": {"kind": executor.name, "workers": executor.workers,
-                     "in_flight": window},
-        "image_size_px": [int(maps.width), int(maps.height)],
-        "refractive": bool(maps.refractive),
-        "depth_range_m": list(stereo.depth_range_m),
-        "max_disparity_px": stereo.max_disparity_px,
-        "virtual_pinhole_rms_px": (maps.report_left.rms_px if maps.report_left else 0.0),
-        "voxel_m": config.voxel_m,
-        "integrate": config.integrate,
-        "submaps": merged.submaps,
-        "submaps_moved_by_loop_closures": merged.moved,
-        "active_submap_peak_mb": fusion.peak_memory_bytes / 2**20,
-        "mesh": {"vertices": len(merged.mesh.vertices), "triangles": len(merged.mesh.triangles)},
-        "cloud": {"points": len(cloud.points), "outliers_removed": cloud.outliers},
-        "mean_valid_depth_fraction": float(np.mean(valid_fraction)) if valid_fraction else 0.0,
-        "colours": {"enhance": str(config.enhance or "none"),
-                    "restore": config.restore_colours, "restore_status": colour_status},
-        "timings_s": {},
-        "worker_timings_s": worker_t,
-        "cache_mb_written": cache.bytes_written / 2**20,
-    }
+    summary = run_summary(
+        stages, rec, session=str(session_path), pairs_in_session=source.pairs_in_session,
+        frames_unreadable=depth.unreadable, frames_from_cache=depth.from_cache,
+        odometry=odometry_name, imu_used=imu_used,
+        executor={"kind": executor.name, "workers": executor.workers, "in_flight": window},
+        image_size_px=[int(maps.width), int(maps.height)], refractive=bool(maps.refractive),
+        depth_range_m=list(stereo.depth_range_m), max_disparity_px=stereo.max_disparity_px,
+        virtual_pinhole_rms_px=(maps.report_left.rms_px if maps.report_left else 0.0),
+        voxel_m=config.voxel_m, integrate=config.integrate)
+    summary["colours"] = {"enhance": str(config.enhance or "none"),
+                          "restore": config.restore_colours,
+                          "restore_status": stages.colour_status}
+    summary["timings_s"] = {}
+    summary["worker_timings_s"] = stages.worker_timings_s
+    summary["cache_mb_written"] = depth.cache.bytes_written / 2**20
+    statuses = [e.status for e in stages.estimates]
     result = ProcessResult(
-        out_dir=out, t_ns=np.asarray(t_traj, np.int64), T_world_left=est_T, statuses=statuses,
-        mesh=merged.mesh, cloud_points=cloud.points, cloud_colors=cloud.colors,
-        summary=summary, files=files,
-    )
-    # -- evaluation against the simulator's ground truth -----------------------------------
+        out_dir=out, t_ns=rec.t_ns, T_world_left=rec.T_world_left, statuses=statuses,
+        mesh=rec.mesh, cloud_points=rec.cloud.points, cloud_colors=rec.cloud.colors,
+        summary=summary, files=files)
     if config.evaluate:
         te = time.perf_counter()
-        summary.update(_evaluate(session_path, result, native, stereo.max_depth_m))
+        summary.update(evaluate_against_ground_truth(
+            session_path, t_ns=rec.t_ns, T_world_left=rec.T_world_left,
+            trusted=np.array([s in TRUSTED for s in statuses]), mesh=rec.mesh,
+            camera=source.native_rig.left, max_depth_m=stereo.max_depth_m))
         timer.add("evaluate_s", time.perf_counter() - te)
     timings = dict(timer.s)
     timings["total_s"] = time.perf_counter() - t_start
     summary["timings_s"] = timings
     summary["one_off_s"] = {"warmup_s (kernel compilation, once per worker)":
-                            worker_t.get("warmup_s", 0.0),
+                            stages.worker_timings_s.get("warmup_s", 0.0),
                             "rectify_maps_s": timings.get("rectify_maps_s", 0.0)}
     loop_wall = timings.get("frame_loop_wall_s", 0.0)
-    summary["frames_per_second"] = len(estimates) / loop_wall if loop_wall > 0 else None
+    summary["frames_per_second"] = len(stages.estimates) / loop_wall if loop_wall > 0 else None
     summary["peak_rss_mb"] = {"client": _rss_mb(resource.RUSAGE_SELF),
                               "workers": _rss_mb(resource.RUSAGE_CHILDREN)}
     if config.report:
@@ -687,114 +427,7 @@ def run_process(
         tr = time.perf_counter()
         files["report"] = write_process_report(out / "report.html", result)
         summary["timings_s"]["report_s"] = time.perf_counter() - tr
-    _write_json(files["summary"], summary)
-    publish_results(result)
+    write_summary_json(files["summary"], summary)
     if on_result is not None:
         on_result(result)
     return result
-
-
-def _write_json(path: Path, data: dict[str, Any]) -> None:
-    atomic_write(path, json.dumps(data, indent=2, default=_json_default) + "\n")
-
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
-
-
-def _write_status_csv(path: Path, estimates: list[OdometryEstimate], fuse: list[str],
-                      frame: list[str], valid: list[float]) -> None:
-    with atomic_open(path, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["t_ns", "status", "segment", "keyframe_id", "anchor_keyframe_id",
-                    "loop_closure", "tracked_features", "depth", "valid_depth_fraction",
-                    "fusion"])
-        for e, fs, st, vf in zip(estimates, fuse, frame, valid, strict=True):
-            w.writerow([e.t_ns, e.status.value, e.segment,
-                        "" if e.keyframe_id is None else e.keyframe_id,
-                        "" if e.anchor_keyframe_id is None else e.anchor_keyframe_id,
-                        int(e.loop_closure), e.tracked_features, st, f"{vf:.4f}", fs])
-
-
-def _pose_alignment(t_est: NDArray[np.int64], T_est: F64, t_ref: NDArray[np.int64],
-                    T_ref: F64, axis_m: float = 1.0) -> F64:
-    """The rigid ``T_ref_est`` that puts the estimate's world (and its mesh) onto the reference's.
-
-    The ATE's alignment fits positions only, and a short survey leg is nearly a straight line:
-    the rotation about it is then undetermined (an 8-frame demo dive came out upside down, the
-    mesh 2.6 m off). Here every matched pose also gives the tips of its three axes, ``axis_m``
-    out, so orientations pin the rotation even when the positions are collinear.
-    """
-    from sea3d.eval.trajectory import associate, umeyama
-
-    i, j = associate(t_est, t_ref, 1_000_000)
-    if i.size == 0:
-        return np.eye(4)
-
-    def points(T: F64) -> F64:
-        p = T[:, :3, 3]
-        tips = [p + axis_m * T[:, :3, a] for a in range(3)]
-        return np.concatenate([p, *tips])
-
-    R, t, _ = umeyama(points(T_est[i]), points(T_ref[j]), with_scale=False)
-    S = np.eye(4)
-    S[:3, :3], S[:3, 3] = R, t
-    return S
-
-
-def _evaluate(session_path: Path, result: ProcessResult, rig: Any,
-              max_depth_m: float) -> dict[str, Any]:
-    """Trajectory and surface figures against the simulator's ground truth, if present."""
-    from sea3d.eval.surface import surface_metrics
-    from sea3d.eval.trajectory import evaluate_trajectory
-    from sea3d.io.mesh_files import read_mesh
-    from sea3d.io.trajectory_files import read_trajectory
-    from sea3d.pipeline.groundtruth import find_ground_truth, observed_surface_points
-
-    gt = find_ground_truth(session_path)
-    if gt is None:
-        return {"ground_truth": None}
-    out: dict[str, Any] = {"ground_truth": str(gt.root)}
-    T_ref_est = np.eye(4)
-    gt_traj = None
-    if gt.poses_left is not None and len(result.t_ns) >= 3:
-        try:
-            gt_traj = read_trajectory(gt.poses_left)
-            trusted = np.array([s in TRUSTED for s in result.statuses])
-            m = evaluate_trajectory(result.t_ns[trusted], result.T_world_left[trusted],
-                                    gt_traj.t_ns, gt_traj.T_world_x, align="se3",
-                                    max_diff_s=0.001)
-            out["trajectory_vs_gt"] = m.as_dict()
-            T_ref_est = _pose_alignment(result.t_ns[trusted], result.T_world_left[trusted],
-                                        gt_traj.t_ns, gt_traj.T_world_x)
-        except Sea3dError as err:
-            out["trajectory_vs_gt"] = {"error": str(err)}
-    if gt.scene_mesh is not None and not result.mesh.empty:
-        try:
-            ref = read_mesh(gt.scene_mesh)
-            mesh_gt = result.mesh.transformed(T_ref_est)
-            observed = None
-            if gt.depth_dir is not None and gt_traj is not None:
-                observed = observed_surface_points(
-                    gt.depth_dir, rig.left, gt_traj.t_ns, gt_traj.T_world_x,
-                    max_depth_m=max_depth_m)
-                if len(observed) == 0:
-                    observed = None
-            sm = surface_metrics(mesh_gt.vertices, mesh_gt.triangles, ref.vertices,
-                                 ref.triangles, reference_points=observed, samples=100_000)
-            out["mesh_vs_gt"] = sm.as_dict()
-            out["mesh_vs_gt"]["completeness_reference"] = (
-                "surface seen in the ground-truth depth maps" if observed is not None
-                else "the whole scene mesh")
-        except Sea3dError as err:
-            out["mesh_vs_gt"] = {"error": str(err)}
-    return out
-
-
-__all__ += ["odometry_available"]

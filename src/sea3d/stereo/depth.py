@@ -8,6 +8,9 @@ Refractive rigs: each match (left rectified pixel ``(u, v)``, right ``(u - d, v)
 back to both raw images through the rectification tables, unprojected through each camera's
 port into water rays, and triangulated (midpoint of closest approach) in the left camera frame.
 This stays right where the virtual pinhole used for rectification is only approximate.
+:func:`triangulate_disparity` does that per pixel (the reference); :func:`disparity_to_points`
+uses the same rays precomputed once per rectification (:func:`ray_tables`,
+:mod:`sea3d.stereo.triangulation`), 20x faster and within 2e-5 of the depth of the reference.
 
 Depth maps are float32 metres along the rectified left camera's z axis, NaN invalid. Point
 clouds are ``(N, 3)`` float64 metres in the **left camera's own frame** (unrectified), so they
@@ -17,6 +20,7 @@ line up with the rig's other sensors.
 from __future__ import annotations
 
 import time
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -28,6 +32,7 @@ from sea3d.geometry.camera import Rays
 from sea3d.geometry.triangulate import triangulate_midpoint
 from sea3d.rectify.maps import RectifyMaps, rectify_images
 from sea3d.stereo.engine import EngineConfig, match
+from sea3d.stereo.triangulation import RayTables, triangulate_with_tables
 
 __all__ = [
     "DepthResult",
@@ -36,6 +41,7 @@ __all__ = [
     "disparity_to_depth",
     "disparity_to_points",
     "max_disparity_for_depth",
+    "ray_tables",
     "triangulate_disparity",
 ]
 
@@ -138,14 +144,34 @@ def triangulate_disparity(
     return points, depth, mask
 
 
+_TABLES: weakref.WeakKeyDictionary[RectifyMaps, RayTables] = weakref.WeakKeyDictionary()
+
+
+def ray_tables(maps: RectifyMaps) -> RayTables:
+    """The water-ray tables of ``maps`` (:class:`~sea3d.stereo.triangulation.RayTables`),
+    built on first use and kept as long as the maps live (per process: they are not pickled
+    with the maps, a worker builds its own once).
+
+    Raises:
+        StereoError: the maps carry no rig.
+    """
+    got = _TABLES.get(maps)
+    if got is None:
+        got = RayTables.from_maps(maps)
+        _TABLES[maps] = got
+    return got
+
+
 def disparity_to_points(
-    maps: RectifyMaps, disparity_px: np.ndarray, *, max_gap_m: float = 0.01
+    maps: RectifyMaps, disparity_px: np.ndarray, *, max_gap_m: float = 0.01,
+    tables: RayTables | None = None,
 ) -> tuple[F64, F64, NDArray[np.bool_]]:
     """Metric points of a rectified left disparity map, for any rig.
 
     Pinhole rigs: ``z = f B / d`` along the rectified left axis, back-projected through the
     rectified pinhole and rotated into the left camera's own frame (``R_rect_left_left^T``).
-    Refractive rigs: :func:`triangulate_disparity` with the true rays.
+    Refractive rigs: the true rays, from the ray tables (``tables``, else
+    :func:`ray_tables` of ``maps``), as :func:`triangulate_disparity` computes them per pixel.
 
     Returns:
         ``points_left`` (N, 3) metres in the left camera frame, ``depth_rect`` (N,) metres along
@@ -159,7 +185,11 @@ def disparity_to_points(
     if d.shape != (maps.height, maps.width):
         raise StereoError(f"disparity {d.shape} does not match the rig {maps.height}x{maps.width}")
     if maps.refractive:
-        return triangulate_disparity(maps, d, max_gap_m=max_gap_m)
+        if maps.rig is None:
+            raise StereoError("these rectification maps carry no rig; build them with "
+                              "rectify_rig")
+        return triangulate_with_tables(tables if tables is not None else ray_tables(maps), d,
+                                       max_gap_m=max_gap_m)
     depth = disparity_to_depth(d, maps.focal_px, maps.baseline_m)
     mask = np.isfinite(depth)
     v, u = np.nonzero(mask)
@@ -204,6 +234,7 @@ def compute_depth(
     *,
     max_depth_m: float | None = None,
     min_confidence: float = 1e-6,
+    tables: RayTables | None = None,
 ) -> DepthResult:
     """Rectify a raw pair, match it, and turn the disparity into metric depth and points.
 
@@ -219,6 +250,7 @@ def compute_depth(
         max_depth_m: depths beyond this are set invalid (None keeps all).
         min_confidence: matched pixels below this confidence get no depth (0 keeps filled
             pixels too).
+        tables: the ray tables of ``maps`` (refractive rigs; None: :func:`ray_tables`).
 
     Raises:
         RectifyError: image size differs from the rig's. StereoError: invalid images.
@@ -231,7 +263,7 @@ def compute_depth(
     disp = res.disparity_px
     h, w = disp.shape
     keep = res.confidence >= min_confidence if min_confidence > 0 else np.isfinite(disp)
-    points, z, mask = disparity_to_points(maps, np.where(keep, disp, np.nan))
+    points, z, mask = disparity_to_points(maps, np.where(keep, disp, np.nan), tables=tables)
     depth: F32 = np.full((h, w), np.nan, np.float32)
     depth[mask] = z
     if max_depth_m is not None:

@@ -63,8 +63,9 @@ from sea3d.errors import ConfigError, StereoError
 from sea3d.geometry.rig import StereoRig
 from sea3d.rectify.maps import RectifyMaps, rectify_rig
 from sea3d.refraction.ports import FlatPort
-from sea3d.stereo.depth import DepthResult, compute_depth, max_disparity_for_depth
+from sea3d.stereo.depth import DepthResult, compute_depth, max_disparity_for_depth, ray_tables
 from sea3d.stereo.engine import EngineConfig, make_config
+from sea3d.stereo.triangulation import RayTables
 
 __all__ = [
     "ENGINES",
@@ -241,6 +242,13 @@ class StereoDepth:
         return self._engine
 
     @property
+    def tables(self) -> RayTables | None:
+        """The water-ray tables of a refractive rig's rectification (built on first use, once
+        per process: they are not pickled, a worker builds its own), None for a pinhole rig.
+        See :mod:`sea3d.stereo.triangulation`."""
+        return ray_tables(self._maps) if self._maps.refractive else None
+
+    @property
     def max_disparity_px(self) -> int:
         """Largest disparity searched, rectified pixels."""
         return self._max_disparity_px
@@ -298,4 +306,4 @@ class StereoDepth:
                                   f"{getattr(img, 'shape', type(img).__name__)}")
         return compute_depth(self._maps, left, right, self._engine,
                              max_depth_m=self._depth_range_m[1],
-                             min_confidence=self._config.min_confidence)
+                             min_confidence=self._config.min_confidence, tables=self.tables)

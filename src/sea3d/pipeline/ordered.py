@@ -1,0 +1,141 @@
+"""The ordered stages of the process pipeline: odometry, then fusion, one frame at a time.
+
+:class:`OrderedStages` is fed per-frame results in time order, offline (``sea3d process``) or
+live (``sea3d live``), and keeps what stays per frame: the odometry's estimate, the depth and
+fusion statuses and the valid-depth fraction; never images or depth. Finished TSDF submaps go
+to a store (on disk in ``process``), so fusion holds one active submap.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sea3d.odometry.types import FrameObservation, ImuChunk, Odometry, OdometryEstimate
+from sea3d.odometry.types import TrackingStatus as TS
+from sea3d.pipeline.depth_scheduler import StageTimer
+from sea3d.pipeline.frame_stage import FrameResult
+
+__all__ = ["TRUSTED", "OrderedStages", "T_left_rect"]
+
+log = logging.getLogger(__name__)
+
+F64 = NDArray[np.float64]
+TRUSTED = (TS.TRACKING, TS.RELOCALISED)
+
+
+def T_left_rect(maps: Any) -> F64:
+    """``T_left_rect``: the rectified left camera in the raw left camera's frame."""
+    T = np.eye(4)
+    T[:3, :3] = np.asarray(maps.R_rect_left_left, np.float64).T
+    return T
+
+
+class OrderedStages:
+    """Odometry and fusion over per-frame results in time order.
+
+    Args:
+        odometry: the pose stage (:func:`sea3d.pipeline.process.make_odometry`).
+        fusion: a :class:`~sea3d.recon.submaps.SubmapFusion`.
+        store: where finished submaps go (a :class:`~sea3d.recon.submaps.SubmapStore`).
+        maps: the rectification the results live on.
+        use_imu: hand the odometry the IMU between frames.
+        timer: where ``odometry_s`` and ``fusion_s`` are added.
+    """
+
+    def __init__(self, odometry: Odometry, fusion: Any, store: Any, maps: Any, *,
+                 use_imu: bool, timer: StageTimer) -> None:
+        self.odometry, self.fusion, self.store = odometry, fusion, store
+        self.use_imu, self.timer = use_imu, timer
+        self.K = np.asarray(maps.P_left[:3, :3], np.float64)
+        self.baseline_m = float(maps.baseline_m)
+        self.R_rect = np.asarray(maps.R_rect_left_left, np.float64)
+        self.T_left_rect = T_left_rect(maps)
+        self.kf_rect: dict[int, F64] = {}
+        self.estimates: list[OdometryEstimate] = []
+        self.fuse_status: list[str] = []
+        self.frame_status: list[str] = []
+        self.valid_fraction: list[float] = []
+        self.colour_status: dict[str, int] = {}
+        self.worker_timings_s: dict[str, float] = {}
+        self.failed = 0
+        self.loop_closures = 0
+
+    def step(self, res: FrameResult, imu: ImuChunk | None, *, fuse: bool = True
+             ) -> OdometryEstimate | None:
+        """One frame: odometry (every frame with images), then fusion (trusted poses; not
+        when ``fuse`` is False: live, a frame whose depth was dropped to keep up, whose
+        ``depth_m`` is only the odometry's seed, is recorded as ``no-depth``).
+
+        Returns:
+            The odometry's estimate, or None for a frame whose per-frame stage failed (no
+            images: the odometry cannot see it; counted in ``failed``).
+        """
+        for k, v in res.timings_s.items():
+            self.worker_timings_s[k] = self.worker_timings_s.get(k, 0.0) + v
+        if res.status == "failed":
+            self.failed += 1
+            log.warning("frame t_ns=%d: %s", res.t_ns, res.message)
+            return None
+        self.frame_status.append(res.status)
+        self.valid_fraction.append(res.valid_fraction)
+        to = time.perf_counter()
+        obs = FrameObservation(
+            t_ns=res.t_ns, rect_left=res.rect_left, rect_right=res.rect_right,
+            depth_m=res.depth_m, K_rect=self.K, baseline_m=self.baseline_m,
+            R_rect_left_left=self.R_rect, imu=imu if self.use_imu else None)
+        est = self.odometry.step(obs)
+        self.estimates.append(est)
+        if est.loop_closure:
+            self.loop_closures += 1
+            self.kf_rect = {k: T @ self.T_left_rect
+                            for k, T in self.odometry.keyframe_poses().items()}
+        if est.keyframe_id is not None:
+            self.kf_rect[est.keyframe_id] = np.asarray(est.T_world_left) @ self.T_left_rect
+        self.timer.add("odometry_s", time.perf_counter() - to)
+        if not fuse:
+            self.fuse_status.append("no-depth")
+            return est
+        tf = time.perf_counter()
+        if res.colour_status:
+            self.colour_status[res.colour_status] = (
+                self.colour_status.get(res.colour_status, 0) + 1)
+        fused = self.fusion.step(
+            t_ns=res.t_ns, trusted=est.status in TRUSTED, keyframe_id=est.keyframe_id,
+            depth_m=res.fusion_depth_m, color_rgb=res.colors(), K=self.K,
+            T_world_cam=np.asarray(est.T_world_left) @ self.T_left_rect,
+            keyframe_poses=self.kf_rect)
+        self.fuse_status.append(fused.status)
+        for sm in fused.finished:
+            self.store.put(sm)
+        self.timer.add("fusion_s", time.perf_counter() - tf)
+        return est
+
+    def finish_fusion(self) -> None:
+        """Hand the active submap to the store (after the last frame)."""
+        last = self.fusion.finish()
+        if last is not None:
+            self.store.put(last)
+
+    def final_trajectory(self) -> tuple[NDArray[np.int64], F64]:
+        """One pose per processed frame, in frame order: the odometry's final (re-optimised)
+        pose, or its per-frame estimate for a frame its trajectory lacks."""
+        t_final, T_final = self.odometry.trajectory()
+        final = {int(t): np.asarray(T, np.float64) for t, T in zip(t_final, T_final,
+                                                                   strict=True)}
+        missing = sum(1 for e in self.estimates if int(e.t_ns) not in final)
+        if missing:
+            log.warning("the odometry's trajectory lacks %d of %d frames; their per-frame "
+                        "estimates are used", missing, len(self.estimates))
+        t = np.array([e.t_ns for e in self.estimates], np.int64)
+        T = np.stack([final.get(int(e.t_ns), np.asarray(e.T_world_left, np.float64))
+                      for e in self.estimates])
+        return t, T
+
+    def final_keyframes_rect(self) -> dict[int, F64]:
+        """Final ``T_world_rect`` of every keyframe (the submaps' anchors)."""
+        return {k: T @ self.T_left_rect for k, T in self.odometry.keyframe_poses().items()}

@@ -1,0 +1,79 @@
+"""``sea3d live --replay``: odometry on every frame, depth and fusion on those it keeps up
+with, drops counted, latency measured, and a camera that stops keeps the mesh so far."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from sea3d.cli import main
+from sea3d.errors import SessionError
+from sea3d.pipeline.frame_source import SessionFrames
+from sea3d.pipeline.live import LiveConfig, run_live_replay
+from sea3d.pipeline.process import ProcessConfig
+
+FRAMES = 12
+
+
+def _gt(session):
+    return session.with_name(session.stem + "_gt") / "poses_left.tum"
+
+
+def _rows(out):
+    with open(out / "status.csv") as fh:
+        return list(csv.DictReader(fh))
+
+
+@pytest.mark.parametrize("rate", [1.0, 50.0])
+def test_replay_tracks_every_frame_and_fuses_what_it_keeps_up_with(sim_session, tmp_path,
+                                                                   rate):
+    """At the recorded rate (10 fps, 320x180) and 50 times faster: every frame reaches the
+    odometry; frames whose depth was dropped are not fused, and say so; the count adds up."""
+    cfg = ProcessConfig(out_dir=tmp_path / "live", poses_path=_gt(sim_session),
+                        max_frames=FRAMES, keyframes_per_submap=2)
+    summary, stats = run_live_replay(sim_session, cfg, LiveConfig(), rate=rate)
+    live = summary["live"]
+    assert stats.frames == FRAMES and summary["frames"] == FRAMES
+    assert live["fraction_tracked"] == 1.0
+    rows = _rows(tmp_path / "live")
+    assert len(rows) == FRAMES
+    no_depth = sum(r["fusion"] == "no-depth" for r in rows)
+    assert no_depth == stats.depth_dropped
+    assert stats.fused + stats.depth_dropped <= FRAMES and stats.fused >= 1
+    assert len(stats.latency_s) == stats.fused and min(stats.latency_s) > 0
+    assert live["stop_reason"] == "replay ended"
+    if rate > 10:  # 500 fps asked of one depth worker: it must drop
+        assert stats.depth_dropped > 0
+    assert summary["mesh"]["triangles"] > 1000
+    traj = np.loadtxt(tmp_path / "live" / "trajectory.tum")
+    assert len(traj) == FRAMES
+
+
+def test_a_camera_that_stops_keeps_the_mesh_so_far(sim_session, tmp_path, monkeypatch):
+    real_read = SessionFrames.read
+
+    def read(self, pair):
+        if pair.index >= 6:
+            raise SessionError("left camera: no frame for 2.0 s")
+        return real_read(self, pair)
+
+    monkeypatch.setattr(SessionFrames, "read", read)
+    cfg = ProcessConfig(out_dir=tmp_path / "stop", poses_path=_gt(sim_session),
+                        max_frames=FRAMES, keyframes_per_submap=2)
+    summary, stats = run_live_replay(sim_session, cfg, rate=50.0)
+    assert stats.frames == 6 and summary["frames"] == 6
+    assert summary["live"]["stop_reason"] == ("camera stopped: left camera: no frame for "
+                                              "2.0 s")
+    assert (tmp_path / "stop" / "mesh.ply").is_file() and summary["mesh"]["triangles"] > 0
+
+
+def test_cli_live_replay(sim_session, tmp_path, capsys):
+    assert main(["live", "--replay", str(sim_session), "-o", str(tmp_path / "cli"), "--poses",
+                 str(_gt(sim_session)), "--max-frames", "6", "--rate", "5", "--json"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["frames"] == 6 and s["live"]["frames"] == 6
+    assert main(["live", "-o", str(tmp_path / "x")]) == 2  # no source
+    assert "give --replay SESSION" in capsys.readouterr().err
