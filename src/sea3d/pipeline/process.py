@@ -761,6 +761,7 @@ def _evaluate(session_path: Path, result: ProcessResult, rig_yaml: str,
     from sea3d.io.rig_file import rig_from_yaml
     from sea3d.io.trajectory_files import read_trajectory
     from sea3d.pipeline.groundtruth import find_ground_truth, observed_surface_points
+    from sea3d.pipeline.gt_frame import write_in_ground_truth_frame
 
     gt = find_ground_truth(session_path)
     if gt is None:
@@ -778,6 +779,7 @@ def _evaluate(session_path: Path, result: ProcessResult, rig_yaml: str,
             out["trajectory_vs_gt"] = m.as_dict()
             T_ref_est = _pose_alignment(result.t_ns[trusted], result.T_world_left[trusted],
                                         gt_traj.t_ns, gt_traj.T_world_x)
+            out.update(write_in_ground_truth_frame(result, T_ref_est))
         except Sea3dError as err:
             out["trajectory_vs_gt"] = {"error": str(err)}
     if gt.scene_mesh is not None and not result.mesh.empty:
