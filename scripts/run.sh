@@ -7,4 +7,4 @@ cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 out=${1:-out/demo}
 mkdir -p "$out"
-.venv/bin/sea3d demo --out "$out" "${@:2}"
+.venv/bin/sea3d demo -o "$out" "${@:2}"

@@ -20,7 +20,8 @@ def register(sub: Any) -> None:
         "pair's refraction-corrected depth against ground truth, process the whole dive "
         "(depth, poses, TSDF fusion, mesh) and write OUT/report.html and OUT/summary.json.",
     )
-    p.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder")
+    p.add_argument("-o", "--output", "--out", dest="out", type=Path, default=Path("out/demo"),
+                   help="output folder (default out/demo) (--out: deprecated alias, kept for one release)")
     p.add_argument("--scene", default="lake", help="lake, tank, reef or a scene YAML")
     p.add_argument("--water", default="coastal", choices=["none", "clear", "coastal", "turbid"],
                    help="water type (default coastal)")

@@ -350,13 +350,16 @@ def register(sub: Any) -> None:
                    help="fuse every frame with a trusted pose (default) or keyframes only")
     p.add_argument("--fresh", action="store_true",
                    help="discard cached per-frame results in OUT instead of resuming")
-    p.add_argument("--enhance", metavar="METHOD",
-                   help="enhance each raw image before matching: none (default: measured "
-                        "best for stereo), grey-world, shades-of-grey, red-comp, clahe, udcp, "
-                        "or a package.module:function (docs/enhance.md)")
-    p.add_argument("--restore-colours", choices=["none", "seathru"], default="none",
+    p.add_argument("--enhance-method", "--enhance", dest="enhance", metavar="METHOD",
+                   help="enhance each raw image before matching, as 'sea3d enhance --method': "
+                        "none (default: measured best for stereo), grey-world, shades-of-grey, "
+                        "red-comp, clahe, udcp, or a package.module:function (docs/enhance.md)"
+                        "; --enhance is a deprecated alias, kept for one release")
+    p.add_argument("--restore-colors", "--restore-colours", dest="restore_colours",
+                   choices=["none", "seathru"], default="none",
                    help="colours of mesh and cloud: seathru restores them after depth with "
-                        "the stereo range (default none)")
+                        "the stereo range (default none); --restore-colours is a deprecated "
+                        "alias, kept for one release")
     p.add_argument("--max-frames", type=int, metavar="N", help="only the first N pairs")
     p.add_argument("--no-report", action="store_true", help="skip report.html")
     p.add_argument("--json", action="store_true", help="print summary.json (no progress bars)")

@@ -33,8 +33,9 @@ def register(sub: Any) -> None:
     rec.add_argument("--right", required=True, help="right camera, same forms as --left")
     rec.add_argument("--imu", help="IMU: mti:PORT[@BAUD], session:PATH or sim:MODULE:FACTORY")
     rec.add_argument("--sonar", help="echosounder: ping:PORT[@BAUD], session:PATH or sim:...")
-    rec.add_argument("--out", required=True, help="output session: *.mcap or a new folder")
-    rec.add_argument("--format", choices=("mcap", "folder"), help="default: from --out")
+    rec.add_argument("-o", "--output", "--out", dest="out", required=True,
+                     help="output session: *.mcap or a new folder (--out: deprecated alias, kept for one release)")
+    rec.add_argument("--format", choices=("mcap", "folder"), help="default: from --output")
     rec.add_argument("--duration", type=float, help="seconds to record (default: until stopped)")
     rec.add_argument("--rig", help="rig.yaml stored with the session (and its capture settings)")
     rec.add_argument(

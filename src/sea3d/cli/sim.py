@@ -1,9 +1,9 @@
 """``sea3d sim``: simulate an underwater stereo session, or a calibration set, with ground truth.
 
-    sea3d sim --scene lake --frames 300 --water coastal --out dive.mcap
-    sea3d sim --scene tank --rig rig.yaml --format folder --size 960x540 --out tank_run/
+    sea3d sim --scene lake --frames 300 --water coastal -o dive.mcap
+    sea3d sim --scene tank --rig rig.yaml --format folder --size 960x540 -o tank_run/
     sea3d sim calibration --rig rig.yaml --board checkerboard:9x6:40mm --views 20 \\
-        --medium water --out calib_water/
+        --medium water -o calib_water/
 """
 
 from __future__ import annotations
@@ -56,9 +56,10 @@ def register(sub: Any) -> None:
         choices=["lawnmower", "orbit", "handheld"],
         help="vehicle motion (default lawnmower)",
     )
-    p.add_argument("--out", type=Path, metavar="PATH", help="output: an .mcap file or a folder")
+    p.add_argument("-o", "--output", "--out", dest="out", type=Path, metavar="PATH",
+                   help="output: an .mcap file or a folder (--out: deprecated alias, kept for one release)")
     p.add_argument(
-        "--format", choices=["mcap", "folder"], help="session layout (default from --out)"
+        "--format", choices=["mcap", "folder"], help="session layout (default from --output)"
     )
     p.add_argument("--seed", type=int, default=0, metavar="N", help="noise seed (default 0)")
     p.add_argument(
@@ -151,7 +152,8 @@ def register(sub: Any) -> None:
         "--seed", dest="cal_seed", type=int, default=0, metavar="N", help="pose seed (default 0)"
     )
     c.add_argument(
-        "--out", dest="cal_out", type=Path, required=True, metavar="DIR", help="output folder"
+        "-o", "--output", "--out", dest="cal_out", type=Path, required=True, metavar="DIR",
+        help="output folder (--out: deprecated alias, kept for one release)",
     )
     c.set_defaults(handler=_run_calibration)
 
@@ -220,7 +222,7 @@ def _remove_created(path: Path, existed: bool) -> None:
 
 def _run_survey(args: argparse.Namespace) -> int:
     if args.out is None:
-        raise SimulationError("sea3d sim needs --out (an .mcap file or a folder)")
+        raise SimulationError("sea3d sim needs -o/--output (an .mcap file or a folder)")
     if args.frames < 1:
         raise SimulationError(f"--frames must be >= 1, got {args.frames}")
     from sea3d.io.rig_file import rig_to_yaml

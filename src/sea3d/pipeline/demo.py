@@ -146,7 +146,7 @@ def run_demo(
 
         if not (session / "gt" / "sim.json").is_file():
             raise ConfigError(f"{session} exists and is not a session the demo simulated; "
-                              "choose another --out")
+                              "choose another -o/--output folder")
         shutil.rmtree(session)  # a fresh dive each run (results below are recomputed too)
     step(
         f"simulating a {config.frames}-frame lawnmower survey of '{config.scene}' at "
