@@ -278,8 +278,8 @@ def _cmd_sfm(args: argparse.Namespace) -> int:
             if bar is None:
                 for b in bars.values():
                     b.close()
-                bar = bars[stage] = tqdm(total=total, desc=stage, unit="img" if stage ==
-                                         "prepare" else "frame", leave=False)
+                unit = {"prepare": "img", "extract": "img", "match": "pair"}.get(stage, "frame")
+                bar = bars[stage] = tqdm(total=total, desc=stage, unit=unit, leave=False)
             bar.n = done
             bar.refresh()
 
