@@ -94,5 +94,10 @@ def _run(args: argparse.Namespace) -> int:
     t = s["timings_s"]
     print(f"wall time {t['total_s']:.0f} s (dive {t['simulate_s']:.0f} s, processing "
           f"{t['process_s']:.0f} s, {t['compile_s']:.1f} s one-off kernel compilation)")
+    files = s.get("files", {})
+    results = [Path(f) for k, f in files.items() if k not in ("report", "summary")]
+    where = results[0].parent if results else result.out_dir
+    print(f"wrote {result.report_html} and {result.out_dir / 'summary.json'}; the dive's "
+          f"results in {where}/: {', '.join(p.name for p in results)}")
     print(f"report: {result.report_html}")
     return 0

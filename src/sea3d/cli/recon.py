@@ -232,8 +232,8 @@ def _surface_alignment(args: argparse.Namespace, est: Any, ref: Any) -> Any:
             summary = json.loads(summary_path.read_text())
         except (OSError, ValueError):
             summary = {}
-    frames = summary.get("frames") if isinstance(summary.get("frames"), dict) else {}
-    frame = frames.get(mesh.name, "") if frames else ""
+    frames = summary.get("frame_of_file")
+    frame = frames.get(mesh.name, "") if isinstance(frames, dict) else ""
     if trajectories is None and args.align != "none":
         if "ground truth" in frame and args.align == "auto":
             return NO_ALIGNMENT, f"{mesh.name} is in the ground truth's frame ({summary_path})"

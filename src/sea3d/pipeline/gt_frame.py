@@ -28,7 +28,7 @@ def write_in_ground_truth_frame(result: Any, T_gt_world: NDArray[np.float64]) ->
         T_gt_world: (4, 4) rigid transform from the odometry's world to the ground truth's.
 
     Returns:
-        ``{"frames": {file name: frame}, "T_gt_world": 4x4 list}`` for summary.json.
+        ``{"frame_of_file": {file name: frame}, "T_gt_world": 4x4 list}`` for summary.json.
     """
     from sea3d.io.mesh_files import write_mesh
     from sea3d.io.trajectory_files import write_tum
@@ -44,7 +44,7 @@ def write_in_ground_truth_frame(result: Any, T_gt_world: NDArray[np.float64]) ->
     result.files["mesh_gt_frame"] = mesh_path
     result.files["trajectory_gt_frame"] = traj_path
     return {
-        "frames": {
+        "frame_of_file": {
             "trajectory.tum": FRAME_ODOMETRY, "mesh.ply": FRAME_ODOMETRY,
             "cloud.ply": FRAME_ODOMETRY, "results.mcap": FRAME_ODOMETRY,
             mesh_path.name: FRAME_GT, traj_path.name: FRAME_GT,

@@ -25,6 +25,7 @@ sea3d's stereo-inertial odometry (``sea3d.odometry.create_odometry``).
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import logging
 import os
@@ -304,7 +305,8 @@ def _cached_result(cache: Any, t_ns: int) -> FrameResult | None:
     if got is None:
         return None
     try:
-        return FrameResult.from_cache(t_ns, *got)
+        # Its stage timings are of the run that computed it: this run matched nothing for it.
+        return dataclasses.replace(FrameResult.from_cache(t_ns, *got), timings_s={})
     except (KeyError, ValueError, TypeError) as err:
         log.warning("cache entry of frame %d is incomplete (%s); recomputing", t_ns, err)
         cache.path(t_ns).unlink(missing_ok=True)
