@@ -54,3 +54,30 @@ def test_quiet_after_the_subcommand_silences_info(tmp_path, capsys):
     assert main(["rig", "create", "--preset", "sea3d-paper", "-o", str(tmp_path / "r.yaml"),
                  "-q"]) == 0
     assert root.level == logging.WARNING
+
+
+def test_a_session_loop_logs_each_message_once_and_counts_the_rest(caplog):
+    from sea3d.cli._progress import once_per_message
+
+    log = logging.getLogger("sea3d.enhance.seathru")
+    other = logging.getLogger("sea3d.io")
+    caplog.set_level(logging.INFO)
+    with once_per_message("sea3d.enhance", "pair"):
+        for _ in range(40):
+            log.info("two-term fit not better than a constant")
+            other.info("not mine")
+    lines = [r.getMessage() for r in caplog.records]
+    assert lines.count("two-term fit not better than a constant") == 1
+    assert lines.count("not mine") == 40
+    assert any("came 40 times in all, once per pair" in m for m in lines)
+
+
+def test_json_turns_bars_off_and_quiet_does_too(capsys):
+    from sea3d.cli._progress import bar
+
+    assert bar(10, "x", enabled=False).disable is True
+    logging.getLogger().setLevel(logging.WARNING)
+    try:
+        assert bar(10, "x").disable is True
+    finally:
+        logging.getLogger().setLevel(logging.INFO)

@@ -19,21 +19,6 @@ from sea3d.cli._args import image_size
 __all__ = ["register", "register_eval"]
 
 
-def _bar_factory(enabled: bool) -> Any:
-    from tqdm import tqdm
-
-    position = [0]
-
-    def make(stage: str, total: int) -> Any:
-        bar = tqdm(total=total, desc=f"{stage:>9}", unit="frame" if stage != "merge" else "map",
-                   position=position[0], leave=True, disable=None if enabled else True,
-                   dynamic_ncols=True)
-        position[0] += 1
-        return bar
-
-    return make
-
-
 def _plural(n: int, word: str) -> str:
     return f"{n} {word}" + ("" if n == 1 else "s")
 
@@ -64,7 +49,9 @@ def _cmd_process(args: argparse.Namespace) -> int:
         report=not args.no_report,
         max_frames=args.max_frames,
     )
-    result = run_process(args.session, config, progress=_bar_factory(not args.json))
+    from sea3d.cli._progress import stage_bars
+
+    result = run_process(args.session, config, progress=stage_bars(not args.json))
     s = result.summary
     if args.json:
         json.dump(s, sys.stdout, indent=2, default=str)
@@ -117,8 +104,8 @@ def _glob(pattern: str, what: str) -> list[Path]:
 
 def _cmd_fuse(args: argparse.Namespace) -> int:
     import numpy as np
-    from tqdm import tqdm
 
+    from sea3d.cli import _progress
     from sea3d.io.mesh_files import write_mesh, write_point_cloud
     from sea3d.io.trajectory_files import read_trajectory
     from sea3d.pipeline.fuse import fuse_rgbd
@@ -132,8 +119,7 @@ def _cmd_fuse(args: argparse.Namespace) -> int:
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     config = TsdfConfig(voxel_m=args.voxel_m, trunc_voxels=args.trunc_voxels,
                         depth_min_m=args.min_depth, depth_max_m=args.max_depth)
-    with tqdm(total=len(colors), desc="fuse", unit="frame",
-              disable=True if args.json else None) as bar:
+    with _progress.bar(len(colors), "fuse", enabled=not args.json, leave=True) as bar:
         res = fuse_rgbd(colors, depths, poses, K, config, depth_scale=args.depth_scale,
                         progress=bar.update)
     write_mesh(args.output, res.mesh)

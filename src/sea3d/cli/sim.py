@@ -13,7 +13,7 @@ import logging
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import image_size
+from sea3d.cli._args import add_output, image_size
 from sea3d.errors import SimulationError
 
 _log = logging.getLogger(__name__)
@@ -56,8 +56,7 @@ def register(sub: Any) -> None:
         choices=["lawnmower", "orbit", "handheld"],
         help="vehicle motion (default lawnmower)",
     )
-    p.add_argument("-o", "--output", "--out", dest="out", type=Path, metavar="PATH",
-                   help="output: an .mcap file or a folder (--out: deprecated alias, kept for one release)")
+    add_output(p, type=Path, metavar="PATH", help="output: an .mcap file or a folder")
     p.add_argument(
         "--format", choices=["mcap", "folder"], help="session layout (default from --output)"
     )
@@ -151,10 +150,7 @@ def register(sub: Any) -> None:
     c.add_argument(
         "--seed", dest="cal_seed", type=int, default=0, metavar="N", help="pose seed (default 0)"
     )
-    c.add_argument(
-        "-o", "--output", "--out", dest="cal_out", type=Path, required=True, metavar="DIR",
-        help="output folder (--out: deprecated alias, kept for one release)",
-    )
+    add_output(c, dest="cal_out", type=Path, required=True, metavar="DIR", help="output folder")
     c.set_defaults(handler=_run_calibration)
 
 
