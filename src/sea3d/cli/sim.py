@@ -216,6 +216,22 @@ def _remove_created(path: Path, existed: bool) -> None:
         path.unlink(missing_ok=True)
 
 
+def _say_if_the_survey_folds(scene: Any, config: Any) -> None:
+    """A lawnmower longer than one pass over the scene flies its lanes again: say so, with the
+    number of frames one pass holds, before the (long) rendering starts."""
+    from sea3d.sim.motion import Lawnmower
+    from sea3d.sim.survey import default_trajectory
+
+    traj = default_trajectory(scene, config)
+    if not isinstance(traj, Lawnmower) or traj.pass_s is None:
+        return
+    pass_frames = round(traj.pass_s * config.fps)
+    if config.frames > pass_frames:
+        print(f"note: {scene.name} holds {traj.lanes} lanes of this survey, {pass_frames} frames "
+              f"at {config.fps:g} fps; after that the survey turns back over the same lanes "
+              "rather than leave the scene", flush=True)
+
+
 def _run_survey(args: argparse.Namespace) -> int:
     if args.out is None:
         raise SimulationError("sea3d sim needs -o/--output (an .mcap file or a folder)")
@@ -261,6 +277,7 @@ def _run_survey(args: argparse.Namespace) -> int:
         f"two idle cores",
         flush=True,
     )
+    _say_if_the_survey_folds(scene, config)
     mount = survey_mount(rig, config)
     session_rig = with_survey_sensors(rig, config, mount)  # the IMU and echosounder simulated
     existed = {path: path.exists() for path in (args.out, gt_dir)}
