@@ -297,7 +297,7 @@ def test_a_cached_rerun_lists_no_matching_as_if_it_had_run(sim_session, first_ru
 
 def test_mesh_in_the_ground_truths_frame_and_eval_surface_agree(first_run, sim_session, capsys):
     """Issue 23.1: README's ``process`` then ``eval surface`` gives the process report's figure."""
-    out, res = first_run
+    out, _ = first_run
     s = json.loads((out / "summary.json").read_text())
     assert s["frame_of_file"]["mesh.ply"].startswith("the odometry's world")
     assert s["frame_of_file"]["mesh_gt_frame.ply"] == "the ground truth's world"

@@ -620,7 +620,7 @@ def _pose_stats(rvec: FloatArray, tvec: FloatArray, obj: FloatArray) -> tuple[fl
 
 
 def _missing(dets: Sequence[Detection], camera: str, show: int = 4) -> str:
-    """``left: a.png, b.png and 3 more`` (or ``left: none``): the camera's images without a board."""
+    """``left: a.png, b.png and 3 more`` (or ``left: none``): the images without a board."""
     names = [d.name or str(i) for i, d in enumerate(dets) if not d.ok]
     if not names:
         return f"{camera}: none"

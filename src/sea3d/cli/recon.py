@@ -278,8 +278,7 @@ def _cmd_eval_surface(args: argparse.Namespace) -> int:
                         crop_margin_m=args.crop_margin_m)
     if args.json:
         d = m.as_dict()
-        d["alignment"] = align.as_dict()
-        d["alignment"]["how"] = how
+        d["alignment"] = {**align.as_dict(), "how": how}
         print(json.dumps(d, indent=2))
         return 0
     a, c = m.accuracy_m, m.completeness_m

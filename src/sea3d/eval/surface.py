@@ -274,9 +274,10 @@ def align_by_trajectories(
     Tr = np.asarray(T_ref, dtype=np.float64)
     if by_index:
         n = min(len(Te), len(Tr))
-        i = j = np.arange(n, dtype=np.int64)
+        i: I64 = np.arange(n, dtype=np.int64)
+        j: I64 = i
     else:
-        i, j = associate(np.asarray(t_est_ns), np.asarray(t_ref_ns), int(round(max_diff_s * 1e9)))
+        i, j = associate(np.asarray(t_est_ns), np.asarray(t_ref_ns), round(max_diff_s * 1e9))
     if i.size < 3:
         raise ReconError(f"only {i.size} poses of the trajectories pair up (by "
                          f"{'index' if by_index else 'time'}); alignment needs at least 3")
