@@ -138,3 +138,16 @@ def test_cli_finds_the_trajectories_of_a_process_folder(tmp_path, capsys):
     assert "aligned trajectory-se3 from" in text and "residual" in text
     median_mm = float(text.split("accuracy (estimate to reference): median ")[1].split()[0])
     assert median_mm < 0.1
+
+
+def test_cli_pairs_in_frame_order_when_the_stamps_do_not_meet(tmp_path, capsys):
+    """7-Scenes: RGB-D odometry stamps frames by index, the reference by camera clock; the same
+    count pairs in frame order (as 'sea3d fuse' does)."""
+    est, ref = _write_case(tmp_path)
+    t, T_ref = _straight_leg()
+    write_tum(tmp_path / "est.tum", np.arange(len(t)) * 1_000_000_000,
+              np.linalg.inv(T_REF_EST)[None] @ T_ref)
+    assert main(["eval", "surface", str(est), str(ref), "--samples", "5000", "--json",
+                 "--trajectories", str(tmp_path / "est.tum"), str(tmp_path / "gt.tum")]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["alignment"]["pairs"] == len(t) and d["accuracy_m"]["median"] < 1e-4

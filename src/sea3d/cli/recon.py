@@ -241,9 +241,19 @@ def _surface_alignment(args: argparse.Namespace, est: Any, ref: Any) -> Any:
             keep = np.isin(t_e, trusted)
             if keep.sum() >= 3:
                 t_e, T_e = t_e[keep], T_e[keep]
+        by_index = not (te.timed and tr.timed)
+        if not by_index and len(te.t_ns) == len(tr.t_ns):
+            from sea3d.eval.trajectory import associate
+
+            # Same count but stamps that mostly do not meet (frame indices against a camera
+            # clock): frame order, as 'sea3d fuse' pairs poses with frames.
+            n_timed = len(associate(te.t_ns, tr.t_ns, round(args.max_diff_s * 1e9))[0])
+            if n_timed < max(3, len(te.t_ns) // 2):
+                by_index = True
+                t_e, T_e = te.t_ns, te.T_world_x
+                log.info("the trajectories' stamps do not pair up; paired in frame order")
         align = align_by_trajectories(t_e, T_e, tr.t_ns, tr.T_world_x,
-                                      with_scale=args.align == "sim3",
-                                      by_index=not (te.timed and tr.timed),
+                                      with_scale=args.align == "sim3", by_index=by_index,
                                       max_diff_s=args.max_diff_s)
     if args.align == "icp":
         align = align_by_icp(est.vertices, est.triangles, ref.vertices, ref.triangles,

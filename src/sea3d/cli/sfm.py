@@ -15,6 +15,8 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+from sea3d.cli._args import config_option
+
 __all__ = ["register"]
 
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm")
@@ -39,27 +41,22 @@ def register(sub: Any) -> None:
     p.add_argument("--rig", metavar="RIG", help="rig file (default: the session's own rig)")
     p.add_argument("--self-calibrate", action="store_true",
                    help="ignore the session's rig and self-calibrate the camera")
-    p.add_argument("--camera", choices=["left", "right", "stereo"], default="left",
-                   help="which camera(s) of each frame (stereo: metric, needs a rig)")
-    p.add_argument("--matcher", choices=["sequential", "exhaustive"], default="sequential",
-                   help="sequential for video (default), exhaustive for small unordered sets")
-    p.add_argument("--overlap", type=int, default=6,
-                   help="sequential matcher: frames ahead each frame is matched with")
-    p.add_argument("--max-image-px", type=int, default=1600,
-                   help="SIFT on images downscaled to this longer side (default 1600)")
-    p.add_argument("--max-features", type=int, default=4096, help="SIFT features per image")
+    from sea3d.sfm.types import SfmConfig
+
+    opt = partial(config_option, p, SfmConfig)
+    opt("camera", choices=["left", "right", "stereo"], dest="camera")
+    opt("matcher", choices=["sequential", "exhaustive"], dest="matcher")
+    opt("sequential_overlap", "--overlap", type=int, dest="overlap")
+    opt("max_image_px", type=int, dest="max_image_px")
+    opt("max_features", type=int, dest="max_features")
     p.add_argument("--fast", action="store_true",
                    help="SIFT without upsampling (first octave 0): about 2.5x less extraction "
                         "time, less precise features (see docs/sfm.md)")
-    p.add_argument("--camera-model", default="SIMPLE_RADIAL",
-                   choices=["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"],
-                   help="COLMAP model refined when self-calibrating")
-    p.add_argument("--depth-range", type=float, nargs=2, default=(0.5, 10.0),
-                   metavar=("NEAR", "FAR"),
-                   help="working range in metres for port cameras' virtual pinholes")
-    p.add_argument("--refractive-ba", choices=["auto", "on", "off"], default="auto",
-                   help="refractive bundle adjustment (auto: when the virtual pinhole's "
-                        "residual over the working range exceeds 0.25 px)")
+    opt("self_calibration_model", "--camera-model", dest="camera_model",
+        choices=["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"])
+    opt("depth_range_m", "--depth-range", type=float, nargs=2, metavar=("NEAR", "FAR"),
+        dest="depth_range")
+    opt("refractive_ba", choices=["auto", "on", "off"], dest="refractive_ba")
     p.add_argument("--pose-priors", metavar="TRAJ",
                    help="trajectory of the left camera (TUM, KITTI with --pose-priors-times, "
                         "or EuRoC CSV; sea3d odometry/process output or ground truth) used as "
@@ -68,8 +65,7 @@ def register(sub: Any) -> None:
                    help="format of --pose-priors (default: from its extension and first line)")
     p.add_argument("--pose-priors-times", metavar="TIMES.txt",
                    help="KITTI times.txt (one stamp in seconds per pose) for --pose-priors")
-    p.add_argument("--prior-std", type=float, default=0.05,
-                   help="pose-prior position standard deviation, metres")
+    opt("prior_position_std_m", "--prior-std", type=float, dest="prior_std")
     p.add_argument("--imu-scale", action="store_true",
                    help="monocular sessions: scale the model to metres from the IMU")
     p.add_argument("--imu-extrinsics", metavar="FILE",
@@ -77,8 +73,8 @@ def register(sub: Any) -> None:
                         "T_left_imu; default: the rig's IMU block")
     p.add_argument("--export-images", action="store_true",
                    help="also write the images as COLMAP saw them to OUT/images/")
-    p.add_argument("--threads", type=int, default=-1, help="threads/processes (-1: all cores)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (same seed, same model)")
+    opt("num_threads", "--threads", type=int, dest="threads")
+    opt("seed", type=int, dest="seed")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(handler=_cmd_sfm)
 
