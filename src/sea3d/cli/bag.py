@@ -60,7 +60,12 @@ def register(sub: Any) -> None:
 def _map(args: argparse.Namespace) -> Any:
     from sea3d.io.topic_map import TopicMap, parse_topic_args
 
-    return TopicMap.build(args.preset, parse_topic_args(args.topic))
+    tmap = TopicMap.build(args.preset, parse_topic_args(args.topic))
+    if not tmap.topics and getattr(args, "handler", None) is not _info:
+        from sea3d.errors import SessionError
+
+        raise SessionError("no topics mapped: give --preset or --topic ROLE=/topic")
+    return tmap
 
 
 def _info(args: argparse.Namespace) -> int:

@@ -279,6 +279,9 @@ def _cmd_sfm(args: argparse.Namespace) -> int:
             bar.n = done
             bar.refresh()
 
+        if args.camera == "stereo" and rig is None:
+            raise SfmError("--camera stereo needs the rig (its extrinsics fix the scale); "
+                           "pass --rig or use a session that stores one")
         try:
             result = run_sfm(frames, config, rig=rig, pose_priors=priors,
                              workdir=out / ".work", progress=progress, image_sink=sink)

@@ -239,8 +239,8 @@ def _check_frames(frames: Sequence[SfmFrame], config: SfmConfig, rig: StereoRig 
                 f"{len(frames)} frames have none)"
             )
     if config.camera == "stereo" and rig is None:
-        raise SfmError("--camera stereo needs the rig (its extrinsics fix the scale); "
-                       "pass --rig or use a session that stores one")
+        raise SfmError("SfmConfig.camera='stereo' needs the rig (its extrinsics fix the "
+                       "scale); give run_sfm a rig")
 
 
 # Image pairs COLMAP has matched so far (it writes one row per pair tried, matched or not).
