@@ -160,34 +160,17 @@ def _session_frames(reader: Any, camera: str, where: str) -> list[Any]:
 
 def _imu_extrinsics(args: argparse.Namespace, rig: Any) -> Any:
     """``T_cam_body`` (the IMU in the left camera frame) for --imu-scale."""
-    import numpy as np
-    import yaml
-
     from sea3d.errors import SfmError
-    from sea3d.geometry.se3 import check_T, invert_T
+    from sea3d.io.sfm_files import read_imu_extrinsics
+    from sea3d.sfm.metric import imu_extrinsics
 
     if args.imu_extrinsics:
-        path = Path(args.imu_extrinsics)
-        try:
-            data = yaml.safe_load(path.read_text())
-        except (OSError, yaml.YAMLError) as err:
-            raise SfmError(f"{path}: cannot read IMU extrinsics: {err}") from err
-        if isinstance(data, dict) and isinstance(data.get("imu"), dict):
-            data = data["imu"]
-        for key, inverse in (("T_left_imu", False), ("T_body_left", True)):
-            if isinstance(data, dict) and key in data:
-                try:
-                    T = check_T(np.asarray(data[key], dtype=np.float64), key)
-                except (ValueError, TypeError) as err:
-                    raise SfmError(f"{path}: {key} is not a rigid 4x4 transform: {err}") from err
-                return invert_T(T) if inverse else T
-        raise SfmError(f"{path}: holds neither T_left_imu nor T_body_left")
-    imu = getattr(rig, "imu", None) if rig is not None else None
-    T_rig = getattr(imu, "T_left_imu", None)
-    if T_rig is None:
+        return read_imu_extrinsics(args.imu_extrinsics)
+    try:
+        return imu_extrinsics(rig)
+    except SfmError as err:
         raise SfmError("--imu-scale needs the IMU's place on the camera: the rig has no IMU "
-                       "block; pass --imu-extrinsics FILE (T_left_imu or T_body_left)")
-    return np.asarray(T_rig, dtype=np.float64)
+                       "block; pass --imu-extrinsics FILE (T_left_imu or T_body_left)") from err
 
 
 # ---------------------------------------------------------------------- command
@@ -203,6 +186,7 @@ def _cmd_sfm(args: argparse.Namespace) -> int:
     from sea3d.io.sfm_files import write_colmap_model, write_summary
     from sea3d.io.trajectory_files import read_trajectory, write_tum
     from sea3d.sfm import PosePriors, SfmConfig, run_sfm
+    from sea3d.sfm.metric import imu_scale_for, scaled_outputs
 
     make = SfmConfig.fast if args.fast else SfmConfig
     config = make(
@@ -293,18 +277,16 @@ def _cmd_sfm(args: argparse.Namespace) -> int:
             shutil.rmtree(out / ".work", ignore_errors=True)
     summary = _summary(args, result, rig, priors)
     imu_result, scale = None, 1.0
-    if imu is not None and result.status != "failed":
-        imu_result, scale = _imu_scale(result, imu, T_cam_body, summary)
+    if imu is not None and T_cam_body is not None and result.status != "failed":
+        decision = imu_scale_for(result, imu, T_cam_body)
+        imu_result, scale = decision.estimate, decision.scale
+        summary["imu_scale"] = decision.summary
+        if decision.summary.get("applied"):
+            summary["metric"], summary["metric_source"] = True, "imu"
     if result.reconstruction is not None:
-        T = result.T_world_left.copy()
-        T[:, :3, 3] *= scale
-        if scale != 1.0:
-            import pycolmap
-
-            result.reconstruction.transform(
-                pycolmap.Sim3d(scale, pycolmap.Rotation3d(np.eye(3)), np.zeros(3)))
+        T, points = scaled_outputs(result, scale)
         write_colmap_model(result.reconstruction, out / "sparse")
-        write_ply(out / "points.ply", result.points_world * scale, result.colors_rgb)
+        write_ply(out / "points.ply", points, result.colors_rgb)
         # sessions name frames by their integer stamp (exact); a glob's t is the image index
         t_ns = (np.array([int(n) for n in result.names], dtype=np.int64) if session else
                 np.round(np.asarray(result.t_s) * 1e9).astype(np.int64))
@@ -321,35 +303,6 @@ def _cmd_sfm(args: argparse.Namespace) -> int:
               f"-> {out}/ (sparse/, points.ply, trajectory.tum, summary.json) in "
               f"{result.timings_s.get('total_s', 0.0):.1f} s")
     return 0
-
-
-def _imu_scale(result: Any, imu: Any, T_cam_body: Any,
-               summary: dict[str, Any]) -> tuple[Any, float]:
-    """The IMU's scale estimate and the factor to apply (1 unless it is trustworthy)."""
-    import numpy as np
-
-    from sea3d.sfm.imu_scale import estimate_imu_scale
-
-    if result.metric:
-        summary["imu_scale"] = {"status": "skipped", "message": "the model is metric already"}
-        return None, 1.0
-    # with the gyroscope: measured -0.9 % against -5.9 % (lawnmower) and -0.17 % against
-    # +1.0 % (hand-held) without it, benchmarks/bench_sfm.py --only imu
-    est = estimate_imu_scale(result.t_s, result.T_world_left,
-                             imu.t_ns.astype(np.float64) * 1e-9, imu.accel_mps2, T_cam_body,
-                             gyro_radps=imu.gyro_radps)
-    summary["imu_scale"] = {
-        "status": est.status, "message": est.message, "scale": est.scale,
-        "scale_std": est.scale_std, "relative_std": est.relative_std,
-        "gravity_model_mps2": list(est.gravity_model_mps2),
-        "accel_bias_mps2": list(est.accel_bias_mps2), "windows": est.windows,
-        "chi2_per_dof": est.chi2_per_dof, "applied": est.status == "ok",
-    }
-    if est.status != "ok":
-        return est, 1.0
-    summary["metric"] = True
-    summary["metric_source"] = "imu"
-    return est, float(est.scale)
 
 
 def _summary(args: argparse.Namespace, result: Any, rig: Any, priors: Any) -> dict[str, Any]:

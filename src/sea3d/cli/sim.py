@@ -180,7 +180,7 @@ def _size_text(n_bytes: float) -> str:
 
 def _duration_text(seconds: float) -> str:
     if seconds < 1:
-        return "under a second"
+        return "a second"
     if seconds < 90:
         return f"{seconds:.0f} s"
     if seconds < 5400:
