@@ -167,9 +167,9 @@ def _load_rig(path: Path | None, size: tuple[int, int] | None) -> Any:
 
 
 def _progress(total: int, desc: str) -> Any:
-    from tqdm import tqdm
+    from sea3d.cli._progress import bar
 
-    return tqdm(total=total, desc=desc, unit="frame", leave=True)
+    return bar(total, desc, leave=True)
 
 
 def _size_text(n_bytes: float) -> str:
