@@ -94,7 +94,7 @@ def _run(args: argparse.Namespace) -> int:
     print(f"wall time {t['total_s']:.0f} s (dive {t['simulate_s']:.0f} s, processing "
           f"{t['process_s']:.0f} s, {t['compile_s']:.1f} s one-off kernel compilation)")
     files = s.get("files", {})
-    results = [Path(f) for k, f in files.items() if k not in ("report", "summary")]
+    results = [Path(f) for k, f in files.items() if not k.startswith("demo_")]
     where = results[0].parent if results else result.out_dir
     print(f"wrote {result.report_html} and {result.out_dir / 'summary.json'}; the dive's "
           f"results in {where}/: {', '.join(p.name for p in results)}")

@@ -191,7 +191,8 @@ def run_demo(
         "depth_check": pair_summary,
         "process": result.summary,
         "timings_s": timings,
-        "files": {"report": str(out / "report.html"), "summary": str(out / "summary.json"),
+        "files": {"demo_report": str(out / "report.html"),
+                  "demo_summary": str(out / "summary.json"),
                   **{k: str(v) for k, v in result.files.items() if Path(v).exists()}},
         "note": "compile_s is the one-off compilation (or cache load) of the matcher's kernels "
                 "in this process; the worker processes' own is in process.one_off_s",
