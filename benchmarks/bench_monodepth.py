@@ -2,10 +2,11 @@
 
 Simulated pairs of the lake scene (coastal water, the paper's dome rig): stereo depth with our
 SGM (``sea3d.stereo.depth.compute_depth``), true depth in the rectified left view from the
-simulator's ground truth. No learned network can be fetched here, so two stand-in "networks"
-give the relative inverse depth a network would: ``oracle`` (the true inverse depth under an
-unknown scale and shift: what alignment alone can reach) and ``perturbed`` (the same with a
-smooth 5 % relative error field and 1 % pixel noise, the kind of error a good network makes).
+simulator's ground truth. Three "networks": the real FastDepth (MIT, trained indoors on NYU
+Depth v2, ``tests/data/models/fastdepth_224``; metric indoors, weak underwater: only its layout,
+aligned in depth to stereo, is used), and two stand-ins of known error that bound what
+alignment can reach: ``oracle`` (the true inverse depth under an unknown scale and shift) and
+``perturbed`` (the same with a smooth 5 % relative error field and 1 % pixel noise).
 For each: the median relative depth error after alignment at pixels where stereo has depth and
 in stereo's holes (where the fused map takes the network), beside stereo's own error, and our
 robust alignment (RANSAC + Huber in inverse depth) beside plain least squares in inverse depth
@@ -77,6 +78,14 @@ def _lstsq_inverse(pred: np.ndarray, sparse: np.ndarray) -> np.ndarray:
     return np.where(inv > 0, 1.0 / np.where(inv > 0, inv, 1.0), np.nan)
 
 
+def _lstsq_depth(pred: np.ndarray, sparse: np.ndarray) -> np.ndarray:
+    ok = np.isfinite(sparse) & np.isfinite(pred)
+    A = np.column_stack([pred[ok], np.ones(int(ok.sum()))])
+    (s, t), *_ = np.linalg.lstsq(A, sparse[ok], rcond=None)
+    d = s * pred + t
+    return np.where(d > 0, d, np.nan)
+
+
 def _med_rel(est: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> float:
     m = mask & np.isfinite(est) & np.isfinite(gt)
     return float(np.median(np.abs(est[m] - gt[m]) / gt[m])) if m.any() else float("nan")
@@ -95,6 +104,11 @@ def main() -> None:
     pairs = _pairs(args.cache, (w, h), args.pairs)
     print(f"monodepth: {len(pairs)} simulated pairs, {w}x{h}, paper dome rig, coastal water; "
           "load average %.1f %.1f %.1f" % os.getloadavg())
+    from sea3d.monodepth.model import MonoDepthConfig, OnnxDepthModel
+
+    fastdepth = OnnxDepthModel(ROOT / "tests" / "data" / "models" / "fastdepth_224" /
+                               "fastdepth_224.onnx",
+                               MonoDepthConfig(output_kind="metric", normalize="unit"))
     rng = np.random.default_rng(0)
     rows: dict[str, list[float]] = {}
     t_ours, t_ref = [], []
@@ -110,16 +124,21 @@ def main() -> None:
         inv = np.nan_to_num(1.0 / gt, nan=0.0)
         vv, uu = np.mgrid[0:h, 0:w] / max(w, h)
         smooth = 0.05 * np.sin(2 * np.pi * (1.3 * uu + 0.4)) * np.cos(2 * np.pi * (0.9 * vv))
-        nets = {"oracle": 2.3 * inv + 0.1,
-                "perturbed": (2.3 * inv + 0.1) * (1 + smooth)
-                * (1 + 0.01 * rng.standard_normal(inv.shape))}
-        for name, pred in nets.items():
+        rect = cv2.remap(pair["left"], maps.map_left_x, maps.map_left_y, cv2.INTER_LINEAR)
+        net_depth, _ = fastdepth.predict(rect)
+        rows.setdefault("fastdepth: unscaled, all pixels", []).append(
+            _med_rel(net_depth.astype(np.float64), gt, near))
+        nets = {"fastdepth": (net_depth, "depth"),
+                "oracle": (2.3 * inv + 0.1, "inverse"),
+                "perturbed": ((2.3 * inv + 0.1) * (1 + smooth)
+                              * (1 + 0.01 * rng.standard_normal(inv.shape)), "inverse")}
+        for name, (pred, kind) in nets.items():
             t0 = time.perf_counter()
-            aligned, _ = align_depth(pred, stereo, kind="inverse")
+            aligned, _ = align_depth(pred, stereo, kind=kind)
             t_ours.append(time.perf_counter() - t0)
             fused, _ = fill_holes(stereo, aligned)
             t0 = time.perf_counter()
-            ref = _lstsq_inverse(pred, stereo)
+            ref = (_lstsq_inverse if kind == "inverse" else _lstsq_depth)(pred, stereo)
             t_ref.append(time.perf_counter() - t0)
             rows.setdefault(f"{name}: ours at stereo pixels", []).append(
                 _med_rel(aligned, gt, valid))

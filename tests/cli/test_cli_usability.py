@@ -41,7 +41,9 @@ def test_sim_help_shows_the_subcommand_as_optional(capsys: pytest.CaptureFixture
     assert "sea3d sim [options]" in text and "sea3d sim calibration [options]" in text
     with pytest.raises(SystemExit):
         main(["sim", "calibration", "--help"])
-    assert capsys.readouterr().out.startswith("usage: sea3d sim calibration [-h] [--rig RIG]")
+    # -v and -q are accepted after the subcommand too (issue 23.8)
+    assert capsys.readouterr().out.startswith(
+        "usage: sea3d sim calibration [-h] [-v] [-q] [--rig RIG]")
 
 
 @pytest.mark.parametrize("umask", [0o022, 0o077])

@@ -320,3 +320,17 @@ def test_a_bare_mcap_file_is_read_too(tmp_path):
         np.testing.assert_array_equal(img[..., 0], left)
         with pytest.raises(SessionError, match="has no intrinsics"):
             bag.camera("left")  # sea3d wrote no rig, so K is zero: refused, not guessed
+
+
+def test_bag_info_on_a_bag_lacking_a_preset_topic_lists_what_is_there(oak_bag, capsys):
+    """Issue 23.11: info names the preset's missing roles instead of failing; export refuses."""
+    argv = ["bag", "info", str(oak_bag), "--preset", "oak-d", "--topic", "imu=/oak/no_imu"]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "/oak/stereo/image_raw" in out  # the bag's topics are listed
+    assert "not in this bag (preset oak-d): imu (/oak/no_imu)" in out
+    assert main([*argv, "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["missing"] == {"imu": "/oak/no_imu"} and "imu" not in d["map"]
+    assert main(["bag", "export", str(oak_bag), "--preset", "oak-d", "--topic",
+                 "imu=/oak/no_imu", "-o", "never.mcap"]) == 2

@@ -53,3 +53,15 @@ def make_net(tmp_path: Path) -> NetFactory:
         return path
 
     return build
+
+
+FASTDEPTH = Path(__file__).resolve().parents[1] / "data" / "models" / "fastdepth_224" / \
+    "fastdepth_224.onnx"
+
+
+@pytest.fixture(scope="session")
+def fastdepth() -> Path:
+    """FastDepth (MIT, NYU Depth v2, 5.4 MB ONNX) shipped in tests/data with its notice: a real
+    network, metric as learned indoors; input RGB in [0, 1] without mean/std."""
+    assert FASTDEPTH.is_file(), f"{FASTDEPTH} is missing (it is committed with the tests)"
+    return FASTDEPTH

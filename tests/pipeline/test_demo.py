@@ -1,6 +1,7 @@
 """The end-to-end demo at a small size: dive, one-pair check, process, one report."""
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -42,6 +43,9 @@ def test_demo_runs_the_whole_chain_into_one_report(tmp_path, capsys):
     for part in ("One stereo pair", "Trajectory", "Mesh", "Status timeline", "Timings",
                  "colour bar: depth (m)", "one-off"):
         assert part in html, part
+    # Issue 23.6: the report sends the user where the files are, results.mcap included.
+    assert "Files in process/: process/trajectory.tum" in html and "process/results.mcap" in html
+    assert Path(s["files"]["results_mcap"]) == out / "process" / "results.mcap"
 
 
 def test_demo_rejects_tiny_images(tmp_path):

@@ -621,6 +621,15 @@ def _pose_stats(rvec: FloatArray, tvec: FloatArray, obj: FloatArray) -> tuple[fl
     return float(np.linalg.norm(centre)), tilt
 
 
+def _missing(dets: Sequence[Detection], camera: str, show: int = 4) -> str:
+    """``left: a.png, b.png and 3 more`` (or ``left: none``): the images without a board."""
+    names = [d.name or str(i) for i, d in enumerate(dets) if not d.ok]
+    if not names:
+        return f"{camera}: none"
+    more = f" and {len(names) - show} more" if len(names) > show else ""
+    return f"{camera}: {', '.join(names[:show])}{more}"
+
+
 def _pairs_from_detections(left: Sequence[Detection], right: Sequence[Detection],
                            cfg: StereoCalibConfig) -> tuple[list[_Pair], list[RejectedView]]:
     pairs: list[_Pair] = []
@@ -693,12 +702,11 @@ def calibrate_stereo(left: Sequence[Detection], right: Sequence[Detection],
     if len(pairs) < cfg.min_views:
         found_l = sum(d.ok for d in left)
         found_r = sum(d.ok for d in right)
-        missing = [d.name or str(i) for i, d in enumerate(left) if not d.ok][:4]
-        missing += [d.name or str(i) for i, d in enumerate(right) if not d.ok][:4]
         raise CalibrationError(
             f"the board was found in {found_l} of {len(left)} left and {found_r} of "
             f"{len(right)} right images, giving {plural(len(pairs), 'usable pair')}; at least "
-            f"{cfg.min_views} are needed (not found in: {', '.join(missing) or '-'})")
+            f"{cfg.min_views} are needed (not found in {_missing(left, 'left')}; "
+            f"{_missing(right, 'right')})")
     flags = _DISTORTION_FLAGS[cfg.distortion]
     timings: dict[str, float] = {}
     t_start = t0 = time.perf_counter()

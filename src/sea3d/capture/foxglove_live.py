@@ -55,6 +55,10 @@ class FoxgloveConfig:
         depth_width_px: width of the depth image (the rig is scaled to it).
         backlog_messages: outgoing messages buffered per client; a client that falls this far
             behind is disconnected by the server (it can reconnect).
+        accept_old_subprotocol: also accept clients that offer only ``foxglove.websocket.v1``
+            (Lichtblick before its ``foxglove.sdk.v1`` support), through
+            :class:`~sea3d.capture.foxglove_shim.SubprotocolShim`; False serves the SDK's
+            server on the address directly (new-name clients only).
     """
 
     host: str = "127.0.0.1"
@@ -66,6 +70,7 @@ class FoxgloveConfig:
     depth_rate_hz: float = 2.0
     depth_width_px: int = 480
     backlog_messages: int = 256
+    accept_old_subprotocol: bool = True
 
     def __post_init__(self) -> None:
         if not 0 <= self.port <= 65535:
@@ -149,21 +154,31 @@ class FoxglovePublisher:
         self.rig = rig
         self._ctx = ctx = foxglove.Context()
         self._listener = _Listener()
+        from sea3d.capture.foxglove_shim import SubprotocolShim
+
+        # The SDK's server on a loopback port behind a shim on the public address, which also
+        # accepts clients of the protocol's old name (foxglove.websocket.v1).
+        self._shim = SubprotocolShim(cfg.host, cfg.port, 0) if cfg.accept_old_subprotocol \
+            else None
         try:
             self._server = foxglove.start_server(
                 name=cfg.name,
-                host=cfg.host,
-                port=cfg.port,
+                host="127.0.0.1" if self._shim is not None else cfg.host,
+                port=0 if self._shim is not None else cfg.port,
                 context=ctx,
                 server_listener=self._listener,  # type: ignore[arg-type]
                 message_backlog_size=cfg.backlog_messages,
             )
         except RuntimeError as err:
+            if self._shim is not None:
+                self._shim.close()
             reason = str(err).removeprefix("FoxgloveError: ")
             hint = " (another program, or another sea3d, holds it)" if "in use" in reason else ""
             raise CaptureError(
                 f"cannot serve Foxglove on {cfg.host}:{cfg.port}: {reason}{hint}"
             ) from err
+        if self._shim is not None:
+            self._shim.target = ("127.0.0.1", int(self._server.port))
         if cfg.host not in ("127.0.0.1", "localhost", "::1"):
             _log.warning(
                 "Foxglove server listens on %s, reachable from other machines; it has no "
@@ -197,7 +212,7 @@ class FoxglovePublisher:
     @property
     def port(self) -> int:
         """The TCP port the server listens on."""
-        return int(self._server.port)
+        return self._shim.port if self._shim is not None else int(self._server.port)
 
     @property
     def url(self) -> str:
@@ -324,6 +339,8 @@ class FoxglovePublisher:
         if self._stopped:
             return
         self._stopped = True
+        if self._shim is not None:
+            self._shim.close()
         self._server.stop()
 
     def __enter__(self) -> FoxglovePublisher:

@@ -14,6 +14,7 @@ import logging
 import os
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 from sea3d import __version__
 from sea3d.errors import Sea3dError
@@ -27,9 +28,26 @@ _COMMAND_MODULES = (
 )  # fmt: skip
 
 
+class _Parser(argparse.ArgumentParser):
+    """A parser whose subcommands (at any depth) also accept ``-v`` and ``-q``.
+
+    ``sea3d depth -q ...`` then works as ``sea3d -q depth ...`` does: the subcommand's copies
+    default to "not given" (``SUPPRESS``), so they only override the top-level flags when used.
+    """
+
+    def __init__(self, *args: Any, _top: bool = False, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        if not _top:
+            self.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
+                              help="more log output (-vv for debug)")
+            self.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
+                              help="only warnings and errors")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Build the full argument parser with every area's subcommands registered."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
+        _top=True,
         prog="sea3d",
         description="Underwater stereo 3D reconstruction: rigs, sessions, calibration, depth.",
     )

@@ -60,7 +60,12 @@ def register(sub: Any) -> None:
 def _map(args: argparse.Namespace) -> Any:
     from sea3d.io.topic_map import TopicMap, parse_topic_args
 
-    return TopicMap.build(args.preset, parse_topic_args(args.topic))
+    tmap = TopicMap.build(args.preset, parse_topic_args(args.topic))
+    if not tmap.topics and getattr(args, "handler", None) is not _info:
+        from sea3d.errors import SessionError
+
+        raise SessionError("no topics mapped: give --preset or --topic ROLE=/topic")
+    return tmap
 
 
 def _info(args: argparse.Namespace) -> int:
@@ -69,27 +74,32 @@ def _info(args: argparse.Namespace) -> int:
     from rosbags.highlevel import AnyReader
 
     from sea3d.errors import SessionError
-    from sea3d.io.topic_map import MappedBag
 
     tmap = _map(args)
-    if tmap.topics:  # a map: check it against the file (missing topics are an error)
-        with MappedBag(args.bag, tmap) as bag:
-            mapped = dict(bag.topic_map.topics)
-    else:
-        mapped = {}
+    if not Path(args.bag).exists():
+        raise SessionError(f"bag {args.bag} does not exist")
     try:
         with AnyReader([Path(args.bag)]) as r:
             topics = {c.topic: (c.msgtype, c.msgcount) for c in r.connections}
     except Exception as err:  # rosbags' own error types
         raise SessionError(f"cannot open bag {args.bag}: {err}") from err
+    # info lists what is there: a preset's roles the bag lacks are named, not an error (export
+    # still refuses them).
+    mapped = {role: t for role, t in tmap.topics.items() if t in topics}
+    missing = {role: t for role, t in tmap.topics.items() if t not in topics}
     if args.json:
         out = {"topics": {t: {"type": ty, "count": n} for t, (ty, n) in topics.items()}}
-        json.dump({**out, "map": mapped}, sys.stdout, indent=2)
+        json.dump({**out, "map": mapped, "missing": missing}, sys.stdout, indent=2)
         sys.stdout.write("\n")
         return 0
     role_of = {t: r for r, t in mapped.items()}
     for t, (ty, n) in sorted(topics.items()):
         print(f"{t:<55} {ty:<36} {n:>7}  {role_of.get(t, '')}")
+    if missing:
+        what = f"preset {args.preset}" if args.preset else "the map"
+        print(f"not in this bag ({what}): "
+              + ", ".join(f"{role} ({t})" for role, t in sorted(missing.items()))
+              + "; 'sea3d bag export' needs them, or --topic ROLE=/topic (ROLE= drops one)")
     return 0
 
 

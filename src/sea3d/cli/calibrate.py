@@ -183,24 +183,36 @@ def _pair_paths(left: list[Path], right: list[Path]) -> None:
         f"(left only: {', '.join(only_l) or '-'}; right only: {', '.join(only_r) or '-'})")
 
 
-def _size_hint(paths: list[Path], dets: list[Any], board: Any) -> str:
+def _size_hint(paths: list[Path], dets: list[Any], board: Any, max_images: int = 8) -> str:
+    """``; N of M images hold a checkerboard of CxR inner corners -- did you mean ...?``
+
+    One image can mislead (a partly hidden or steeply seen board gives a smaller count), so up
+    to ``max_images`` of the images without a detection each name the size they hold, and the
+    size most of them name wins (the larger board on a tie).
+    """
+    from collections import Counter
+
     from sea3d.calib.targets import diagnose_checkerboard_size
 
     if board.kind != "checkerboard":
         return ""
+    votes: Counter[tuple[int, int]] = Counter()
+    asked = 0
     for path, det in zip(paths, dets, strict=True):
-        if det.ok:
+        if det.ok or asked >= max_images:
             continue
         img = _load_image(path)
         if img is None:
             continue
+        asked += 1
         found = diagnose_checkerboard_size(img, board)
         if found is not None:
-            return (f"; {path.name} holds a checkerboard of {found[0]}x{found[1]} inner corners "
-                    f"-- did you mean --board checkerboard:{found[0]}x{found[1]}:"
-                    f"{board.square_m * 1e3:g}mm?")
+            votes[found] += 1
+    if not votes:
         return ""
-    return ""
+    (c, r), n = max(votes.items(), key=lambda kv: (kv[1], kv[0][0] * kv[0][1]))
+    return (f"; {n} of {asked} images without the board hold a checkerboard of {c}x{r} inner "
+            f"corners -- did you mean --board checkerboard:{c}x{r}:{board.square_m * 1e3:g}mm?")
 
 
 # ---------------------------------------------------------------------- handlers

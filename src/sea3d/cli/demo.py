@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import image_size
+from sea3d.cli._args import add_output, image_size
 
 
 def register(sub: Any) -> None:
@@ -20,7 +20,7 @@ def register(sub: Any) -> None:
         "pair's refraction-corrected depth against ground truth, process the whole dive "
         "(depth, poses, TSDF fusion, mesh) and write OUT/report.html and OUT/summary.json.",
     )
-    p.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder")
+    add_output(p, type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
     p.add_argument("--scene", default="lake", help="lake, tank, reef or a scene YAML")
     p.add_argument("--water", default="coastal", choices=["none", "clear", "coastal", "turbid"],
                    help="water type (default coastal)")
@@ -42,7 +42,7 @@ def register(sub: Any) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from sea3d.cli.recon import _bar_factory
+    from sea3d.cli._progress import stage_bars
     from sea3d.pipeline.demo import DemoConfig, run_demo
 
     config = DemoConfig(
@@ -64,7 +64,7 @@ def _run(args: argparse.Namespace) -> int:
         if not quiet:
             print(f"[demo] {msg}", file=sys.stderr, flush=True)
 
-    result = run_demo(config, progress, bars=_bar_factory(not quiet))
+    result = run_demo(config, progress, bars=stage_bars(not quiet))
     s = result.summary
     if args.json:
         json.dump(s, sys.stdout, indent=2, default=str)
@@ -93,5 +93,10 @@ def _run(args: argparse.Namespace) -> int:
     t = s["timings_s"]
     print(f"wall time {t['total_s']:.0f} s (dive {t['simulate_s']:.0f} s, processing "
           f"{t['process_s']:.0f} s, {t['compile_s']:.1f} s one-off kernel compilation)")
+    files = s.get("files", {})
+    results = [Path(f) for k, f in files.items() if not k.startswith("demo_")]
+    where = results[0].parent if results else result.out_dir
+    print(f"wrote {result.report_html} and {result.out_dir / 'summary.json'}; the dive's "
+          f"results in {where}/: {', '.join(p.name for p in results)}")
     print(f"report: {result.report_html}")
     return 0

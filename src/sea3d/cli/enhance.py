@@ -177,6 +177,7 @@ def _session_depth(rig: Any, args: argparse.Namespace) -> Any:
 def _cmd_enhance_session(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from sea3d.cli._progress import once_per_message
     from sea3d.enhance.api import enhance_pair
     from sea3d.errors import EnhanceError
     from sea3d.io.rig_file import resolve_rig
@@ -206,7 +207,7 @@ def _cmd_enhance_session(args: argparse.Namespace) -> int:
         sonar = session.sonar()
         with SessionWriter(
             out_path, format=args.format or layout_of(out_path), rig_yaml=session.rig_yaml
-        ) as writer:
+        ) as writer, once_per_message("sea3d.enhance", "pair"):
             for k in range(len(imu)):
                 writer.write_imu(int(imu.t_ns[k]), imu.accel_mps2[k], imu.gyro_radps[k])
             for k in range(len(sonar)):

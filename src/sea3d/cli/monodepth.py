@@ -11,10 +11,11 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from functools import partial
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import add_depth_range
+from sea3d.cli._args import add_depth_range, config_option
 
 __all__ = ["register"]
 
@@ -45,12 +46,12 @@ def register(sub: Any) -> None:
     p.add_argument("--rig", metavar="RIG", help="rig file (stereo alignment; sessions: default "
                    "the session's rig)")
     p.add_argument("--right", metavar="RIGHT", help="the right image of the pair (with --rig)")
-    p.add_argument("--output-kind", choices=["inverse", "depth", "metric"], default="inverse",
-                   help="what the network returns (default inverse: Depth-Anything, MiDaS)")
-    p.add_argument("--normalize", choices=["imagenet", "unit"], default="imagenet",
-                   help="input normalisation (default ImageNet mean/std)")
-    p.add_argument("--device", choices=["cpu", "cuda", "auto"], default="cpu",
-                   help="onnxruntime provider (auto: CUDA when available)")
+    from sea3d.monodepth.model import MonoDepthConfig
+
+    opt = partial(config_option, p, MonoDepthConfig)
+    opt("output_kind", choices=["inverse", "depth", "metric"])
+    opt("normalize", choices=["imagenet", "unit"])
+    opt("device", choices=["cpu", "cuda", "auto"])
     add_depth_range(p, near="stereo: nearest depth", far="stereo: farthest depth")
     p.add_argument("--engine", default="sea3d", choices=["sea3d", "opencv", "sea3d-gpu"],
                    help="stereo matching engine")

@@ -83,10 +83,10 @@ def register(sub: Any) -> None:
     p.set_defaults(handler=_run)
 
 
-def _progress(total: int | None, desc: str) -> Any:
-    from tqdm import tqdm
+def _progress(total: int | None, desc: str, enabled: bool = True) -> Any:
+    from sea3d.cli._progress import bar
 
-    return tqdm(total=total, desc=desc, unit="frame", leave=False, file=sys.stderr)
+    return bar(total, desc, enabled=enabled)
 
 
 def _config(args: argparse.Namespace) -> Any:
@@ -154,7 +154,7 @@ def _run(args: argparse.Namespace) -> int:
     def on_open(src: Any, imu_ok: bool, why: str | None) -> None:
         nonlocal bar
         n = src.t_ns.size if args.max_frames is None else min(src.t_ns.size, args.max_frames)
-        bar = _progress(n, "odometry")
+        bar = _progress(n, "odometry", not args.json)
 
     try:
         run = session_odometry(
@@ -183,7 +183,7 @@ def _run_rgbd(args: argparse.Namespace) -> int:
     cp, _, _, _ = rgbd_observations(
         args.color, args.depth, tuple(args.intrinsics), depth_scale=args.depth_scale
     )
-    with _progress(len(cp), "rgbd odometry") as bar:
+    with _progress(len(cp), "rgbd odometry", not args.json) as bar:
         run = rgbd_odometry(
             args.color,
             args.depth,
@@ -244,7 +244,7 @@ def _calibrate_imu(args: argparse.Namespace) -> int:
     if imu_t.size == 0:
         raise CalibrationError(f"{args.session}: the session has no IMU samples")
     n = src.t_ns.size if args.max_frames is None else min(src.t_ns.size, args.max_frames)
-    with _progress(n, "visual odometry") as bar:
+    with _progress(n, "visual odometry", not args.json) as bar:
         run = session_odometry(
             args.session,
             rig_path=args.rig,

@@ -19,19 +19,6 @@ from sea3d.cli._args import add_depth_range, image_size, plural
 __all__ = ["register", "register_eval"]
 
 
-def _bar_factory(enabled: bool) -> Any:
-    from tqdm import tqdm
-
-    position = [0]
-
-    def make(stage: str, total: int) -> Any:
-        bar = tqdm(total=total, desc=f"{stage:>9}", unit="frame" if stage != "merge" else "map",
-                   position=position[0], leave=True, disable=None if enabled else True,
-                   dynamic_ncols=True)
-        position[0] += 1
-        return bar
-
-    return make
 
 
 # ------------------------------------------------------------------------------------ process
@@ -60,7 +47,9 @@ def _cmd_process(args: argparse.Namespace) -> int:
         report=not args.no_report,
         max_frames=args.max_frames,
     )
-    result = run_process(args.session, config, progress=_bar_factory(not args.json))
+    from sea3d.cli._progress import stage_bars
+
+    result = run_process(args.session, config, progress=stage_bars(not args.json))
     s = result.summary
     if args.json:
         json.dump(s, sys.stdout, indent=2, default=str)
@@ -85,9 +74,17 @@ def _cmd_process(args: argparse.Namespace) -> int:
             print(f"; mesh accuracy median {1000 * mv['accuracy_m']['median']:.1f} mm, 90th "
                   f"percentile {1000 * mv['accuracy_m']['p90']:.1f} mm", end="")
         print()
-    print(f"wrote {result.out_dir}/trajectory.tum, mesh.ply, cloud.ply, summary.json"
-          + (", report.html" if "report" in result.files else ""))
+    print(f"wrote {result.out_dir}/: {_written(result.files)}")
+    if "mesh_gt_frame" in result.files:
+        print("trajectory.tum, mesh.ply, cloud.ply and results.mcap are in the odometry's world "
+              "(the first left camera); mesh_gt_frame.ply and trajectory_gt_frame.tum in the "
+              "ground truth's (for 'sea3d eval surface')")
     return 0
+
+
+def _written(files: dict[str, Path]) -> str:
+    """The names of the files a run wrote, in its order, for the closing "wrote" line."""
+    return ", ".join(Path(p).name for p in files.values() if Path(p).exists())
 
 
 # --------------------------------------------------------------------------------------- fuse
@@ -105,8 +102,8 @@ def _glob(pattern: str, what: str) -> list[Path]:
 
 def _cmd_fuse(args: argparse.Namespace) -> int:
     import numpy as np
-    from tqdm import tqdm
 
+    from sea3d.cli import _progress
     from sea3d.io.mesh_files import write_mesh, write_point_cloud
     from sea3d.io.trajectory_files import read_trajectory
     from sea3d.pipeline.fuse import fuse_rgbd
@@ -120,8 +117,7 @@ def _cmd_fuse(args: argparse.Namespace) -> int:
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     config = TsdfConfig(voxel_m=args.voxel_m, trunc_voxels=args.trunc_voxels,
                         depth_min_m=args.min_depth, depth_max_m=args.max_depth)
-    with tqdm(total=len(colors), desc="fuse", unit="frame",
-              disable=True if args.json else None) as bar:
+    with _progress.bar(len(colors), "fuse", enabled=not args.json, leave=True) as bar:
         res = fuse_rgbd(colors, depths, poses, K, config, depth_scale=args.depth_scale,
                         progress=bar.update)
     write_mesh(args.output, res.mesh)
@@ -187,20 +183,114 @@ def _cmd_eval_trajectory(args: argparse.Namespace) -> int:
     return 0
 
 
+def _trusted_rows(folder: Path) -> Any:
+    """Stamps of the trusted frames in ``folder/status.csv`` (None when there is none)."""
+    import csv
+
+    import numpy as np
+
+    path = folder / "status.csv"
+    if not path.is_file():
+        return None
+    with open(path, newline="") as fh:
+        rows = [r for r in csv.DictReader(fh) if r.get("status") in ("tracking", "relocalised")]
+    return np.array([int(r["t_ns"]) for r in rows], np.int64)
+
+
+def _surface_alignment(args: argparse.Namespace, est: Any, ref: Any) -> Any:
+    """The alignment ``eval surface`` uses, and a line saying how it was found (or a warning)."""
+    import logging
+
+    import numpy as np
+
+    from sea3d.eval.surface import NO_ALIGNMENT, align_by_icp, align_by_trajectories
+    from sea3d.io.trajectory_files import read_trajectory
+
+    log = logging.getLogger("sea3d.cli.eval")
+    mesh = Path(args.mesh)
+    trajectories = args.trajectories
+    summary_path = mesh.parent / "summary.json"
+    summary: dict[str, Any] = {}
+    if summary_path.is_file():
+        try:
+            summary = json.loads(summary_path.read_text())
+        except (OSError, ValueError):
+            summary = {}
+    frames = summary.get("frame_of_file")
+    frame = frames.get(mesh.name, "") if isinstance(frames, dict) else ""
+    if trajectories is None and args.align != "none":
+        if "ground truth" in frame and args.align == "auto":
+            return NO_ALIGNMENT, f"{mesh.name} is in the ground truth's frame ({summary_path})"
+        gt_root = summary.get("ground_truth")
+        if (gt_root and (Path(gt_root) / "poses_left.tum").is_file()
+                and (mesh.parent / "trajectory.tum").is_file()):
+            trajectories = [mesh.parent / "trajectory.tum", Path(gt_root) / "poses_left.tum"]
+    if trajectories is None and args.align in ("se3", "sim3"):
+        from sea3d.errors import ReconError
+
+        raise ReconError(f"--align {args.align} needs --trajectories EST GT")
+    align = NO_ALIGNMENT
+    if trajectories is not None and args.align != "none":
+        te = read_trajectory(trajectories[0])
+        tr = read_trajectory(trajectories[1])
+        t_e, T_e = te.t_ns, te.T_world_x
+        trusted = _trusted_rows(Path(trajectories[0]).parent)
+        if trusted is not None and te.timed:
+            keep = np.isin(t_e, trusted)
+            if keep.sum() >= 3:
+                t_e, T_e = t_e[keep], T_e[keep]
+        by_index = not (te.timed and tr.timed)
+        if not by_index and len(te.t_ns) == len(tr.t_ns):
+            from sea3d.eval.trajectory import associate
+
+            # Same count but stamps that mostly do not meet (frame indices against a camera
+            # clock): frame order, as 'sea3d fuse' pairs poses with frames.
+            n_timed = len(associate(te.t_ns, tr.t_ns, round(args.max_diff_s * 1e9))[0])
+            if n_timed < max(3, len(te.t_ns) // 2):
+                by_index = True
+                t_e, T_e = te.t_ns, te.T_world_x
+                log.info("the trajectories' stamps do not pair up; paired in frame order")
+        align = align_by_trajectories(t_e, T_e, tr.t_ns, tr.T_world_x,
+                                      with_scale=args.align == "sim3", by_index=by_index,
+                                      max_diff_s=args.max_diff_s)
+    if args.align == "icp":
+        align = align_by_icp(est.vertices, est.triangles, ref.vertices, ref.triangles,
+                             init=align, max_distance_m=args.icp_max_distance_m)
+    if align.method == "none":
+        if args.align == "none":
+            return align, "not aligned (--align none)"
+        log.warning("nothing aligns %s with %s: the figures assume both are in one frame. A "
+                    "mesh of 'sea3d process' is in the odometry's world: pass --trajectories "
+                    "EST GT, or --align icp for surfaces that already roughly overlap", mesh,
+                    args.reference)
+        return align, "not aligned"
+    how = (f"aligned {align.method} from {trajectories[0]} and {trajectories[1]}"
+           if trajectories is not None else f"aligned {align.method}")
+    how += (f" ({align.pairs} pairs, residual {1000 * (align.residual_m or 0):.1f} mm: "
+            f"{align.residual_of}" + (f"; fitness {100 * align.fitness:.0f} %"
+                                      if align.fitness is not None else "")
+            + (f"; scale {align.scale:.4f}" if align.scale != 1.0 else "") + ")")
+    return align, how
+
+
 def _cmd_eval_surface(args: argparse.Namespace) -> int:
     from sea3d.eval.surface import surface_metrics
     from sea3d.io.mesh_files import read_mesh
 
     est = read_mesh(args.mesh)
     ref = read_mesh(args.reference)
+    align, how = _surface_alignment(args, est, ref)
     thresholds = tuple(t / 1000.0 for t in args.thresholds_mm)
-    m = surface_metrics(est.vertices, est.triangles, ref.vertices, ref.triangles,
+    m = surface_metrics(align.apply(est.vertices), est.triangles, ref.vertices, ref.triangles,
                         samples=args.samples, thresholds_m=thresholds,
                         crop_margin_m=args.crop_margin_m)
     if args.json:
-        print(json.dumps(m.as_dict(), indent=2))
+        d = m.as_dict()
+        d["alignment"] = {**align.as_dict(), "how": how}
+        print(json.dumps(d, indent=2))
         return 0
     a, c = m.accuracy_m, m.completeness_m
+    print(how)
     print(f"accuracy (estimate to reference): median {1000 * a.median:.1f} mm, mean "
           f"{1000 * a.mean:.1f} mm, 90th percentile {1000 * a.p90:.1f} mm")
     print(f"completeness (reference to estimate): median {1000 * c.median:.1f} mm, mean "
@@ -250,13 +340,16 @@ def register(sub: Any) -> None:
                    help="fuse every frame with a trusted pose (default) or keyframes only")
     p.add_argument("--fresh", action="store_true",
                    help="discard cached per-frame results in OUT instead of resuming")
-    p.add_argument("--enhance", metavar="METHOD",
-                   help="enhance each raw image before matching: none (default: measured "
-                        "best for stereo), grey-world, shades-of-grey, red-comp, clahe, udcp, "
-                        "or a package.module:function (docs/enhance.md)")
-    p.add_argument("--restore-colours", choices=["none", "seathru"], default="none",
+    p.add_argument("--enhance-method", "--enhance", dest="enhance", metavar="METHOD",
+                   help="enhance each raw image before matching, as 'sea3d enhance --method': "
+                        "none (default: measured best for stereo), grey-world, shades-of-grey, "
+                        "red-comp, clahe, udcp, or a package.module:function (docs/enhance.md)"
+                        "; --enhance is a deprecated alias, kept for one release")
+    p.add_argument("--restore-colors", "--restore-colours", dest="restore_colours",
+                   choices=["none", "seathru"], default="none",
                    help="colours of mesh and cloud: seathru restores them after depth with "
-                        "the stereo range (default none)")
+                        "the stereo range (default none); --restore-colours is a deprecated "
+                        "alias, kept for one release")
     p.add_argument("--max-frames", type=int, metavar="N", help="only the first N pairs")
     p.add_argument("--no-report", action="store_true", help="skip report.html")
     p.add_argument("--json", action="store_true", help="print summary.json (no progress bars)")
@@ -324,13 +417,29 @@ def register_eval(esub: Any) -> None:
         help="accuracy and completeness of a mesh against a reference mesh, in metres",
         description="Sample both surfaces by area; accuracy is the distance of the mesh's "
         "samples to the reference, completeness that of the reference's samples to the mesh "
-        "(exact point-to-triangle distances); precision, recall and F-score at thresholds.",
+        "(exact point-to-triangle distances); precision, recall and F-score at thresholds. "
+        "Both must be in one frame: --trajectories aligns the mesh by Umeyama on the paired "
+        "poses of its trajectory and the reference's, --align icp refines (or finds) it by "
+        "ICP; each states its residual. By default a mesh of 'sea3d process' is aligned with "
+        "the trajectory.tum beside it and the ground truth its summary.json names.",
     )
     s.add_argument("mesh", metavar="MESH", help="reconstructed mesh (or point cloud)")
     s.add_argument("reference", metavar="REF_MESH", help="reference mesh (or point cloud)")
     s.add_argument("--samples", type=int, default=200_000, help="samples per surface")
     s.add_argument("--thresholds-mm", type=float, nargs="+", default=[10.0, 20.0, 50.0],
                    metavar="T", help="precision/recall thresholds, mm (default 10 20 50)")
+    s.add_argument("--trajectories", type=Path, nargs=2, metavar=("EST", "GT"),
+                   help="align by these trajectories: EST in the mesh's world, GT in the "
+                   "reference's (TUM, KITTI or EuRoC CSV)")
+    s.add_argument("--align", choices=["auto", "none", "se3", "sim3", "icp"], default="auto",
+                   help="auto (default): SE(3) from the trajectories when known, else none with "
+                   "a warning; sim3 also fits scale; icp refines after the trajectories (or "
+                   "alone)")
+    s.add_argument("--max-diff-s", type=float, default=0.01, metavar="S",
+                   help="largest stamp difference of a pose pair, seconds (default 0.01)")
+    s.add_argument("--icp-max-distance-m", type=float, metavar="D",
+                   help="ICP's largest correspondence distance (default 2 %% of the "
+                   "reference's bounding-box diagonal)")
     s.add_argument("--crop-margin-m", type=float, metavar="M",
                    help="only reference surface within the mesh's bounding box grown by M")
     s.add_argument("--json", action="store_true", help="print the figures as JSON")

@@ -11,6 +11,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
+from sea3d.cli._args import add_output
 from sea3d.cli._foxglove import FOXGLOVE_HELP as _FOXGLOVE_HELP
 
 __all__ = ["register"]
@@ -33,8 +34,8 @@ def register(sub: Any) -> None:
     rec.add_argument("--right", required=True, help="right camera, same forms as --left")
     rec.add_argument("--imu", help="IMU: mti:PORT[@BAUD], session:PATH or sim:MODULE:FACTORY")
     rec.add_argument("--sonar", help="echosounder: ping:PORT[@BAUD], session:PATH or sim:...")
-    rec.add_argument("--out", required=True, help="output session: *.mcap or a new folder")
-    rec.add_argument("--format", choices=("mcap", "folder"), help="default: from --out")
+    add_output(rec, required=True, help="output session: *.mcap or a new folder")
+    rec.add_argument("--format", choices=("mcap", "folder"), help="default: from --output")
     rec.add_argument("--duration", type=float, help="seconds to record (default: until stopped)")
     rec.add_argument("--rig", help="rig.yaml stored with the session (and its capture settings)")
     rec.add_argument(

@@ -113,11 +113,10 @@ def _info(args: argparse.Namespace) -> int:
 
 
 def _convert(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
+    from sea3d.cli._progress import bar as make_bar
     from sea3d.io.session import convert_session
 
-    bar = tqdm(total=0, unit="image", desc="convert", disable=None, leave=False)
+    bar = make_bar(0, "convert", unit="image")
 
     def progress(done: int, total: int) -> None:
         bar.total = total

@@ -15,6 +15,8 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+from sea3d.cli._args import config_option
+
 __all__ = ["register"]
 
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm")
@@ -39,27 +41,22 @@ def register(sub: Any) -> None:
     p.add_argument("--rig", metavar="RIG", help="rig file (default: the session's own rig)")
     p.add_argument("--self-calibrate", action="store_true",
                    help="ignore the session's rig and self-calibrate the camera")
-    p.add_argument("--camera", choices=["left", "right", "stereo"], default="left",
-                   help="which camera(s) of each frame (stereo: metric, needs a rig)")
-    p.add_argument("--matcher", choices=["sequential", "exhaustive"], default="sequential",
-                   help="sequential for video (default), exhaustive for small unordered sets")
-    p.add_argument("--overlap", type=int, default=6,
-                   help="sequential matcher: frames ahead each frame is matched with")
-    p.add_argument("--max-image-px", type=int, default=1600,
-                   help="SIFT on images downscaled to this longer side (default 1600)")
-    p.add_argument("--max-features", type=int, default=4096, help="SIFT features per image")
+    from sea3d.sfm.types import SfmConfig
+
+    opt = partial(config_option, p, SfmConfig)
+    opt("camera", choices=["left", "right", "stereo"], dest="camera")
+    opt("matcher", choices=["sequential", "exhaustive"], dest="matcher")
+    opt("sequential_overlap", "--overlap", type=int, dest="overlap")
+    opt("max_image_px", type=int, dest="max_image_px")
+    opt("max_features", type=int, dest="max_features")
     p.add_argument("--fast", action="store_true",
                    help="SIFT without upsampling (first octave 0): about 2.5x less extraction "
                         "time, less precise features (see docs/sfm.md)")
-    p.add_argument("--camera-model", default="SIMPLE_RADIAL",
-                   choices=["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"],
-                   help="COLMAP model refined when self-calibrating")
-    p.add_argument("--depth-range", type=float, nargs=2, default=(0.5, 10.0),
-                   metavar=("NEAR", "FAR"),
-                   help="working range in metres for port cameras' virtual pinholes")
-    p.add_argument("--refractive-ba", choices=["auto", "on", "off"], default="auto",
-                   help="refractive bundle adjustment (auto: when the virtual pinhole's "
-                        "residual over the working range exceeds 0.25 px)")
+    opt("self_calibration_model", "--camera-model", dest="camera_model",
+        choices=["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"])
+    opt("depth_range_m", "--depth-range", type=float, nargs=2, metavar=("NEAR", "FAR"),
+        dest="depth_range")
+    opt("refractive_ba", choices=["auto", "on", "off"], dest="refractive_ba")
     p.add_argument("--pose-priors", metavar="TRAJ",
                    help="trajectory of the left camera (TUM, KITTI with --pose-priors-times, "
                         "or EuRoC CSV; sea3d odometry/process output or ground truth) used as "
@@ -68,8 +65,7 @@ def register(sub: Any) -> None:
                    help="format of --pose-priors (default: from its extension and first line)")
     p.add_argument("--pose-priors-times", metavar="TIMES.txt",
                    help="KITTI times.txt (one stamp in seconds per pose) for --pose-priors")
-    p.add_argument("--prior-std", type=float, default=0.05,
-                   help="pose-prior position standard deviation, metres")
+    opt("prior_position_std_m", "--prior-std", type=float, dest="prior_std")
     p.add_argument("--imu-scale", action="store_true",
                    help="monocular sessions: scale the model to metres from the IMU")
     p.add_argument("--imu-extrinsics", metavar="FILE",
@@ -77,8 +73,8 @@ def register(sub: Any) -> None:
                         "T_left_imu; default: the rig's IMU block")
     p.add_argument("--export-images", action="store_true",
                    help="also write the images as COLMAP saw them to OUT/images/")
-    p.add_argument("--threads", type=int, default=-1, help="threads/processes (-1: all cores)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (same seed, same model)")
+    opt("num_threads", "--threads", type=int, dest="threads")
+    opt("seed", type=int, dest="seed")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(handler=_cmd_sfm)
 
@@ -164,34 +160,17 @@ def _session_frames(reader: Any, camera: str, where: str) -> list[Any]:
 
 def _imu_extrinsics(args: argparse.Namespace, rig: Any) -> Any:
     """``T_cam_body`` (the IMU in the left camera frame) for --imu-scale."""
-    import numpy as np
-    import yaml
-
     from sea3d.errors import SfmError
-    from sea3d.geometry.se3 import check_T, invert_T
+    from sea3d.io.sfm_files import read_imu_extrinsics
+    from sea3d.sfm.metric import imu_extrinsics
 
     if args.imu_extrinsics:
-        path = Path(args.imu_extrinsics)
-        try:
-            data = yaml.safe_load(path.read_text())
-        except (OSError, yaml.YAMLError) as err:
-            raise SfmError(f"{path}: cannot read IMU extrinsics: {err}") from err
-        if isinstance(data, dict) and isinstance(data.get("imu"), dict):
-            data = data["imu"]
-        for key, inverse in (("T_left_imu", False), ("T_body_left", True)):
-            if isinstance(data, dict) and key in data:
-                try:
-                    T = check_T(np.asarray(data[key], dtype=np.float64), key)
-                except (ValueError, TypeError) as err:
-                    raise SfmError(f"{path}: {key} is not a rigid 4x4 transform: {err}") from err
-                return invert_T(T) if inverse else T
-        raise SfmError(f"{path}: holds neither T_left_imu nor T_body_left")
-    imu = getattr(rig, "imu", None) if rig is not None else None
-    T_rig = getattr(imu, "T_left_imu", None)
-    if T_rig is None:
+        return read_imu_extrinsics(args.imu_extrinsics)
+    try:
+        return imu_extrinsics(rig)
+    except SfmError as err:
         raise SfmError("--imu-scale needs the IMU's place on the camera: the rig has no IMU "
-                       "block; pass --imu-extrinsics FILE (T_left_imu or T_body_left)")
-    return np.asarray(T_rig, dtype=np.float64)
+                       "block; pass --imu-extrinsics FILE (T_left_imu or T_body_left)") from err
 
 
 # ---------------------------------------------------------------------- command
@@ -207,6 +186,7 @@ def _cmd_sfm(args: argparse.Namespace) -> int:
     from sea3d.io.sfm_files import write_colmap_model, write_summary
     from sea3d.io.trajectory_files import read_trajectory, write_tum
     from sea3d.sfm import PosePriors, SfmConfig, run_sfm
+    from sea3d.sfm.metric import imu_scale_for, scaled_outputs
 
     make = SfmConfig.fast if args.fast else SfmConfig
     config = make(
@@ -278,11 +258,14 @@ def _cmd_sfm(args: argparse.Namespace) -> int:
             if bar is None:
                 for b in bars.values():
                     b.close()
-                bar = bars[stage] = tqdm(total=total, desc=stage, unit="img" if stage ==
-                                         "prepare" else "frame", leave=False)
+                unit = {"prepare": "img", "extract": "img", "match": "pair"}.get(stage, "frame")
+                bar = bars[stage] = tqdm(total=total, desc=stage, unit=unit, leave=False)
             bar.n = done
             bar.refresh()
 
+        if args.camera == "stereo" and rig is None:
+            raise SfmError("--camera stereo needs the rig (its extrinsics fix the scale); "
+                           "pass --rig or use a session that stores one")
         try:
             result = run_sfm(frames, config, rig=rig, pose_priors=priors,
                              workdir=out / ".work", progress=progress, image_sink=sink)
@@ -294,18 +277,16 @@ def _cmd_sfm(args: argparse.Namespace) -> int:
             shutil.rmtree(out / ".work", ignore_errors=True)
     summary = _summary(args, result, rig, priors)
     imu_result, scale = None, 1.0
-    if imu is not None and result.status != "failed":
-        imu_result, scale = _imu_scale(result, imu, T_cam_body, summary)
+    if imu is not None and T_cam_body is not None and result.status != "failed":
+        decision = imu_scale_for(result, imu, T_cam_body)
+        imu_result, scale = decision.estimate, decision.scale
+        summary["imu_scale"] = decision.summary
+        if decision.summary.get("applied"):
+            summary["metric"], summary["metric_source"] = True, "imu"
     if result.reconstruction is not None:
-        T = result.T_world_left.copy()
-        T[:, :3, 3] *= scale
-        if scale != 1.0:
-            import pycolmap
-
-            result.reconstruction.transform(
-                pycolmap.Sim3d(scale, pycolmap.Rotation3d(np.eye(3)), np.zeros(3)))
+        T, points = scaled_outputs(result, scale)
         write_colmap_model(result.reconstruction, out / "sparse")
-        write_ply(out / "points.ply", result.points_world * scale, result.colors_rgb)
+        write_ply(out / "points.ply", points, result.colors_rgb)
         # sessions name frames by their integer stamp (exact); a glob's t is the image index
         t_ns = (np.array([int(n) for n in result.names], dtype=np.int64) if session else
                 np.round(np.asarray(result.t_s) * 1e9).astype(np.int64))
@@ -322,35 +303,6 @@ def _cmd_sfm(args: argparse.Namespace) -> int:
               f"-> {out}/ (sparse/, points.ply, trajectory.tum, summary.json) in "
               f"{result.timings_s.get('total_s', 0.0):.1f} s")
     return 0
-
-
-def _imu_scale(result: Any, imu: Any, T_cam_body: Any,
-               summary: dict[str, Any]) -> tuple[Any, float]:
-    """The IMU's scale estimate and the factor to apply (1 unless it is trustworthy)."""
-    import numpy as np
-
-    from sea3d.sfm.imu_scale import estimate_imu_scale
-
-    if result.metric:
-        summary["imu_scale"] = {"status": "skipped", "message": "the model is metric already"}
-        return None, 1.0
-    # with the gyroscope: measured -0.9 % against -5.9 % (lawnmower) and -0.17 % against
-    # +1.0 % (hand-held) without it, benchmarks/bench_sfm.py --only imu
-    est = estimate_imu_scale(result.t_s, result.T_world_left,
-                             imu.t_ns.astype(np.float64) * 1e-9, imu.accel_mps2, T_cam_body,
-                             gyro_radps=imu.gyro_radps)
-    summary["imu_scale"] = {
-        "status": est.status, "message": est.message, "scale": est.scale,
-        "scale_std": est.scale_std, "relative_std": est.relative_std,
-        "gravity_model_mps2": list(est.gravity_model_mps2),
-        "accel_bias_mps2": list(est.accel_bias_mps2), "windows": est.windows,
-        "chi2_per_dof": est.chi2_per_dof, "applied": est.status == "ok",
-    }
-    if est.status != "ok":
-        return est, 1.0
-    summary["metric"] = True
-    summary["metric_source"] = "imu"
-    return est, float(est.scale)
 
 
 def _summary(args: argparse.Namespace, result: Any, rig: Any, priors: Any) -> dict[str, Any]:

@@ -1,9 +1,9 @@
 """``sea3d sim``: simulate an underwater stereo session, or a calibration set, with ground truth.
 
-    sea3d sim --scene lake --frames 300 --water coastal --out dive.mcap
-    sea3d sim --scene tank --rig rig.yaml --format folder --size 960x540 --out tank_run/
+    sea3d sim --scene lake --frames 300 --water coastal -o dive.mcap
+    sea3d sim --scene tank --rig rig.yaml --format folder --size 960x540 -o tank_run/
     sea3d sim calibration --rig rig.yaml --board checkerboard:9x6:40mm --views 20 \\
-        --medium water --out calib_water/
+        --medium water -o calib_water/
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import logging
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import image_size
+from sea3d.cli._args import add_output, image_size
 from sea3d.errors import SimulationError
 
 _log = logging.getLogger(__name__)
@@ -56,9 +56,9 @@ def register(sub: Any) -> None:
         choices=["lawnmower", "orbit", "handheld"],
         help="vehicle motion (default lawnmower)",
     )
-    p.add_argument("--out", type=Path, metavar="PATH", help="output: an .mcap file or a folder")
+    add_output(p, type=Path, metavar="PATH", help="output: an .mcap file or a folder")
     p.add_argument(
-        "--format", choices=["mcap", "folder"], help="session layout (default from --out)"
+        "--format", choices=["mcap", "folder"], help="session layout (default from --output)"
     )
     p.add_argument("--seed", type=int, default=0, metavar="N", help="noise seed (default 0)")
     p.add_argument(
@@ -150,9 +150,7 @@ def register(sub: Any) -> None:
     c.add_argument(
         "--seed", dest="cal_seed", type=int, default=0, metavar="N", help="pose seed (default 0)"
     )
-    c.add_argument(
-        "--out", dest="cal_out", type=Path, required=True, metavar="DIR", help="output folder"
-    )
+    add_output(c, dest="cal_out", type=Path, required=True, metavar="DIR", help="output folder")
     c.set_defaults(handler=_run_calibration)
 
 
@@ -168,9 +166,9 @@ def _load_rig(path: Path | None, size: tuple[int, int] | None) -> Any:
 
 
 def _progress(total: int, desc: str) -> Any:
-    from tqdm import tqdm
+    from sea3d.cli._progress import bar
 
-    return tqdm(total=total, desc=desc, unit="frame", leave=True)
+    return bar(total, desc, leave=True)
 
 
 def _size_text(n_bytes: float) -> str:
@@ -181,7 +179,7 @@ def _size_text(n_bytes: float) -> str:
 
 def _duration_text(seconds: float) -> str:
     if seconds < 1:
-        return "under a second"
+        return "a second"
     if seconds < 90:
         return f"{seconds:.0f} s"
     if seconds < 5400:
@@ -217,9 +215,25 @@ def _remove_created(path: Path, existed: bool) -> None:
         path.unlink(missing_ok=True)
 
 
+def _say_if_the_survey_folds(scene: Any, config: Any) -> None:
+    """A lawnmower longer than one pass over the scene flies its lanes again: say so, with the
+    number of frames one pass holds, before the (long) rendering starts."""
+    from sea3d.sim.motion import Lawnmower
+    from sea3d.sim.survey import default_trajectory
+
+    traj = default_trajectory(scene, config)
+    if not isinstance(traj, Lawnmower) or traj.pass_s is None:
+        return
+    pass_frames = round(traj.pass_s * config.fps)
+    if config.frames > pass_frames:
+        print(f"note: {scene.name} holds {traj.lanes} lanes of this survey, {pass_frames} frames "
+              f"at {config.fps:g} fps; after that the survey turns back over the same lanes "
+              "rather than leave the scene", flush=True)
+
+
 def _run_survey(args: argparse.Namespace) -> int:
     if args.out is None:
-        raise SimulationError("sea3d sim needs --out (an .mcap file or a folder)")
+        raise SimulationError("sea3d sim needs -o/--output (an .mcap file or a folder)")
     if args.frames < 1:
         raise SimulationError(f"--frames must be >= 1, got {args.frames}")
     from sea3d.io.rig_file import rig_to_yaml
@@ -260,6 +274,7 @@ def _run_survey(args: argparse.Namespace) -> int:
         f"two idle cores",
         flush=True,
     )
+    _say_if_the_survey_folds(scene, config)
     mount = survey_mount(rig, config)
     session_rig = with_survey_sensors(rig, config, mount)  # the IMU and echosounder simulated
     existed = {path: path.exists() for path in (args.out, gt_dir)}

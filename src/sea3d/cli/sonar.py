@@ -75,8 +75,7 @@ def _fmt(c: Any) -> str:
 
 
 def _eval_sonar(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
+    from sea3d.cli._progress import bar as progress_bar
     from sea3d.pipeline.sonar_check import run_sonar_check, write_sonar_report
 
     rig = None
@@ -84,7 +83,7 @@ def _eval_sonar(args: argparse.Namespace) -> int:
         from sea3d.io.rig_file import load_rig
 
         rig = load_rig(args.rig)
-    with tqdm(unit="frame", desc="depth", disable=args.json or None) as bar:
+    with progress_bar(None, "depth", enabled=not args.json, leave=True) as bar:
         ev, info = run_sonar_check(
             args.session,
             rig=rig,

@@ -75,7 +75,8 @@ def process_metrics(
 
     Returns:
         A dict with ``trajectory_vs_gt`` and/or ``mesh_vs_gt`` (each ``{"error": ...}`` when
-        the metric cannot be computed).
+        the metric cannot be computed), and ``T_gt_world``, the (4, 4) rigid transform from the
+        estimate's world to the reference's, when the trajectories could be aligned.
     """
     from sea3d.eval.surface import surface_metrics
     from sea3d.eval.trajectory import evaluate_trajectory
@@ -89,6 +90,7 @@ def process_metrics(
             out["trajectory_vs_gt"] = m.as_dict()
             T_ref_est = pose_alignment(t_ns[trusted], T_world_left[trusted], gt_t_ns,
                                        gt_T_world_left)
+            out["T_gt_world"] = T_ref_est
         except Sea3dError as err:
             out["trajectory_vs_gt"] = {"error": str(err)}
     if scene is not None and not mesh.empty:

@@ -15,6 +15,12 @@ thresholds: 1, 2 and 5 cm (half, one and two and a half voxels at the default 2 
 A reference usually covers more than one survey saw: ``crop_margin_m`` keeps only reference
 samples inside the estimate's bounding box grown by that margin; callers that know what was
 seen (the simulator's ground-truth depth) pass those points as ``reference_points``.
+
+Both surfaces must be in one frame. A mesh of ``sea3d process`` lives in the odometry's world
+(its first left camera), a scene mesh in the ground truth's: :func:`align_by_trajectories`
+finds the transform from the two trajectories (Umeyama on associated poses, SE(3) or Sim(3)),
+:func:`align_by_icp` refines or finds it from the surfaces themselves (Open3D's ICP), and each
+states its residual in a :class:`SurfaceAlignment`.
 """
 
 from __future__ import annotations
@@ -29,7 +35,15 @@ from sea3d._typing import F64
 from sea3d.errors import ReconError
 from sea3d.eval.trajectory import ErrorStats, error_stats
 
-__all__ = ["SurfaceMetrics", "point_to_mesh_distance", "sample_surface", "surface_metrics"]
+__all__ = [
+    "SurfaceAlignment",
+    "SurfaceMetrics",
+    "align_by_icp",
+    "align_by_trajectories",
+    "point_to_mesh_distance",
+    "sample_surface",
+    "surface_metrics",
+]
 
 I64 = NDArray[np.int64]
 
@@ -178,3 +192,186 @@ def surface_metrics(
         estimate_samples=len(est_s),
         reference_samples=len(ref_s),
     )
+
+
+# ------------------------------------------------------------------------------- alignment
+
+
+@dataclass(frozen=True, kw_only=True)
+class SurfaceAlignment:
+    """A similarity ``x_ref = T_ref_est x_est`` that puts the estimate into the reference's frame.
+
+    Attributes:
+        T_ref_est: (4, 4); its rotation block carries ``scale``.
+        scale: 1.0 unless Sim(3) was fitted.
+        method: ``"none"``, ``"trajectory-se3"``, ``"trajectory-sim3"``, ``"icp"`` or
+            ``"trajectory-se3+icp"`` (and so on).
+        residual_m: RMS residual of the fit, metres: of the associated camera positions for a
+            trajectory fit, of ICP's inlier correspondences for ICP; None for ``"none"``.
+        residual_of: what ``residual_m`` measures, in words.
+        pairs: associated poses (trajectory) or inlier correspondences (ICP).
+        fitness: ICP only: fraction of the estimate's samples with a correspondence.
+    """
+
+    T_ref_est: F64
+    scale: float = 1.0
+    method: str = "none"
+    residual_m: float | None = None
+    residual_of: str = ""
+    pairs: int = 0
+    fitness: float | None = None
+
+    def as_dict(self) -> dict[str, object]:
+        """Plain values for JSON."""
+        d = asdict(self)
+        d["T_ref_est"] = np.asarray(self.T_ref_est).tolist()
+        return d
+
+    def apply(self, points: F64) -> F64:
+        """(N, 3) points of the estimate in the reference's frame."""
+        p = np.asarray(points, dtype=np.float64)
+        return p @ self.T_ref_est[:3, :3].T + self.T_ref_est[:3, 3]
+
+
+NO_ALIGNMENT = SurfaceAlignment(T_ref_est=np.eye(4))
+
+
+def align_by_trajectories(
+    t_est_ns: NDArray[np.integer],
+    T_est: F64,
+    t_ref_ns: NDArray[np.integer],
+    T_ref: F64,
+    *,
+    with_scale: bool = False,
+    by_index: bool = False,
+    max_diff_s: float = 0.01,
+    axis_m: float = 1.0,
+) -> SurfaceAlignment:
+    """The transform from the estimate's world to the reference's, from their trajectories.
+
+    Poses are paired by time (or by index), and Umeyama fits the pairs. Positions alone leave
+    the rotation about a straight survey leg undetermined, so each pose also contributes the
+    tips of its three axes ``axis_m`` out (after scaling, for Sim(3)): orientations pin it.
+
+    Args:
+        t_est_ns, T_est: (N,) stamps and (N, 4, 4) ``T_world_cam`` of the estimate.
+        t_ref_ns, T_ref: (M,) and (M, 4, 4) of the reference.
+        with_scale: fit Sim(3) (monocular or unscaled estimates); else SE(3).
+        by_index: pair the i-th poses (files without times) instead of by time.
+        max_diff_s: largest stamp difference of a pair.
+        axis_m: length of the axis tips, metres.
+
+    Returns:
+        :class:`SurfaceAlignment` with the RMS position residual of the pairs.
+
+    Raises:
+        ReconError: fewer than 3 pairs, or an estimate that does not move.
+    """
+    from sea3d.errors import OdometryError
+    from sea3d.eval.trajectory import associate, umeyama
+
+    Te = np.asarray(T_est, dtype=np.float64)
+    Tr = np.asarray(T_ref, dtype=np.float64)
+    if by_index:
+        n = min(len(Te), len(Tr))
+        i: I64 = np.arange(n, dtype=np.int64)
+        j: I64 = i
+    else:
+        i, j = associate(np.asarray(t_est_ns), np.asarray(t_ref_ns), round(max_diff_s * 1e9))
+    if i.size < 3:
+        raise ReconError(f"only {i.size} poses of the trajectories pair up (by "
+                         f"{'index' if by_index else 'time'}); alignment needs at least 3")
+    pe, pr = Te[i, :3, 3], Tr[j, :3, 3]
+    try:
+        s = umeyama(pe, pr, with_scale=True)[2] if with_scale else 1.0
+
+        def points(p: F64, T: F64) -> F64:
+            return np.concatenate([p, *(p + axis_m * T[:, :3, a] for a in range(3))])
+
+        R, t, _ = umeyama(points(s * pe, Te[i]), points(pr, Tr[j]), with_scale=False)
+    except OdometryError as err:
+        raise ReconError(f"cannot align the trajectories: {err}") from err
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = s * R, t
+    res = pe @ T[:3, :3].T + T[:3, 3] - pr
+    return SurfaceAlignment(
+        T_ref_est=T, scale=float(s), method="trajectory-sim3" if with_scale else "trajectory-se3",
+        residual_m=float(np.sqrt(np.mean(np.sum(res * res, axis=1)))),
+        residual_of="RMS distance of the aligned camera positions to the reference's",
+        pairs=int(i.size))
+
+
+def align_by_icp(
+    est_vertices: F64,
+    est_triangles: NDArray[np.integer] | None,
+    ref_vertices: F64,
+    ref_triangles: NDArray[np.integer] | None,
+    *,
+    init: SurfaceAlignment = NO_ALIGNMENT,
+    max_distance_m: float | None = None,
+    samples: int = 50_000,
+    iterations: int = 50,
+    seed: int = 0,
+) -> SurfaceAlignment:
+    """Rigid ICP (Open3D, point to plane) of the estimate onto the reference, from ``init``.
+
+    ICP converges only from a start within about ``max_distance_m`` of the answer: start it from
+    a trajectory alignment, or use it alone on surfaces that already roughly overlap.
+
+    Args:
+        est_vertices, est_triangles: the estimate (triangles None: a point cloud).
+        ref_vertices, ref_triangles: the reference.
+        init: the starting alignment (its scale is kept).
+        max_distance_m: largest correspondence distance; default 2 % of the reference's
+            bounding-box diagonal.
+        samples: points sampled on each surface.
+        iterations: ICP iterations at most.
+        seed: sampling seed.
+
+    Returns:
+        :class:`SurfaceAlignment`; ``residual_m`` is the RMS of the inlier correspondences and
+        ``fitness`` their share of the estimate's samples.
+
+    Raises:
+        ReconError: empty surfaces, or no correspondence within ``max_distance_m``.
+    """
+    import open3d as o3d
+
+    rng = np.random.default_rng(seed)
+
+    def draw(v: F64, f: NDArray[np.integer] | None) -> F64:
+        v = np.asarray(v, dtype=np.float64)
+        if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
+            raise ReconError(f"a surface needs (N, 3) points, got {v.shape}")
+        if f is not None and len(f):
+            return sample_surface(v, f, samples, rng)
+        return v[rng.choice(len(v), size=samples, replace=False)] if len(v) > samples else v
+
+    src = init.apply(draw(est_vertices, est_triangles))
+    dst = draw(ref_vertices, ref_triangles)
+    if max_distance_m is None:
+        max_distance_m = 0.02 * float(np.linalg.norm(dst.max(axis=0) - dst.min(axis=0)))
+    pc_src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(src))
+    pc_dst = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(dst))
+    pc_dst.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(
+        radius=2 * max_distance_m, max_nn=30))
+    reg = o3d.pipelines.registration
+    r = reg.registration_icp(
+        pc_src, pc_dst, max_distance_m, np.eye(4),
+        reg.TransformationEstimationPointToPlane(),
+        reg.ICPConvergenceCriteria(max_iteration=iterations))
+    if len(r.correspondence_set) == 0:
+        raise ReconError(f"ICP found no correspondence within {max_distance_m:.3g} m: the "
+                         "surfaces do not overlap (align by trajectories first)")
+    T_icp = np.asarray(r.transformation, dtype=np.float64)
+    moved = src @ T_icp[:3, :3].T + T_icp[:3, 3]
+    d = (point_to_mesh_distance(moved, np.asarray(ref_vertices, np.float64), ref_triangles)
+         if ref_triangles is not None and len(ref_triangles) else _nn_distance(moved, dst))
+    inliers = d[d <= max_distance_m]
+    method = "icp" if init.method == "none" else f"{init.method}+icp"
+    return SurfaceAlignment(
+        T_ref_est=T_icp @ init.T_ref_est, scale=init.scale, method=method,
+        residual_m=float(np.sqrt(np.mean(inliers**2))) if inliers.size else None,
+        residual_of=f"RMS distance to the reference of the aligned samples within "
+                    f"{max_distance_m:.3g} m of it",
+        pairs=int(inliers.size), fitness=float(inliers.size / len(moved)))

@@ -18,7 +18,7 @@ from typing import Any
 from sea3d.errors import SfmError
 from sea3d.io._atomic import atomic_write
 
-__all__ = ["read_colmap_model", "write_colmap_model", "write_summary"]
+__all__ = ["read_colmap_model", "read_imu_extrinsics", "write_colmap_model", "write_summary"]
 
 
 def write_colmap_model(reconstruction: Any, out_dir: str | os.PathLike[str]) -> None:
@@ -64,3 +64,35 @@ def write_summary(path: str | os.PathLike[str], summary: dict[str, Any]) -> None
         atomic_write(p, json.dumps(summary, indent=2, allow_nan=True) + "\n")
     except OSError as err:
         raise SfmError(f"cannot write {p}: {err}") from err
+
+
+def read_imu_extrinsics(path: str | os.PathLike[str]) -> Any:
+    """``T_left_imu`` (4, 4) from a JSON/YAML file holding ``T_left_imu`` or ``T_body_left``
+    (a simulation's ``gt/sim.json``), at the top level or under ``imu``.
+
+    Raises:
+        SfmError: unreadable, or neither transform (or not a rigid 4x4) in it.
+    """
+    from pathlib import Path
+
+    import numpy as np
+    import yaml
+
+    from sea3d.errors import SfmError
+    from sea3d.geometry.se3 import check_T, invert_T
+
+    p = Path(path)
+    try:
+        data = yaml.safe_load(p.read_text())
+    except (OSError, yaml.YAMLError) as err:
+        raise SfmError(f"{p}: cannot read IMU extrinsics: {err}") from err
+    if isinstance(data, dict) and isinstance(data.get("imu"), dict):
+        data = data["imu"]
+    for key, inverse in (("T_left_imu", False), ("T_body_left", True)):
+        if isinstance(data, dict) and key in data:
+            try:
+                T = check_T(np.asarray(data[key], dtype=np.float64), key)
+            except (ValueError, TypeError) as err:
+                raise SfmError(f"{p}: {key} is not a rigid 4x4 transform: {err}") from err
+            return invert_T(T) if inverse else T
+    raise SfmError(f"{p}: holds neither T_left_imu nor T_body_left")

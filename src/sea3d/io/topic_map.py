@@ -321,7 +321,8 @@ class MappedBag:
         if not self.path.exists():
             raise SessionError(f"bag {self.path} does not exist")
         if not topic_map.topics:
-            raise SessionError("no topics mapped: give --preset or --topic ROLE=/topic")
+            raise SessionError("no topics mapped: build the TopicMap from a preset or "
+                               "role=/topic overrides")
         self.topic_map = topic_map
         try:
             self._reader = AnyReader(

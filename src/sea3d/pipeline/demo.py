@@ -148,7 +148,7 @@ def run_demo(
 
         if not gt.sim_meta_path.is_file():
             raise ConfigError(f"{session} exists and is not a session the demo simulated; "
-                              "choose another --out")
+                              "choose another -o/--output folder")
         shutil.rmtree(session)  # a fresh dive each run (results below are recomputed too)
     step(
         f"simulating a {config.frames}-frame lawnmower survey of '{config.scene}' at "
@@ -189,6 +189,9 @@ def run_demo(
         "depth_check": pair_summary,
         "process": result.summary,
         "timings_s": timings,
+        "files": {"demo_report": str(out / "report.html"),
+                  "demo_summary": str(out / "summary.json"),
+                  **{k: str(v) for k, v in result.files.items() if Path(v).exists()}},
         "note": "compile_s is the one-off compilation (or cache load) of the matcher's kernels "
                 "in this process; the worker processes' own is in process.one_off_s",
     }

@@ -9,6 +9,7 @@ finishes them in.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections.abc import Callable, Iterator
@@ -65,7 +66,8 @@ class DepthScheduler:
         if got is None:
             return None
         try:
-            return FrameResult.from_cache(t_ns, *got)
+            # Its stage timings are of the run that computed it: this run matched nothing for it.
+            return dataclasses.replace(FrameResult.from_cache(t_ns, *got), timings_s={})
         except (KeyError, ValueError, TypeError) as err:
             log.warning("cache entry of frame %d is incomplete (%s); recomputing", t_ns, err)
             self.cache.path(t_ns).unlink(missing_ok=True)

@@ -406,10 +406,16 @@ def _finish(session_path: Path, out: Path, config: ProcessConfig, stages: Ordere
         summary=summary, files=files)
     if config.evaluate:
         te = time.perf_counter()
-        summary.update(evaluate_against_ground_truth(
+        metrics = evaluate_against_ground_truth(
             session_path, t_ns=rec.t_ns, T_world_left=rec.T_world_left,
             trusted=np.array([s in TRUSTED for s in statuses]), mesh=rec.mesh,
-            camera=source.native_rig.left, max_depth_m=stereo.max_depth_m))
+            camera=source.native_rig.left, max_depth_m=stereo.max_depth_m)
+        T_gt_world = metrics.pop("T_gt_world", None)
+        summary.update(metrics)
+        if T_gt_world is not None:  # the mesh and trajectory in the ground truth's frame too
+            from sea3d.pipeline.gt_frame import write_in_ground_truth_frame
+
+            summary.update(write_in_ground_truth_frame(result, np.asarray(T_gt_world)))
         timer.add("evaluate_s", time.perf_counter() - te)
     timings = dict(timer.s)
     timings["total_s"] = time.perf_counter() - t_start

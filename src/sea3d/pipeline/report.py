@@ -217,6 +217,21 @@ def _fmt(x: Any, unit: str = "", scale: float = 1.0, digits: int = 3) -> str:
     return f"{x * scale:.{digits}f}{unit}"
 
 
+def _files_note(path: Path, result: Any) -> str:
+    """Where the run's files are, relative to the report (the demo's report sits one folder up)."""
+    import os
+
+    base = Path(path).parent
+    names = [os.path.relpath(f, base) for k, f in result.files.items()
+             if k != "report" and Path(f).exists()]
+    out = os.path.relpath(result.out_dir, base)
+    where = "beside this report" if out == "." else f"in {html.escape(out)}/"
+    extra = "" if out == "." else f"{html.escape(out)}/"
+    return (f'<p class="note">Files {where}: {html.escape(", ".join(names))}; '
+            f"{extra}cache/ (per-frame results that let a rerun resume) and {extra}submaps/. "
+            "results.mcap opens in Foxglove (trajectory, mesh, cloud).</p>")
+
+
 def write_process_report(path: Path, result: Any, *, title: str | None = None,
                          intro_html: str = "", sections_html: str = "") -> Path:
     """Write ``report.html`` of a ``sea3d process`` run and return its path.
@@ -313,6 +328,13 @@ def write_process_report(path: Path, result: Any, *, title: str | None = None,
     wrows = "".join(f"<tr><td>{html.escape(k)}</td><td>{v:.2f} s</td></tr>"
                     for k, v in wt.items() if k != "warmup_s" and not k.startswith("pyramid"))
     warm = wt.get("warmup_s", 0.0)
+    n_cached = int(s.get("frames_from_cache", 0) or 0)
+    if n_cached:
+        wrows += ("<tr><td colspan=2>" + (
+            f"all {n_cached} frames came from the cache: no matching ran in this run"
+            if n_cached >= int(s.get("frames", 0) or 0) else
+            f"{n_cached} frames came from the cache (not matched again, not counted above)")
+            + "</td></tr>")
     page_title = html.escape(title or "sea3d process report")
     page = f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{page_title}</title>
@@ -353,8 +375,7 @@ and which frames the TSDF fused; per-frame figures are in status.csv.</p>
 <p class="note">One-off: {warm:.2f} s of kernel compilation (or loading from numba's cache) on
 the workers' first frames is counted apart, not in the figures above; the rectification maps
 took {timings.get("rectify_maps_s", 0.0):.2f} s once.</p>
-<p class="note">Files beside this report: trajectory.tum, mesh.ply, cloud.ply, status.csv,
-summary.json; cache/ (per-frame results that let a rerun resume) and submaps/.</p>
+{_files_note(path, result)}
 </body></html>
 """
     path.write_text(page)

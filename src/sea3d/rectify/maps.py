@@ -242,7 +242,7 @@ def fit_virtual_pinhole(
         max_by_depth_px=tuple(float(e.max()) for e in err),
         center_m=(float(c[0]), float(c[1]), float(c[2])),
     )
-    log.info("virtual pinhole of the %s camera: fx %.1f px at %s mm, residual RMS %.3f px, "
+    log.debug("virtual pinhole of the %s camera: fx %.1f px at %s mm, residual RMS %.3f px, "
              "max %.3f px over %.2f-%.2f m", name, virtual.fx, np.round(c * 1e3, 3).tolist(),
              report.rms_px, report.max_px, near, far)
     return virtual, report

@@ -113,9 +113,11 @@ def _sensor_from_camera(name: str, camera_id: int, cam: CameraModel,
     # Port cameras, and distortion COLMAP has no model for: an exact remap to an ideal pinhole.
     maps = virtual_pinhole_maps(cam, config.depth_range_m, center="rays")
     v = maps.virtual
-    log.info("%s camera: virtual pinhole at %s mm, residual RMS %.4f px (max %.4f px) over "
-             "%.2f-%.2f m", name, np.round(maps.center_m * 1e3, 3).tolist(), maps.report.rms_px,
-             maps.report.max_px, *config.depth_range_m)
+    log.info("%s camera: remapped to a virtual pinhole at %s mm; parallax residual (how far a "
+             "point off the nominal %.2f m depth lands from where that pinhole puts it) RMS "
+             "%.4f px, max %.4f px over %.2f-%.2f m", name,
+             np.round(maps.center_m * 1e3, 3).tolist(), maps.nominal_depth_m,
+             maps.report.rms_px, maps.report.max_px, *config.depth_range_m)
     return _Sensor(name, camera_id, w, h, "PINHOLE", [v.fx, v.fy, v.cx + 0.5, v.cy + 0.5], True,
                    cam, maps)
 
@@ -226,8 +228,64 @@ def _check_frames(frames: Sequence[SfmFrame], config: SfmConfig, rig: StereoRig 
                 f"{len(frames)} frames have none)"
             )
     if config.camera == "stereo" and rig is None:
-        raise SfmError("--camera stereo needs the rig (its extrinsics fix the scale); "
-                       "pass --rig or use a session that stores one")
+        raise SfmError("SfmConfig.camera='stereo' needs the rig (its extrinsics fix the "
+                       "scale); give run_sfm a rig")
+
+
+# Image pairs COLMAP has matched so far (it writes one row per pair tried, matched or not).
+_PAIRS_DONE = "SELECT COUNT(*) FROM matches"
+
+
+def _sequential_pairs(n: int, overlap: int) -> int:
+    """Pairs COLMAP's sequential matcher tries: ``overlap`` next frames plus ``i + 2**k``."""
+    pairs = set()
+    for i in range(n):
+        for k in range(1, overlap + 1):
+            if i + k < n:
+                pairs.add((i, i + k))
+        for k in range(overlap):
+            if i + 2**k < n:
+                pairs.add((i, i + 2**k))
+    return len(pairs)
+
+
+def _watched(call: Callable[[], object], db_path: Path, count_sql: str, stage: str, total: int,
+             progress: Progress | None, poll_s: float = 0.5) -> None:
+    """Run a pycolmap stage with no callback of its own, reporting progress from its database.
+
+    pycolmap releases the GIL while it works, so this thread polls the row count of
+    ``count_sql`` (images with keypoints, pairs matched) while a worker thread runs ``call``;
+    its exceptions are raised here.
+    """
+    if progress is None:
+        call()
+        return
+    import sqlite3
+    import threading
+
+    failure: list[BaseException] = []
+
+    def work() -> None:
+        try:
+            call()
+        except BaseException as err:  # re-raised in the calling thread below
+            failure.append(err)
+
+    worker = threading.Thread(target=work, name=f"pycolmap-{stage}", daemon=True)
+    worker.start()
+    progress(stage, 0, total)
+    uri = f"file:{db_path}?mode=ro"
+    while worker.is_alive():
+        worker.join(poll_s)
+        try:
+            with sqlite3.connect(uri, uri=True, timeout=0.1) as con:
+                done = int(con.execute(count_sql).fetchone()[0])
+        except sqlite3.Error:
+            continue  # COLMAP holds a write lock for a moment: try at the next poll
+        progress(stage, min(done, total), total)
+    if failure:
+        raise failure[0]
+    progress(stage, total, total)
 
 
 def run_sfm(
@@ -250,7 +308,8 @@ def run_sfm(
         pose_priors: left-camera positions over time (metric); None for none.
         workdir: scratch folder for COLMAP's database (a temporary one, removed afterwards,
             when None).
-        progress: called as ``progress(stage, done, total)`` (``extract``, ``map``).
+        progress: called as ``progress(stage, done, total)`` (``prepare``, ``extract``,
+            ``match``: pairs tried, ``map``).
         image_sink: called as ``image_sink(name, image)`` with every image as COLMAP sees it
             (remapped into the virtual pinhole for port cameras) and its model name
             (``left/<frame name>.png``), e.g. to write them next to the model.
@@ -397,9 +456,10 @@ def _run(
     timings["prepare_s"] += time.perf_counter() - t0
     # COLMAP's own extractor: its reader and SIFT threads run outside the GIL.
     t0, c0 = time.perf_counter(), _cpu_s()
-    pycolmap.extract_features(str(db_path), str(image_dir), image_names=names,
-                              extraction_options=_extraction_options(config, threads),
-                              device=pycolmap.Device.cpu)
+    _watched(lambda: pycolmap.extract_features(
+        str(db_path), str(image_dir), image_names=names,
+        extraction_options=_extraction_options(config, threads), device=pycolmap.Device.cpu),
+        db_path, "SELECT COUNT(*) FROM keypoints", "extract", len(names), progress)
     timings["extract_s"] = time.perf_counter() - t0
     timings["extract_cpu_s"] = _cpu_s() - c0
 
@@ -412,11 +472,15 @@ def _run(
         po.overlap = int(config.sequential_overlap)
         po.quadratic_overlap = True
         po.loop_detection = False
-        pycolmap.match_sequential(str(db_path), matching_options=mo, pairing_options=po,
-                                  device=pycolmap.Device.cpu)
+        _watched(lambda: pycolmap.match_sequential(
+            str(db_path), matching_options=mo, pairing_options=po, device=pycolmap.Device.cpu),
+            db_path, _PAIRS_DONE, "match",
+            _sequential_pairs(len(names), int(config.sequential_overlap)), progress)
     else:
-        pycolmap.match_exhaustive(str(db_path), matching_options=mo,
-                                  device=pycolmap.Device.cpu)
+        n = len(names)
+        _watched(lambda: pycolmap.match_exhaustive(
+            str(db_path), matching_options=mo, device=pycolmap.Device.cpu),
+            db_path, _PAIRS_DONE, "match", n * (n - 1) // 2, progress)
     timings["match_s"] = time.perf_counter() - t0
     timings["match_cpu_s"] = _cpu_s() - c0
 

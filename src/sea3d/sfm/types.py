@@ -11,14 +11,16 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from sea3d._typing import F64
 from sea3d.errors import ConfigError
-from sea3d.rectify.maps import VirtualPinholeReport
+
+if TYPE_CHECKING:  # a type only: the CLI reads SfmConfig without loading rectification
+    from sea3d.rectify.maps import VirtualPinholeReport
 
 __all__ = [
     "CAMERAS",

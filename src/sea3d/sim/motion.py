@@ -40,6 +40,7 @@ __all__ = [
     "Orbit",
     "Trajectory",
     "imu_samples",
+    "lanes_within",
     "make_trajectory",
     "sample_times_ns",
 ]
@@ -107,6 +108,10 @@ class Lawnmower:
         speed_mps: approximate speed along a lane.
         duration_s: trajectory length, seconds.
         bob_m: amplitude of a slow vertical bob.
+        lanes: lanes that fit the scene along y (None: no limit). After the last one the
+            survey turns back and flies the lanes again in reverse order (more legs, never
+            longer ones, and never past the scene's edge); the turn-back falls mid-lane, where
+            the y velocity is zero, so the path stays smooth.
     """
 
     center_m: tuple[float, float] = (0.0, -1.0)
@@ -117,10 +122,30 @@ class Lawnmower:
     duration_s: float = 60.0
     bob_m: float = 0.03
     sharpness: float = 2.0
+    lanes: int | None = None
 
     @property
     def _omega(self) -> float:
         return float(np.pi * self.speed_mps / (1.3 * self.width_m))
+
+    @property
+    def lane_s(self) -> float:
+        """Seconds from one lane to the next."""
+        return float(np.pi / self._omega)
+
+    @property
+    def pass_s(self) -> float | None:
+        """Seconds of one pass over the lanes (None when ``lanes`` is None)."""
+        return None if self.lanes is None else self.lanes * self.lane_s
+
+    def _fold(self, advance_m: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """y offset along the folded pattern and the sign of its y velocity."""
+        if self.lanes is None:
+            return advance_m, np.ones_like(advance_m)
+        span = max(int(self.lanes), 1) * self.lane_spacing_m
+        m = np.mod(advance_m, 2.0 * span)
+        back = m > span
+        return np.where(back, 2.0 * span - m, m), np.where(back, -1.0, 1.0)
 
     def _vxy(self, t: FloatArray) -> tuple[FloatArray, FloatArray]:
         w, a = self._omega, self.sharpness
@@ -128,7 +153,8 @@ class Lawnmower:
         c = 2.0 * w * self.lane_spacing_m / np.pi
         vx = self.width_m / 2 * a * np.cos(phi) * w / np.cosh(a * np.sin(phi)) ** 2 / np.tanh(a)
         vy = c * np.sin(phi) ** 2
-        return vx, vy
+        _, sign = self._fold(c * (t / 2 - np.sin(2 * phi) / (4 * w)))
+        return vx, sign * vy
 
     def position_m(self, t_s: FloatArray) -> FloatArray:
         """See :class:`Trajectory`."""
@@ -137,7 +163,7 @@ class Lawnmower:
         phi = w * t
         c = 2.0 * w * self.lane_spacing_m / np.pi
         x = self.center_m[0] + self.width_m / 2 * np.tanh(a * np.sin(phi)) / np.tanh(a)
-        y = self.center_m[1] + c * (t / 2 - np.sin(2 * phi) / (4 * w))
+        y = self.center_m[1] + self._fold(c * (t / 2 - np.sin(2 * phi) / (4 * w)))[0]
         z = self.z_m + self.bob_m * np.sin(0.5 * t)
         return np.stack([x, y, z], axis=1)
 
@@ -246,6 +272,11 @@ class HandHeld:
         t = np.asarray(t_s, dtype=np.float64)
         w = self._wobble(t) * self.shake_deg * _DEG
         return _rot_zyx(self.yaw_deg * _DEG + w[:, 3], self.pitch_deg * _DEG + w[:, 4], w[:, 5])
+
+
+def lanes_within(y_start_m: float, y_end_m: float, lane_spacing_m: float) -> int:
+    """Lanes of a lawnmower that starts at ``y_start_m`` and must stay below ``y_end_m`` (>= 1)."""
+    return max(1, int(np.floor((y_end_m - y_start_m) / lane_spacing_m + 1e-9)))
 
 
 def make_trajectory(

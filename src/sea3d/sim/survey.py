@@ -56,6 +56,7 @@ from sea3d.sim.motion import (
     Orbit,
     Trajectory,
     imu_samples,
+    lanes_within,
     make_trajectory,
     poses,
     sample_times_ns,
@@ -461,13 +462,21 @@ def default_trajectory(scene: Scene, config: SurveyConfig) -> Trajectory:
     kind = config.trajectory
     if kind == "lawnmower":
         width = min(3.0, 0.5 * extent)
+        height = min(1.5, 0.7 * water_m)
+        # The lanes stop before the cameras' view (where the tilted optical axis meets the floor
+        # ahead, and a quarter of the height beyond) would leave the scene; the survey then
+        # flies them back.
+        reach = height / np.tan(np.radians(max(config.tilt_deg(), 10.0))) + 0.25 * height
+        y0 = fy - width / 3
+        lanes = lanes_within(y0, float(hi[1]) - min(reach, 0.35 * extent), width / 6)
         return Lawnmower(
-            center_m=(fx, fy - width / 3),
-            z_m=floor + min(1.5, 0.7 * water_m),
+            center_m=(fx, y0),
+            z_m=floor + height,
             width_m=width,
             lane_spacing_m=width / 6,
             speed_mps=0.1 * width,
             duration_s=duration,
+            lanes=lanes,
         )
     if kind == "orbit":
         return Orbit(

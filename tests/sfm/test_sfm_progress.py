@@ -1,0 +1,34 @@
+"""SfM reports progress through feature extraction and matching, not only mapping."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+
+from sea3d.sfm import SfmConfig, SfmFrame, run_sfm
+from sea3d.sfm.colmap import _sequential_pairs
+
+
+def test_sequential_pair_count_matches_colmaps_rule() -> None:
+    # overlap 2 over 5 frames: (i, i+1), (i, i+2) and the quadratic i + 1, i + 2: 4 + 3 pairs
+    assert _sequential_pairs(5, 2) == 7
+    assert _sequential_pairs(1, 10) == 0
+
+
+def test_extract_and_match_report_progress_to_the_end(sim_session: Path, tmp_path: Path) -> None:
+    paths = sorted((sim_session / "left").glob("*.png"))
+    frames = [SfmFrame(name=f"{i:03d}", t_s=float(i), left=cv2.imread(str(p)), source=str(p))
+              for i, p in enumerate(paths)]
+    calls: list[tuple[str, int, int]] = []
+    run_sfm(frames, SfmConfig(camera="left", matcher="exhaustive"), workdir=tmp_path / "w",
+            progress=lambda stage, done, total: calls.append((stage, done, total)))
+    stages = [c[0] for c in calls]
+    for stage, total in (("extract", len(paths)), ("match", len(paths) * (len(paths) - 1) // 2)):
+        mine = [c for c in calls if c[0] == stage]
+        assert mine, f"no {stage} progress in {sorted(set(stages))}"
+        assert mine[0][1] == 0 and mine[-1][1:] == (total, total)
+        assert all(0 <= d <= t for _, d, t in mine)
+    # stages come in pipeline order
+    firsts = [stages.index(s) for s in ("prepare", "extract", "match", "map")]
+    assert firsts == sorted(firsts)
