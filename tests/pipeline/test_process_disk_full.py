@@ -18,17 +18,17 @@ def test_disk_full_stops_with_one_line_and_the_rerun_resumes(sim_session, tmp_pa
     gt = sim_session.with_name(sim_session.stem + "_gt") / "poses_left.tum"
     argv = ["process", str(sim_session), "-o", str(tmp_path / "out"), "--poses", str(gt),
             "--workers", "0", "--max-frames", str(FRAMES), "--no-report", "--json"]
-    real_open = open
+    real_write = result_cache.atomic_write
     calls = {"n": 0}
 
-    def filling_open(path, mode="r", *args, **kwargs):  # the cache's only writes
-        if "w" in mode:
+    def filling_write(path, data, *args, **kwargs):  # the cache's writes
+        if str(path).endswith(".s3c"):  # frame entries (config.json is written first)
             calls["n"] += 1
-            if calls["n"] > WRITES_BEFORE_FULL:
-                raise OSError(errno.ENOSPC, "No space left on device", str(path))
-        return real_open(path, mode, *args, **kwargs)
+        if calls["n"] > WRITES_BEFORE_FULL:
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        return real_write(path, data, *args, **kwargs)
 
-    monkeypatch.setattr(result_cache, "open", filling_open, raising=False)
+    monkeypatch.setattr(result_cache, "atomic_write", filling_write)
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err.startswith("sea3d: error:") and err.count("\n") == 1
