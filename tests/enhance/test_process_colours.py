@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from sea3d.cli import main as sea3d_main
-from sea3d.enhance.stage import PROCESS_ENHANCE, process_enhance_hook
+from sea3d.enhance.registry import ENHANCEMENTS, process_enhance_hook
 from sea3d.errors import EnhanceError
 from sea3d.io.rig_file import rig_to_yaml
 from sea3d.io.session import SessionWriter, open_session
@@ -134,9 +134,12 @@ def test_process_colours_mesh_and_cloud_with_the_restored_frames(
 def test_named_enhancements_resolve_to_image_functions(rng: np.random.Generator) -> None:
     img = rng.integers(0, 255, (24, 32, 3), dtype=np.uint8)
     assert process_enhance_hook("none") is None
-    for name, path in PROCESS_ENHANCE.items():
-        if path is None:
+    for name, entry in ENHANCEMENTS.items():
+        if entry.needs_range:
+            with pytest.raises(EnhanceError, match="--restore-colours"):
+                process_enhance_hook(name)
             continue
+        path = entry.function
         assert process_enhance_hook(name) == path
         out = _resolve_hook(path)(img)
         assert out.shape == img.shape and out.dtype == np.uint8 and not np.array_equal(out, img)

@@ -14,11 +14,12 @@ import logging
 from pathlib import Path
 from typing import Any
 
+from sea3d.enhance.registry import METHODS
+
 __all__ = ["register", "register_eval"]
 
 _log = logging.getLogger(__name__)
 
-_METHODS = ("seathru", "grey-world", "shades-of-grey", "red-comp", "clahe", "udcp")
 
 
 def _read_image(path: str | Path) -> Any:
@@ -272,7 +273,7 @@ def register(sub: Any) -> None:
     )
     p.add_argument("input", nargs="?", help="input image")
     p.add_argument("-o", "--output", required=True, help="output image, or output session")
-    p.add_argument("--method", choices=_METHODS, default="seathru", help="method (default seathru)")
+    p.add_argument("--method", choices=METHODS, default="seathru", help="method (default seathru)")
     p.add_argument("--depth", help="depth map of the input image (seathru)")
     p.add_argument(
         "--range", action="store_true", help="--depth already holds range along the line of sight"

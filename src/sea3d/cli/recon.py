@@ -42,7 +42,7 @@ def _plural(n: int, word: str) -> str:
 
 
 def _cmd_process(args: argparse.Namespace) -> int:
-    from sea3d.enhance.stage import process_enhance_hook
+    from sea3d.enhance.registry import process_enhance_hook
     from sea3d.pipeline.process import ProcessConfig, run_process
 
     config = ProcessConfig(

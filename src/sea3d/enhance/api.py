@@ -7,16 +7,12 @@ from typing import Any
 
 import numpy as np
 
-from sea3d.enhance.colour import grey_world, red_compensation, shades_of_grey, white_balance_pair
-from sea3d.enhance.contrast import clahe
+from sea3d.enhance.colour import white_balance_pair
+from sea3d.enhance.registry import METHODS, enhancement, resolve
 from sea3d.enhance.seathru import SeathruConfig, SeathruModel, apply_seathru, fit_seathru
-from sea3d.enhance.udcp import udcp
 from sea3d.errors import EnhanceError
 
 __all__ = ["METHODS", "EnhanceOutcome", "enhance_image", "enhance_pair"]
-
-METHODS = ("seathru", "grey-world", "shades-of-grey", "red-comp", "clahe", "udcp")
-"""Method names understood by :func:`enhance_image` and ``sea3d enhance --method``."""
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -39,20 +35,12 @@ class EnhanceOutcome:
 
 
 def _check_method(method: str) -> None:
-    if method not in METHODS:
-        raise EnhanceError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    enhancement(method)  # raises for an unknown name
 
 
 def _single(image: np.ndarray, method: str, params: dict[str, Any]) -> np.ndarray:
-    if method == "grey-world":
-        return grey_world(image, **params)
-    if method == "shades-of-grey":
-        return shades_of_grey(image, **params)
-    if method == "red-comp":
-        return red_compensation(image, **params)
-    if method == "clahe":
-        return clahe(image, **params)
-    return udcp(image, **params)
+    out: np.ndarray = resolve(enhancement(method).function)(image, **params)
+    return out
 
 
 def enhance_image(
@@ -67,7 +55,7 @@ def enhance_image(
 
     Args:
         image: ``(H, W, 3)`` RGB (``(H, W)`` grey for ``clahe``), ``uint8``/``uint16``/float.
-        method: one of :data:`METHODS`.
+        method: one of :data:`METHODS` (:mod:`sea3d.enhance.registry`).
         range_m: ``(H, W)`` range in metres, NaN invalid (``seathru`` only, required there).
         seathru_config: Sea-thru settings.
         **params: keyword parameters of the method's function (e.g. ``clip_limit``).
@@ -106,7 +94,7 @@ def enhance_pair(
         EnhanceError: as :func:`enhance_image`.
     """
     _check_method(method)
-    if method in ("grey-world", "shades-of-grey", "red-comp"):
+    if enhancement(method).pair_balance:
         lo, ro = white_balance_pair(left, right, method, **params)
         return EnhanceOutcome(images=(lo, ro), method=method)
     if method == "seathru":
