@@ -574,9 +574,12 @@ def _checked(
     y_out = out_lin.mean(axis=2)
     finite = np.isfinite(y_out)
     black = float(np.mean(~finite | (y_out < 2e-3))) - float(np.mean(y_in < 2e-3))
-    clipped = float(np.mean(~finite | (np.max(out_lin, axis=2) >= 1.0))) - float(
-        np.mean(np.max(lin, axis=2) >= 0.98)
-    )
+    clipped_in = float(np.mean(np.max(lin, axis=2) >= 0.96))
+    clipped = float(np.mean(~finite | (np.max(out_lin, axis=2) >= 1.0))) - clipped_in
+    if clipped_in > 0.5:
+        notes.append(f"{100 * clipped_in:.0f} % of the input is clipped: nothing to restore")
+        return RestoreResult(image=_encode(lin, dtype), status="refused-saturated-input",
+                             notes=tuple(notes))
     if black > 0.5 or clipped > 0.5 or not finite.all():
         why = "black" if black > 0.5 else ("saturated" if clipped > 0.5 else "not finite")
         notes.append(f"restoration came out {why}; gave the white-balanced input instead")
