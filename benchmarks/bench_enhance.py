@@ -63,7 +63,7 @@ from sea3d.enhance import (
     uiqm,
 )
 from sea3d.enhance._image import luminance, srgb_to_linear
-from sea3d.enhance.water import WaterModel, fit_water_model, restore
+from sea3d.enhance.water import WaterFitConfig, WaterModel, fit_water_model, restore
 from sea3d.eval.enhance_formation import JERLOV_WATERS, degrade
 from sea3d.eval.enhance_tasks import correct_feature_matches, stereo_with_enhancement
 from sea3d.geometry.se3 import look_at
@@ -140,6 +140,11 @@ def section_colour(args: argparse.Namespace) -> None:
         }
         for m in ("grey-world", "shades-of-grey", "red-comp", "clahe", "udcp"):
             outs[m] = enhance_image(p.left, m).images[0]
+        for wb in ("none", "grey-world"):
+            wcfg = WaterFitConfig(white_balance=wb)
+            for rname, rmap in (("true range", true_range), ("stereo range", sgm_range)):
+                wm = fit_water_model([(p.left, rmap)], wcfg)
+                outs[f"water model, wb {wb} ({rname})"] = restore(p.left, rmap, wm, wcfg).image
         for name, cfg in SEATHRU_VARIANTS.items():
             outs[f"{name} (true range)"] = enhance_image(
                 p.left, "seathru", range_m=true_range, seathru_config=cfg
@@ -263,7 +268,8 @@ def section_formation(args: argparse.Namespace) -> None:
             gw = statistics.mean(per["grey-world"])
             for name, v in per.items():
                 m = statistics.mean(v)
-                extra = f"   {100 * (1 - m / gw):5.0f} % below grey world" if name != "input" else ""
+                below = f"   {100 * (1 - m / gw):5.0f} % below grey world"
+                extra = below if name != "input" else ""
                 print(f"{name:36s} {_fmt(m):>9s}{extra}", flush=True)
                 rows.append({"scene": scene, "water": wname, "method": name, "de00_gain": m})
             st = statistics.mean(per["water model, stereo range"])
@@ -579,9 +585,11 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     w, h = (int(v) for v in args.size.split("x"))
     args.size = (w, h)
-    sections = args.section or ["formation", "colour", "stereo", "features", "real", "speed", "process"]
+    sections = args.section or ["formation", "colour", "stereo", "features", "real", "speed",
+                                "process"]
     funcs = {"formation": section_formation, "colour": section_colour,
-             "stereo": section_stereo, "features": section_features, "real": section_real, "speed": section_speed, "process": section_process}
+             "stereo": section_stereo, "features": section_features, "real": section_real,
+             "speed": section_speed, "process": section_process}
     for s in sections:
         t0 = time.perf_counter()
         funcs[s](args)

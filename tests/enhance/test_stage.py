@@ -19,13 +19,23 @@ def test_colour_restoration_is_opt_in_and_falls_back_with_a_status(
     a = _img(rng)
     range_m = np.full(a.shape[:2], 2.0, dtype=np.float32)
     assert restore_colours_with_range(a, range_m, ColourConfig()).status == "disabled"
-    on = ColourConfig(enabled=True)
+    on = ColourConfig(enabled=True, method="water-model")
     res = restore_colours_with_range(a, np.full_like(range_m, np.nan), on)
-    assert res.status == "fallback-grey-world" and "no valid pixel" in res.notes[0]
+    assert res.status == "fallback-grey-world" and "cannot fit B_inf or beta_D" in res.notes[0]
     assert res.image.shape == a.shape and res.image.mean() > 0
-    ok = restore_colours_with_range(a, range_m, on)
-    assert ok.status in ("ok", "fallback-grey-world") and ok.image.dtype == np.uint8
+    # One range only: backscatter cannot be told from albedo; the stated step, not "ok".
+    flat = restore_colours_with_range(a, range_m, on)
+    assert flat.status == "backscatter-unidentified" and flat.image.dtype == np.uint8
+    assert "range bin" in flat.notes[0] and flat.image.mean() > 20
     with pytest.raises(EnhanceError, match=r"32x24"):
         restore_colours_with_range(a, range_m[::2, ::2], on)
     grey = restore_colours_with_range(a[..., 1], range_m, on)
     assert grey.status == "fallback-none"
+
+
+def test_the_per_image_seathru_still_runs_with_a_status(rng: np.random.Generator) -> None:
+    a = _img(rng)
+    ramp = np.linspace(1.0, 4.0, a.shape[0], dtype=np.float32)[:, None] * np.ones((1, a.shape[1]))
+    res = restore_colours_with_range(a, ramp.astype(np.float32), ColourConfig(enabled=True))
+    assert res.status in ("ok", "fallback-grey-world") and res.model is not None
+    assert res.image.dtype == np.uint8 and res.image.mean() > 20

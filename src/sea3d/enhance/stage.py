@@ -24,6 +24,7 @@ import numpy as np
 
 from sea3d.enhance.colour import grey_world
 from sea3d.enhance.seathru import SeathruConfig, SeathruModel, seathru
+from sea3d.enhance.water import WaterModel, fit_water_model, restore
 from sea3d.errors import EnhanceError
 
 __all__ = ["ColourConfig", "ColourResult", "restore_colours_with_range"]
@@ -37,8 +38,18 @@ class ColourConfig:
 
     enabled: bool = False
     """Opt-in: restore the colours of points, meshes and textures."""
+    method: Literal["water-model", "seathru-per-image"] = "seathru-per-image"
+    """``water-model``: invert the dive's :class:`WaterModel` (``water_model``, or one fitted
+    to the frame when None; measured well below grey world under an independent formation
+    model, ``docs/enhance.md``); ``seathru-per-image``: the per-image Sea-thru of
+    :mod:`sea3d.enhance.seathru`, still the default here because a water model fitted to each
+    frame alone is less stable from frame to frame (log chromaticity 0.08 apart with
+    slightly different range on a 192x108 frame, against 0.001) until ``process`` fits one
+    per dive."""
+    water_model: WaterModel | None = None
+    """The dive's water model (fitted once, :func:`fit_water_model`)."""
     seathru: SeathruConfig = field(default_factory=SeathruConfig)
-    """Sea-thru settings."""
+    """Per-image Sea-thru settings (``method="seathru-per-image"``)."""
     fallback: Literal["grey-world", "none"] = "grey-world"
     """What a frame gets when Sea-thru cannot run (too little depth, saturated image)."""
 
@@ -49,15 +60,18 @@ class ColourResult:
 
     Attributes:
         image: the image for colouring output, the input's dtype.
-        status: ``ok``, ``disabled``, ``fallback-grey-world`` or ``fallback-none`` (with the
-            reason in ``notes``).
-        model: the Sea-thru model, when it ran.
+        status: ``ok``, ``disabled``, a water-model fallback step
+            (``attenuation-unidentified``, ``backscatter-unidentified``),
+            ``fallback-grey-world`` or ``fallback-none`` (with the reason in ``notes``).
+        model: the per-image Sea-thru model, when it ran.
+        water_model: the water model used, when it ran.
         notes: messages for the frame report.
     """
 
     image: np.ndarray
     status: str
     model: SeathruModel | None = None
+    water_model: WaterModel | None = None
     notes: tuple[str, ...] = ()
 
 
@@ -94,6 +108,13 @@ def restore_colours_with_range(
         return ColourResult(image=image, status="fallback-none",
                             notes=("a grey image has no colour to restore",))
     try:
+        if config.method == "water-model":
+            model = config.water_model or fit_water_model([(img, range_m)])
+            got = restore(img, range_m, model)
+            if got.status.startswith("refused") or got.status == "no-range":
+                raise EnhanceError("; ".join(got.notes) or got.status)
+            return ColourResult(image=got.image, status=got.status, water_model=model,
+                                notes=got.notes)
         res = seathru(image, range_m, config.seathru)
     except EnhanceError as err:
         _log.info("colour restoration fell back: %s", err)

@@ -18,11 +18,10 @@ at many ranges; one image rarely spans enough range to separate attenuation from
    Over many pixels and frames the albedo does not depend on range, so the per-bin median of
    ``log D_c`` falls on a line of slope ``-beta_D_c``: a robust (soft-L1) weighted line fit over
    the bins, one per channel.
-3. **White balance and exposure**: where ``beta_D`` is not identified, grey world over the
-   restored samples of every frame (so the pair and the dive keep one colour; with an
-   identified model the inversion already gives the scene's colour, see
-   :attr:`WaterFitConfig.white_balance`), then the ``white_point_percentile`` of the
-   brightest channel to 1, pooled likewise.
+3. **White balance and exposure** over the restored samples of every frame (so the pair and
+   the dive keep one colour): the ambient light's colour on the water's own locus
+   ``exp(-beta_D d)`` (:attr:`WaterFitConfig.white_balance`; grey world where ``beta_D`` is
+   not identified), then the ``white_point_percentile`` of the brightest channel to 1.
 
 Each fitted parameter is checked for physical plausibility (:data:`LIMITS`); a failed check is
 reported by name and the fit falls back in stated steps, each with its status:
@@ -108,10 +107,12 @@ class WaterFitConfig:
     them only (``mask``)."""
     work_max_side_px: int = 240
     """Longer side at which range holes are filled."""
-    white_balance: Literal["auto", "grey-world", "none"] = "auto"
-    """After the inversion: ``auto`` balances by grey world only when ``beta_D`` was not
-    identified (the inversion of an identified model already gives the scene's own colour; a
-    grey world on top turns beige sand grey), ``grey-world`` always, ``none`` never."""
+    white_balance: Literal["locus", "grey-world", "none"] = "locus"
+    """After the inversion (which gives the scene under the light that reached it):
+    ``locus`` removes an ambient light that crossed ``d >= 0`` metres of the same water
+    (gains ``exp(beta_D d)``, the one ``d`` that brings the scene closest to grey; white light
+    at ``d = 0``); ``grey-world`` three free gains (turns beige sand grey); ``none``. Where
+    ``beta_D`` is not identified, ``locus`` becomes grey world."""
 
     def __post_init__(self) -> None:
         if self.range_bins < 3:
@@ -120,7 +121,7 @@ class WaterFitConfig:
             raise EnhanceError(f"dark_percentile must be in (0, 50), got {self.dark_percentile}")
         if self.holes not in ("inpaint", "mask"):
             raise EnhanceError(f"holes must be inpaint or mask, got {self.holes!r}")
-        if self.white_balance not in ("auto", "grey-world", "none"):
+        if self.white_balance not in ("locus", "grey-world", "none"):
             raise EnhanceError(f"unknown white balance {self.white_balance!r}")
         if not self.max_gain >= 1:
             raise EnhanceError(f"max_gain must be >= 1, got {self.max_gain}")
@@ -476,9 +477,14 @@ def fit_water_model(
     )
     j = _invert(rgb.astype(np.float32), z.astype(np.float32), model, config.max_gain)
     wb = config.white_balance
-    if wb == "auto":
-        wb = "none" if status == "ok" else "grey-world"
-    gains = _grey_world_gains(j, config.max_gain) if wb == "grey-world" else np.ones(3)
+    if wb == "locus" and status != "ok":
+        wb = "grey-world"
+    if wb == "grey-world":
+        gains = _grey_world_gains(j, config.max_gain)
+    elif wb == "locus":
+        gains = _locus_gains(j, beta_d, config.max_gain)
+    else:
+        gains = np.ones(3)
     top = np.max(j * gains, axis=1)
     wp = float(np.percentile(top, config.white_point_percentile)) if top.size else 0.0
     exposure = float(np.clip(1.0 / wp, 1.0 / 50.0, 50.0)) if wp > 1e-6 else 1.0
@@ -493,6 +499,25 @@ def fit_water_model(
 
 def _t3(v: Sequence[float] | F64) -> tuple[float, float, float]:
     return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def _locus_gains(j: F32 | F64, beta_d: F64, max_gain: float) -> F64:
+    """Gains ``exp(beta_D d)`` for the water column ``d >= 0`` (metres) above the scene that
+    makes the restored samples closest to grey (least variance of the log channel means): the
+    ambient light reaching the scene has crossed ``d`` metres of the same water, so its colour
+    lies on that one-parameter locus (1 at ``d = 0``: white light)."""
+    jj = np.asarray(j, dtype=np.float64)
+    best_d, best = 0.0, np.inf
+    for d in np.linspace(0.0, 30.0, 301):
+        g = np.minimum(np.exp(beta_d * d), max_gain)
+        n = np.mean(jj * g, axis=0)
+        if not np.all(n > 1e-6):
+            continue
+        v = float(np.var(np.log(n)))
+        if v < best:
+            best, best_d = v, float(d)
+    g = np.minimum(np.exp(beta_d * best_d), max_gain)
+    return np.asarray(g / np.exp(np.mean(np.log(g))))
 
 
 def _grey_world_gains(j: F32 | F64, max_gain: float) -> F64:
