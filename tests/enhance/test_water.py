@@ -176,3 +176,14 @@ def test_plausibility_limits_are_physical() -> None:
         WaterFitConfig(range_bins=2)
     with pytest.raises(EnhanceError):
         WaterFitConfig(white_balance="max-rgb")  # type: ignore[arg-type]
+
+
+def test_one_channel_images_are_refused_in_one_line(
+    coastal: tuple[list[tuple[np.ndarray, np.ndarray]], list[np.ndarray], WaterModel],
+) -> None:
+    frames, _clean, model = coastal
+    img, z = frames[0]
+    with pytest.raises(EnhanceError, match="RGB"):
+        restore(img[..., 1], z, model)
+    with pytest.raises(EnhanceError, match="RGB"):
+        fit_water_model([(img[..., 1], z)])

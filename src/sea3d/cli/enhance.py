@@ -64,8 +64,11 @@ def _write_image(path: str | Path, img: Any) -> None:
 
 
 def _seathru_config(args: argparse.Namespace) -> Any:
+    """The per-image Sea-thru settings, or None for the default water model."""
     from sea3d.enhance.seathru import SeathruConfig
 
+    if args.attenuation == "water-model":
+        return None
     return SeathruConfig(
         holes=args.holes,
         backscatter=not args.no_backscatter,
@@ -145,6 +148,8 @@ def _cmd_enhance(args: argparse.Namespace) -> int:
     }
     if out.model is not None:
         summary["seathru_model"] = out.model.as_dict()
+    if out.water_model is not None:
+        summary["water_model"] = out.water_model.as_dict()
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
@@ -175,6 +180,25 @@ def _session_depth(rig: Any, args: argparse.Namespace) -> Any:
     return ranges
 
 
+def _session_water_model(session: Any, ranges: Any, most: int = 8) -> Any:
+    """One water model for the whole dive, fitted to up to ``most`` pairs spread over it (both
+    images, each with its own stereo range)."""
+    import numpy as np
+
+    from sea3d.enhance.water import fit_water_model
+
+    n = len(session.match_pairs())
+    pick = set(np.linspace(0, n - 1, min(n, most)).round().astype(int).tolist())
+    frames = []
+    for k, pair in enumerate(session.pairs()):
+        if k in pick:
+            rl, rr = ranges(pair.left, pair.right)
+            frames += [(pair.left, rl), (pair.right, rr)]
+    model = fit_water_model(frames)
+    _log.info("water model of the dive (%d frames): %s", len(frames), model.as_dict())
+    return model
+
+
 def _cmd_enhance_session(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -198,6 +222,7 @@ def _cmd_enhance_session(args: argparse.Namespace) -> int:
             rig = rig_from_yaml(session.rig_yaml, f"{args.session} (stored rig.yaml)")
         ranges = None
         cfg = None
+        water = None
         if args.method == "seathru":
             if rig is None:
                 raise EnhanceError(
@@ -205,6 +230,7 @@ def _cmd_enhance_session(args: argparse.Namespace) -> int:
                 )
             ranges = _session_depth(rig, args)
             cfg = _seathru_config(args)
+            water = _session_water_model(session, ranges) if cfg is None else None
         n_pairs = len(session.match_pairs())
         if n_pairs == 0:
             raise EnhanceError(f"{args.session}: no stereo pairs to enhance")
@@ -225,7 +251,8 @@ def _cmd_enhance_session(args: argparse.Namespace) -> int:
                     kw: dict[str, Any] = dict(params)
                     if ranges is not None:
                         rl, rr = ranges(pair.left, pair.right)
-                        kw.update(range_left_m=rl, range_right_m=rr, seathru_config=cfg)
+                        kw.update(range_left_m=rl, range_right_m=rr, seathru_config=cfg,
+                                  water_model=water)
                     try:
                         res = enhance_pair(pair.left, pair.right, args.method, **kw)
                         lo, ro, status = res.images[0], res.images[1], res.status
@@ -289,8 +316,11 @@ def register(sub: Any) -> None:
         help="pixels without depth: restore with inpainted range, or only white-balance them",
     )
     p.add_argument(
-        "--attenuation", choices=("fit", "fit-scaled", "illuminant", "none"), default="fit",
-        help="Sea-thru attenuation stage (default fit: the paper's beta_D(z))",
+        "--attenuation", choices=("water-model", "fit", "fit-scaled", "illuminant", "none"),
+        default="water-model",
+        help="Sea-thru: water-model (default: one water model fitted to the image, or once to "
+        "a session's pairs, then inverted) or a per-image Sea-thru attenuation stage (fit: "
+        "the paper's beta_D(z))",
     )
     p.add_argument("--no-backscatter", action="store_true", help="Sea-thru: skip backscatter")
     p.add_argument(

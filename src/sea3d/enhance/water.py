@@ -259,7 +259,8 @@ def _frame_samples(
     rng: np.random.Generator,
 ) -> tuple[F64, F64] | None:
     arr = np.asarray(image)
-    require_rgb(arr if arr.ndim == 3 else arr[..., None], "a water model", f"frame {k}")
+    if arr.ndim != 3 or arr.shape[2] != 3:
+        require_rgb(arr[..., 0] if arr.ndim == 3 else arr, "a water model", f"frame {k}")
     z = np.asarray(range_m, dtype=np.float32)
     if z.shape != arr.shape[:2]:
         raise EnhanceError(
@@ -592,7 +593,8 @@ def restore(
     """
     config = config or WaterFitConfig()
     arr = np.asarray(image)
-    require_rgb(arr if arr.ndim == 3 else arr[..., None], "restore", "image")
+    if arr.ndim != 3 or arr.shape[2] != 3:
+        require_rgb(arr[..., 0] if arr.ndim == 3 else arr, "restore", "image")
     z = np.asarray(range_m, dtype=np.float32)
     if z.shape != arr.shape[:2]:
         raise EnhanceError(
