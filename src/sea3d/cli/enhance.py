@@ -89,6 +89,9 @@ def _range_for(args: argparse.Namespace, image: Any) -> Any:
         )
     depth = read_depth(args.depth)  # names the file in its errors
     h, w = image.shape[:2]
+    from_rect = _range_from_rectified(args, depth, (h, w))
+    if from_rect is not None:
+        return from_rect
     if depth.shape != (h, w):
         raise EnhanceError(
             f"depth {args.depth} is {depth.shape[1]}x{depth.shape[0]} but image {args.input} is "
@@ -113,6 +116,42 @@ def _range_for(args: argparse.Namespace, image: Any) -> Any:
         "sight (too short by 1/cos of the off-axis angle)"
     )
     return depth
+
+
+def _range_from_rectified(args: argparse.Namespace, depth: Any, shape: tuple[int, int]) -> Any:
+    """Range on the raw image's grid when --depth says (its grid sidecar) that it lives on the
+    rectified left view: resampled with --rig, refused in one line without it or with another
+    rig. None when the depth is on the raw grid (or says nothing)."""
+    from sea3d.errors import EnhanceError
+    from sea3d.io.depth_files import read_depth_grid, rig_identity
+
+    grid = read_depth_grid(args.depth)
+    if grid is None or grid.kind == "raw-left":
+        if grid is not None and (grid.width_px, grid.height_px) != (shape[1], shape[0]):
+            raise EnhanceError(f"depth {args.depth} lives on the {grid.describe()} grid but "
+                               f"image {args.input} is {shape[1]}x{shape[0]}")
+        return None
+    if args.rig is None:
+        raise EnhanceError(
+            f"depth {args.depth} lives on the {grid.describe()} grid, not on the raw image's "
+            "pixels: pass --rig to resample it, or write raw-view depth with sea3d depth "
+            "--grid raw"
+        )
+    import numpy as np
+
+    from sea3d.io.rig_file import load_rig, rig_to_yaml
+    from sea3d.rectify import rectify_rig
+    from sea3d.rectify.depth_grid import rectified_depth_to_raw
+
+    rig = load_rig(args.rig)
+    if grid.rig_id and grid.rig_id != rig_identity(rig_to_yaml(rig)):
+        raise EnhanceError(f"depth {args.depth} came from another rig than {args.rig}")
+    if (rig.width, rig.height) != (shape[1], shape[0]):
+        raise EnhanceError(f"rig {args.rig} is {rig.width}x{rig.height} but image "
+                           f"{args.input} is {shape[1]}x{shape[0]}")
+    maps = rectify_rig(rig, depth_range_m=(args.min_depth, args.max_depth))
+    K = np.asarray(grid.K, dtype=np.float64)
+    return rectified_depth_to_raw(depth, K, maps.R_rect_left_left, rig.left, quantity="range")
 
 
 def _cmd_enhance(args: argparse.Namespace) -> int:

@@ -89,7 +89,7 @@ def resolve(path: str) -> Callable[..., Any]:
         raise EnhanceError(f"cannot find the enhancement {path!r}: {err}") from err
     if not callable(fn):
         raise EnhanceError(f"enhancement {path!r} is not callable")
-    return fn  # type: ignore[no-any-return]
+    return fn
 
 
 def process_enhance_hook(name: str) -> str | None:

@@ -163,7 +163,7 @@ class WaterModel:
 
     def as_dict(self) -> dict[str, object]:
         """Plain dict (JSON)."""
-        d = asdict(self)
+        d: dict[str, object] = asdict(self)
         d["checks"] = list(self.checks)
         return d
 
@@ -489,8 +489,8 @@ def fit_water_model(
     top = np.max(j * gains, axis=1)
     wp = float(np.percentile(top, config.white_point_percentile)) if top.size else 0.0
     exposure = float(np.clip(1.0 / wp, 1.0 / 50.0, 50.0)) if wp > 1e-6 else 1.0
-    for c in checks:
-        _log.info("water model: %s", c)
+    for check in checks:
+        _log.info("water model: %s", check)
     return WaterModel(
         B_inf_rgb=model.B_inf_rgb, beta_B_per_m=model.beta_B_per_m,
         beta_D_per_m=model.beta_D_per_m, wb_gains=_t3(gains), exposure_gain=exposure,

@@ -68,7 +68,7 @@ class DepthGrid:
     kind: GridKind
     width_px: int
     height_px: int
-    K: tuple[tuple[float, float, float], ...]
+    K: tuple[tuple[float, ...], ...]
     rig_id: str = ""
 
     def __post_init__(self) -> None:
