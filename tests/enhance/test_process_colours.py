@@ -20,6 +20,7 @@ from sea3d.io.rig_file import rig_to_yaml
 from sea3d.io.session import SessionWriter, open_session
 from sea3d.pipeline.frame_stage import FrameResult, FrameStageConfig, _resolve_hook, process_frame
 from sea3d.pipeline.process import ProcessConfig, run_process
+from sea3d.pipeline.report import _colour_html
 from sea3d.refraction.presets import paper_rig
 from sea3d.sim.scene import builtin_scene
 from sea3d.sim.survey import SurveyConfig, simulate_survey
@@ -118,10 +119,16 @@ def test_process_colours_mesh_and_cloud_with_the_restored_frames(
     res = run_process(Path(str(survey["session"])), ProcessConfig(
         out_dir=out, workers=0, poses_path=Path(str(survey["gt"])) / "poses_left.tum",
         restore_colours="seathru", max_depth_m=MAX_DEPTH_M, report=False, evaluate=False))
-    assert res.summary["colours"] == {"enhance": "none", "restore": "seathru",
-                                      "restore_status": {"ok": 2}}
+    colours = res.summary["colours"]
+    assert {k: v for k, v in colours.items() if k != "per_frame"} == {
+        "enhance": "none", "restore": "seathru", "restore_status": {"ok": 2}}
+    assert [st for _t, st in colours["per_frame"]] == ["ok", "ok"]
     restored, plain = survey["restored"], survey["plain"]
     assert isinstance(restored, FrameResult) and isinstance(plain, FrameResult)
+    # report.html's colour section: each frame's status and one frame before and after.
+    page = _colour_html(colours, [plain.rect_left, restored.colors()])
+    assert page.count("<td>ok</td>") == 2 and "<img" in page and "ok: 2" in page
+    assert _colour_html({"restore": "none"}, None) == ""
     has = np.isfinite(restored.depth_m)
     want = _chroma(restored.colors()[has])
     raw = _chroma(plain.rect_left[has])

@@ -448,6 +448,8 @@ def run_process(
             frame_status: list[str] = []
             valid_fraction: list[float] = []
             colour_status: dict[str, int] = {}
+            colour_frames: list[tuple[int, str]] = []  # (t_ns, status) for report.html
+            colour_pictures: list[np.ndarray] = []  # one frame's rectified left before and after
             worker_t: dict[str, float] = {}
             n_cached = n_failed = n_unreadable = loop_closures = 0
             window = config.in_flight or 2 * n_workers + 2
@@ -541,6 +543,9 @@ def run_process(
                     if res.colour_status:
                         colour_status[res.colour_status] = (
                             colour_status.get(res.colour_status, 0) + 1)
+                        colour_frames.append((int(res.t_ns), res.colour_status))
+                        if not colour_pictures and res.color_left.size:
+                            colour_pictures = [res.rect_left, res.color_left]
                     step = fusion.step(
                         t_ns=res.t_ns, trusted=est.status in TRUSTED,
                         keyframe_id=est.keyframe_id, depth_m=res.fusion_depth_m,
@@ -656,7 +661,8 @@ def run_process(
         "cloud": {"points": len(cloud.points), "outliers_removed": cloud.outliers},
         "mean_valid_depth_fraction": float(np.mean(valid_fraction)) if valid_fraction else 0.0,
         "colours": {"enhance": str(config.enhance or "none"),
-                    "restore": config.restore_colours, "restore_status": colour_status},
+                    "restore": config.restore_colours, "restore_status": colour_status,
+                    "per_frame": colour_frames},
         "timings_s": {},
         "worker_timings_s": worker_t,
         "cache_mb_written": cache.bytes_written / 2**20,
@@ -685,7 +691,8 @@ def run_process(
         from sea3d.pipeline.report import write_process_report
 
         tr = time.perf_counter()
-        files["report"] = write_process_report(out / "report.html", result)
+        files["report"] = write_process_report(out / "report.html", result,
+                                               colour_pictures=colour_pictures)
         summary["timings_s"]["report_s"] = time.perf_counter() - tr
     _write_json(files["summary"], summary)
     publish_results(result)
