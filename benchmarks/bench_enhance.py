@@ -496,6 +496,14 @@ def section_speed(args: argparse.Namespace) -> None:
             row.update(reference=name, reference_wall_s=rw, reference_cpu_s=rc)
         print(line, flush=True)
         rows.append(row)
+    # The dive's water model is fitted once; each frame is then one inversion.
+    model = fit_water_model([(img, rng_map)])
+    for name, fn in (("water model fit (once per dive)",
+                      lambda: fit_water_model([(img, rng_map)])),
+                     ("seathru with the dive's model", lambda: restore(img, rng_map, model))):
+        wall, cpu = _time(fn, args.repeats)
+        print(f"{name:32s} {wall:7.3f} {cpu:7.3f}", flush=True)
+        rows.append({"method": name, "wall_s": wall, "cpu_s": cpu})
     OUT["speed"] = rows
 
 

@@ -507,16 +507,13 @@ def _locus_gains(j: F32 | F64, beta_d: F64, max_gain: float) -> F64:
     makes the restored samples closest to grey (least variance of the log channel means): the
     ambient light reaching the scene has crossed ``d`` metres of the same water, so its colour
     lies on that one-parameter locus (1 at ``d = 0``: white light)."""
-    jj = np.asarray(j, dtype=np.float64)
-    best_d, best = 0.0, np.inf
-    for d in np.linspace(0.0, 30.0, 301):
-        g = np.minimum(np.exp(beta_d * d), max_gain)
-        n = np.mean(jj * g, axis=0)
-        if not np.all(n > 1e-6):
-            continue
-        v = float(np.var(np.log(n)))
-        if v < best:
-            best, best_d = v, float(d)
+    mean = np.mean(np.asarray(j, dtype=np.float64), axis=0)  # the gains are per channel
+    if not np.all(mean > 1e-6):
+        return np.ones(3)
+    d_grid = np.linspace(0.0, 30.0, 301)[:, None]
+    g_all = np.minimum(np.exp(beta_d[None, :] * d_grid), max_gain)
+    spread = np.var(np.log(g_all * mean[None, :]), axis=1)
+    best_d = float(d_grid[int(np.argmin(spread)), 0])
     g = np.minimum(np.exp(beta_d * best_d), max_gain)
     return np.asarray(g / np.exp(np.mean(np.log(g))))
 
