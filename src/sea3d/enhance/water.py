@@ -19,9 +19,9 @@ at many ranges; one image rarely spans enough range to separate attenuation from
    ``log D_c`` falls on a line of slope ``-beta_D_c``: a robust (soft-L1) weighted line fit over
    the bins, one per channel.
 3. **White balance and exposure** over the restored samples of every frame (so the pair and
-   the dive keep one colour): the ambient light's colour on the water's own locus
-   ``exp(-beta_D d)`` (:attr:`WaterFitConfig.white_balance`; grey world where ``beta_D`` is
-   not identified), then the ``white_point_percentile`` of the brightest channel to 1.
+   the dive keep one colour): none where ``beta_D`` is identified (the inversion gives the
+   scene's own colour; other choices in :attr:`WaterFitConfig.white_balance`), grey world
+   where it is not; then the ``white_point_percentile`` of the brightest channel to 1.
 
 Each fitted parameter is checked for physical plausibility (:data:`LIMITS`); a failed check is
 reported by name and the fit falls back in stated steps, each with its status:
@@ -107,12 +107,15 @@ class WaterFitConfig:
     them only (``mask``)."""
     work_max_side_px: int = 240
     """Longer side at which range holes are filled."""
-    white_balance: Literal["locus", "grey-world", "none"] = "locus"
-    """After the inversion (which gives the scene under the light that reached it):
-    ``locus`` removes an ambient light that crossed ``d >= 0`` metres of the same water
-    (gains ``exp(beta_D d)``, the one ``d`` that brings the scene closest to grey; white light
-    at ``d = 0``); ``grey-world`` three free gains (turns beige sand grey); ``none``. Where
-    ``beta_D`` is not identified, ``locus`` becomes grey world."""
+    white_balance: Literal["auto", "locus", "grey-world", "none"] = "auto"
+    """After the inversion (which gives the scene under the light that reached it): ``auto``
+    (default) keeps it where ``beta_D`` is identified and balances by grey world where it is
+    not; ``locus`` removes an ambient light that crossed ``d >= 0`` metres of the same water
+    (gains ``exp(beta_D d)``, the ``d`` that brings the scene closest to grey); ``grey-world``
+    three free gains (turns beige sand grey); ``none``. Measured (``docs/enhance.md``): under
+    an independent formation model with white light ``auto`` is best on every water and
+    scene; where the light is coloured by the water above the scene (our simulator's sun),
+    ``locus`` or ``grey-world`` remove that colour and ``auto`` keeps it."""
 
     def __post_init__(self) -> None:
         if self.range_bins < 3:
@@ -121,7 +124,7 @@ class WaterFitConfig:
             raise EnhanceError(f"dark_percentile must be in (0, 50), got {self.dark_percentile}")
         if self.holes not in ("inpaint", "mask"):
             raise EnhanceError(f"holes must be inpaint or mask, got {self.holes!r}")
-        if self.white_balance not in ("locus", "grey-world", "none"):
+        if self.white_balance not in ("auto", "locus", "grey-world", "none"):
             raise EnhanceError(f"unknown white balance {self.white_balance!r}")
         if not self.max_gain >= 1:
             raise EnhanceError(f"max_gain must be >= 1, got {self.max_gain}")
@@ -478,6 +481,8 @@ def fit_water_model(
     )
     j = _invert(rgb.astype(np.float32), z.astype(np.float32), model, config.max_gain)
     wb = config.white_balance
+    if wb == "auto":
+        wb = "none" if status == "ok" else "grey-world"
     if wb == "locus" and status != "ok":
         wb = "grey-world"
     if wb == "grey-world":
