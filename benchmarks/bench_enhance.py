@@ -140,8 +140,8 @@ def section_colour(args: argparse.Namespace) -> None:
         }
         for m in ("grey-world", "shades-of-grey", "red-comp", "clahe", "udcp"):
             outs[m] = enhance_image(p.left, m).images[0]
-        for wb in ("none", "grey-world"):
-            wcfg = WaterFitConfig(white_balance=wb)
+        for wb in ("auto", "grey-world", "locus"):
+            wcfg = WaterFitConfig(white_balance=wb)  # type: ignore[arg-type]
             for rname, rmap in (("true range", true_range), ("stereo range", sgm_range)):
                 wm = fit_water_model([(p.left, rmap)], wcfg)
                 outs[f"water model, wb {wb} ({rname})"] = restore(p.left, rmap, wm, wcfg).image
