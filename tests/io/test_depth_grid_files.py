@@ -116,3 +116,36 @@ def test_enhance_refuses_rectified_depth_without_a_rig_and_resamples_with_it(
     rc = sea3d_main(["enhance", str(img_path), "-o", str(tmp_path / "o2.png"), "--depth",
                      str(other), "--rig", str(rig_path)])
     assert rc == 2 and "another rig" in capsys.readouterr().err
+
+
+def test_sea3d_depth_writes_raw_view_depth_that_enhance_takes(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from sea3d.geometry.se3 import look_at
+    from sea3d.sim.reference import simulate_pair_with_reference
+
+    rig = paper_rig("none", size_px=SIZE)
+    (tmp_path / "rig.yaml").write_text(rig_to_yaml(rig))
+    p = simulate_pair_with_reference(rig, "lake", look_at((0.35, -1.6, 0.9), (0.0, 0.0, 0.1)),
+                                     "coastal", seed=1, supersample=1)
+    for name, img in (("L.png", p.left), ("R.png", p.right)):
+        cv2.imwrite(str(tmp_path / name), img[..., ::-1])
+    args = ["depth", "--rig", str(tmp_path / "rig.yaml"), "--left", str(tmp_path / "L.png"),
+            "--right", str(tmp_path / "R.png")]
+    assert sea3d_main([*args, "-o", str(tmp_path / "raw.tiff"), "--grid", "raw"]) == 0
+    assert sea3d_main([*args, "-o", str(tmp_path / "rect.tiff")]) == 0
+    raw_grid = read_depth_grid(tmp_path / "raw.tiff")
+    assert raw_grid is not None and raw_grid.kind == "raw-left"
+    assert raw_grid.rig_id == rig_identity(rig_to_yaml(rig))
+    rect_grid = read_depth_grid(tmp_path / "rect.tiff")
+    assert rect_grid is not None and rect_grid.kind == "rectified-left"
+    raw = read_depth(tmp_path / "raw.tiff")
+    both = np.isfinite(raw) & np.isfinite(p.gt.depth_m)
+    assert both.mean() > 0.5
+    # Raw-view depth against the simulator's true depth of the raw left view: 5 % median.
+    assert np.median(np.abs(raw[both] / p.gt.depth_m[both] - 1.0)) < 0.05
+    capsys.readouterr()
+    out = tmp_path / "out.png"
+    assert sea3d_main(["enhance", str(tmp_path / "L.png"), "-o", str(out), "--depth",
+                       str(tmp_path / "raw.tiff"), "--rig", str(tmp_path / "rig.yaml")]) == 0
+    assert out.exists()

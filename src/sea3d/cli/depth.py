@@ -165,6 +165,17 @@ def _cmd_eval_disparity(args: argparse.Namespace) -> int:
     return 0
 
 
+def _rectified_grid(maps: Any, rig: Any) -> Any:
+    """The :class:`~sea3d.io.depth_files.DepthGrid` of depth as matched (rectified left)."""
+    from sea3d.io.depth_files import DepthGrid, rig_identity
+    from sea3d.io.rig_file import rig_to_yaml
+
+    K = maps.P_left[:3, :3]
+    return DepthGrid(kind="rectified-left", width_px=int(maps.width),
+                     height_px=int(maps.height), K=tuple(tuple(float(x) for x in r) for r in K),
+                     rig_id=rig_identity(rig_to_yaml(rig)))
+
+
 def _write_depth_on_grid(path: Any, depth_rect_m: Any, maps: Any, rig: Any, grid: str) -> None:
     """Write depth on the asked grid (``rectified``: as matched, or ``raw``: resampled onto the
     raw left camera's pixels) with its grid sidecar (:class:`sea3d.io.depth_files.DepthGrid`)."""
@@ -183,10 +194,7 @@ def _write_depth_on_grid(path: Any, depth_rect_m: Any, maps: Any, rig: Any, grid
         g = DepthGrid(kind="raw-left", width_px=rig.width, height_px=rig.height,
                       K=tuple(tuple(float(x) for x in r) for r in K), rig_id=rig_id)
     else:
-        depth = depth_rect_m
-        h, w = depth.shape
-        g = DepthGrid(kind="rectified-left", width_px=w, height_px=h,
-                      K=tuple(tuple(float(x) for x in r) for r in K_rect), rig_id=rig_id)
+        depth, g = depth_rect_m, _rectified_grid(maps, rig)
     write_depth(path, depth, g)
 
 
@@ -198,7 +206,7 @@ def _cmd_depth_session(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from sea3d.errors import StereoError
-    from sea3d.io.depth_files import write_depth_png_mm, write_ply
+    from sea3d.io.depth_files import write_depth_grid, write_depth_png_mm, write_ply
     from sea3d.io.rig_file import load_rig, rig_from_yaml
     from sea3d.io.session import open_session
     from sea3d.rectify import rectify_rig
@@ -228,6 +236,7 @@ def _cmd_depth_session(args: argparse.Namespace) -> int:
         config = make_config(args.engine, max_d)
         _warm_up(args.engine)
         (out / "depth").mkdir(parents=True, exist_ok=True)
+        grid = _rectified_grid(maps, rig)
         if args.points:
             (out / "cloud").mkdir(parents=True, exist_ok=True)
         done = 0
@@ -243,6 +252,7 @@ def _cmd_depth_session(args: argparse.Namespace) -> int:
                 res = compute_depth(maps, pair.left, pair.right, config, max_depth_m=args.max_depth,
                                     min_confidence=args.min_confidence)
                 write_depth_png_mm(out / "depth" / f"{pair.t_ns}.png", res.depth_m)
+                write_depth_grid(out / "depth" / f"{pair.t_ns}.png", grid)
                 if args.points:
                     write_ply(out / "cloud" / f"{pair.t_ns}.ply", res.points_left, res.colors_rgb)
                 valid.append(float(np.isfinite(res.depth_m).mean()))
