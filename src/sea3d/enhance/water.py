@@ -36,8 +36,9 @@ reported by name and the fit falls back in stated steps, each with its status:
 
 :func:`restore` applies a model to one image and its range: two look-up tables (sRGB decode,
 encode) and a handful of float32 array operations per pixel, well under a second at 1080p.
-Range holes are filled from the surrounding range (harmonic fill at a working resolution) or
-left to the white balance alone.
+Range holes near pixels with range (stereo holes) are filled from the surrounding range
+(harmonic fill at a working resolution); wide regions without range (open water) and, with
+``holes="mask"``, every hole get the white balance and exposure alone.
 """
 
 from __future__ import annotations
@@ -107,6 +108,10 @@ class WaterFitConfig:
     them only (``mask``)."""
     work_max_side_px: int = 240
     """Longer side at which range holes are filled."""
+    max_fill_fraction: float = 0.03
+    """With ``holes="inpaint"``, pixels farther than this fraction of the longer image side
+    from any pixel with range (open water, where there is no surface to give range) are not
+    filled: they get the white balance and exposure only, never an invented range."""
     white_balance: Literal["auto", "locus", "grey-world", "none"] = "auto"
     """After the inversion (which gives the scene under the light that reached it): ``auto``
     (default) keeps it where ``beta_D`` is identified and balances by grey world where it is
@@ -615,7 +620,9 @@ def restore(
         return _checked(lin, lin * scale, dtype, "no-range", notes, scale)
     if config.holes == "inpaint" and not valid.all():
         z_use = _fill_holes(z, valid, config.work_max_side_px)
-        where = np.ones_like(valid)
+        far = cv2.distanceTransform((~valid).astype(np.uint8), cv2.DIST_L2, 3)
+        where = far <= config.max_fill_fraction * max(valid.shape)
+        z_use = np.where(where, z_use, np.float32(0))
     else:
         z_use = np.where(valid, z, np.float32(0))
         where = valid
