@@ -103,6 +103,10 @@ class WaterFitConfig:
     """Cap on the attenuation compensation ``exp(beta_D z)`` and the white-balance gains."""
     saturation_level: float = 0.98
     """Pixels with a channel at or above this are left out of the fits."""
+    min_texture: float = 0.5 / 255.0
+    """Pixels whose 5x5 standard deviation of brightness (``[0, 1]``) is below this are left
+    out of the fits: a flat region (open water) holds no albedo, and stereo range there is
+    unreliable."""
     holes: Literal["inpaint", "mask"] = "inpaint"
     """Pixels without range: restore with range filled from around them, or white-balance
     them only (``mask``)."""
@@ -280,6 +284,13 @@ def _frame_samples(
     img01, _ = as_unit_float(arr, "image")
     with np.errstate(invalid="ignore"):
         ok = np.isfinite(z) & (z > 0) & ~saturated_mask(img01, config.saturation_level)
+    if config.min_texture > 0:
+        # Flat pixels (open water, the veiling light itself) hold no albedo to fit, and stereo
+        # gives them no trustworthy range: left out.
+        y = img01.mean(axis=2).astype(np.float32)
+        m1 = cv2.blur(y, (5, 5))
+        sd = np.sqrt(np.maximum(cv2.blur(y * y, (5, 5)) - m1 * m1, 0.0))
+        ok &= sd >= np.float32(config.min_texture)
     idx = np.flatnonzero(ok.ravel())
     if idx.size < _MIN_PIXELS:
         return None
