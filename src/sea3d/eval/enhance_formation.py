@@ -11,10 +11,11 @@ lights, caustics, vignetting, noise or its water presets), so a restoration is n
 the model that rendered its input.
 
 ``beta_D`` per channel is the downwelling diffuse attenuation ``K_d`` of Jerlov's water types
-at 600, 525 and 475 nm (R, G, B), as tabulated by Jerlov (Marine Optics, Elsevier 1976,
-Table XXVII) and reproduced as the reference spectra ``K_d^0`` of Solonenko and Mobley
-("Inherent optical properties of Jerlov water types", Applied Optics 54(17), 5392, 2015),
-rounded to two digits. ``beta_B`` and ``B_inf`` are ours (the Jerlov tables give neither):
+at about 600, 525 and 475 nm (R, G, B), after Jerlov's tables (Marine Optics, Elsevier 1976),
+which Solonenko and Mobley reproduce as the reference spectra ``K_d^0`` ("Inherent optical
+properties of Jerlov water types", Applied Optics 54(17), 5392, 2015), rounded to two digits.
+They were not re-read from the paper for this module (no copy at hand): treat them as
+approximate values of the right order for each type, not as quoted figures. ``beta_B`` and ``B_inf`` are ours (the Jerlov tables give neither):
 ``beta_B = K_d + 0.1`` 1/m (backscatter saturates faster than the direct signal decays,
 Akkaynak and Treibitz 2018, Sec. 3) and a veiling light of the water's own hue,
 ``B_inf = 0.25 exp(-K_d * 5 m)`` (ambient light after 5 m of water).
