@@ -10,6 +10,13 @@ Sections (``--section``, default all):
   (white point forgiven), and against ``J`` (water removed from the line of sight only).
   Sea-thru runs with the true range and with range from our SGM (``sea3d.stereo``), and
   OpenCV's ``xphoto`` grey-world white balance is the reference tool.
+- ``formation``: the headline. Clean views of ``lake`` and ``reef`` (no water) at several
+  ranges (one dive per scene), degraded by an image-formation model independent of our
+  simulator (:mod:`sea3d.eval.enhance_formation`: Akkaynak-Treibitz with Jerlov II, 3C and 9C
+  ``K_d``), each water a table: grey world, OpenCV xphoto, per-image Sea-thru, and the dive's
+  water model (:func:`sea3d.enhance.fit_water_model` over the dive's frames) with stereo range
+  (our SGM on the degraded pair) and with true range, beside the oracle (the formation model
+  inverted with its true parameters): CIEDE2000 after one global exposure gain.
 - ``stereo``: SGM bad-2 and density (ours and OpenCV StereoSGBM) on the same pairs with and
   without each method (white balances applied jointly to the pair).
 - ``features``: correct SIFT matches (against ground-truth depth and poses, 3 px) between two
@@ -56,6 +63,8 @@ from sea3d.enhance import (
     uiqm,
 )
 from sea3d.enhance._image import luminance, srgb_to_linear
+from sea3d.enhance.water import WaterFitConfig, WaterModel, fit_water_model, restore
+from sea3d.eval.enhance_formation import JERLOV_WATERS, degrade
 from sea3d.eval.enhance_tasks import correct_feature_matches, stereo_with_enhancement
 from sea3d.geometry.se3 import look_at
 from sea3d.refraction.presets import paper_rig
@@ -131,6 +140,11 @@ def section_colour(args: argparse.Namespace) -> None:
         }
         for m in ("grey-world", "shades-of-grey", "red-comp", "clahe", "udcp"):
             outs[m] = enhance_image(p.left, m).images[0]
+        for wb in ("auto", "grey-world", "locus"):
+            wcfg = WaterFitConfig(white_balance=wb)  # type: ignore[arg-type]
+            for rname, rmap in (("true range", true_range), ("stereo range", sgm_range)):
+                wm = fit_water_model([(p.left, rmap)], wcfg)
+                outs[f"water model, wb {wb} ({rname})"] = restore(p.left, rmap, wm, wcfg).image
         for name, cfg in SEATHRU_VARIANTS.items():
             outs[f"{name} (true range)"] = enhance_image(
                 p.left, "seathru", range_m=true_range, seathru_config=cfg
@@ -196,6 +210,72 @@ def _summary_colour(rows: list[dict[str, Any]]) -> None:
             ratio = [a / b for a, b in zip(s["d"], t["d"], strict=True)]
             print(f"{name}: stereo / true range (dE00 diag), median "
                   f"{statistics.median(ratio):.2f}, max {max(ratio):.2f}")
+
+
+DIVE_EYES = ((0.35, -1.6, 0.9), (0.2, -2.4, 1.4), (0.5, -1.2, 0.6), (-0.3, -3.0, 1.6))
+"""Camera positions of one simulated dive (the target stays at VIEW_TARGET)."""
+
+
+def section_formation(args: argparse.Namespace) -> None:
+    rig = paper_rig("none", size_px=args.size)
+    max_d = 63 if args.size[0] <= 700 else 127
+    rows: list[dict[str, Any]] = []
+    for scene in ("lake", "reef"):
+        r = Renderer(builtin_scene(scene), supersample=2)
+        views = []
+        for eye in DIVE_EYES:
+            T = look_at(eye, VIEW_TARGET)
+            lv = r.render(rig.left, T, Imaging.clean())
+            rv = r.render(rig.right, T @ rig.T_left_right, Imaging.clean())
+            views.append((lv, rv))
+        for wname, water in JERLOV_WATERS.items():
+            frames = []
+            for lv, rv in views:
+                left = degrade(lv.image, lv.gt.range_m, water)
+                right = degrade(rv.image, rv.gt.range_m, water)
+                frames.append((left, lv.gt.range_m, _stereo_range(left, right, rig, max_d)))
+            t0 = time.perf_counter()
+            model_true = fit_water_model([(f[0], f[1]) for f in frames])
+            model_st = fit_water_model([(f[0], f[2]) for f in frames])
+            fit_s = (time.perf_counter() - t0) / 2
+            oracle = WaterModel(B_inf_rgb=water.B_inf_rgb, beta_B_per_m=water.beta_B_per_m,
+                                beta_D_per_m=water.beta_D_per_m)
+            per: dict[str, list[float]] = {}
+            for k, ((left, true_r, st_r), (lv, _rv)) in enumerate(zip(frames, views,
+                                                                     strict=True)):
+                ref, mask = lv.image, np.isfinite(lv.gt.range_m)
+                outs = {
+                    "input": left,
+                    "grey-world": enhance_image(left, "grey-world").images[0],
+                    "xphoto-grey (OpenCV)": _xphoto_grey(left),
+                    "sea-thru per image, stereo range": enhance_image(
+                        left, "seathru", range_m=st_r,
+                        seathru_config=SeathruConfig(attenuation="illuminant")).images[0],
+                    "water model, stereo range": restore(left, st_r, model_st).image,
+                    "water model, true range": restore(left, true_r, model_true).image,
+                    "oracle (true parameters)": restore(left, true_r, oracle).image,
+                }
+                for name, img in outs.items():
+                    per.setdefault(name, []).append(ciede2000_after_gain(img, ref, mask)[0])
+                if args.pictures and k == 0 and scene == "lake" and wname == "jerlov-3C":
+                    _picture(args.pictures / "enhance_formation_lake_3C.jpg",
+                             [left, outs["grey-world"], outs["water model, stereo range"], ref])
+            print(f"\n== formation: {scene} in {wname} (beta_D true "
+                  f"{np.round(water.beta_D_per_m, 2).tolist()}, fitted stereo "
+                  f"{np.round(model_st.beta_D_per_m, 2).tolist()} [{model_st.status}], "
+                  f"fit {fit_s:.1f} s per dive of {len(frames)} frames)")
+            print(f"{'method':36s} {'dE00 gain':>9s}  (mean of the dive's frames)")
+            gw = statistics.mean(per["grey-world"])
+            for name, v in per.items():
+                m = statistics.mean(v)
+                below = f"   {100 * (1 - m / gw):5.0f} % below grey world"
+                extra = below if name != "input" else ""
+                print(f"{name:36s} {_fmt(m):>9s}{extra}", flush=True)
+                rows.append({"scene": scene, "water": wname, "method": name, "de00_gain": m})
+            st = statistics.mean(per["water model, stereo range"])
+            tr = statistics.mean(per["water model, true range"])
+            print(f"stereo / true range: {st / tr:.2f}x")
+    OUT["formation"] = rows
 
 
 def section_stereo(args: argparse.Namespace) -> None:
@@ -416,6 +496,14 @@ def section_speed(args: argparse.Namespace) -> None:
             row.update(reference=name, reference_wall_s=rw, reference_cpu_s=rc)
         print(line, flush=True)
         rows.append(row)
+    # The dive's water model is fitted once; each frame is then one inversion.
+    model = fit_water_model([(img, rng_map)])
+    for name, fn in (("water model fit (once per dive)",
+                      lambda: fit_water_model([(img, rng_map)])),
+                     ("seathru with the dive's model", lambda: restore(img, rng_map, model))):
+        wall, cpu = _time(fn, args.repeats)
+        print(f"{name:32s} {wall:7.3f} {cpu:7.3f}", flush=True)
+        rows.append({"method": name, "wall_s": wall, "cpu_s": cpu})
     OUT["speed"] = rows
 
 
@@ -495,7 +583,8 @@ def _picture(path: Path, panels: list[np.ndarray], height: int = 160) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--section", action="append",
-                    choices=("colour", "stereo", "features", "real", "speed", "process"))
+                    choices=("formation", "colour", "stereo", "features", "real", "speed",
+                             "process"))
     ap.add_argument("--size", default="480x270", help="simulated image size WxH")
     ap.add_argument("--data", type=Path, default=DATA, help="the shared data folder")
     ap.add_argument("--repeats", type=int, default=3, help="timed runs per method")
@@ -505,9 +594,11 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     w, h = (int(v) for v in args.size.split("x"))
     args.size = (w, h)
-    sections = args.section or ["colour", "stereo", "features", "real", "speed", "process"]
-    funcs = {"colour": section_colour, "stereo": section_stereo, "features": section_features,
-             "real": section_real, "speed": section_speed, "process": section_process}
+    sections = args.section or ["formation", "colour", "stereo", "features", "real", "speed",
+                                "process"]
+    funcs = {"formation": section_formation, "colour": section_colour,
+             "stereo": section_stereo, "features": section_features, "real": section_real,
+             "speed": section_speed, "process": section_process}
     for s in sections:
         t0 = time.perf_counter()
         funcs[s](args)

@@ -58,7 +58,13 @@ def test_seathru_with_depth_npy_and_png_agree(tmp_path: Path,
     assert rc == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["status"] == "ok"
-    assert summary["seathru_model"]["backscatter_B_inf_betaB_Jprime_betaDprime"]
+    wm = summary["water_model"]  # the default: one water model, fitted to this image
+    assert wm["status"] == "ok" and all(0 < b <= 5 for b in wm["beta_D_per_m"])
+    rc = sea3d_main(["enhance", str(img_path), "-o", str(tmp_path / "fit.png"), "--depth",
+                     str(depth_path), "--range", "--attenuation", "fit", "--json"])
+    assert rc == 0
+    per_image = json.loads(capsys.readouterr().out)
+    assert per_image["seathru_model"]["backscatter_B_inf_betaB_Jprime_betaDprime"]
     # The same depth as a 16-bit millimetre PNG reads back to the millimetre.
     png = tmp_path / "depth.png"
     write_depth_png_mm(png, np.load(depth_path))
@@ -89,7 +95,7 @@ def test_bad_depth_inputs_give_one_line_errors(tmp_path: Path,
     assert "60x45" in run("--depth", str(small)) and "120x90" in run("--depth", str(small))
     nan = tmp_path / "nan.npy"
     np.save(nan, np.full((90, 120), np.nan, dtype=np.float32))
-    assert "no valid pixel" in run("--depth", str(nan))
+    assert "cannot fit B_inf or beta_D" in run("--depth", str(nan))
     d8 = tmp_path / "depth8.png"
     cv2.imwrite(str(d8), np.full((90, 120), 100, dtype=np.uint8))
     assert "8-bit" in run("--depth", str(d8))

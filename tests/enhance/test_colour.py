@@ -169,3 +169,25 @@ def test_the_8bit_table_path_gives_the_float_paths_result(
         want = (np.clip(red_compensation(fa, blue_alpha=0.5), 0, 1) * 255 + 0.5).astype(np.uint8)
         assert np.abs(fast.astype(int) - want).max() <= U8_PATH_TOL
         assert not np.array_equal(fast, red_compensation(a))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.uint8])
+def test_grey_world_leaves_an_empty_channel_out_of_the_target(
+    rng: np.random.Generator, dtype: type
+) -> None:
+    # Red and green carry texture, blue is empty (deep water): the gains equalise red and
+    # green to their own mean; counting the empty channel would darken them by a third.
+    lin = np.zeros((60, 80, 3), np.float32)
+    lin[..., 0] = rng.uniform(0.02, 0.2, (60, 80))
+    lin[..., 1] = rng.uniform(0.1, 0.6, (60, 80))
+    img = linear_to_srgb(lin)
+    if dtype == np.uint8:
+        img = (img * 255 + 0.5).astype(np.uint8)
+    out = grey_world(img)
+    to_lin = srgb_to_linear(out.astype(np.float32) / 255 if dtype == np.uint8 else out)
+    got = to_lin.reshape(-1, 3).mean(axis=0)
+    before = srgb_to_linear(img.astype(np.float32) / 255 if dtype == np.uint8 else img)
+    target = before.reshape(-1, 3).mean(axis=0)[:2].mean()
+    tol = 5 * MEAN_TOL if dtype == np.uint8 else MEAN_TOL  # 8-bit quantisation
+    np.testing.assert_allclose(got[:2], [target, target], atol=tol)
+    assert got[2] == 0.0

@@ -14,12 +14,13 @@ import numpy as np
 import pytest
 
 from sea3d.cli import main as sea3d_main
-from sea3d.enhance.stage import PROCESS_ENHANCE, process_enhance_hook
+from sea3d.enhance.registry import ENHANCEMENTS, process_enhance_hook
 from sea3d.errors import EnhanceError
 from sea3d.io.rig_file import rig_to_yaml
 from sea3d.io.session import SessionWriter, open_session
 from sea3d.pipeline.frame_stage import FrameResult, FrameStageConfig, _resolve_hook, process_frame
 from sea3d.pipeline.process import ProcessConfig, run_process
+from sea3d.pipeline.report import _colour_html
 from sea3d.refraction.presets import paper_rig
 from sea3d.sim.scene import builtin_scene
 from sea3d.sim.survey import SurveyConfig, simulate_survey
@@ -119,10 +120,16 @@ def test_process_colours_mesh_and_cloud_with_the_restored_frames(
     res = run_process(Path(str(survey["session"])), ProcessConfig(
         out_dir=out, workers=0, poses_path=Path(str(survey["gt"])) / "poses_left.tum",
         restore_colours="seathru", max_depth_m=MAX_DEPTH_M, report=False, evaluate=False))
-    assert res.summary["colours"] == {"enhance": "none", "restore": "seathru",
-                                      "restore_status": {"ok": 2}}
+    colours = res.summary["colours"]
+    assert {k: v for k, v in colours.items() if k != "per_frame"} == {
+        "enhance": "none", "restore": "seathru", "restore_status": {"ok": 2}}
+    assert [st for _t, st in colours["per_frame"]] == ["ok", "ok"]
     restored, plain = survey["restored"], survey["plain"]
     assert isinstance(restored, FrameResult) and isinstance(plain, FrameResult)
+    # report.html's colour section: each frame's status and one frame before and after.
+    page = _colour_html(colours, [plain.rect_left, restored.colors()])
+    assert page.count("<td>ok</td>") == 2 and "<img" in page and "ok: 2" in page
+    assert _colour_html({"restore": "none"}, None) == ""
     has = np.isfinite(restored.depth_m)
     want = _chroma(restored.colors()[has])
     raw = _chroma(plain.rect_left[has])
@@ -135,9 +142,12 @@ def test_process_colours_mesh_and_cloud_with_the_restored_frames(
 def test_named_enhancements_resolve_to_image_functions(rng: np.random.Generator) -> None:
     img = rng.integers(0, 255, (24, 32, 3), dtype=np.uint8)
     assert process_enhance_hook("none") is None
-    for name, path in PROCESS_ENHANCE.items():
-        if path is None:
+    for name, entry in ENHANCEMENTS.items():
+        if entry.needs_range:
+            with pytest.raises(EnhanceError, match="--restore-colours"):
+                process_enhance_hook(name)
             continue
+        path = entry.function
         assert process_enhance_hook(name) == path
         out = _resolve_hook(path)(img)
         assert out.shape == img.shape and out.dtype == np.uint8 and not np.array_equal(out, img)

@@ -175,6 +175,39 @@ def _cmd_eval_disparity(args: argparse.Namespace) -> int:
     return 0
 
 
+def _rectified_grid(maps: Any, rig: Any) -> Any:
+    """The :class:`~sea3d.io.depth_files.DepthGrid` of depth as matched (rectified left)."""
+    from sea3d.io.depth_files import DepthGrid, rig_identity
+    from sea3d.io.rig_file import rig_to_yaml
+
+    K = maps.P_left[:3, :3]
+    return DepthGrid(kind="rectified-left", width_px=int(maps.width),
+                     height_px=int(maps.height), K=tuple(tuple(float(x) for x in r) for r in K),
+                     rig_id=rig_identity(rig_to_yaml(rig)))
+
+
+def _write_depth_on_grid(path: Any, depth_rect_m: Any, maps: Any, rig: Any, grid: str) -> None:
+    """Write depth on the asked grid (``rectified``: as matched, or ``raw``: resampled onto the
+    raw left camera's pixels) with its grid sidecar (:class:`sea3d.io.depth_files.DepthGrid`)."""
+    import numpy as np
+
+    from sea3d.io.depth_files import DepthGrid, rig_identity, write_depth
+    from sea3d.io.rig_file import rig_to_yaml
+    from sea3d.rectify.depth_grid import rectified_depth_to_raw
+
+    rig_id = rig_identity(rig_to_yaml(rig))
+    K_rect = np.asarray(maps.P_left[:3, :3], dtype=np.float64)
+    if grid == "raw":
+        depth = rectified_depth_to_raw(depth_rect_m, K_rect, maps.R_rect_left_left, rig.left)
+        pin = rig.left.lens
+        K = np.array([[pin.fx, 0.0, pin.cx], [0.0, pin.fy, pin.cy], [0.0, 0.0, 1.0]])
+        g = DepthGrid(kind="raw-left", width_px=rig.width, height_px=rig.height,
+                      K=tuple(tuple(float(x) for x in r) for r in K), rig_id=rig_id)
+    else:
+        depth, g = depth_rect_m, _rectified_grid(maps, rig)
+    write_depth(path, depth, g)
+
+
 def _cmd_depth_session(args: argparse.Namespace) -> int:
     """Depth for every stereo pair of a session, with a progress bar."""
     from pathlib import Path
@@ -183,7 +216,7 @@ def _cmd_depth_session(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from sea3d.errors import StereoError
-    from sea3d.io.depth_files import write_depth_png_mm, write_ply
+    from sea3d.io.depth_files import write_depth_grid, write_depth_png_mm, write_ply
     from sea3d.io.rig_file import resolve_rig
     from sea3d.io.session import open_session
     from sea3d.stereo.recipe import StereoDepth
@@ -203,6 +236,7 @@ def _cmd_depth_session(args: argparse.Namespace) -> int:
         maps, max_d = stereo.maps, stereo.max_disparity_px
         stereo.warm_up()
         (out / "depth").mkdir(parents=True, exist_ok=True)
+        grid = _rectified_grid(maps, rig)
         if args.points:
             (out / "cloud").mkdir(parents=True, exist_ok=True)
         done = 0
@@ -217,6 +251,7 @@ def _cmd_depth_session(args: argparse.Namespace) -> int:
                     )
                 res = stereo.compute(pair.left, pair.right)
                 write_depth_png_mm(out / "depth" / f"{pair.t_ns}.png", res.depth_m)
+                write_depth_grid(out / "depth" / f"{pair.t_ns}.png", grid)
                 if args.points:
                     write_ply(out / "cloud" / f"{pair.t_ns}.ply", res.points_left, res.colors_rgb)
                 valid.append(float(np.isfinite(res.depth_m).mean()))
@@ -267,7 +302,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
         raise StereoError("--points needs a file name (cloud.ply) for a single pair")
 
     from sea3d.errors import StereoError
-    from sea3d.io.depth_files import write_depth, write_ply
+    from sea3d.io.depth_files import write_ply
     from sea3d.io.rig_file import load_rig
     from sea3d.stereo.recipe import StereoDepth
 
@@ -290,7 +325,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     maps, max_d = stereo.maps, stereo.max_disparity_px
     compile_s = stereo.warm_up()
     res = stereo.compute(left, right)
-    write_depth(args.output, res.depth_m)
+    _write_depth_on_grid(args.output, res.depth_m, maps, rig, args.grid)
     if args.points:
         write_ply(args.points, res.points_left, res.colors_rgb)
     valid_fraction = float(np.isfinite(res.depth_m).mean())
@@ -396,6 +431,12 @@ def register(sub: Any) -> None:
         "flag, one PLY per pair)",
     )
     d.add_argument("--engine", choices=_ENGINES, default="sea3d", help="matching engine")
+    d.add_argument(
+        "--grid", choices=("rectified", "raw"), default="rectified",
+        help="pixel grid of the depth file (one pair): rectified left view (default, as "
+        "matched) or raw left view (the camera's own pixels, e.g. for enhance --depth); a "
+        "FILE.grid.json sidecar says which",
+    )
     d.add_argument(
         "--max-disparity",
         type=_positive_int,

@@ -15,12 +15,12 @@ from pathlib import Path
 from typing import Any
 
 from sea3d.cli._args import add_depth_range
+from sea3d.enhance.registry import METHODS
 
 __all__ = ["register", "register_eval"]
 
 _log = logging.getLogger(__name__)
 
-_METHODS = ("seathru", "grey-world", "shades-of-grey", "red-comp", "clahe", "udcp")
 
 
 def _read_image(path: str | Path) -> Any:
@@ -65,8 +65,11 @@ def _write_image(path: str | Path, img: Any) -> None:
 
 
 def _seathru_config(args: argparse.Namespace) -> Any:
+    """The per-image Sea-thru settings, or None for the default water model."""
     from sea3d.enhance.seathru import SeathruConfig
 
+    if args.attenuation == "water-model":
+        return None
     return SeathruConfig(
         holes=args.holes,
         backscatter=not args.no_backscatter,
@@ -87,6 +90,9 @@ def _range_for(args: argparse.Namespace, image: Any) -> Any:
         )
     depth = read_depth(args.depth)  # names the file in its errors
     h, w = image.shape[:2]
+    from_rect = _range_from_rectified(args, depth, (h, w))
+    if from_rect is not None:
+        return from_rect
     if depth.shape != (h, w):
         raise EnhanceError(
             f"depth {args.depth} is {depth.shape[1]}x{depth.shape[0]} but image {args.input} is "
@@ -111,6 +117,42 @@ def _range_for(args: argparse.Namespace, image: Any) -> Any:
         "sight (too short by 1/cos of the off-axis angle)"
     )
     return depth
+
+
+def _range_from_rectified(args: argparse.Namespace, depth: Any, shape: tuple[int, int]) -> Any:
+    """Range on the raw image's grid when --depth says (its grid sidecar) that it lives on the
+    rectified left view: resampled with --rig, refused in one line without it or with another
+    rig. None when the depth is on the raw grid (or says nothing)."""
+    from sea3d.errors import EnhanceError
+    from sea3d.io.depth_files import read_depth_grid, rig_identity
+
+    grid = read_depth_grid(args.depth)
+    if grid is None or grid.kind == "raw-left":
+        if grid is not None and (grid.width_px, grid.height_px) != (shape[1], shape[0]):
+            raise EnhanceError(f"depth {args.depth} lives on the {grid.describe()} grid but "
+                               f"image {args.input} is {shape[1]}x{shape[0]}")
+        return None
+    if args.rig is None:
+        raise EnhanceError(
+            f"depth {args.depth} lives on the {grid.describe()} grid, not on the raw image's "
+            "pixels: pass --rig to resample it, or write raw-view depth with sea3d depth "
+            "--grid raw"
+        )
+    import numpy as np
+
+    from sea3d.io.rig_file import load_rig, rig_to_yaml
+    from sea3d.rectify import rectify_rig
+    from sea3d.rectify.depth_grid import rectified_depth_to_raw
+
+    rig = load_rig(args.rig)
+    if grid.rig_id and grid.rig_id != rig_identity(rig_to_yaml(rig)):
+        raise EnhanceError(f"depth {args.depth} came from another rig than {args.rig}")
+    if (rig.width, rig.height) != (shape[1], shape[0]):
+        raise EnhanceError(f"rig {args.rig} is {rig.width}x{rig.height} but image "
+                           f"{args.input} is {shape[1]}x{shape[0]}")
+    maps = rectify_rig(rig, depth_range_m=(args.min_depth, args.max_depth))
+    K = np.asarray(grid.K, dtype=np.float64)
+    return rectified_depth_to_raw(depth, K, maps.R_rect_left_left, rig.left, quantity="range")
 
 
 def _cmd_enhance(args: argparse.Namespace) -> int:
@@ -146,6 +188,8 @@ def _cmd_enhance(args: argparse.Namespace) -> int:
     }
     if out.model is not None:
         summary["seathru_model"] = out.model.as_dict()
+    if out.water_model is not None:
+        summary["water_model"] = out.water_model.as_dict()
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
@@ -174,6 +218,25 @@ def _session_depth(rig: Any, args: argparse.Namespace) -> Any:
     return ranges
 
 
+def _session_water_model(session: Any, ranges: Any, most: int = 8) -> Any:
+    """One water model for the whole dive, fitted to up to ``most`` pairs spread over it (both
+    images, each with its own stereo range)."""
+    import numpy as np
+
+    from sea3d.enhance.water import fit_water_model
+
+    n = len(session.match_pairs())
+    pick = set(np.linspace(0, n - 1, min(n, most)).round().astype(int).tolist())
+    frames = []
+    for k, pair in enumerate(session.pairs()):
+        if k in pick:
+            rl, rr = ranges(pair.left, pair.right)
+            frames += [(pair.left, rl), (pair.right, rr)]
+    model = fit_water_model(frames)
+    _log.info("water model of the dive (%d frames): %s", len(frames), model.as_dict())
+    return model
+
+
 def _cmd_enhance_session(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -193,6 +256,7 @@ def _cmd_enhance_session(args: argparse.Namespace) -> int:
     with open_session(args.session) as session:
         ranges = None
         cfg = None
+        water = None
         if args.method == "seathru":
             if args.rig is None and not session.rig_yaml:
                 raise EnhanceError(
@@ -200,6 +264,7 @@ def _cmd_enhance_session(args: argparse.Namespace) -> int:
                 )
             ranges = _session_depth(resolve_rig(args.rig, session), args)
             cfg = _seathru_config(args)
+            water = _session_water_model(session, ranges) if cfg is None else None
         n_pairs = len(session.match_pairs())
         if n_pairs == 0:
             raise EnhanceError(f"{args.session}: no stereo pairs to enhance")
@@ -220,7 +285,8 @@ def _cmd_enhance_session(args: argparse.Namespace) -> int:
                     kw: dict[str, Any] = dict(params)
                     if ranges is not None:
                         rl, rr = ranges(pair.left, pair.right)
-                        kw.update(range_left_m=rl, range_right_m=rr, seathru_config=cfg)
+                        kw.update(range_left_m=rl, range_right_m=rr, seathru_config=cfg,
+                                  water_model=water)
                     try:
                         res = enhance_pair(pair.left, pair.right, args.method, **kw)
                         lo, ro, status = res.images[0], res.images[1], res.status
@@ -268,7 +334,7 @@ def register(sub: Any) -> None:
     )
     p.add_argument("input", nargs="?", help="input image")
     p.add_argument("-o", "--output", required=True, help="output image, or output session")
-    p.add_argument("--method", choices=_METHODS, default="seathru", help="method (default seathru)")
+    p.add_argument("--method", choices=METHODS, default="seathru", help="method (default seathru)")
     p.add_argument("--depth", help="depth map of the input image (seathru)")
     p.add_argument(
         "--range", action="store_true", help="--depth already holds range along the line of sight"
@@ -284,8 +350,11 @@ def register(sub: Any) -> None:
         help="pixels without depth: restore with inpainted range, or only white-balance them",
     )
     p.add_argument(
-        "--attenuation", choices=("fit", "fit-scaled", "illuminant", "none"), default="fit",
-        help="Sea-thru attenuation stage (default fit: the paper's beta_D(z))",
+        "--attenuation", choices=("water-model", "fit", "fit-scaled", "illuminant", "none"),
+        default="water-model",
+        help="Sea-thru: water-model (default: one water model fitted to the image, or once to "
+        "a session's pairs, then inverted) or a per-image Sea-thru attenuation stage (fit: "
+        "the paper's beta_D(z))",
     )
     p.add_argument("--no-backscatter", action="store_true", help="Sea-thru: skip backscatter")
     p.add_argument(

@@ -25,7 +25,7 @@ __all__ = ["register", "register_eval"]
 
 
 def _cmd_process(args: argparse.Namespace) -> int:
-    from sea3d.enhance.stage import process_enhance_hook
+    from sea3d.enhance.registry import process_enhance_hook
     from sea3d.pipeline.process import ProcessConfig, run_process
 
     config = ProcessConfig(

@@ -23,6 +23,7 @@ from sea3d.enhance.metrics import (
     uciqe,
     uiqm,
 )
+from sea3d.enhance.registry import ENHANCEMENTS
 from sea3d.enhance.seathru import (
     SeathruConfig,
     SeathruModel,
@@ -34,18 +35,29 @@ from sea3d.enhance.seathru import (
     seathru,
 )
 from sea3d.enhance.udcp import udcp
+from sea3d.enhance.water import (
+    RestoreResult,
+    WaterFitConfig,
+    WaterModel,
+    fit_water_model,
+    restore,
+)
 
 __all__ = [
+    "ENHANCEMENTS",
     "METHODS",
     "CausticConfig",
     "CausticResult",
     "EnhanceOutcome",
     "ReferenceMetrics",
+    "RestoreResult",
     "SeathruConfig",
     "SeathruModel",
     "SeathruResult",
     "UciqeScore",
     "UiqmScore",
+    "WaterFitConfig",
+    "WaterModel",
     "apply_seathru",
     "ciede2000",
     "ciede2000_after_diagonal_gain",
@@ -57,10 +69,12 @@ __all__ = [
     "enhance_image",
     "enhance_pair",
     "fit_seathru",
+    "fit_water_model",
     "grey_world",
     "range_from_points",
     "red_compensation",
     "remove_caustics",
+    "restore",
     "seathru",
     "shades_of_grey",
     "uciqe",

@@ -7,16 +7,13 @@ from typing import Any
 
 import numpy as np
 
-from sea3d.enhance.colour import grey_world, red_compensation, shades_of_grey, white_balance_pair
-from sea3d.enhance.contrast import clahe
+from sea3d.enhance.colour import white_balance_pair
+from sea3d.enhance.registry import METHODS, enhancement, resolve
 from sea3d.enhance.seathru import SeathruConfig, SeathruModel, apply_seathru, fit_seathru
-from sea3d.enhance.udcp import udcp
+from sea3d.enhance.water import WaterFitConfig, WaterModel, fit_water_model, restore
 from sea3d.errors import EnhanceError
 
 __all__ = ["METHODS", "EnhanceOutcome", "enhance_image", "enhance_pair"]
-
-METHODS = ("seathru", "grey-world", "shades-of-grey", "red-comp", "clahe", "udcp")
-"""Method names understood by :func:`enhance_image` and ``sea3d enhance --method``."""
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -27,7 +24,8 @@ class EnhanceOutcome:
         images: the enhanced image(s), the inputs' dtypes.
         method: the method name.
         status: ``ok``, or what fell back (e.g. ``fallback-grey-world``).
-        model: the fitted Sea-thru model (``seathru`` only).
+        model: the fitted per-image Sea-thru model (``seathru`` with a ``seathru_config``).
+        water_model: the water model used (``seathru`` by default).
         notes: messages worth showing.
     """
 
@@ -35,24 +33,31 @@ class EnhanceOutcome:
     method: str
     status: str = "ok"
     model: SeathruModel | None = None
+    water_model: WaterModel | None = None
     notes: tuple[str, ...] = field(default_factory=tuple)
 
 
+def _water(
+    frames: list[tuple[np.ndarray, np.ndarray]], water_model: WaterModel | None
+) -> EnhanceOutcome:
+    """The default Sea-thru: the given water model (fitted once per dive), or one fitted to
+    these frames; each frame restored with its own range."""
+    cfg = WaterFitConfig()
+    model = water_model if water_model is not None else fit_water_model(frames, cfg)
+    outs = [restore(img, rng, model, cfg) for img, rng in frames]
+    bad = [o.status for o in outs if o.status != "ok"]
+    notes = tuple(dict.fromkeys(n for o in outs for n in o.notes))
+    return EnhanceOutcome(images=tuple(o.image for o in outs), method="seathru",
+                          status=bad[0] if bad else "ok", water_model=model, notes=notes)
+
+
 def _check_method(method: str) -> None:
-    if method not in METHODS:
-        raise EnhanceError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    enhancement(method)  # raises for an unknown name
 
 
 def _single(image: np.ndarray, method: str, params: dict[str, Any]) -> np.ndarray:
-    if method == "grey-world":
-        return grey_world(image, **params)
-    if method == "shades-of-grey":
-        return shades_of_grey(image, **params)
-    if method == "red-comp":
-        return red_compensation(image, **params)
-    if method == "clahe":
-        return clahe(image, **params)
-    return udcp(image, **params)
+    out: np.ndarray = resolve(enhancement(method).function)(image, **params)
+    return out
 
 
 def enhance_image(
@@ -61,24 +66,35 @@ def enhance_image(
     *,
     range_m: np.ndarray | None = None,
     seathru_config: SeathruConfig | None = None,
+    water_model: WaterModel | None = None,
     **params: Any,
 ) -> EnhanceOutcome:
     """Enhance one image with the named method.
 
+    ``seathru`` inverts a :class:`~sea3d.enhance.water.WaterModel` (``water_model``, fitted
+    once per dive by :func:`~sea3d.enhance.water.fit_water_model`, or fitted to this image
+    alone when None): measured well below grey world where the per-image Sea-thru of
+    :mod:`sea3d.enhance.seathru` was not (``docs/enhance.md``). Give a ``seathru_config`` to
+    run that per-image Sea-thru instead.
+
     Args:
         image: ``(H, W, 3)`` RGB (``(H, W)`` grey for ``clahe``), ``uint8``/``uint16``/float.
-        method: one of :data:`METHODS`.
+        method: one of :data:`METHODS` (:mod:`sea3d.enhance.registry`).
         range_m: ``(H, W)`` range in metres, NaN invalid (``seathru`` only, required there).
-        seathru_config: Sea-thru settings.
+        seathru_config: per-image Sea-thru settings (then ``water_model`` is not used).
+        water_model: the dive's water model (``seathru``).
         **params: keyword parameters of the method's function (e.g. ``clip_limit``).
 
     Raises:
-        EnhanceError: unknown method, Sea-thru without range, and each method's own errors.
+        EnhanceError: unknown method, Sea-thru without range (or with range from another
+            grid, or none usable), and each method's own errors.
     """
     _check_method(method)
     if method == "seathru":
         if range_m is None:
             raise EnhanceError("seathru needs a range or depth map (--depth)")
+        if seathru_config is None:
+            return _water([(image, range_m)], water_model)
         cfg = seathru_config or SeathruConfig()
         model = fit_seathru(image, range_m, cfg)
         res = apply_seathru(image, range_m, model, cfg)
@@ -96,22 +112,26 @@ def enhance_pair(
     range_left_m: np.ndarray | None = None,
     range_right_m: np.ndarray | None = None,
     seathru_config: SeathruConfig | None = None,
+    water_model: WaterModel | None = None,
     **params: Any,
 ) -> EnhanceOutcome:
     """Enhance a stereo pair so that both images keep one colour: white balances share their
-    gains (:func:`white_balance_pair`), Sea-thru fits on the left and restores both with their
-    own range maps; CLAHE and UDCP work per image.
+    gains (:func:`white_balance_pair`), Sea-thru's water model is fitted to both images (or
+    given) and restores each with its own range map (a per-image ``seathru_config`` fits on
+    the left); CLAHE and UDCP work per image.
 
     Raises:
         EnhanceError: as :func:`enhance_image`.
     """
     _check_method(method)
-    if method in ("grey-world", "shades-of-grey", "red-comp"):
+    if enhancement(method).pair_balance:
         lo, ro = white_balance_pair(left, right, method, **params)
         return EnhanceOutcome(images=(lo, ro), method=method)
     if method == "seathru":
         if range_left_m is None or range_right_m is None:
             raise EnhanceError("seathru needs a range map for each image of the pair")
+        if seathru_config is None:
+            return _water([(left, range_left_m), (right, range_right_m)], water_model)
         cfg = seathru_config or SeathruConfig()
         model = fit_seathru(left, range_left_m, cfg)
         rl = apply_seathru(left, range_left_m, model, cfg)

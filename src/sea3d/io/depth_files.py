@@ -7,11 +7,23 @@ gives the byte order (negative: little-endian), each on its own line, followed b
 rows stored **bottom to top**. Middlebury marks unknown disparities with ``inf``; they are read
 as NaN here. Scaled PNG/PGM ground truth stores ``round(d * scale)`` in uint8/uint16 with 0 as
 unknown.
+
+**Which pixel grid a depth file lives on** is said by a small JSON sidecar beside it,
+``<file>.grid.json`` (:class:`DepthGrid`, :func:`write_depth_grid`, :func:`read_depth_grid`):
+the raw left view (the camera's own pixels) or the rectified left view with its virtual
+pinhole ``K``, the image size, and the rig's identity (a hash of its calibration), so that a
+consumer can check a depth map is on the grid it needs (:func:`check_depth_grid`) and resample
+it with the rig or refuse in one line. A file without a sidecar says nothing (external RGB-D
+data): consumers then check the size only.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
+from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -20,16 +32,143 @@ from numpy.typing import NDArray
 from sea3d.errors import StereoError
 
 __all__ = [
+    "DepthGrid",
+    "check_depth_grid",
     "read_depth",
+    "read_depth_grid",
     "read_depth_png_mm",
     "read_disparity",
     "read_pfm",
+    "rig_identity",
     "write_depth",
+    "write_depth_grid",
     "write_depth_png_mm",
     "write_disparity",
     "write_pfm",
     "write_ply",
 ]
+
+GridKind = Literal["raw-left", "rectified-left"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class DepthGrid:
+    """The pixel grid of a depth map.
+
+    Attributes:
+        kind: ``raw-left`` (the left camera's own pixels, depth z along its optical axis) or
+            ``rectified-left`` (the rectified left view, z along the rectified axis).
+        width_px, height_px: the grid's size.
+        K: ``3x3`` row-major pinhole of the grid: the virtual pinhole for ``rectified-left``,
+            the left camera's pinhole (without distortion or port) for ``raw-left``.
+        rig_id: :func:`rig_identity` of the rig the depth came from (its rectification
+            identity: the same calibration gives the same rectified grid).
+    """
+
+    kind: GridKind
+    width_px: int
+    height_px: int
+    K: tuple[tuple[float, ...], ...]
+    rig_id: str = ""
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("raw-left", "rectified-left"):
+            raise StereoError(f"unknown depth grid {self.kind!r}: raw-left or rectified-left")
+        if self.width_px <= 0 or self.height_px <= 0:
+            raise StereoError(f"depth grid size must be > 0, got {self.width_px}x{self.height_px}")
+        k = np.asarray(self.K, dtype=np.float64)
+        if k.shape != (3, 3) or not np.all(np.isfinite(k)) or k[0, 0] <= 0 or k[1, 1] <= 0:
+            raise StereoError(f"depth grid K must be a 3x3 pinhole, got {self.K}")
+
+    def describe(self) -> str:
+        """One phrase: ``rectified-left 1920x1080 (fx 1082.4, rig 1a2b...)``."""
+        return (f"{self.kind} {self.width_px}x{self.height_px} (fx {self.K[0][0]:.1f}"
+                + (f", rig {self.rig_id[:8]}" if self.rig_id else "") + ")")
+
+
+def rig_identity(rig_yaml: str) -> str:
+    """A short identity of a rig's calibration: the first 16 hex digits of the SHA-256 of its
+    YAML (:func:`sea3d.io.rig_file.rig_to_yaml`)."""
+    return hashlib.sha256(rig_yaml.encode("utf-8")).hexdigest()[:16]
+
+
+def _grid_path(path: str | Path) -> Path:
+    p = Path(path)
+    return p.with_name(p.name + ".grid.json")
+
+
+def write_depth_grid(path: str | Path, grid: DepthGrid) -> None:
+    """Write the sidecar ``<path>.grid.json`` saying which grid the depth file lives on.
+
+    Raises:
+        StereoError: the sidecar cannot be written.
+    """
+    g = _grid_path(path)
+    tmp = g.with_name(g.name + ".tmp")
+    try:
+        tmp.write_text(json.dumps(asdict(grid), indent=1))
+        tmp.replace(g)
+    except OSError as err:
+        raise StereoError(f"cannot write {g}: {err}") from err
+
+
+def read_depth_grid(path: str | Path) -> DepthGrid | None:
+    """The :class:`DepthGrid` of a depth file from its sidecar, None when it has none.
+
+    Raises:
+        StereoError: a sidecar that is not valid JSON or not a depth grid.
+    """
+    g = _grid_path(path)
+    if not g.is_file():
+        return None
+    try:
+        d = json.loads(g.read_text())
+        k = tuple(tuple(float(v) for v in row) for row in d["K"])
+        return DepthGrid(kind=d["kind"], width_px=int(d["width_px"]),
+                         height_px=int(d["height_px"]), K=k, rig_id=str(d.get("rig_id", "")))
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise StereoError(f"{g}: not a depth grid sidecar ({err})") from err
+
+
+def check_depth_grid(
+    path: str | Path,
+    depth_shape: tuple[int, ...],
+    *,
+    kind: GridKind,
+    width_px: int,
+    height_px: int,
+    rig_id: str | None = None,
+    consumer: str = "this command",
+) -> DepthGrid | None:
+    """Check that a depth file read as ``depth_shape`` lives on the grid a consumer needs.
+
+    Returns:
+        The file's :class:`DepthGrid` (None when it has no sidecar and its size matches).
+
+    Raises:
+        StereoError: one line naming the file, the grid it lives on and the one needed.
+    """
+    grid = read_depth_grid(path)
+    size = f"{width_px}x{height_px}"
+    have = f"{depth_shape[1]}x{depth_shape[0]}" if len(depth_shape) >= 2 else str(depth_shape)
+    if grid is None:
+        if have != size:
+            raise StereoError(f"depth {path} is {have} but {consumer} needs {kind} {size}")
+        return None
+    if grid.kind != kind or (grid.width_px, grid.height_px) != (width_px, height_px):
+        raise StereoError(
+            f"depth {path} lives on the {grid.describe()} grid but {consumer} needs {kind} "
+            f"{size}" + ("; write raw-view depth with sea3d depth --grid raw"
+                         if kind == "raw-left" else "")
+        )
+    if rig_id and grid.rig_id and grid.rig_id != rig_id:
+        raise StereoError(
+            f"depth {path} came from another rig (rig {grid.rig_id[:8]}, this one "
+            f"{rig_id[:8]}): its grid does not match"
+        )
+    if have != size:
+        raise StereoError(f"depth {path} is {have} but its sidecar says {size}")
+    return grid
 
 
 def write_pfm(path: str | Path, image: np.ndarray) -> None:
@@ -279,17 +418,24 @@ def read_depth(path: str | Path) -> NDArray[np.float32]:
     return d
 
 
-def write_depth(path: str | Path, depth_m: np.ndarray) -> None:
+def write_depth(path: str | Path, depth_m: np.ndarray, grid: DepthGrid | None = None) -> None:
     """Write depth in metres: ``.png`` as 16-bit millimetres (0 invalid), ``.pfm``/``.npy``/
-    ``.tif(f)`` as float32 metres with NaN invalid.
+    ``.tif(f)`` as float32 metres with NaN invalid; with ``grid``, its sidecar too.
 
     Raises:
-        StereoError: unknown suffix or unwritable file.
+        StereoError: unknown suffix, unwritable file, or a grid of another size.
     """
+    if grid is not None and np.asarray(depth_m).shape != (grid.height_px, grid.width_px):
+        raise StereoError(
+            f"{path}: depth is {np.asarray(depth_m).shape[::-1]} but its grid says "
+            f"{grid.width_px}x{grid.height_px}"
+        )
     if Path(path).suffix.lower() == ".png":
         write_depth_png_mm(path, depth_m)
     else:
         write_disparity(path, depth_m)
+    if grid is not None:
+        write_depth_grid(path, grid)
 
 
 def write_ply(path: str | Path, points: np.ndarray, colors_rgb: np.ndarray | None = None) -> None:

@@ -61,6 +61,8 @@ class OrderedStages:
         self.frame_status: list[str] = []
         self.valid_fraction: list[float] = []
         self.colour_status: dict[str, int] = {}
+        self.colour_frames: list[tuple[int, str]] = []  # (t_ns, colour status) for report.html
+        self.colour_pictures: list[Any] = []  # one frame's rectified left before and after
         self.worker_timings_s: dict[str, float] = {}
         self.failed = 0
         self.loop_closures = 0
@@ -104,6 +106,9 @@ class OrderedStages:
         if res.colour_status:
             self.colour_status[res.colour_status] = (
                 self.colour_status.get(res.colour_status, 0) + 1)
+            self.colour_frames.append((int(res.t_ns), res.colour_status))
+            if not self.colour_pictures and res.color_left.size:
+                self.colour_pictures = [res.rect_left, res.color_left]
         fused = self.fusion.step(
             t_ns=res.t_ns, trusted=est.status in TRUSTED, keyframe_id=est.keyframe_id,
             depth_m=res.fusion_depth_m, color_rgb=res.colors(), K=self.K,

@@ -395,7 +395,8 @@ def _finish(session_path: Path, out: Path, config: ProcessConfig, stages: Ordere
         voxel_m=config.voxel_m, integrate=config.integrate)
     summary["colours"] = {"enhance": str(config.enhance or "none"),
                           "restore": config.restore_colours,
-                          "restore_status": stages.colour_status}
+                          "restore_status": stages.colour_status,
+                          "per_frame": stages.colour_frames}
     summary["timings_s"] = {}
     summary["worker_timings_s"] = stages.worker_timings_s
     summary["cache_mb_written"] = depth.cache.bytes_written / 2**20
@@ -431,7 +432,8 @@ def _finish(session_path: Path, out: Path, config: ProcessConfig, stages: Ordere
         from sea3d.pipeline.report import write_process_report
 
         tr = time.perf_counter()
-        files["report"] = write_process_report(out / "report.html", result)
+        files["report"] = write_process_report(out / "report.html", result,
+                                               colour_pictures=stages.colour_pictures)
         summary["timings_s"]["report_s"] = time.perf_counter() - tr
     write_summary_json(files["summary"], summary)
     if on_result is not None:

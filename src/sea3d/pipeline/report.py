@@ -232,15 +232,39 @@ def _files_note(path: Path, result: Any) -> str:
             "results.mcap opens in Foxglove (trajectory, mesh, cloud).</p>")
 
 
+def _colour_html(colours: Any, pictures: Any) -> str:
+    """The colour section: the restoration's status counts, each frame's status, and one
+    frame before and after (``sea3d process --restore-colours``)."""
+    if not isinstance(colours, dict) or colours.get("restore", "none") == "none":
+        return ""
+    counts = ", ".join(f"{html.escape(str(k))}: {v}"
+                       for k, v in sorted(colours.get("restore_status", {}).items()))
+    per = colours.get("per_frame", [])
+    cells = "".join(f"<tr><td>{t}</td><td>{html.escape(str(st))}</td></tr>" for t, st in per)
+    pics = ""
+    if pictures is not None and len(pictures) == 2:
+        a, b = (np.asarray(p, np.uint8) for p in pictures)
+        a, b = (np.repeat(x[..., None], 3, axis=2) if x.ndim == 2 else x for x in (a, b))
+        pics = (image_tag(np.hstack([a, b]),
+                          "first restored frame: rectified left before (left) and after")
+                + '<p class="note">The first restored frame: as recorded (left) and restored '
+                  "(right).</p>")
+    return (f"<h2>Colours</h2><p>{html.escape(str(colours['restore']))} on every frame "
+            f"({counts}).</p>{pics}<details><summary>status per frame</summary><table>"
+            f"<tr><th>t (ns)</th><th>colour status</th></tr>{cells}</table></details>")
+
+
 def write_process_report(path: Path, result: Any, *, title: str | None = None,
-                         intro_html: str = "", sections_html: str = "") -> Path:
+                         intro_html: str = "", sections_html: str = "",
+                         colour_pictures: Any = None) -> Path:
     """Write ``report.html`` of a ``sea3d process`` run and return its path.
 
     The page holds: the run's figures, the path seen from above (against the ground truth
     when the session has one), a shaded picture of the mesh (CPU ray casting), the status
     timeline, and the timings (one-off kernel compilation shown apart). ``title``,
     ``intro_html`` and ``sections_html`` (inserted before the trajectory) let the demo put its
-    own parts on the same page.
+    own parts on the same page; ``colour_pictures`` (one frame's rectified left before and
+    after ``--restore-colours``) go into the colour section with each frame's status.
     """
     from sea3d.io.trajectory_files import read_trajectory
     from sea3d.recon.render import render_mesh, view_from_above
@@ -357,6 +381,7 @@ per-frame stage on {html.escape(str(s["executor"]["kind"]))}
 ({s["executor"]["workers"]} workers).</p>
 <table>{fact_rows}</table>
 {sections_html}
+{_colour_html(s.get("colours"), colour_pictures)}
 <h2>Trajectory</h2>
 {traj_img}
 {gt_html}

@@ -158,7 +158,8 @@ def _load_views(
         files = files[::every]
         stamps = np.array([int(p.stem) for p in files], dtype=np.int64)
         poses = _poses_at(stamps, pose_t, pose_T)
-        from sea3d.io.depth_files import read_depth_png_mm
+        from sea3d.errors import StereoError
+        from sea3d.io.depth_files import check_depth_grid, read_depth_png_mm
 
         for f, t, T in zip(files, stamps.tolist(), poses, strict=True):
             if progress is not None:
@@ -178,6 +179,12 @@ def _load_views(
             except (OSError, ValueError) as err:
                 raise SessionError(f"cannot read depth map {f}: {err}") from err
             d = np.asarray(d, dtype=np.float32)
+            try:  # the file's grid sidecar, when it has one, must be the grid asked for
+                check_depth_grid(f, d.shape, width_px=camera.width, height_px=camera.height,
+                                 kind="rectified-left" if depth_frame == "rect" else "raw-left",
+                                 consumer="eval sonar")
+            except StereoError as err:
+                raise SessionError(str(err)) from err
             if d.shape != (camera.height, camera.width):
                 raise SessionError(
                     f"depth map {f} is {d.shape[1]}x{d.shape[0]} but the rig is "

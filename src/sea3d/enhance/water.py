@@ -1,0 +1,688 @@
+"""One water model per dive: fit the revised image formation model once from many frames of
+the same water, then restore every frame with one vectorised inversion.
+
+The model (Akkaynak and Treibitz, "A Revised Underwater Image Formation Model", CVPR 2018,
+Eq. 1 with wideband coefficients), per channel c, in **linear** RGB, at range z (metres along
+the line of sight)::
+
+    I_c = J_c exp(-beta_D_c z) + B_inf_c (1 - exp(-beta_B_c z))
+
+:func:`fit_water_model` pools pixels from every frame it is given (a dive sees the same water
+at many ranges; one image rarely spans enough range to separate attenuation from albedo):
+
+1. **Backscatter** (Sea-thru, CVPR 2019, Sec. 4.2): the pooled range is cut into bins between
+   its 1st and 99th percentiles; in each bin the darkest ``dark_percentile`` % of pixels bound
+   the backscatter from above, and ``B_inf, beta_B`` are the highest saturating curve that
+   stays at or below every bin's dark level (as :mod:`sea3d.enhance.seathru`'s ``envelope``).
+2. **Wideband attenuation**: with the backscatter removed, ``log D_c = log J_c - beta_D_c z``.
+   Over many pixels and frames the albedo does not depend on range, so the per-bin median of
+   ``log D_c`` falls on a line of slope ``-beta_D_c``: a robust (soft-L1) weighted line fit over
+   the bins, one per channel.
+3. **White balance and exposure** over the restored samples of every frame (so the pair and
+   the dive keep one colour): none where ``beta_D`` is identified (the inversion gives the
+   scene's own colour; other choices in :attr:`WaterFitConfig.white_balance`), grey world
+   where it is not; then the ``white_point_percentile`` of the brightest channel to 1.
+
+Each fitted parameter is checked for physical plausibility (:data:`LIMITS`); a failed check is
+reported by name and the fit falls back in stated steps, each with its status:
+
+- ``ok``: everything fitted and plausible;
+- ``attenuation-unidentified``: backscatter fitted, ``beta_D`` not (range span too narrow, too
+  few bins, or an implausible slope): the restoration removes backscatter, then white-balances;
+- ``backscatter-unidentified``: no usable dark pixels across range either: white balance only
+  (grey world on the pooled frames);
+- a model that cannot be fitted at all (no frame with range) raises :class:`EnhanceError`
+  naming the parameter and why.
+
+:func:`restore` applies a model to one image and its range: two look-up tables (sRGB decode,
+encode) and a handful of float32 array operations per pixel, well under a second at 1080p.
+Range holes near pixels with range (stereo holes) are filled from the surrounding range
+(harmonic fill at a working resolution); wide regions without range (open water) and, with
+``holes="mask"``, every hole get the white balance and exposure alone.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Literal
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import least_squares
+
+from sea3d.enhance._image import as_unit_float, from_unit_float, require_rgb, saturated_mask
+from sea3d.errors import EnhanceError
+
+__all__ = [
+    "LIMITS",
+    "RestoreResult",
+    "WaterFitConfig",
+    "WaterModel",
+    "fit_water_model",
+    "restore",
+]
+
+_log = logging.getLogger(__name__)
+
+F32 = NDArray[np.float32]
+F64 = NDArray[np.float64]
+
+LIMITS: dict[str, tuple[float, float]] = {
+    "beta_D_per_m": (0.0, 5.0),
+    "beta_B_per_m": (0.01, 5.0),
+    "B_inf": (0.0, 0.95),
+}
+"""Plausible ranges of the fitted parameters. ``beta_D`` of natural waters spans about
+0.02-3 1/m over the visible (Jerlov's types I to 9C; Solonenko and Mobley, Applied Optics
+54(17), 2015); the Sea-thru paper bounds ``beta_B`` and ``beta_D`` to [0, 5] 1/m. ``B_inf``
+is a veiling light below clipping."""
+
+_SAMPLES_PER_FRAME = 60_000
+_MIN_PIXELS = 500
+
+
+@dataclass(frozen=True, kw_only=True)
+class WaterFitConfig:
+    """How :func:`fit_water_model` fits and :func:`restore` applies the model."""
+
+    range_bins: int = 12
+    """Range bins over the pooled span."""
+    dark_percentile: float = 1.0
+    """Per bin, the share (percent) of darkest pixels that bound the backscatter."""
+    min_range_ratio: float = 1.25
+    """``beta_D`` is identified only if the 95th percentile of range is at least this many
+    times the 5th (a narrow span cannot tell attenuation from albedo)."""
+    min_bins: int = 4
+    """Least populated range bins for the fits."""
+    white_point_percentile: float = 99.5
+    """Percentile of the brightest restored channel mapped to 1."""
+    max_gain: float = 20.0
+    """Cap on the attenuation compensation ``exp(beta_D z)`` and the white-balance gains."""
+    saturation_level: float = 0.98
+    """Pixels with a channel at or above this are left out of the fits."""
+    min_texture: float = 0.5 / 255.0
+    """Pixels whose 5x5 standard deviation of brightness (``[0, 1]``) is below this are left
+    out of the fits: a flat region (open water) holds no albedo, and stereo range there is
+    unreliable."""
+    holes: Literal["inpaint", "mask"] = "inpaint"
+    """Pixels without range: restore with range filled from around them, or white-balance
+    them only (``mask``)."""
+    work_max_side_px: int = 240
+    """Longer side at which range holes are filled."""
+    max_fill_fraction: float = 0.03
+    """With ``holes="inpaint"``, pixels farther than this fraction of the longer image side
+    from any pixel with range (open water, where there is no surface to give range) are not
+    filled: they get the white balance and exposure only, never an invented range."""
+    white_balance: Literal["auto", "locus", "grey-world", "none"] = "auto"
+    """After the inversion (which gives the scene under the light that reached it): ``auto``
+    (default) keeps it where ``beta_D`` is identified and balances by grey world where it is
+    not; ``locus`` removes an ambient light that crossed ``d >= 0`` metres of the same water
+    (gains ``exp(beta_D d)``, the ``d`` that brings the scene closest to grey); ``grey-world``
+    three free gains (turns beige sand grey); ``none``. Measured (``docs/enhance.md``): under
+    an independent formation model with white light ``auto`` is best on every water and
+    scene; where the light is coloured by the water above the scene (our simulator's sun),
+    ``locus`` or ``grey-world`` remove that colour and ``auto`` keeps it."""
+
+    def __post_init__(self) -> None:
+        if self.range_bins < 3:
+            raise EnhanceError(f"range_bins must be >= 3, got {self.range_bins}")
+        if not 0 < self.dark_percentile < 50:
+            raise EnhanceError(f"dark_percentile must be in (0, 50), got {self.dark_percentile}")
+        if self.holes not in ("inpaint", "mask"):
+            raise EnhanceError(f"holes must be inpaint or mask, got {self.holes!r}")
+        if self.white_balance not in ("auto", "locus", "grey-world", "none"):
+            raise EnhanceError(f"unknown white balance {self.white_balance!r}")
+        if not self.max_gain >= 1:
+            raise EnhanceError(f"max_gain must be >= 1, got {self.max_gain}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class WaterModel:
+    """The water of one dive, in linear RGB.
+
+    Attributes:
+        B_inf_rgb: veiling light per channel (R, G, B), linear units.
+        beta_B_per_m: backscatter coefficients, 1/m.
+        beta_D_per_m: wideband direct-signal attenuation, 1/m (zeros when not identified).
+        wb_gains: white-balance gains applied after the inversion.
+        exposure_gain: final linear scale.
+        range_span_m: the 5th and 95th percentiles of the range the fit saw, metres.
+        frames: frames pooled.
+        status: ``ok``, ``attenuation-unidentified`` or ``backscatter-unidentified``.
+        checks: every plausibility check that failed, by parameter, and why.
+    """
+
+    B_inf_rgb: tuple[float, float, float]
+    beta_B_per_m: tuple[float, float, float]
+    beta_D_per_m: tuple[float, float, float]
+    wb_gains: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    exposure_gain: float = 1.0
+    range_span_m: tuple[float, float] = (0.0, 0.0)
+    frames: int = 0
+    status: str = "ok"
+    checks: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def has_backscatter(self) -> bool:
+        return self.status != "backscatter-unidentified"
+
+    @property
+    def has_attenuation(self) -> bool:
+        return self.status == "ok"
+
+    def as_dict(self) -> dict[str, object]:
+        """Plain dict (JSON)."""
+        d: dict[str, object] = asdict(self)
+        d["checks"] = list(self.checks)
+        return d
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class RestoreResult:
+    """A restored image and what was done.
+
+    Attributes:
+        image: ``(H, W, 3)`` restored image, the input's dtype (sRGB).
+        status: ``ok``, the model's fallback status, or ``refused-…`` when the result would
+            have been empty (then ``image`` is the grey-world balance of the input).
+        notes: why, for the frame report.
+    """
+
+    image: np.ndarray
+    status: str
+    notes: tuple[str, ...] = ()
+
+
+# ------------------------------------------------------------------------------ LUTs
+
+_DECODE_U8: F32 = np.where(
+    (np.arange(256) / 255.0) <= 0.04045,
+    (np.arange(256) / 255.0) / 12.92,
+    (((np.arange(256) / 255.0) + 0.055) / 1.055) ** 2.4,
+).astype(np.float32)
+_ENC_N = 4096
+# Encode through a table indexed by sqrt(linear): fine steps where sRGB is steep (dark).
+_ENCODE_SQRT: F32 = np.where(
+    np.linspace(0, 1, _ENC_N) ** 2 <= 0.0031308,
+    12.92 * np.linspace(0, 1, _ENC_N) ** 2,
+    1.055 * np.linspace(0, 1, _ENC_N) ** (2 / 2.4) - 0.055,
+).astype(np.float32)
+
+
+_Z_STEP_M = 0.005  # range table step: a gain error below 0.5 % at beta_D = 1 1/m
+_ENCODE_U8_16: NDArray[np.uint8] | None = None
+
+
+def _encode_table() -> NDArray[np.uint8]:
+    """Linear (65536 steps over [0, 1]) -> 8-bit sRGB."""
+    global _ENCODE_U8_16
+    if _ENCODE_U8_16 is None:
+        x = np.linspace(0.0, 1.0, 65536)
+        s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
+        _ENCODE_U8_16 = (s * 255.0 + 0.5).astype(np.uint8)
+    return _ENCODE_U8_16
+
+
+def _range_tables(
+    model: WaterModel, scale: F32, z_max_m: float, max_gain: float
+) -> tuple[F32, F32]:
+    """Per range step, ``gain = G(z) scale`` and ``offset = B(z) G(z) scale`` so that
+    ``scale (I - B(z)) G(z) = I gain - offset`` (``(K, 3)`` float32)."""
+    z = (np.arange(int(np.ceil(z_max_m / _Z_STEP_M)) + 2) * _Z_STEP_M)[:, None]
+    b = np.zeros((z.shape[0], 3))
+    if model.has_backscatter:
+        b = np.asarray(model.B_inf_rgb) * (1.0 - np.exp(-np.asarray(model.beta_B_per_m) * z))
+    g = np.ones((z.shape[0], 3))
+    if model.has_attenuation:
+        g = np.minimum(np.exp(np.asarray(model.beta_D_per_m) * z), max_gain)
+    sc = np.asarray(scale, np.float64)
+    return (g * sc).astype(np.float32), (b * g * sc).astype(np.float32)
+
+
+def _decode(image: np.ndarray) -> tuple[F32, np.dtype]:
+    """sRGB image -> linear float32 (a table for uint8)."""
+    arr = np.asarray(image)
+    if arr.dtype == np.uint8:
+        return _DECODE_U8[arr], arr.dtype
+    img, dtype = as_unit_float(arr, "image")
+    x = np.clip(img, 0.0, 1.0)
+    lin = np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+    return lin.astype(np.float32), dtype
+
+
+def _encode(lin: F32, dtype: np.dtype) -> np.ndarray:
+    """Linear float32 -> sRGB in ``dtype`` (a table over sqrt(linear), 4096 steps)."""
+    s = np.sqrt(np.clip(lin, 0.0, 1.0))
+    idx = (s * np.float32(_ENC_N - 1) + np.float32(0.5)).astype(np.int32)
+    enc = _ENCODE_SQRT[idx]
+    if dtype == np.uint8:
+        return (enc * np.float32(255.0) + np.float32(0.5)).astype(np.uint8)
+    return from_unit_float(enc, dtype)
+
+
+# ------------------------------------------------------------------------------ fitting
+
+
+def _frame_samples(
+    image: np.ndarray, range_m: np.ndarray, config: WaterFitConfig, k: int,
+    rng: np.random.Generator,
+) -> tuple[F64, F64] | None:
+    arr = np.asarray(image)
+    if arr.ndim != 3 or arr.shape[2] != 3:
+        require_rgb(arr[..., 0] if arr.ndim == 3 else arr, "a water model", f"frame {k}")
+    z = np.asarray(range_m, dtype=np.float32)
+    if z.shape != arr.shape[:2]:
+        raise EnhanceError(
+            f"frame {k}: range map is {z.shape[1] if z.ndim == 2 else z.shape}x"
+            f"{z.shape[0]} but the image is {arr.shape[1]}x{arr.shape[0]}; it must be in the "
+            "image's pixel grid"
+        )
+    lin, _ = _decode(arr)
+    img01, _ = as_unit_float(arr, "image")
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(z) & (z > 0) & ~saturated_mask(img01, config.saturation_level)
+    if config.min_texture > 0:
+        # Flat pixels (open water, the veiling light itself) hold no albedo to fit, and stereo
+        # gives them no trustworthy range: left out.
+        y = img01.mean(axis=2).astype(np.float32)
+        m1 = cv2.blur(y, (5, 5))
+        sd = np.sqrt(np.maximum(cv2.blur(y * y, (5, 5)) - m1 * m1, 0.0))
+        ok &= sd >= np.float32(config.min_texture)
+    idx = np.flatnonzero(ok.ravel())
+    if idx.size < _MIN_PIXELS:
+        return None
+    if idx.size > _SAMPLES_PER_FRAME:
+        idx = rng.choice(idx, _SAMPLES_PER_FRAME, replace=False)
+    return z.ravel()[idx].astype(np.float64), lin.reshape(-1, 3)[idx].astype(np.float64)
+
+
+def _envelope(zk: F64, qk: F64) -> tuple[float, float]:
+    """Highest ``B_inf (1 - exp(-beta_B z))`` at or below every bin's dark level ``qk``."""
+    best = (-1.0, 0.0, LIMITS["beta_B_per_m"][0])
+    for beta_b in np.geomspace(LIMITS["beta_B_per_m"][0], LIMITS["beta_B_per_m"][1], 200):
+        f = 1.0 - np.exp(-beta_b * zk)
+        b_inf = float(np.clip(np.min(qk / np.maximum(f, 1e-9)), 0.0, LIMITS["B_inf"][1]))
+        obj = float(np.sum(b_inf * f))
+        if obj > best[0]:
+            best = (obj, b_inf, float(beta_b))
+    return best[1], best[2]
+
+
+_QUANTILES = (5.0, 15.0, 30.0, 50.0, 70.0, 85.0, 95.0)
+
+
+def _fit_channel(
+    zk: F64, qk: F64, wk: F64, dark_k: F64
+) -> tuple[float, float, float, float]:
+    """Fit ``q_kp = B_inf (1 - e^{-beta_B z_k}) + A_p e^{-beta_D z_k}`` to the per-bin
+    quantiles ``qk`` ``(K, P)`` of one channel (weights ``wk`` ``(K,)``): for each
+    ``(beta_B, beta_D)`` on a grid the rest is linear least squares (variable projection);
+    the best grid point is then refined. The backscatter may not exceed the darkest pixels of
+    any bin (``dark_k``, ``(K,)``): ``B_inf`` is capped so. Returns
+    ``(B_inf, beta_B, beta_D, rms)``."""
+    n_k, n_p = qk.shape
+    sw = np.sqrt(wk)
+    y = (qk * sw[:, None]).T.ravel()  # (P*K,)
+    best = (np.inf, 0.0, 1.0, 0.0)
+    lo_b, hi_b = LIMITS["beta_B_per_m"]
+    lo_d, hi_d = LIMITS["beta_D_per_m"]
+    grid_b = np.geomspace(lo_b, hi_b, 40)
+    grid_d = np.concatenate([[0.0], np.geomspace(0.01, hi_d, 60)])
+
+    def solve(a: F64, beta_b: float) -> F64:
+        x, *_ = np.linalg.lstsq(a, y, rcond=None)
+        x = np.maximum(x, 0.0)
+        cap = float(np.min(dark_k / np.maximum(1.0 - np.exp(-beta_b * zk), 1e-9)))
+        # Over a short span B_inf and beta_B trade (the curve is almost linear): hold B_inf
+        # inside its limit so the grid picks the steeper curve instead.
+        cap = min(cap, LIMITS["B_inf"][1])
+        if x[0] > cap:  # re-solve the decaying terms with B_inf held at the cap
+            x[0] = cap
+            rest, *_ = np.linalg.lstsq(a[:, 1:], y - a[:, 0] * cap, rcond=None)
+            x[1:] = np.maximum(rest, 0.0)
+        return np.asarray(x)
+
+    def design(beta_b: float, beta_d: float) -> F64:
+        a = np.zeros((n_p * n_k, 1 + n_p))
+        fb = (1.0 - np.exp(-beta_b * zk)) * sw
+        fd = np.exp(-beta_d * zk) * sw
+        for p in range(n_p):
+            a[p * n_k : (p + 1) * n_k, 0] = fb
+            a[p * n_k : (p + 1) * n_k, 1 + p] = fd
+        return a
+
+    for beta_b in grid_b:
+        for beta_d in grid_d:
+            a = design(float(beta_b), float(beta_d))
+            x = solve(a, float(beta_b))
+            cost = float(np.sum((a @ x - y) ** 2))
+            if cost < best[0]:
+                best = (cost, float(x[0]), float(beta_b), float(beta_d))
+
+    def resid(p: F64) -> F64:
+        a = design(float(p[0]), float(p[1]))
+        return np.asarray(a @ solve(a, float(p[0])) - y)
+
+    r = least_squares(resid, np.array([best[2], best[3]]), bounds=([lo_b, lo_d], [hi_b, hi_d]),
+                      method="trf", max_nfev=200)
+    beta_b, beta_d = float(r.x[0]), float(r.x[1])
+    x = solve(design(beta_b, beta_d), beta_b)
+    rms = float(np.sqrt(np.mean(r.fun**2) / max(np.mean(wk), 1e-12)))
+    return float(max(x[0], 0.0)), beta_b, beta_d, rms
+
+
+def _line_slope(zk: F64, yk: F64, wk: F64) -> float:
+    """Robust (soft-L1) weighted slope of ``y = a + s z``."""
+    a_mat = np.stack([np.ones_like(zk), zk], axis=1) * np.sqrt(wk)[:, None]
+    (a0, s0), *_ = np.linalg.lstsq(a_mat, yk * np.sqrt(wk), rcond=None)
+    scale = max(float(np.median(np.abs(yk - a0 - s0 * zk))), 0.02)
+
+    def resid(p: F64) -> F64:
+        return np.asarray(np.sqrt(wk) * (yk - p[0] - p[1] * zk))
+
+    r = least_squares(resid, np.array([a0, s0]), loss="soft_l1", f_scale=scale)
+    return float(r.x[1])
+
+
+def fit_water_model(
+    frames: Iterable[tuple[np.ndarray, np.ndarray]],
+    config: WaterFitConfig | None = None,
+) -> WaterModel:
+    """Fit one :class:`WaterModel` to many frames of the same water (module docstring).
+
+    Args:
+        frames: ``(image, range_m)`` pairs: ``(H, W, 3)`` sRGB ``uint8``/``uint16``/float
+            ``[0, 1]`` and ``(H, W)`` float range along the line of sight in the image's own
+            pixel grid, metres, NaN (or <= 0) where unknown. Both images of a stereo pair
+            may be given, each with its own range.
+        config: :class:`WaterFitConfig`.
+
+    Returns:
+        :class:`WaterModel` with a status; parameters that failed a plausibility check are
+        named in ``checks``.
+
+    Raises:
+        EnhanceError: no frame given, a range map of another size than its image, or no
+            frame with at least 500 pixels with range and unclipped colour (then neither
+            ``B_inf`` nor ``beta_D`` can be fitted).
+    """
+    config = config or WaterFitConfig()
+    rng = np.random.default_rng(0)
+    zs, rgbs = [], []
+    n_frames = 0
+    for k, (image, range_m) in enumerate(frames):
+        n_frames += 1
+        got = _frame_samples(image, range_m, config, k, rng)
+        if got is not None:
+            zs.append(got[0])
+            rgbs.append(got[1])
+    if n_frames == 0:
+        raise EnhanceError("fit_water_model needs at least one (image, range) frame")
+    if not zs:
+        raise EnhanceError(
+            f"cannot fit B_inf or beta_D: none of the {n_frames} frames has {_MIN_PIXELS} "
+            "pixels with range and unclipped colour (all holes, another grid, or saturated)"
+        )
+    z: F64 = np.concatenate(zs)
+    rgb: F64 = np.concatenate(rgbs)
+    z_lo, z_hi = np.percentile(z, [1.0, 99.0])
+    span = (float(np.percentile(z, 5.0)), float(np.percentile(z, 95.0)))
+    checks: list[str] = []
+    edges = np.linspace(z_lo, z_hi, config.range_bins + 1)
+    bin_of = np.clip(np.searchsorted(edges, z, side="right") - 1, 0, config.range_bins - 1)
+    inside = (z >= z_lo) & (z <= z_hi)
+    bright = rgb.sum(axis=1)
+    zk, qk, members = [], [], []
+    min_per_bin = max(50, int(100 / config.dark_percentile))
+    for b in range(config.range_bins):
+        sel = np.flatnonzero(inside & (bin_of == b))
+        if sel.size < min_per_bin:
+            continue
+        n_dark = max(1, round(sel.size * config.dark_percentile / 100.0))
+        dark = sel[np.argpartition(bright[sel], n_dark - 1)[:n_dark]]
+        zk.append(float(np.median(z[sel])))
+        qk.append(rgb[dark].mean(axis=0))
+        members.append(sel)
+    zk_a, dark_a = np.asarray(zk), np.asarray(qk).reshape(-1, 3)
+    ratio = span[1] / max(span[0], 1e-6)
+    b_inf = np.zeros(3)
+    beta_b = np.full(3, LIMITS["beta_B_per_m"][1])
+    beta_d = np.zeros(3)
+    status = "ok"
+    if len(zk) < 2:
+        checks.append(f"B_inf: only {len(zk)} populated range bin(s); 2 are needed")
+        status = "backscatter-unidentified"
+    elif ratio < config.min_range_ratio or len(zk) < config.min_bins:
+        checks.append(
+            f"beta_D: range spans {span[0]:.2f}-{span[1]:.2f} m (ratio {ratio:.2f}, "
+            f"{len(zk)} bins; need {config.min_range_ratio} and {config.min_bins}): "
+            "attenuation cannot be told from albedo"
+        )
+        status = "attenuation-unidentified"
+    else:
+        # Albedo quantiles do not depend on range over a dive, and the model is monotone in
+        # J at fixed z: every quantile of I follows B(z) + A_p exp(-beta_D z).
+        wk = np.asarray([np.sqrt(m.size) for m in members])
+        for c in range(3):
+            qc = np.stack([np.percentile(rgb[m, c], _QUANTILES) for m in members])
+            b_inf[c], beta_b[c], beta_d[c], _rms = _fit_channel(zk_a, qc, wk, dark_a[:, c])
+        for c, name in enumerate("RGB"):
+            for key, val in (("B_inf", b_inf[c]), ("beta_D_per_m", beta_d[c]),
+                             ("beta_B_per_m", beta_b[c])):
+                lo, hi = LIMITS[key]
+                if not (np.isfinite(val) and lo <= val <= hi):
+                    checks.append(f"{key}[{name}] = {val:.3f} at or outside [{lo}, {hi}]")
+        if checks:
+            status = "attenuation-unidentified"
+    if status == "attenuation-unidentified":
+        # Fall back to the dark-pixel envelope for backscatter alone (an upper bound).
+        beta_d[:] = 0.0
+        for c in range(3):
+            b_inf[c], beta_b[c] = _envelope(zk_a, dark_a[:, c])
+        lo, hi = LIMITS["B_inf"]
+        if not np.all((b_inf >= lo) & (b_inf <= hi)):
+            checks.append(f"B_inf = {np.round(b_inf, 3).tolist()} outside [{lo}, {hi}]")
+            status = "backscatter-unidentified"
+    if status == "backscatter-unidentified":
+        b_inf[:] = 0.0
+        beta_b[:] = LIMITS["beta_B_per_m"][1]
+        beta_d[:] = 0.0
+
+    model = WaterModel(
+        B_inf_rgb=_t3(b_inf), beta_B_per_m=_t3(beta_b), beta_D_per_m=_t3(beta_d),
+        range_span_m=span, frames=n_frames, status=status, checks=tuple(checks),
+    )
+    j = _invert(rgb.astype(np.float32), z.astype(np.float32), model, config.max_gain)
+    wb = config.white_balance
+    if wb == "auto":
+        wb = "none" if status == "ok" else "grey-world"
+    if wb == "locus" and status != "ok":
+        wb = "grey-world"
+    if wb == "grey-world":
+        gains = _grey_world_gains(j, config.max_gain)
+    elif wb == "locus":
+        gains = _locus_gains(j, beta_d, config.max_gain)
+    else:
+        gains = np.ones(3)
+    top = np.max(j * gains, axis=1)
+    wp = float(np.percentile(top, config.white_point_percentile)) if top.size else 0.0
+    exposure = float(np.clip(1.0 / wp, 1.0 / 50.0, 50.0)) if wp > 1e-6 else 1.0
+    for check in checks:
+        _log.info("water model: %s", check)
+    return WaterModel(
+        B_inf_rgb=model.B_inf_rgb, beta_B_per_m=model.beta_B_per_m,
+        beta_D_per_m=model.beta_D_per_m, wb_gains=_t3(gains), exposure_gain=exposure,
+        range_span_m=span, frames=n_frames, status=status, checks=tuple(checks),
+    )
+
+
+def _t3(v: Sequence[float] | F64) -> tuple[float, float, float]:
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def _locus_gains(j: F32 | F64, beta_d: F64, max_gain: float) -> F64:
+    """Gains ``exp(beta_D d)`` for the water column ``d >= 0`` (metres) above the scene that
+    makes the restored samples closest to grey (least variance of the log channel means): the
+    ambient light reaching the scene has crossed ``d`` metres of the same water, so its colour
+    lies on that one-parameter locus (1 at ``d = 0``: white light)."""
+    mean = np.mean(np.asarray(j, dtype=np.float64), axis=0)  # the gains are per channel
+    if not np.all(mean > 1e-6):
+        return np.ones(3)
+    d_grid = np.linspace(0.0, 30.0, 301)[:, None]
+    g_all = np.minimum(np.exp(beta_d[None, :] * d_grid), max_gain)
+    spread = np.var(np.log(g_all * mean[None, :]), axis=1)
+    best_d = float(d_grid[int(np.argmin(spread)), 0])
+    g = np.minimum(np.exp(beta_d * best_d), max_gain)
+    return np.asarray(g / np.exp(np.mean(np.log(g))))
+
+
+def _grey_world_gains(j: F32 | F64, max_gain: float) -> F64:
+    norms = np.mean(np.asarray(j, dtype=np.float64), axis=0) if len(j) else np.ones(3)
+    if not np.all(norms > 1e-5):
+        # An empty channel (no signal left) cannot be balanced: leave it, say so.
+        _log.info("water model: a channel is empty after restoration; its gain stays 1")
+        out = np.ones(3)
+        full = norms > 1e-5
+        if full.any():
+            out[full] = np.mean(norms[full]) / norms[full]
+        return np.clip(out, 1.0 / max_gain, max_gain)
+    return np.clip(np.mean(norms) / norms, 1.0 / max_gain, max_gain)
+
+
+# ------------------------------------------------------------------------------ restore
+
+
+def _invert(lin: F32, z: F32, model: WaterModel, max_gain: float) -> F32:
+    """``J = (I - B_inf (1 - e^{-beta_B z})) e^{beta_D z}`` for ``lin`` ``(..., 3)`` and
+    ``z`` ``(...)`` float32 (finite), the gain capped at ``max_gain``."""
+    zz = z[..., None]
+    out = lin
+    if model.has_backscatter:
+        b_inf = np.asarray(model.B_inf_rgb, np.float32)
+        beta_b = np.asarray(model.beta_B_per_m, np.float32)
+        out = np.maximum(out - b_inf * (np.float32(1.0) - np.exp(-beta_b * zz)), np.float32(0))
+    if model.has_attenuation:
+        beta_d = np.asarray(model.beta_D_per_m, np.float32)
+        out = out * np.minimum(np.exp(beta_d * zz), np.float32(max_gain))
+    return np.asarray(out, dtype=np.float32)
+
+
+def _fill_holes(z: F32, valid: NDArray[np.bool_], max_side: int) -> F32:
+    """Range with holes filled from their surroundings at a working resolution."""
+    from sea3d.enhance.seathru import harmonic_fill
+
+    h, w = z.shape
+    s = min(1.0, max_side / max(h, w))
+    size = (max(2, round(w * s)), max(2, round(h * s)))
+    num = cv2.resize(np.where(valid, z, 0).astype(np.float32), size, interpolation=cv2.INTER_AREA)
+    den = cv2.resize(valid.astype(np.float32), size, interpolation=cv2.INTER_AREA)
+    ok = den >= 0.25
+    small = np.where(ok, num / np.maximum(den, 1e-6), 0).astype(np.float32)
+    filled = harmonic_fill(small, ok)
+    up = cv2.resize(filled, (w, h), interpolation=cv2.INTER_LINEAR)
+    return np.where(valid, z, up).astype(np.float32)
+
+
+def restore(
+    image: np.ndarray,
+    range_m: np.ndarray,
+    water_model: WaterModel,
+    config: WaterFitConfig | None = None,
+) -> RestoreResult:
+    """Restore one image with a dive's water model and the image's own range.
+
+    Args:
+        image: ``(H, W, 3)`` sRGB ``uint8``/``uint16``/float ``[0, 1]``.
+        range_m: ``(H, W)`` float range along the line of sight in the image's pixel grid,
+            metres, NaN (or <= 0) where unknown.
+        water_model: from :func:`fit_water_model`.
+        config: how holes are treated and the gain cap (the fit's config).
+
+    Returns:
+        :class:`RestoreResult`. A result that would come out black, NaN or saturated on more
+        than half of its pixels is refused: the status says so and the image is the model's
+        white balance of the input instead (never passed on as ``ok``).
+
+    Raises:
+        EnhanceError: a one-channel image, or a range map of another size (another grid).
+    """
+    config = config or WaterFitConfig()
+    arr = np.asarray(image)
+    if arr.ndim != 3 or arr.shape[2] != 3:
+        require_rgb(arr[..., 0] if arr.ndim == 3 else arr, "restore", "image")
+    z = np.asarray(range_m, dtype=np.float32)
+    if z.shape != arr.shape[:2]:
+        raise EnhanceError(
+            f"range map is {z.shape[1] if z.ndim == 2 else z.shape}x{z.shape[0]} but the image "
+            f"is {arr.shape[1]}x{arr.shape[0]}; it must be in the image's pixel grid"
+        )
+    lin, dtype = _decode(arr)
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(z) & (z > 0)
+    notes: list[str] = list(water_model.checks)
+    status = water_model.status
+    frac = float(valid.mean())
+    scale = np.asarray(water_model.wb_gains, np.float32) * np.float32(water_model.exposure_gain)
+    if frac < 0.02:
+        notes.append(f"range valid on {100 * frac:.1f} % of the pixels: white balance only")
+        return _checked(lin, lin * scale, dtype, "no-range", notes, scale)
+    if config.holes == "inpaint" and not valid.all():
+        z_use = _fill_holes(z, valid, config.work_max_side_px)
+        far = cv2.distanceTransform((~valid).astype(np.uint8), cv2.DIST_L2, 3)
+        where = far <= config.max_fill_fraction * max(valid.shape)
+        z_use = np.where(where, z_use, np.float32(0))
+    else:
+        z_use = np.where(valid, z, np.float32(0))
+        where = valid
+    if arr.dtype == np.uint8:
+        from sea3d.enhance._water_kernel import invert_u8
+
+        z_k = np.where(where, z_use, np.float32(np.nan)).astype(np.float32)
+        z_max = float(np.nanmax(z_k)) if where.any() else 1.0
+        gain_t, off_t = _range_tables(water_model, scale, z_max, config.max_gain)
+        out = invert_u8(np.ascontiguousarray(arr), z_k, _DECODE_U8, gain_t, off_t,
+                        _Z_STEP_M, _encode_table(), scale.astype(np.float32))
+        return _checked_u8(lin, out, status, notes, scale)
+    j = _invert(lin, z_use, water_model, config.max_gain)
+    if not where.all():
+        j = np.where(where[..., None], j, lin)
+    return _checked(lin, j * scale, dtype, status, notes, scale)
+
+
+def _checked_u8(
+    lin: F32, out: NDArray[np.uint8], status: str, notes: list[str], scale: F32
+) -> RestoreResult:
+    """:func:`_checked` for an 8-bit result, on a subsample (every 4th row and column)."""
+    sub_in = lin[::4, ::4]
+    sub_out = _DECODE_U8[out[::4, ::4]]
+    res = _checked(sub_in, sub_out, np.dtype(np.float32), status, notes, scale)
+    if res.status != status:
+        return _checked(lin, _DECODE_U8[out], np.dtype(np.uint8), status, notes[:-1], scale)
+    return RestoreResult(image=out, status=status, notes=res.notes)
+
+
+def _checked(
+    lin: F32, out_lin: F32, dtype: np.dtype, status: str, notes: list[str], scale: F32
+) -> RestoreResult:
+    """Refuse a result that is mostly black, NaN or clipped where the input was not."""
+    y_in = lin.mean(axis=2)
+    y_out = out_lin.mean(axis=2)
+    finite = np.isfinite(y_out)
+    black = float(np.mean(~finite | (y_out < 2e-3))) - float(np.mean(y_in < 2e-3))
+    clipped_in = float(np.mean(np.max(lin, axis=2) >= 0.96))
+    clipped = float(np.mean(~finite | (np.max(out_lin, axis=2) >= 1.0))) - clipped_in
+    if clipped_in > 0.5:
+        notes.append(f"{100 * clipped_in:.0f} % of the input is clipped: nothing to restore")
+        return RestoreResult(image=_encode(lin, dtype), status="refused-saturated-input",
+                             notes=tuple(notes))
+    if black > 0.5 or clipped > 0.5 or not finite.all():
+        why = "black" if black > 0.5 else ("saturated" if clipped > 0.5 else "not finite")
+        notes.append(f"restoration came out {why}; gave the white-balanced input instead")
+        _log.warning("water restore: result %s; refused", why)
+        fallback = lin * (scale / max(float(np.max(lin * scale)), 1.0))
+        return RestoreResult(image=_encode(fallback, dtype), status=f"refused-{why}",
+                             notes=tuple(notes))
+    return RestoreResult(image=_encode(out_lin, dtype), status=status, notes=tuple(notes))
