@@ -253,10 +253,13 @@ def write_tum(
             f"{format_tum_stamp(t)} {x:.9f} {y:.9f} {z:.9f} "
             f"{qi[1]:.12f} {qi[2]:.12f} {qi[3]:.12f} {qi[0]:.12f}"
         )
+    if p.is_dir():
+        raise OdometryError(f"cannot write trajectory {p}: it is a folder")
     tmp = p.with_name(p.name + ".tmp")
     try:
         p.parent.mkdir(parents=True, exist_ok=True)
         tmp.write_text("\n".join(lines) + "\n")
         os.replace(tmp, p)
     except OSError as err:
+        tmp.unlink(missing_ok=True)
         raise OdometryError(f"cannot write trajectory {p}: {err}") from err

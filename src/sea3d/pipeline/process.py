@@ -410,8 +410,22 @@ def run_process(
             imu = session.imu()
             has_imu = len(imu) > 0
             use_imu = config.use_imu and has_imu
+            imu_note: str | None = None
             if config.use_imu and not has_imu:
                 log.warning("%s has no IMU samples: the odometry runs visual-only", session_path)
+            elif use_imu:
+                # the same clock check as 'sea3d odometry': an IMU seconds away from the
+                # cameras is not used (visual-only is right for the camera data), and said
+                from sea3d.pipeline.odometry import imu_clock_check
+
+                offset_s = rig.imu.time_offset_s if rig.imu is not None else 0.0
+                tol_s = getattr(config.odometry_config, "imu_max_clock_offset_s", 1.0)
+                imu_note = imu_clock_check(np.asarray(order, np.int64),
+                                           np.asarray(imu.t_ns, np.int64), offset_s,
+                                           tolerance_s=tol_s)
+                if imu_note is not None:
+                    log.warning("%s: %s: the odometry runs visual-only", session_path, imu_note)
+                    use_imu = False
             poses = read_trajectory(config.poses_path) if config.poses_path else None
             if odometry is not None:
                 odo = odometry(rig, maps)
@@ -641,7 +655,9 @@ def run_process(
         "segments": int(seg.max() + 1) if len(seg) else 0,
         "path_length_m": _path_length(est_T, trusted, seg) if len(est_T) > 1 else 0.0,
         "odometry": odometry_name,
-        "imu_used": bool(use_imu and poses is None),
+        "imu_used": bool(use_imu and poses is None
+                         and getattr(odo, "imu_disabled_reason", None) is None),
+        "imu_note": imu_note or getattr(odo, "imu_disabled_reason", None),
         "executor": {"kind": executor.name, "workers": executor.workers,
                      "in_flight": window},
         "image_size_px": [int(maps.width), int(maps.height)],
