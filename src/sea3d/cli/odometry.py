@@ -121,6 +121,13 @@ def _check_poses(run: Any) -> None:
     n = len(run.statuses)
     trusted = [s in (TrackingStatus.TRACKING, TrackingStatus.RELOCALISED,
                      TrackingStatus.IMU_ONLY) for s in run.statuses]
+    no_depth = int(run.summary.get("frames_without_depth", 0))
+    if n and no_depth == n:
+        raise OdometryError(
+            f"no frame has valid depth in the depth range ({n} frames): the range excludes "
+            "the whole scene, or the images have nothing to track; set --min-depth/--max-depth; "
+            "no trajectory written"
+        )
     if n and not any(trusted[1:]):
         raise OdometryError(
             f"no frame could be tracked ({n} frames, none with a pose beyond the first): the "

@@ -347,6 +347,7 @@ def session_odometry(
             off_ns = round(src.rig.imu.time_offset_s * 1e9)
             chunks = imu_chunks(src.t_ns[:n] + off_ns, src.imu_t_ns, src.accel_mps2, src.gyro_radps)
         depth_s = [0.0]
+        no_depth = [0]
 
         def frames() -> Iterator[FrameObservation]:
             for i in range(n):
@@ -354,12 +355,22 @@ def session_odometry(
                 t1 = time.perf_counter()
                 obs = observer.observe(int(src.t_ns[i]), left, right, chunks[i])
                 depth_s[0] += time.perf_counter() - t1
+                if not np.isfinite(obs.depth_m).any():
+                    no_depth[0] += 1
                 yield obs
 
         run = run_odometry(
             frames(), odo, progress=progress, notes=notes, seconds_depth=lambda: depth_s[0]
         )
         run.summary["frame_gaps"] = src.frame_gaps
+        run.summary["frames_without_depth"] = no_depth[0]
+        if no_depth[0]:
+            oc = observer.config
+            run.summary["notes"].append(
+                f"{no_depth[0]} of {n} frames have no valid depth in the depth range "
+                f"{oc.min_depth_m:g}..{oc.max_depth_m if oc.max_depth_m is not None else 'inf'}"
+                " m: the range may exclude the scene (set --min-depth/--max-depth)"
+            )
         return run
     finally:
         src.close()
