@@ -80,9 +80,13 @@ def _frame_gaps(t_ns: NDArray[np.int64]) -> int:
 
 
 def open_stereo_source(
-    path: str | os.PathLike[str], rig_path: str | os.PathLike[str] | None = None
+    path: str | os.PathLike[str],
+    rig_path: str | os.PathLike[str] | None = None,
+    *,
+    imu: bool = True,
 ) -> StereoSource:
-    """Open a sea3d session (MCAP or folder) or an EuRoC folder.
+    """Open a sea3d session (MCAP or folder) or an EuRoC folder; ``imu=False`` reads no IMU
+    (an EuRoC folder then needs no ``imu0``).
 
     Raises:
         SessionError: unreadable input. RigFileError: a bad ``--rig``. OdometryError: no rig
@@ -94,7 +98,7 @@ def open_stereo_source(
     p = Path(path)
     rig_given = load_rig(rig_path) if rig_path is not None else None
     if is_euroc(p):
-        seq = read_euroc(p)
+        seq = read_euroc(p, imu=imu)
         src = StereoSource(
             path=p,
             rig=rig_given or seq.rig,
@@ -121,7 +125,7 @@ def open_stereo_source(
             match = reader.match_pairs()
             ls, rs = reader.stamps("left"), reader.stamps("right")
             li, ri = match.left_index, match.right_index
-            imu = reader.imu()
+            imu_series = reader.imu() if imu else None
         except BaseException:
             reader.close()
             raise
@@ -143,9 +147,15 @@ def open_stereo_source(
             rig=rig,
             t_ns=np.asarray(ls[li], dtype=np.int64),
             load=load,
-            imu_t_ns=np.asarray(imu.t_ns, dtype=np.int64),
-            accel_mps2=np.asarray(imu.accel_mps2, dtype=np.float64).reshape(-1, 3),
-            gyro_radps=np.asarray(imu.gyro_radps, dtype=np.float64).reshape(-1, 3),
+            imu_t_ns=np.asarray(
+                imu_series.t_ns if imu_series is not None else [], dtype=np.int64
+            ),
+            accel_mps2=np.asarray(
+                imu_series.accel_mps2 if imu_series is not None else [], dtype=np.float64
+            ).reshape(-1, 3),
+            gyro_radps=np.asarray(
+                imu_series.gyro_radps if imu_series is not None else [], dtype=np.float64
+            ).reshape(-1, 3),
             notes=notes,
             close=reader.close,
         )
@@ -327,7 +337,7 @@ def session_odometry(
     if max_frames is not None and int(max_frames) < 1:
         raise ConfigError(f"--max-frames must be >= 1, got {max_frames}")
     cfg = config or OdometryConfig()
-    src = open_stereo_source(path, rig_path)
+    src = open_stereo_source(path, rig_path, imu=use_imu)
     try:
         imu_ok, why = imu_decision(src, use_imu, max_frames, cfg.imu_max_clock_offset_s)
         notes = list(src.notes)
