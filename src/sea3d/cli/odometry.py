@@ -338,6 +338,9 @@ def _calibrate_imu(args: argparse.Namespace) -> int:
             + (f"; wrote {args.output}" if "rig" in out else "")
         )
     if res.status is not CameraImuStatus.OK:
+        if not args.json:
+            for line in res.advice:
+                print(f"advice: {line}")
         print(
             f"sea3d: warning: no usable estimate ({res.status.value}); the rig was not written"
             if args.output
