@@ -114,7 +114,6 @@ def sim_sets(views: int, wanted: list[str]) -> list[CalSet]:
     from sea3d.geometry.rig import StereoRig
     from sea3d.refraction.presets import paper_rig
     from sea3d.sim import render_calibration_set
-    from sea3d.sim.survey import scale_rig
 
     out = []
     size = (1280, 720)
@@ -136,7 +135,7 @@ def sim_sets(views: int, wanted: list[str]) -> list[CalSet]:
         out.append(_from_cal(f"simulated in air, sensor noise ({views} pairs, 1280x720)", cal,
                              rig))
     if "sim_water" in wanted:
-        rig = scale_rig(paper_rig("dome"), size)
+        rig = paper_rig("dome").scaled(*size)
         cal = render_calibration_set(rig, "checkerboard:9x6:60mm", views, medium="water",
                                      seed=4, distance_range_m=(0.6, 2.5), water="coastal")
         out.append(_from_cal(f"simulated in coastal water, domes ({views} pairs, 1280x720)",

@@ -17,7 +17,6 @@ from sea3d.sim.scene import builtin_scene
 from sea3d.sim.survey import (
     SurveyConfig,
     read_gt_depth,
-    scale_rig,
     simulate_survey,
     write_gt_depth,
 )
@@ -93,7 +92,7 @@ def test_echosounder_measures_the_distance_to_the_floor_below() -> None:
 
 def test_scale_rig_keeps_pixel_centres_and_ports() -> None:
     rig = paper_rig("dome")
-    small = scale_rig(rig, (960, 540))
+    small = rig.scaled(960, 540)
     assert (small.width, small.height) == (960, 540)
     assert small.left.pinhole.fx == pytest.approx(rig.left.pinhole.fx / 2)
     assert small.left.pinhole.cx == pytest.approx((rig.left.pinhole.cx + 0.5) / 2 - 0.5)
@@ -134,7 +133,7 @@ def test_cli_calibration_writes_images_and_true_board_poses(tmp_path: Path) -> N
     from sea3d.io.rig_file import load_rig
 
     true_rig = load_rig(out / "rig_true.yaml")
-    assert not hasattr(true_rig.left, "port") and not hasattr(true_rig.right, "port")
+    assert true_rig.left.port is None and true_rig.right.port is None
 
 
 def test_cli_rejects_a_missing_output_and_unknown_scene(tmp_path: Path) -> None:

@@ -711,13 +711,7 @@ def calibrate_port_rig(air_rig: StereoRig, left_port: DomePort | FlatPort,
     if len(left) != len(right):
         raise CalibrationError(f"got {len(left)} left and {len(right)} right in-water images; "
                                f"calibration needs pairs")
-    pins = []
-    for cam in (air_rig.left, air_rig.right):
-        pin = getattr(cam, "pinhole", cam)
-        if not isinstance(pin, PinholeCamera):
-            raise CalibrationError(f"the in-air rig must hold pinhole cameras, got "
-                                   f"{type(cam).__name__}")
-        pins.append(pin)
+    pins = [air_rig.left.lens, air_rig.right.lens]
     # Checkerboard corners can come back in either of two orders; make each pair agree.
     right = [orient_consistently(dl, dr) for dl, dr in zip(left, right, strict=True)]
     res_l = calibrate_port(left, pins[0], left_port, cfg)

@@ -244,8 +244,7 @@ class FoxglovePublisher:
             ch.log(fm.compressed_image(t_ns, data, "jpeg", stream), log_time=int(t_ns))
             self._count(fm.TOPICS[stream])
         if info_wanted and self.rig is not None:
-            cam = getattr(self.rig, stream)
-            pin = getattr(cam, "pinhole", cam)
+            pin = (self.rig.left if stream == "left" else self.rig.right).lens
             h, w = image.shape[:2]
             msg = fm.camera_calibration(t_ns, stream, pin.K, pin.dist, w, h, scale=scale)
             self.info[stream].log(msg, log_time=int(t_ns))

@@ -96,7 +96,7 @@ def _range_for(args: argparse.Namespace, image: Any) -> Any:
         from sea3d.io.rig_file import load_rig
 
         rig = load_rig(args.rig)
-        pin: Any = getattr(rig.left, "pinhole", rig.left)
+        pin = rig.left.lens
         if (pin.width, pin.height) != (w, h):
             raise EnhanceError(
                 f"rig {args.rig} is {pin.width}x{pin.height} but image {args.input} is {w}x{h}"

@@ -120,7 +120,6 @@ def _mm(values: list[float] | None) -> tuple[float, float, float] | None:
 def _create(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from sea3d.geometry.pinhole import PinholeCamera
     from sea3d.geometry.rig import StereoRig
     from sea3d.io.rig_file import load_rig, save_rig
     from sea3d.refraction.presets import PAPER_DOME_CENTER_M, paper_rig, with_ports
@@ -159,8 +158,7 @@ def _create(args: argparse.Namespace) -> int:
                 raise ConfigError(f"--fx must be > 0, got {args.fx}")
             cams = []
             for cam in (rig.left, rig.right):
-                pin = getattr(cam, "pinhole", cam)
-                assert isinstance(pin, PinholeCamera)
+                pin = cam.lens
                 if args.fx is not None:
                     pin = dataclasses.replace(pin, fx=args.fx, fy=args.fx * pin.fy / pin.fx)
                 cams.append(pin)
@@ -172,7 +170,7 @@ def _create(args: argparse.Namespace) -> int:
             base = StereoRig(
                 left=cams[0], right=cams[1], T_left_right=T, imu=rig.imu, sonar=rig.sonar
             )
-            old_port = getattr(rig.left, "port", None)
+            old_port = rig.left.port
             rig = base if old_port is None and args.port is None else rig
             if args.port is None and old_port is not None:
                 raise ConfigError(
@@ -199,8 +197,7 @@ def _rig_summary(rig: Any) -> dict[str, Any]:
     data = rig_to_dict(rig)
     cams = {}
     for name in ("left", "right"):
-        cam = getattr(rig, name)
-        pin = getattr(cam, "pinhole", cam)
+        pin = (rig.left if name == "left" else rig.right).lens
         port = data[name]["port"]
         cams[name] = {
             "model": {"none": "pinhole", "dome": "dome-port", "flat": "flat-port"}[port["type"]],

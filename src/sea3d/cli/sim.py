@@ -158,14 +158,13 @@ def register(sub: Any) -> None:
 
 def _load_rig(path: Path | None, size: tuple[int, int] | None) -> Any:
     from sea3d.refraction.presets import paper_rig
-    from sea3d.sim.survey import scale_rig
 
     if path is None:
         return paper_rig("dome", size_px=size) if size else paper_rig("dome")
     from sea3d.io.rig_file import load_rig
 
     rig = load_rig(path)
-    return scale_rig(rig, size) if size else rig
+    return rig.scaled(*size) if size else rig
 
 
 def _progress(total: int, desc: str) -> Any:

@@ -8,12 +8,16 @@ centres, units) are in ``docs/conventions.md``.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.errors import GeometryError
+
+if TYPE_CHECKING:  # annotations only: geometry never imports refraction at run time
+    from sea3d.geometry.pinhole import PinholeCamera
+    from sea3d.refraction.ports import DomePort, FlatPort
 
 __all__ = ["CameraModel", "Rays", "as_pixels", "as_points"]
 
@@ -67,7 +71,13 @@ class Rays:
 class CameraModel(Protocol):
     """What every camera model provides. Everything is in the camera's own frame (x right,
     y down, z forward; metres), and pixel ``(u, v)`` = (column, row) with integer values at pixel
-    centres."""
+    centres.
+
+    A camera is a lens (a :class:`~sea3d.geometry.pinhole.PinholeCamera` with OpenCV
+    distortion) composed with an optional refracting port (dome or flat). Stages ask the camera
+    for its parts (:attr:`lens`, :attr:`port`, :attr:`is_refractive`) and for resized copies
+    (:meth:`scaled`, :meth:`with_lens`); none reaches into a camera's attributes.
+    """
 
     @property
     def width(self) -> int:
@@ -77,6 +87,39 @@ class CameraModel(Protocol):
     @property
     def height(self) -> int:
         """Image height in pixels."""
+        ...
+
+    @property
+    def lens(self) -> PinholeCamera:
+        """The pinhole with lens distortion behind the port (a pinhole camera is its own)."""
+        ...
+
+    @property
+    def port(self) -> DomePort | FlatPort | None:
+        """The refracting port in front of the lens, or None for a camera in air."""
+        ...
+
+    @property
+    def is_refractive(self) -> bool:
+        """True if the port bends rays: False for a pinhole, and for a port camera that
+        reduces to its lens exactly (dome centred, or all indices equal)."""
+        ...
+
+    def scaled(self, width: int, height: int) -> CameraModel:
+        """The same camera for images resized to ``width x height`` pixels.
+
+        Focal lengths and principal points scale so that pixel centres stay pixel centres:
+        ``f' = f s``, ``c' = (c + 0.5) s - 0.5`` with ``s = width / self.width`` (and
+        ``height / self.height`` for ``fy, cy``); distortion (a function of normalised
+        coordinates) and the port are kept.
+
+        Raises:
+            CameraModelError: a non-positive size.
+        """
+        ...
+
+    def with_lens(self, lens: PinholeCamera) -> CameraModel:
+        """The same port (if any) in front of another lens."""
         ...
 
     def project(self, points_cam: FloatArray) -> tuple[FloatArray, BoolArray]:

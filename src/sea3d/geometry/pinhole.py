@@ -137,6 +137,50 @@ class PinholeCamera:
             dist=np.asarray(dist, dtype=np.float64),
         )
 
+    # ------------------------------------------------------------------ lens and port
+    @property
+    def lens(self) -> PinholeCamera:
+        """The camera itself: a pinhole is its own lens."""
+        return self
+
+    @property
+    def port(self) -> None:
+        """None: a pinhole camera has no port."""
+        return None
+
+    @property
+    def is_refractive(self) -> bool:
+        """False: a pinhole camera bends no rays."""
+        return False
+
+    def with_lens(self, lens: PinholeCamera) -> PinholeCamera:
+        """``lens`` itself (there is no port to keep)."""
+        return lens
+
+    def scaled(self, width: int, height: int) -> PinholeCamera:
+        """The camera for images resized to ``width x height``: ``f' = f s``,
+        ``c' = (c + 0.5) s - 0.5`` per axis (pixel centres stay pixel centres, see
+        ``docs/conventions.md``); the distortion is kept (it acts on normalised coordinates).
+
+        Raises:
+            CameraModelError: a non-positive size.
+        """
+        w, h = int(width), int(height)
+        if w <= 0 or h <= 0:
+            raise CameraModelError(f"image size must be positive, got {width}x{height}")
+        if (w, h) == (self.width, self.height):
+            return self
+        sx, sy = w / self.width, h / self.height
+        return PinholeCamera(
+            fx=self.fx * sx,
+            fy=self.fy * sy,
+            cx=(self.cx + 0.5) * sx - 0.5,
+            cy=(self.cy + 0.5) * sy - 0.5,
+            width=w,
+            height=h,
+            dist=self.dist,
+        )
+
     # ------------------------------------------------------------------ distortion maths
     def _coeffs(self) -> FloatArray:
         c = np.zeros(14)

@@ -165,6 +165,42 @@ class StereoRig:
         """4x4, maps left-frame points into the right frame (OpenCV's ``R, T``)."""
         return invert_T(self.T_left_right)
 
+    def scaled(self, width: int, height: int) -> StereoRig:
+        """The same rig for images resized to ``width x height`` pixels: both cameras
+        :meth:`~sea3d.geometry.camera.CameraModel.scaled` (focal lengths and principal points
+        scale, pixel centres stay pixel centres; distortion and ports are kept); the
+        extrinsics, IMU and echosounder are unchanged. The rig itself when the size is its own.
+
+        Raises:
+            CameraModelError: a non-positive size.
+        """
+        w, h = int(width), int(height)
+        if (w, h) == (self.width, self.height):
+            return self
+        return StereoRig(
+            left=self.left.scaled(w, h),
+            right=self.right.scaled(w, h),
+            T_left_right=self.T_left_right,
+            imu=self.imu,
+            sonar=self.sonar,
+        )
+
+    @property
+    def in_air(self) -> StereoRig:
+        """The rig's bare lenses (ports removed): the rig as it sees in air."""
+        return StereoRig(
+            left=self.left.lens,
+            right=self.right.lens,
+            T_left_right=self.T_left_right,
+            imu=self.imu,
+            sonar=self.sonar,
+        )
+
+    @property
+    def is_refractive(self) -> bool:
+        """True if either camera's port bends rays."""
+        return bool(self.left.is_refractive or self.right.is_refractive)
+
     @property
     def baseline_m(self) -> float:
         """Distance between the two camera centres, metres."""

@@ -59,7 +59,7 @@ import secrets
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 import numpy as np
 import yaml
@@ -78,6 +78,7 @@ __all__ = [
     "imu_to_dict",
     "load_rig",
     "read_rig_text",
+    "resolve_rig",
     "rig_from_dict",
     "rig_from_yaml",
     "rig_to_colmap",
@@ -143,15 +144,8 @@ def _port_to_dict(cam: CameraModel) -> dict[str, Any]:
     return {"type": "none"}
 
 
-def _pinhole_of(cam: CameraModel) -> PinholeCamera:
-    pin = getattr(cam, "pinhole", cam)
-    if not isinstance(pin, PinholeCamera):
-        raise RigFileError(f"cannot store a camera of type {type(cam).__name__} in a rig file")
-    return pin
-
-
 def _camera_to_dict(cam: CameraModel) -> dict[str, Any]:
-    pin = _pinhole_of(cam)
+    pin = cam.lens
     return {
         "fx_px": pin.fx,
         "fy_px": pin.fy,
@@ -681,7 +675,7 @@ FOLD_ERROR_FRACTION = 0.5
 
 
 def _check_port(cam: CameraModel, name: str, source: str) -> None:
-    port = getattr(cam, "port", None)
+    port = cam.port
     if port is None:
         return
     key = f"{name}.port"
@@ -729,7 +723,7 @@ def check_rig_physics(rig: StereoRig, source: str) -> None:
     check_image_size(rig.width, rig.height, source)
     for name in ("left", "right"):
         cam = getattr(rig, name)
-        _check_intrinsics(_pinhole_of(cam), name, source)
+        _check_intrinsics(cam.lens, name, source)
         _check_port(cam, name, source)
     baseline = rig.baseline_m
     if not 0.0 < baseline <= MAX_BASELINE_M:
@@ -869,9 +863,9 @@ def rig_to_opencv_yaml(rig: StereoRig) -> str:
     """
     import cv2
 
-    if any(hasattr(c, "port") for c in (rig.left, rig.right)):
+    if rig.left.port is not None or rig.right.port is not None:
         log.warning("OpenCV stereo YAML has no place for port parameters; they are dropped")
-    left, right = _pinhole_of(rig.left), _pinhole_of(rig.right)
+    left, right = rig.left.lens, rig.right.lens
     T_rl = rig.T_right_left
     fd, tmp = tempfile.mkstemp(suffix=".yml")
     os.close(fd)
@@ -904,7 +898,7 @@ def rig_to_colmap(rig: StereoRig) -> str:
         "# CAMERA_ID FLATPORT Nx Ny Nz int_dist int_thick na ng nw",
     ]
     for cam_id, cam in ((1, rig.left), (2, rig.right)):
-        pin = _pinhole_of(cam)
+        pin = cam.lens
         coeffs = np.zeros(8)
         n = min(pin.dist.size, 8)
         coeffs[:n] = pin.dist[:n]
@@ -1029,3 +1023,34 @@ def save_rig(
         raise RigFileError(f"{p}: unknown rig format {format!r}")
     _atomic_write(p, text)
     return p
+
+
+class _StoresRig(Protocol):
+    """What :func:`resolve_rig` needs of a session reader."""
+
+    path: Path
+
+    @property
+    def rig_yaml(self) -> str | None: ...
+
+
+def resolve_rig(path: str | os.PathLike[str] | None, session: _StoresRig) -> StereoRig:
+    """The rig to process ``session`` with: the rig file ``path`` if given, else the rig stored
+    in the session, else an error.
+
+    Args:
+        path: a rig file (any format :func:`load_rig` reads), or None.
+        session: an open :class:`~sea3d.io.session_common.SessionReader`.
+
+    Raises:
+        RigFileError: the rig file is missing or invalid, or the stored rig is invalid.
+        SessionError: no file was given and the session stores no rig (or a damaged one).
+    """
+    from sea3d.errors import SessionError
+
+    if path is not None:
+        return load_rig(path)
+    text = session.rig_yaml
+    if not text:
+        raise SessionError(f"{session.path} stores no rig; pass --rig rig.yaml")
+    return rig_from_yaml(text, f"{session.path} (stored rig.yaml)")

@@ -497,8 +497,7 @@ def _camera_info_params(
         raise SessionError(f"cannot store an invalid rig: {err}") from err
     out = {}
     for side in ("left", "right"):
-        pin = getattr(rig, side)
-        pin = getattr(pin, "pinhole", pin)
+        pin = (rig.left if side == "left" else rig.right).lens
         out[side] = (np.asarray(pin.K, dtype=np.float64), np.asarray(pin.dist, dtype=np.float64))
     return out
 

@@ -122,7 +122,7 @@ def run_demo(
     from sea3d.pipeline.process import ProcessConfig, odometry_available, run_process
     from sea3d.pipeline.report import write_process_report
     from sea3d.refraction.presets import paper_rig
-    from sea3d.sim import builtin_scene, load_scene, scale_rig
+    from sea3d.sim import builtin_scene, load_scene
     from sea3d.sim.survey import SurveyConfig, simulate_survey, with_survey_sensors
 
     def step(msg: str) -> None:
@@ -134,7 +134,7 @@ def run_demo(
     out = Path(config.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}
-    rig = scale_rig(paper_rig(config.port), config.size_px)  # type: ignore[arg-type]
+    rig = paper_rig(config.port).scaled(*config.size_px)  # type: ignore[arg-type]
     scene = (
         load_scene(config.scene)
         if config.scene.endswith((".yaml", ".yml"))
@@ -225,7 +225,6 @@ def _depth_check(config: DemoConfig, rig: Any, session: Path, out: Path
     from sea3d.pipeline.report import depth_check_html
     from sea3d.rectify import rectify_rig
     from sea3d.refraction.presets import paper_rig
-    from sea3d.sim import scale_rig
     from sea3d.stereo import make_config
     from sea3d.stereo.depth import compute_depth, disparity_to_depth
 
@@ -258,7 +257,7 @@ def _depth_check(config: DemoConfig, rig: Any, session: Path, out: Path
     ignored = None
     if config.port != "none":
         # What a user gets by taking the in-air calibration underwater and ignoring the ports.
-        rig_air = scale_rig(paper_rig("none"), config.size_px)
+        rig_air = paper_rig("none").scaled(*config.size_px)
         depth_air = compute_depth(rectify_rig(rig_air), left, right, engine_config,
                                   max_depth_m=20.0)
         ignored = point_depth_errors(depth_air.points_left, rig.left, gt_depth)

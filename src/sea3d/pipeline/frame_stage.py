@@ -176,11 +176,10 @@ def _geometry(rig_yaml: str, size_px: tuple[int, int] | None, min_depth_m: float
               max_depth_m: float) -> Any:
     from sea3d.io.rig_file import rig_from_yaml
     from sea3d.rectify import rectify_rig
-    from sea3d.sim.survey import scale_rig
 
     rig = rig_from_yaml(rig_yaml, "the session's rig")
     if size_px is not None:
-        rig = scale_rig(rig, size_px)
+        rig = rig.scaled(*size_px)
     maps = rectify_rig(rig, depth_range_m=(min_depth_m, max_depth_m))
     return rig, maps
 

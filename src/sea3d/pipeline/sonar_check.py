@@ -100,18 +100,16 @@ def _shrink(depth: np.ndarray, camera: Any, max_width_px: int | None) -> tuple[n
     """
     if max_width_px is None or depth.shape[1] <= max_width_px:
         return depth, camera
-    from sea3d.stereo.planning import _pinhole, _with_pinhole
-
     n = int(np.ceil(depth.shape[1] / max_width_px))
     c0 = n // 2
     small = np.ascontiguousarray(depth[c0::n, c0::n])
     h, w = small.shape
-    pin = _pinhole(camera)
+    pin = camera.lens
     moved = PinholeCamera(
         fx=pin.fx / n, fy=pin.fy / n, cx=(pin.cx - c0) / n, cy=(pin.cy - c0) / n,
         width=w, height=h, dist=pin.dist,
     )  # fmt: skip
-    return small, _with_pinhole(camera, moved)
+    return small, camera.with_lens(moved)
 
 
 def _poses_at(

@@ -224,11 +224,8 @@ def fit_virtual_pinhole(
         obs.append(uv)
     points = np.concatenate(pts)
     observed = np.concatenate(obs)
-    pin0 = getattr(camera, "pinhole", camera)
-    if isinstance(pin0, PinholeCamera):
-        x0 = np.array([pin0.fx, pin0.fy, pin0.cx, pin0.cy, 0, 0, 0, 0, 0], dtype=np.float64)
-    else:
-        x0 = np.array([w, w, (w - 1) / 2, (h - 1) / 2, 0, 0, 0, 0, 0], dtype=np.float64)
+    pin0 = camera.lens
+    x0 = np.array([pin0.fx, pin0.fy, pin0.cx, pin0.cy, 0, 0, 0, 0, 0], dtype=np.float64)
 
     def residual(x: F64) -> F64:
         K = np.array([[x[0], 0, x[2]], [0, x[1], x[3]], [0, 0, 1]])
@@ -253,15 +250,6 @@ def fit_virtual_pinhole(
     return virtual, report
 
 
-def _pinhole_or_none(cam: CameraModel) -> PinholeCamera | None:
-    if isinstance(cam, PinholeCamera):
-        return cam
-    pin = getattr(cam, "pinhole", None)
-    if isinstance(pin, PinholeCamera) and bool(getattr(cam, "_identity", False)):
-        return pin  # a port that reduces to the pinhole exactly
-    return None
-
-
 def rectify_rig(
     rig: StereoRig,
     *,
@@ -283,7 +271,9 @@ def rectify_rig(
         RectifyError: the cameras are not side by side (rectification would flip or fail), or
             the virtual-pinhole fit fails.
     """
-    pin_l, pin_r = _pinhole_or_none(rig.left), _pinhole_or_none(rig.right)
+    # A port that reduces to its lens exactly is rectified as the lens.
+    pin_l = None if rig.left.is_refractive else rig.left.lens
+    pin_r = None if rig.right.is_refractive else rig.right.lens
     refractive = pin_l is None or pin_r is None
     rep_l = rep_r = None
     if pin_l is None:

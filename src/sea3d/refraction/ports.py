@@ -156,13 +156,14 @@ class _AxialPortCamera:
     """Shared machinery of dome and flat ports: a pinhole plus an axial refracting port."""
 
     pinhole: PinholeCamera
+    port: DomePort | FlatPort
 
     def __init__(self, pinhole: PinholeCamera) -> None:
         if not isinstance(pinhole, PinholeCamera):
             raise RefractionError(f"a port camera needs a PinholeCamera, got {type(pinhole)}")
         self.pinhole = pinhole
 
-    # Subclasses provide these three.
+    # Subclasses provide these two.
     def _axis(self) -> FloatArray:
         raise NotImplementedError
 
@@ -171,9 +172,31 @@ class _AxialPortCamera:
         """Parameter vector of :mod:`sea3d.refraction._kernels` for this port."""
         raise NotImplementedError
 
+    # ------------------------------------------------------------------ lens and port
     @property
-    def _identity(self) -> bool:
-        raise NotImplementedError
+    def lens(self) -> PinholeCamera:
+        """The pinhole (with distortion) behind the port."""
+        return self.pinhole
+
+    @property
+    def is_refractive(self) -> bool:
+        """False when the port bends no ray (see the port's ``is_identity``): the camera is
+        then exactly its lens."""
+        return not self.port.is_identity
+
+    def with_lens(self, lens: PinholeCamera) -> _AxialPortCamera:
+        """The same port in front of ``lens``."""
+        return type(self)(lens, self.port)  # type: ignore[call-arg]
+
+    def scaled(self, width: int, height: int) -> _AxialPortCamera:
+        """The camera for images resized to ``width x height``: the lens scaled (see
+        :meth:`PinholeCamera.scaled`), the port kept (it lives in metres, not pixels).
+
+        Raises:
+            CameraModelError: a non-positive size.
+        """
+        lens = self.pinhole.scaled(width, height)
+        return self if lens is self.pinhole else self.with_lens(lens)
 
     # ------------------------------------------------------------------ protocol
     @property
@@ -203,7 +226,7 @@ class _AxialPortCamera:
             self._params,
         )
         origins, directions = rays[:, :3], rays[:, 3:]
-        if self._identity:
+        if not self.is_refractive:
             # Exactly the pinhole's directions (the traced ones differ by rounding only).
             directions = pin.unproject(pix).directions
         return Rays(
@@ -218,7 +241,7 @@ class _AxialPortCamera:
         point is inside the port, behind the camera, or has no refracted path.
         """
         pts = as_points(points_cam, "points_cam")
-        if self._identity:
+        if not self.is_refractive:
             return self.pinhole.project(pts)
         air = _kernels.project_port(np.ascontiguousarray(pts), self._axis(), self._params)
         return self.pinhole.project(air)
@@ -231,6 +254,8 @@ class DomePortCamera(_AxialPortCamera):
     pinhole's and ``unproject`` gives the pinhole's directions.
     """
 
+    port: DomePort
+
     def __init__(self, pinhole: PinholeCamera, port: DomePort) -> None:
         super().__init__(pinhole)
         if not isinstance(port, DomePort):
@@ -242,10 +267,6 @@ class DomePortCamera(_AxialPortCamera):
 
     def __repr__(self) -> str:
         return f"DomePortCamera({self.pinhole!r}, {self.port!r})"
-
-    @property
-    def _identity(self) -> bool:
-        return self.port.is_identity
 
     def _axis(self) -> FloatArray:
         return self._a
@@ -271,6 +292,8 @@ class FlatPortCamera(_AxialPortCamera):
     With all indices equal, ``project`` is exactly the pinhole's.
     """
 
+    port: FlatPort
+
     def __init__(self, pinhole: PinholeCamera, port: FlatPort) -> None:
         super().__init__(pinhole)
         if not isinstance(port, FlatPort):
@@ -279,10 +302,6 @@ class FlatPortCamera(_AxialPortCamera):
 
     def __repr__(self) -> str:
         return f"FlatPortCamera({self.pinhole!r}, {self.port!r})"
-
-    @property
-    def _identity(self) -> bool:
-        return self.port.is_identity
 
     def _axis(self) -> FloatArray:
         return self.port.normal

@@ -110,12 +110,7 @@ def with_ports(
     Raises:
         ConfigError: an unknown port type. RefractionError: invalid port parameters.
     """
-    pins = []
-    for cam in (rig.left, rig.right):
-        pin = getattr(cam, "pinhole", cam)
-        if not isinstance(pin, PinholeCamera):
-            raise ConfigError(f"cannot add ports to a camera of type {type(cam).__name__}")
-        pins.append(pin)
+    pins = [rig.left.lens, rig.right.lens]
     if thickness_m is None:
         thickness_m = PAPER_DOME_THICKNESS_M if port == "dome" else DEFAULT_FLAT_THICKNESS_M
     common: dict[str, Any] = {

@@ -40,7 +40,6 @@ from numpy.typing import NDArray
 
 from sea3d.errors import SfmError
 from sea3d.geometry.camera import CameraModel
-from sea3d.geometry.pinhole import PinholeCamera
 from sea3d.geometry.rig import StereoRig
 from sea3d.geometry.se3 import invert_T
 from sea3d.rectify.virtual import VirtualPinholeMaps, virtual_pinhole_maps
@@ -96,19 +95,10 @@ class _Sensor:
         return self.maps.remap(image) if self.maps is not None else image
 
 
-def _pinhole_of_port(cam: CameraModel) -> PinholeCamera | None:
-    """The pinhole if ``cam`` is one, or a port that reduces to it exactly."""
-    if isinstance(cam, PinholeCamera):
-        return cam
-    pin = getattr(cam, "pinhole", None)
-    if isinstance(pin, PinholeCamera) and bool(getattr(cam, "_identity", False)):
-        return pin
-    return None
-
-
 def _sensor_from_camera(name: str, camera_id: int, cam: CameraModel,
                         config: SfmConfig) -> _Sensor:
-    pin = _pinhole_of_port(cam)
+    # The lens if ``cam`` is a pinhole or a port that reduces to it exactly.
+    pin = None if cam.is_refractive else cam.lens
     w, h = cam.width, cam.height
     if pin is not None:
         base = [pin.fx, pin.fy, pin.cx + 0.5, pin.cy + 0.5]

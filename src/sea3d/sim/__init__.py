@@ -18,7 +18,6 @@ from sea3d.sim.survey import (
     SurveyConfig,
     SurveyResult,
     render_calibration_set,
-    scale_rig,
     simulate_pair,
     simulate_survey,
 )
@@ -44,7 +43,6 @@ __all__ = [
     "imu_samples",
     "load_scene",
     "render_calibration_set",
-    "scale_rig",
     "simulate_pair",
     "simulate_survey",
 ]

@@ -41,7 +41,6 @@ from numpy.typing import NDArray
 from sea3d.calib.targets import BoardSpec
 from sea3d.errors import SimulationError
 from sea3d.geometry.camera import CameraModel
-from sea3d.geometry.pinhole import PinholeCamera
 from sea3d.geometry.rig import ImuSpec, SonarSpec, StereoRig
 from sea3d.geometry.se3 import invert_T
 from sea3d.io.trajectory_files import write_tum
@@ -68,7 +67,6 @@ __all__ = [
     "SurveyConfig",
     "SurveyResult",
     "render_calibration_set",
-    "scale_rig",
     "simulate_pair",
     "simulate_survey",
 ]
@@ -89,57 +87,9 @@ class SessionSink(Protocol):
     def write_sonar(self, t_ns: int, range_m: float, confidence: float = ...) -> None: ...
 
 
-def _pinhole_of(cam: CameraModel) -> PinholeCamera:
-    pin = getattr(cam, "pinhole", cam)
-    if not isinstance(pin, PinholeCamera):
-        raise SimulationError(f"cannot find the pinhole of a {type(cam).__name__}")
-    return pin
-
-
-def _scaled_pinhole(pin: PinholeCamera, width: int, height: int) -> PinholeCamera:
-    sx, sy = width / pin.width, height / pin.height
-    return PinholeCamera(
-        fx=pin.fx * sx,
-        fy=pin.fy * sy,
-        cx=(pin.cx + 0.5) * sx - 0.5,
-        cy=(pin.cy + 0.5) * sy - 0.5,
-        width=width,
-        height=height,
-        dist=pin.dist,
-    )
-
-
-def scale_rig(rig: StereoRig, size_px: tuple[int, int]) -> StereoRig:
-    """The same rig with images resized to ``size_px = (width, height)``: focal lengths and
-    principal points scale (pixel centres stay pixel centres); distortion and ports are kept.
-
-    Raises:
-        SimulationError: for a non-positive size or a camera without a pinhole.
-    """
-    w, h = int(size_px[0]), int(size_px[1])
-    if w <= 0 or h <= 0:
-        raise SimulationError(f"image size must be positive, got {w}x{h}")
-    if (w, h) == (rig.width, rig.height):
-        return rig
-    cams = []
-    for cam in (rig.left, rig.right):
-        pin = _scaled_pinhole(_pinhole_of(cam), w, h)
-        port = getattr(cam, "port", None)
-        cams.append(type(cam)(pin, port) if port is not None else pin)  # type: ignore[call-arg]
-    return StereoRig(
-        left=cams[0], right=cams[1], T_left_right=rig.T_left_right, imu=rig.imu, sonar=rig.sonar
-    )
-
-
 def in_air(rig: StereoRig) -> StereoRig:
     """The rig's bare pinhole cameras (ports removed): the rig as it sees in air."""
-    return StereoRig(
-        left=_pinhole_of(rig.left),
-        right=_pinhole_of(rig.right),
-        T_left_right=rig.T_left_right,
-        imu=rig.imu,
-        sonar=rig.sonar,
-    )
+    return rig.in_air
 
 
 def _imaging(water: str | Imaging | None) -> Imaging:

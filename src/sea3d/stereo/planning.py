@@ -25,6 +25,7 @@ Behind ports the rig is evaluated through its camera models, not through the for
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -162,38 +163,14 @@ class RigPlan:
 # ----------------------------------------------------------------------------- rig edits
 
 
-def _pinhole(cam: CameraModel) -> PinholeCamera:
-    pin = getattr(cam, "pinhole", cam)
-    if not isinstance(pin, PinholeCamera):
-        raise ConfigError(f"cannot plan with a camera of type {type(cam).__name__}")
-    return pin
-
-
-def _with_pinhole(cam: CameraModel, pin: PinholeCamera) -> CameraModel:
-    port = getattr(cam, "port", None)
-    if port is None:
-        return pin
-    return type(cam)(pin, port)  # type: ignore[call-arg]
-
-
 def _scaled(
     pin: PinholeCamera, fx_px: float | None, size_px: tuple[int, int] | None
 ) -> PinholeCamera:
-    w, h = (pin.width, pin.height) if size_px is None else (int(size_px[0]), int(size_px[1]))
-    sx, sy = w / pin.width, h / pin.height
-    fx, fy = pin.fx * sx, pin.fy * sy
-    if fx_px is not None:
-        fy *= fx_px / fx
-        fx = float(fx_px)
-    return PinholeCamera(
-        fx=fx,
-        fy=fy,
-        cx=(pin.cx + 0.5) * sx - 0.5,
-        cy=(pin.cy + 0.5) * sy - 0.5,
-        width=w,
-        height=h,
-        dist=pin.dist,
-    )
+    if size_px is not None:
+        pin = pin.scaled(int(size_px[0]), int(size_px[1]))
+    if fx_px is None:
+        return pin
+    return dataclasses.replace(pin, fx=float(fx_px), fy=pin.fy * (fx_px / pin.fx))
 
 
 def override_rig(
@@ -223,7 +200,7 @@ def override_rig(
     if size_px is not None and (size_px[0] <= 0 or size_px[1] <= 0):
         raise ConfigError(f"image size must be positive, got {size_px[0]}x{size_px[1]}")
     cams = [
-        _with_pinhole(cam, _scaled(_pinhole(cam), fx_px, size_px)) for cam in (rig.left, rig.right)
+        cam.with_lens(_scaled(cam.lens, fx_px, size_px)) for cam in (rig.left, rig.right)
     ]
     T = np.array(rig.T_left_right, dtype=np.float64)
     if baseline_m is not None:
@@ -282,7 +259,7 @@ def _overlap_and_bias(
     pts = pts_left[usable][seen]
     uv_l, ok_l = rig.left.project(pts)
     uv_r = uv_r[seen]
-    pin_l, pin_r = _pinhole(rig.left), _pinhole(rig.right)
+    pin_l, pin_r = rig.left.lens, rig.right.lens
     ray_l = pin_l.unproject(uv_l[ok_l])
     ray_r = pin_r.unproject(uv_r[ok_l])
     T_lr = np.asarray(rig.T_left_right, dtype=np.float64)
@@ -302,7 +279,7 @@ def _hfov_deg(cam: CameraModel) -> float:
     rays = cam.unproject(uv)
     d = rays.directions
     if not rays.valid.all():
-        pin = _pinhole(cam)
+        pin = cam.lens
         return float(np.degrees(2 * np.arctan(cam.width / (2 * pin.fx))))
     cosang = float(np.clip(np.dot(d[0], d[1]) / np.linalg.norm(d[0]) / np.linalg.norm(d[1]), -1, 1))
     return float(np.degrees(np.arccos(cosang)))
@@ -324,11 +301,9 @@ def plan_rig(rig: StereoRig, config: PlanConfig | None = None) -> RigPlan:
     from sea3d.rectify import rectify_rig
 
     cfg = config or PlanConfig()
-    pin = _pinhole(rig.left)
+    pin = rig.left.lens
     B0 = rig.baseline_m
-    refractive = (
-        getattr(rig.left, "port", None) is not None or getattr(rig.right, "port", None) is not None
-    )
+    refractive = rig.left.port is not None or rig.right.port is not None
     # Nearest range first with the in-air figures, then refine with the in-water focal length
     # (the virtual-pinhole fit depends on the range it is fitted over).
     z_min0 = pin.fx * B0 / cfg.max_disparity_px
