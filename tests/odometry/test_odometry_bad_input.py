@@ -169,3 +169,28 @@ def test_process_with_an_imu_seconds_away_runs_visual_only_and_says_so(
     assert sea3d_main(argv) == 0
     s = _json(capsys)
     assert s["imu"] is False and "not synchronised" in s["imu_note"]
+
+
+@pytest.mark.data
+def test_a_depth_range_that_excludes_the_scene_exits_non_zero(data_dir, tmp_path, capsys) -> None:
+    # the EuRoC room is 2-8 m away: nothing lies between 50 and 60 m
+    out = tmp_path / "t.tum"
+    argv = ["odometry", str(data_dir / "vio/euroc_v101_micro"), "-o", str(out), "--engine",
+            "opencv", "--max-frames", "5", "--min-depth", "50", "--max-depth", "60"]
+    assert sea3d_main(argv) == 2
+    err = capsys.readouterr().err
+    assert "50..60 m" in err and "--min-depth/--max-depth" in err and not out.exists()
+    # an empty range is a one-line error before anything runs
+    assert sea3d_main(argv[:-4] + ["--max-depth", "0.3"]) == 2
+    assert "is empty for this rig" in capsys.readouterr().err
+
+
+@pytest.mark.data
+def test_default_depth_range_comes_from_the_rig(data_dir, tmp_path, capsys) -> None:
+    argv = ["odometry", str(data_dir / "vio/euroc_v101_micro"), "-o", str(tmp_path / "t.tum"),
+            "--engine", "opencv", "--max-frames", "3", "--json"]
+    assert sea3d_main(argv) == 0
+    s = _json(capsys)
+    # f B = 458 px * 0.110 m = 50 px m: 752 px wide -> disparities 0..95 -> 0.5 m; / 4 px -> 12.6 m
+    lo, hi = s["depth_range_m"]
+    assert lo == pytest.approx(50.4 / 95, rel=0.05) and hi == pytest.approx(50.4 / 4, rel=0.05)

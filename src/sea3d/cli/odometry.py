@@ -54,7 +54,20 @@ def register(sub: Any) -> None:
         help="stereo engine for the depth (sea3d, sea3d-gpu, opencv; default sea3d)",
     )
     p.add_argument(
-        "--min-depth-m", type=float, default=0.5, help="nearest depth searched (default 0.5 m)"
+        "--min-depth",
+        "--min-depth-m",
+        dest="min_depth_m",
+        type=float,
+        metavar="M",
+        help="nearest depth searched, metres (default: from the rig, f B / max disparity)",
+    )
+    p.add_argument(
+        "--max-depth",
+        "--max-depth-m",
+        dest="max_depth_m",
+        type=float,
+        metavar="M",
+        help="farthest depth used, metres (default: from the rig, f B / 4 px)",
     )
     p.add_argument("--max-frames", type=int, help="stop after this many frames")
     p.add_argument("--no-loop-closure", action="store_true", help="odometry only")
@@ -122,17 +135,20 @@ def _check_poses(run: Any) -> None:
     trusted = [s in (TrackingStatus.TRACKING, TrackingStatus.RELOCALISED,
                      TrackingStatus.IMU_ONLY) for s in run.statuses]
     no_depth = int(run.summary.get("frames_without_depth", 0))
+    rng = run.summary.get("depth_range_m")
+    within = f" {rng[0]:.3g}..{rng[1]:.3g} m" if rng else ""
     if n and no_depth == n:
         raise OdometryError(
-            f"no frame has valid depth in the depth range ({n} frames): the range excludes "
-            "the whole scene, or the images have nothing to track; set --min-depth/--max-depth; "
-            "no trajectory written"
+            f"no frame has valid depth in the depth range{within} ({n} frames): the range "
+            "excludes the whole scene, or the images have nothing to track; set "
+            "--min-depth/--max-depth; no trajectory written"
         )
     if n and not any(trusted[1:]):
         raise OdometryError(
             f"no frame could be tracked ({n} frames, none with a pose beyond the first): the "
-            "images have nothing to track (black, flat or featureless), or no valid depth in the "
-            "range; no trajectory written"
+            "images have nothing to track (black, flat or featureless), or the depth range"
+            f"{within} holds too little of the scene (--min-depth/--max-depth); no trajectory "
+            "written"
         )
     T = np.asarray(run.T_world_left)
     if n > 2 and np.allclose(T, np.eye(4), atol=1e-12):
@@ -204,7 +220,9 @@ def _run(args: argparse.Namespace) -> int:
             args.session,
             rig_path=args.rig,
             use_imu=not args.no_imu,
-            observe=ObserveConfig(engine=args.engine, min_depth_m=args.min_depth_m),
+            observe=ObserveConfig(
+                engine=args.engine, min_depth_m=args.min_depth_m, max_depth_m=args.max_depth_m
+            ),
             config=_config(args),
             max_frames=args.max_frames,
             progress=lambda k: bar.update(k) if bar is not None else None,

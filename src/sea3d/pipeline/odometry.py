@@ -332,7 +332,6 @@ def session_odometry(
         SessionError, RigFileError, OdometryError: unusable input (see the module docstring).
     """
     from sea3d.odometry import create_odometry
-    from sea3d.rectify import rectify_rig
 
     if max_frames is not None and int(max_frames) < 1:
         raise ConfigError(f"--max-frames must be >= 1, got {max_frames}")
@@ -345,11 +344,11 @@ def session_odometry(
             notes.append(why)
         if on_open is not None:
             on_open(src, imu_ok, why)
-        maps = rectify_rig(src.rig)
+        observer = Observer.for_rig(src.rig, observe)
+        maps = observer.maps
         odo = create_odometry(src.rig, maps, use_imu=imu_ok, config=cfg)
         if why:
             odo.imu_disabled_reason = why
-        observer = Observer(maps, observe or ObserveConfig())
         n = src.t_ns.size if max_frames is None else min(src.t_ns.size, int(max_frames))
         chunks: list[ImuChunk | None] = [None] * n
         if imu_ok and src.rig.imu is not None:
@@ -374,12 +373,13 @@ def session_odometry(
         )
         run.summary["frame_gaps"] = src.frame_gaps
         run.summary["frames_without_depth"] = no_depth[0]
+        lo, hi = observer.depth_range_m
+        run.summary["depth_range_m"] = [lo, hi]
         if no_depth[0]:
-            oc = observer.config
             run.summary["notes"].append(
                 f"{no_depth[0]} of {n} frames have no valid depth in the depth range "
-                f"{oc.min_depth_m:g}..{oc.max_depth_m if oc.max_depth_m is not None else 'inf'}"
-                " m: the range may exclude the scene (set --min-depth/--max-depth)"
+                f"{lo:.3g}..{hi:.3g} m: the range may exclude the scene (set --min-depth/"
+                "--max-depth)"
             )
         return run
     finally:
