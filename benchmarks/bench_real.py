@@ -4,7 +4,9 @@
    frame steps 1, 2, 5 and 10 (every k-th frame: larger motion between the frames tracked):
    sea3d's RGB-D odometry (``dense``, the default, and ``features``) beside Open3D's
    frame-to-frame ``rgbd_odometry_multi_scale`` (Hybrid, as in Open3D's own RGB-D odometry
-   example) on the same frames and depth. ATE after an SE3 alignment, centimetres.
+   example) on the same frames and depth, and the patterns ``jerk`` (the speed changes tenfold
+   twice) and ``jump`` (12 cm in one step after ten slow frames). ATE after an SE3 alignment,
+   centimetres.
 2. **EuRoC V1_01 micro** (``$SEA3D_TEST_DATA/vio/euroc_v101_micro``, 40 frames, the drone still
    on the ground): ``sea3d odometry`` with its defaults beside the plain OpenCV SGBM + KLT +
    PnP-RANSAC frame-to-frame odometry (``opencv_pnp_baseline.py``): the drift while still.
@@ -118,8 +120,8 @@ def bench_chess(patterns: list) -> list[dict]:
         return []
     rows = []
     methods = ("dense", "dense-nofeat", "features")
-    print("7-Scenes chess (60 frames), every k-th frame or the 'jerk' pattern; ATE cm (SE3) "
-          "and lost frames; wall s of sea3d dense / Open3D:")
+    print("7-Scenes chess (60 frames), every k-th frame, the 'jerk' or the 'jump' pattern; ATE "
+          "cm (SE3) and lost frames; wall s of sea3d dense / Open3D:")
     print(f"  {'frames':>10} {'n':>3} {'path m':>7} {'dense':>7} {'lost':>4} {'no-feat':>8} "
           f"{'features':>9} {'Open3D':>7} {'dense/O3D':>9} {'wall s':>12}")
     with tempfile.TemporaryDirectory() as td:
