@@ -194,3 +194,24 @@ def test_default_depth_range_comes_from_the_rig(data_dir, tmp_path, capsys) -> N
     # f B = 458 px * 0.110 m = 50 px m: 752 px wide -> disparities 0..95 -> 0.5 m; / 4 px -> 12.6 m
     lo, hi = s["depth_range_m"]
     assert lo == pytest.approx(50.4 / 95, rel=0.05) and hi == pytest.approx(50.4 / 4, rel=0.05)
+
+
+def test_calibrate_imu_without_an_answer_exits_non_zero_with_advice(tmp_path, capsys) -> None:
+    from sea3d.io.rig_file import rig_to_yaml
+    from sea3d.io.session import SessionWriter
+    from sea3d.refraction.presets import paper_rig
+
+    session = tmp_path / "flat_imu"
+    img = np.full((SIZE[1], SIZE[0]), 90, np.uint8)
+    with SessionWriter(session, format="folder",
+                       rig_yaml=rig_to_yaml(paper_rig("dome", size_px=SIZE))) as w:
+        for k in range(200):  # 1 s of IMU at 200 Hz
+            w.write_imu(10**9 + k * 5_000_000, np.array([0.0, 0.0, 9.81]), np.zeros(3))
+        for i in range(6):
+            w.write_stereo(10**9 + i * 100_000_000, img, img)
+    out = tmp_path / "rig_imu.yaml"
+    argv = ["calibrate", "imu", str(session), "--engine", "opencv", "-o", str(out)]
+    assert sea3d_main(argv) == 1
+    cap = capsys.readouterr()
+    assert "advice: only 0 camera rates" in cap.out and "record at least 10 s" in cap.out
+    assert "the rig was not written" in cap.err and not out.exists()
