@@ -434,6 +434,7 @@ def section_process(args: argparse.Namespace) -> None:
     from sea3d.pipeline.frame_stage import FrameStageConfig, process_frame
     from sea3d.pipeline.process import ProcessConfig, run_process
     from sea3d.sim.survey import SurveyConfig, simulate_survey
+    from sea3d.stereo.recipe import DepthConfig
 
     size = (192, 108)  # as tests/enhance/test_process_colours.py
     rig = paper_rig("none", size_px=size)
@@ -446,9 +447,9 @@ def section_process(args: argparse.Namespace) -> None:
             t0 = int(s.stamps("left")[0])
             left, right = s.image("left", t0), s.image("right", t0)
         clean = _read(gt / "clean" / "left" / f"{t0}.png")
-        plain = process_frame(FrameStageConfig(rig_yaml=rig_to_yaml(rig), max_depth_m=8.0), t0,
+        plain = process_frame(FrameStageConfig(rig=rig, depth=DepthConfig(max_depth_m=8.0)), t0,
                               left, right)
-        rest = process_frame(FrameStageConfig(rig_yaml=rig_to_yaml(rig), max_depth_m=8.0,
+        rest = process_frame(FrameStageConfig(rig=rig, depth=DepthConfig(max_depth_m=8.0),
                                               restore_colours="seathru"), t0, left, right)
         res = run_process(src, ProcessConfig(
             out_dir=Path(tmp) / "out", workers=0, poses_path=gt / "poses_left.tum",

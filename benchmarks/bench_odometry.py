@@ -89,15 +89,14 @@ def prepare_depth(cache: Path, name: str, engine: str, limit: int | None = None)
 
     from sea3d.io.rig_file import rig_from_yaml
     from sea3d.io.session import open_session
-    from sea3d.odometry.observe import ObserveConfig, Observer
-    from sea3d.rectify import rectify_rig
+    from sea3d.odometry.observe import Observer
+    from sea3d.stereo.recipe import DepthConfig, StereoDepth
 
     out = _depth_dir(cache, name, engine)
     out.mkdir(exist_ok=True)
     with open_session(session_dir(cache, name) / "session") as s:
         rig = rig_from_yaml(s.rig_yaml or "")
-        maps = rectify_rig(rig)
-        observer = Observer(maps, ObserveConfig(engine=engine))
+        observer = Observer(StereoDepth(rig, DepthConfig(engine=engine)))
         stamps = s.stamps("left")[:limit]
         todo = [t for t in stamps.tolist() if not (out / f"{t}.npy").is_file()]
         if not todo:
@@ -123,12 +122,13 @@ def _observations(cache: Path, name: str, engine: str, use_imu: bool, limit: int
     from sea3d.io.trajectory_files import read_trajectory
     from sea3d.odometry.observe import imu_chunks
     from sea3d.odometry.types import FrameObservation
-    from sea3d.rectify import rectify_images, rectify_rig
+    from sea3d.rectify import rectify_images
+    from sea3d.stereo.recipe import DepthConfig, StereoDepth
 
     root = session_dir(cache, name)
     reader = open_session(root / "session")
     rig = rig_from_yaml(reader.rig_yaml or "")
-    maps = rectify_rig(rig)
+    maps = StereoDepth(rig, DepthConfig(engine=engine)).maps  # those the cached depth used
     imu = reader.imu()
     stamps = reader.stamps("left")[:limit]
     chunks = imu_chunks(stamps, imu.t_ns, imu.accel_mps2, imu.gyro_radps)
@@ -395,16 +395,16 @@ def bench_chess(args: argparse.Namespace) -> None:
 def bench_euroc(args: argparse.Namespace) -> None:
     from sea3d.io.euroc import read_euroc
     from sea3d.odometry import create_odometry
-    from sea3d.odometry.observe import ObserveConfig, Observer, imu_chunks
-    from sea3d.rectify import rectify_rig
+    from sea3d.odometry.observe import Observer, imu_chunks
+    from sea3d.stereo.recipe import DepthConfig, StereoDepth
 
     root = DATA / "vio" / "euroc_v101_micro"
     if not root.is_dir():
         print(f"\nEuRoC: {root} missing, skipped")
         return
     seq = read_euroc(root)
-    maps = rectify_rig(seq.rig)
-    observer = Observer(maps, ObserveConfig(engine="opencv"))
+    observer = Observer(StereoDepth(seq.rig, DepthConfig(engine="opencv")))
+    maps = observer.maps
     chunks = imu_chunks(seq.t_ns, seq.imu_t_ns, seq.accel_mps2, seq.gyro_radps)
     obs = [observer.observe(int(t), seq.image("left", i), seq.image("right", i), chunks[i])
            for i, t in enumerate(seq.t_ns)]

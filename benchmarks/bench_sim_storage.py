@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 import tifffile
 
+from sea3d.io.ground_truth import read_gt_depth
 from sea3d.io.rig_file import rig_to_yaml
 from sea3d.io.session import SessionWriter
 from sea3d.refraction.presets import paper_rig
@@ -34,7 +35,6 @@ from sea3d.sim.scene import builtin_scene
 from sea3d.sim.survey import (
     SurveyConfig,
     estimate_survey_cost,
-    read_gt_depth,
     simulate_survey,
 )
 

@@ -30,7 +30,9 @@ import warnings
 from pathlib import Path
 
 from sea3d.cli import main as sea3d_main
-from sea3d.pipeline.sonar_check import find_ground_truth, run_sonar_check
+from sea3d.io.ground_truth import find_ground_truth
+from sea3d.pipeline.sonar_check import run_sonar_check
+from sea3d.stereo.recipe import DepthConfig
 
 
 def _fmt(c: object) -> str:
@@ -66,7 +68,7 @@ def main() -> None:
     gt = find_ground_truth(survey)
     if gt is None:
         raise SystemExit(f"{survey} has no ground-truth folder next to it")
-    depth_gt = gt / "depth"
+    depth_gt = gt.depth_folder
     print(f"survey {survey}; {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}")
     print(
         f"{'depth':<30}{'pings':>7}{'seen':>6}  {'vs echosounder (cm): |d|, bias, spread':>28}"
@@ -76,7 +78,7 @@ def main() -> None:
                                      "depth_frame": "raw"})]  # fmt: skip
     for engine in args.engines:
         label = f"{'ours' if engine.startswith('sea3d') else 'reference'}: {engine}"
-        runs.append((label, {"engine": engine}))
+        runs.append((label, {"depth": DepthConfig(engine=engine)}))
     sonar_vs_truth = None
     for label, kw in runs:
         c0, w0 = time.process_time(), time.perf_counter()

@@ -16,9 +16,9 @@ import open3d as o3d
 from _trace3d import project
 from sea3d.cli import main
 from sea3d.geometry.rig import StereoRig
+from sea3d.io.ground_truth import gt_depth_path, read_gt_depth
 from sea3d.io.rig_file import rig_from_yaml, save_rig
 from sea3d.io.session import open_session
-from sea3d.sim.survey import gt_depth_path, read_gt_depth
 
 # Median |z - z_gt| / z_gt of the points. Measured at 480x270 on this scene: 0.14 % with the
 # ports corrected, 2.48 % with them ignored (both frames).

@@ -23,6 +23,7 @@ from sea3d.pipeline.process import ProcessConfig, run_process
 from sea3d.refraction.presets import paper_rig
 from sea3d.sim.scene import builtin_scene
 from sea3d.sim.survey import SurveyConfig, simulate_survey
+from sea3d.stereo.recipe import DepthConfig
 
 SIZE_PX = (192, 108)
 MAX_DEPTH_M = 8.0
@@ -62,9 +63,9 @@ def survey(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
         t0 = int(s.stamps("left")[0])
         left, right = s.image("left", t0), s.image("right", t0)
     clean = cv2.imread(str(gt / "clean" / "left" / f"{t0}.png"))[:, :, ::-1]
-    stage = FrameStageConfig(rig_yaml=rig_to_yaml(rig), max_depth_m=MAX_DEPTH_M)
+    stage = FrameStageConfig(rig=rig, depth=DepthConfig(max_depth_m=MAX_DEPTH_M))
     plain = process_frame(stage, t0, left, right)
-    restored = process_frame(FrameStageConfig(rig_yaml=rig_to_yaml(rig), max_depth_m=MAX_DEPTH_M,
+    restored = process_frame(FrameStageConfig(rig=rig, depth=DepthConfig(max_depth_m=MAX_DEPTH_M),
                                               restore_colours="seathru"), t0, left, right)
     return {"root": root, "session": src, "gt": gt, "t0": t0, "left": left, "right": right,
             "clean": clean, "rig": rig, "plain": plain, "restored": restored}
@@ -98,7 +99,7 @@ def test_seathru_restores_the_camera_colours_not_the_hooked_ones(
     survey: dict[str, object],
 ) -> None:
     rig = survey["rig"]
-    cfg = FrameStageConfig(rig_yaml=rig_to_yaml(rig), max_depth_m=MAX_DEPTH_M,  # type: ignore[arg-type]
+    cfg = FrameStageConfig(rig=rig, depth=DepthConfig(max_depth_m=MAX_DEPTH_M),  # type: ignore[arg-type]
                            enhance=_zero_green_blue, restore_colours="seathru")
     res = process_frame(cfg, int(survey["t0"]), survey["left"], survey["right"])  # type: ignore[arg-type]
     assert res.rect_left[..., 1:].max() == 0  # matching saw the hooked images

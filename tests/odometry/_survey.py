@@ -82,12 +82,12 @@ def make_sim_survey(out: Path) -> SimSurvey:
     """Render the survey into ``out`` and compute its frame observations."""
     from sea3d.io.rig_file import rig_to_yaml
     from sea3d.io.session import SessionWriter, open_session
-    from sea3d.odometry.observe import ObserveConfig, Observer, imu_chunks
-    from sea3d.rectify import rectify_rig
+    from sea3d.odometry.observe import Observer, imu_chunks
     from sea3d.refraction.presets import paper_rig
     from sea3d.sim.motion import Orbit
     from sea3d.sim.scene import builtin_scene
     from sea3d.sim.survey import SurveyConfig, simulate_survey, survey_mount, with_survey_sensors
+    from sea3d.stereo.recipe import DepthConfig, StereoDepth
 
     rig = paper_rig("dome", size_px=SIZE)
     config = SurveyConfig(
@@ -121,8 +121,8 @@ def make_sim_survey(out: Path) -> SimSurvey:
     rig_true = dataclasses.replace(
         stored, imu=dataclasses.replace(stored.imu, time_offset_s=PLANTED_OFFSET_S)
     )
-    maps = rectify_rig(stored)
-    observer = Observer(maps, ObserveConfig(engine="opencv"))
+    observer = Observer(StereoDepth(stored, DepthConfig(engine="opencv")))
+    maps = observer.maps
     with open_session(session) as s:
         pairs = list(s.pairs())
         imu = s.imu()

@@ -9,17 +9,13 @@ import pytest
 
 from sea3d.cli import main as sea3d_main
 from sea3d.errors import SimulationError
+from sea3d.io.ground_truth import read_gt_depth, write_gt_depth
 from sea3d.io.rig_file import rig_to_yaml
 from sea3d.io.session import SessionWriter, open_session
 from sea3d.refraction.presets import paper_rig
 from sea3d.sim.motion import Mount, Orbit
 from sea3d.sim.scene import builtin_scene
-from sea3d.sim.survey import (
-    SurveyConfig,
-    read_gt_depth,
-    simulate_survey,
-    write_gt_depth,
-)
+from sea3d.sim.survey import SurveyConfig, simulate_survey
 
 SONAR_REL_TOL = 0.03  # 0.5 % range noise, 3 sigma plus beam footprint on a bumpy floor
 TUM_TOL_M = 1e-8

@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from sea3d._typing import FloatArray
+
 # fun(x, want_jac) -> (residuals (M,), Jacobian (M, P) dense or scipy.sparse, or None)
 ResidualFn = Callable[[FloatArray, bool], tuple[FloatArray, Any]]
 

@@ -26,12 +26,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.errors import CalibrationError
 
 __all__ = ["CameraImuCalibration", "CameraImuStatus", "angular_velocity", "estimate_camera_imu"]
 
 log = logging.getLogger(__name__)
-F64 = NDArray[np.float64]
 
 
 class CameraImuStatus(enum.StrEnum):

@@ -31,7 +31,10 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._text import plural
+from sea3d._typing import FloatArray
 from sea3d.calib._lm import levenberg_marquardt
+from sea3d.calib._verdict import verdict as calibration_verdict
 from sea3d.calib.stereo import orient_consistently
 from sea3d.calib.targets import Detection
 from sea3d.errors import CalibrationError, ConfigError, RefractionError
@@ -52,7 +55,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
 PortCamera = DomePortCamera | FlatPortCamera
 
 
@@ -552,7 +554,7 @@ def calibrate_port(detections: Sequence[Detection], pinhole: PinholeCamera,
     kw: dict[str, Any] = dict(common)
     kw.update(_port_fields(cam, port, theta, std, with_focal=cfg.refine_focal))
     message = (f"converged in {sol.iterations} steps: RMS {rms:.3f} px (pinhole start "
-               f"{initial_rms:.3f} px) over {_plural(len(views), 'view')}")
+               f"{initial_rms:.3f} px) over {plural(len(views), 'view')}")
     log.info("port calibration %s", message)
     return PortCalibration(status=PortStatus.OK, message=message, camera=cam,
                            views_rejected=tuple(rejected), **kw)
@@ -749,7 +751,7 @@ def calibrate_port_rig(air_rig: StereoRig, left_port: DomePort | FlatPort,
         names.append((nl, nr))
     if len(pairs) < max(1, cfg.min_views):
         return PortRigCalibration(status=PortStatus.FAILED,
-                                  message=f"only {_plural(len(pairs), 'pair')} "
+                                  message=f"only {plural(len(pairs), 'pair')} "
                                           f"{'has' if len(pairs) == 1 else 'have'} the board "
                                           f"in both images", left=res_l, right=res_r,
                                   views_rejected=tuple(left_out))
@@ -811,16 +813,12 @@ def calibrate_port_rig(air_rig: StereoRig, left_port: DomePort | FlatPort,
                                                   f"range: {err}", left=res_l, right=res_r)
     return PortRigCalibration(
         status=PortStatus.OK,
-        message=f"both ports and the extrinsics calibrated from {_plural(len(pairs), 'pair')} "
+        message=f"both ports and the extrinsics calibrated from {plural(len(pairs), 'pair')} "
                 f"of {len(left)} (stereo RMS {rms:.3f} px{', refined jointly' if joint else ''})",
         left=res_l, right=res_r, T_left_right=T_left_right, rms_px=rms,
         T_left_right_std=fit["std"][:6], views=tuple(names),
         per_pair_rms_px=np.asarray(fit["per_pair_rms_px"], dtype=np.float64),
         views_rejected=tuple(rejected))
-
-
-def _plural(n: int, noun: str) -> str:
-    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
 
 
 def _swapped_against_air(T_right_left_water: FloatArray, T_left_right_air: FloatArray) -> str:
@@ -873,11 +871,6 @@ def assess_port(result: PortRigCalibration) -> tuple[str, list[str]]:
         return "not trusted", [f"Port calibration failed: {result.message}"]
     notes: list[str] = []
     severity = 0
-    n = len(result.views)
-    if n < 10:
-        notes.append(f"Only {_plural(n, 'pair')} {'was' if n == 1 else 'were'} used; capture "
-                     f"15-25 in-water pairs for a reliable port calibration.")
-        severity = max(severity, 1)
     for side, r in (("left", result.left), ("right", result.right)):
         if len(r.T_cam_board):
             dist = np.linalg.norm(r.T_cam_board[:, :3, 3], axis=1)
@@ -904,15 +897,8 @@ def assess_port(result: PortRigCalibration) -> tuple[str, list[str]]:
                      f"({per_camera:.2f} px): the two images of some pairs disagree (taken at "
                      f"different times?) or the in-air extrinsics do not hold.")
         severity = max(severity, 1)
-    if result.views_rejected:
-        k = len(result.views_rejected)
-        notes.append(f"{_plural(k, 'pair')} {'was' if k == 1 else 'were'} left out; the "
-                     f"reasons are listed with the views.")
-    verdict = ("trusted", "usable with care", "not trusted")[severity]
-    head = {"trusted": "The port calibration can be trusted: low error through the port "
-                       "models and well-determined port parameters.",
-            "usable with care": "The port calibration is usable, but the points below would "
-                                "make it more reliable.",
-            "not trusted": "Do not trust this port calibration yet; fix the points below and "
-                           "recalibrate."}[verdict]
-    return verdict, [head, *notes]
+    return calibration_verdict(
+        notes, severity, subject="port calibration",
+        trusted_because="low error through the port models and well-determined port parameters",
+        n_pairs=len(result.views), pairs_to_capture="15-25 in-water pairs",
+        n_rejected=len(result.views_rejected))

@@ -32,7 +32,10 @@ import scipy.sparse
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
+from sea3d._text import plural
+from sea3d._typing import FloatArray
 from sea3d.calib._lm import levenberg_marquardt
+from sea3d.calib._verdict import verdict as calibration_verdict
 from sea3d.calib.targets import Detection
 from sea3d.errors import CalibrationError, ConfigError
 from sea3d.geometry.pinhole import PinholeCamera
@@ -54,7 +57,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
 
 _DISTORTION_FLAGS = {
     # k1 k2 p1 p2 k3 (OpenCV's default five coefficients)
@@ -695,7 +697,7 @@ def calibrate_stereo(left: Sequence[Detection], right: Sequence[Detection],
         missing += [d.name or str(i) for i, d in enumerate(right) if not d.ok][:4]
         raise CalibrationError(
             f"the board was found in {found_l} of {len(left)} left and {found_r} of "
-            f"{len(right)} right images, giving {_plural(len(pairs), 'usable pair')}; at least "
+            f"{len(right)} right images, giving {plural(len(pairs), 'usable pair')}; at least "
             f"{cfg.min_views} are needed (not found in: {', '.join(missing) or '-'})")
     flags = _DISTORTION_FLAGS[cfg.distortion]
     timings: dict[str, float] = {}
@@ -807,7 +809,7 @@ def calibrate_stereo(left: Sequence[Detection], right: Sequence[Detection],
     rms = _rms(np.concatenate([res_l, res_r]))
     result = StereoCalibration(
         status=CalibrationStatus.OK,
-        message=f"calibrated from {_plural(len(pairs), 'pair')} of {len(left)}",
+        message=f"calibrated from {plural(len(pairs), 'pair')} of {len(left)}",
         left=cam_l, right=cam_r, T_left_right=T_left_right, rms_px=rms, holdout_px=holdout_px,
         views=tuple(views), views_rejected=tuple(rejected), detections=dets, config=cfg)
     verdict, guidance = assess(result)
@@ -906,11 +908,6 @@ def calibrate_stereo_best(candidates: Mapping[str, tuple[Sequence[Detection],
                                detector_trials=tuple(trials))
 
 
-def _plural(n: int, noun: str) -> str:
-    """``1 pair``, ``2 pairs``."""
-    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
-
-
 def swapped_message(T_left_right: FloatArray) -> str:
     """A one-line explanation when the calibrated right camera sits to the left of the left
     camera (the images named left are the right camera's), else ``""``.
@@ -956,11 +953,6 @@ def assess(result: StereoCalibration) -> tuple[str, list[str]]:
         return "not trusted", [f"Calibration failed: {result.message}"]
     notes: list[str] = []
     severity = 0  # 0 trusted, 1 care, 2 not trusted
-    n = len(result.views)
-    if n < 10:
-        notes.append(f"Only {_plural(n, 'pair')} {'was' if n == 1 else 'were'} used; capture "
-                     f"15-25 pairs for a reliable calibration.")
-        severity = max(severity, 1)
     worst_cov = min(result.left.coverage, result.right.coverage)
     regions = sorted(set(_empty_regions(result.left.coverage_counts))
                      | set(_empty_regions(result.right.coverage_counts)))
@@ -997,18 +989,10 @@ def assess(result: StereoCalibration) -> tuple[str, list[str]]:
             notes.append(f"The holdout error ({result.holdout_px:.2f} px) is {ratio:.1f} x the "
                          f"RMS; more varied views would make the result steadier.")
             severity = max(severity, 1)
-    if result.views_rejected:
-        n_out = len(result.views_rejected)
-        notes.append(f"{_plural(n_out, 'pair')} {'was' if n_out == 1 else 'were'} left out; "
-                     f"the reasons are listed with the views.")
-    verdict = ("trusted", "usable with care", "not trusted")[severity]
-    head = {"trusted": "The calibration can be trusted: low error on held-out views and good "
-                       "coverage.",
-            "usable with care": "The calibration is usable, but the points below would make "
-                                "it more reliable.",
-            "not trusted": "Do not trust this calibration yet; fix the points below and "
-                           "recalibrate."}[verdict]
-    return verdict, [head, *notes]
+    return calibration_verdict(notes, severity, subject="calibration",
+                               trusted_because="low error on held-out views and good coverage",
+                               n_pairs=len(result.views), pairs_to_capture="15-25 pairs",
+                               n_rejected=len(result.views_rejected))
 
 
 def opencv_reference_stereo(left: Sequence[Detection], right: Sequence[Detection],

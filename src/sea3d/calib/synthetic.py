@@ -14,13 +14,12 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import FloatArray
 from sea3d.calib.targets import BoardSpec, Detection, DetectionStatus
 from sea3d.errors import ConfigError
 from sea3d.geometry.camera import CameraModel
 
 __all__ = ["BoardRenderer", "SyntheticView", "board_poses", "synthetic_detections"]
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -182,7 +181,6 @@ def synthetic_detections(cameras: Sequence[CameraModel], board: BoardSpec,
         out.append(SyntheticView(T_left_board=np.asarray(T, dtype=np.float64),
                                  detections=tuple(dets)))
     return out
-
 
 
 class BoardRenderer:

@@ -36,6 +36,7 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
+from sea3d._typing import FloatArray
 from sea3d.errors import ConfigError
 
 __all__ = [
@@ -54,7 +55,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 _KINDS = ("checkerboard", "charuco", "apriltag", "aruco")

@@ -339,8 +339,7 @@ class _DepthPreview:
     def __init__(self, rig: Any, width_px: int) -> None:
         self.rig = rig
         self.width_px = int(width_px)
-        self._maps: Any = None
-        self._config: Any = None
+        self._stereo: Any = None
         self.failed = False
 
     def compute(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -349,26 +348,17 @@ class _DepthPreview:
 
         if self.rig is None:
             return self._disparity(left, right), True
-        if self._maps is None:
-            from sea3d.rectify import rectify_rig
-            from sea3d.stereo import make_config
-            from sea3d.stereo.depth import max_disparity_for_depth
-            from sea3d.stereo.planning import override_rig
+        if self._stereo is None:
+            from sea3d.stereo.recipe import DepthConfig, StereoDepth
 
             scale = self.width_px / self.rig.width
-            small = override_rig(
-                self.rig, size_px=(self.width_px, max(1, round(self.rig.height * scale)))
-            )
-            self._maps = rectify_rig(small, depth_range_m=(0.5, 10.0))
-            max_d = min(max_disparity_for_depth(self._maps, 0.5), self.width_px // 3)
-            self._config = make_config("opencv", int(max_d))
-        from sea3d.stereo.depth import compute_depth
-
-        size = (self._maps.width, self._maps.height)
+            small = self.rig.scaled(self.width_px, max(1, round(self.rig.height * scale)))
+            # OpenCV's engine is the fastest on a CPU; ranges from the (small) rig
+            self._stereo = StereoDepth(small, DepthConfig(engine="opencv"))
+        size = (self._stereo.rig.width, self._stereo.rig.height)
         ls = cv2.resize(left, size, interpolation=cv2.INTER_AREA)
         rs = cv2.resize(right, size, interpolation=cv2.INTER_AREA)
-        res = compute_depth(self._maps, ls, rs, self._config, max_depth_m=20.0)
-        return res.depth_m, False
+        return self._stereo.compute(ls, rs).depth_m, False
 
     def _disparity(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
         import cv2

@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import plural
+from sea3d.cli._args import add_depth_range, depth_config, plural
 
 __all__ = ["register"]
 
@@ -89,6 +89,16 @@ def _warm_up(engine: str) -> float:
 
         return warm_up()
     return 0.0
+
+
+def _check_depth_range(args: argparse.Namespace) -> None:
+    from sea3d.errors import StereoError
+
+    if args.min_depth is not None and args.max_depth is not None and \
+            not args.min_depth < args.max_depth:
+        raise StereoError(
+            f"need 0 < --min-depth < --max-depth, got {args.min_depth} and {args.max_depth}"
+        )
 
 
 def _cmd_stereo(args: argparse.Namespace) -> int:
@@ -174,34 +184,24 @@ def _cmd_depth_session(args: argparse.Namespace) -> int:
 
     from sea3d.errors import StereoError
     from sea3d.io.depth_files import write_depth_png_mm, write_ply
-    from sea3d.io.rig_file import load_rig, rig_from_yaml
+    from sea3d.io.rig_file import resolve_rig
     from sea3d.io.session import open_session
-    from sea3d.rectify import rectify_rig
-    from sea3d.stereo import make_config
-    from sea3d.stereo.depth import compute_depth, max_disparity_for_depth
+    from sea3d.stereo.recipe import StereoDepth
 
-    if not (0 < args.min_depth < args.max_depth):
-        raise StereoError(
-            f"need 0 < --min-depth < --max-depth, got {args.min_depth} and {args.max_depth}"
-        )
+    _check_depth_range(args)
+    config = depth_config(args)
     out = Path(args.output)
     with open_session(args.session) as session:
-        if args.rig:
-            rig = load_rig(args.rig)
-        elif session.rig_yaml:
-            rig = rig_from_yaml(session.rig_yaml, f"{args.session} (stored rig.yaml)")
-        else:
-            raise StereoError(f"{args.session} stores no rig; pass --rig rig.yaml")
+        rig = resolve_rig(args.rig, session)
         match = session.match_pairs()
         n_pairs = len(match.left_index)
         if n_pairs == 0:
             raise StereoError(f"{args.session}: no stereo pairs to process")
         if args.max_disparity is not None:
             _check_range(args.max_disparity, rig.width, args.engine, "the rig's images")
-        maps = rectify_rig(rig, depth_range_m=(args.min_depth, args.max_depth))
-        max_d = args.max_disparity or max_disparity_for_depth(maps, args.min_depth)
-        config = make_config(args.engine, max_d)
-        _warm_up(args.engine)
+        stereo = StereoDepth(rig, config)
+        maps, max_d = stereo.maps, stereo.max_disparity_px
+        stereo.warm_up()
         (out / "depth").mkdir(parents=True, exist_ok=True)
         if args.points:
             (out / "cloud").mkdir(parents=True, exist_ok=True)
@@ -215,8 +215,7 @@ def _cmd_depth_session(args: argparse.Namespace) -> int:
                         f"{args.session}: frame {pair.t_ns} is {pair.left.shape[1]}x"
                         f"{pair.left.shape[0]} but the rig is {rig.width}x{rig.height}"
                     )
-                res = compute_depth(maps, pair.left, pair.right, config, max_depth_m=args.max_depth,
-                                    min_confidence=args.min_confidence)
+                res = stereo.compute(pair.left, pair.right)
                 write_depth_png_mm(out / "depth" / f"{pair.t_ns}.png", res.depth_m)
                 if args.points:
                     write_ply(out / "cloud" / f"{pair.t_ns}.ply", res.points_left, res.colors_rgb)
@@ -234,6 +233,7 @@ def _cmd_depth_session(args: argparse.Namespace) -> int:
         "mean_valid_fraction": float(np.mean(valid)) if valid else 0.0,
         "refractive": maps.refractive,
         "max_disparity_px": max_d,
+        "depth_range_m": list(stereo.depth_range_m),
         "engine": args.engine,
     }
     if args.json:
@@ -269,14 +269,10 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     from sea3d.errors import StereoError
     from sea3d.io.depth_files import write_depth, write_ply
     from sea3d.io.rig_file import load_rig
-    from sea3d.rectify import rectify_rig
-    from sea3d.stereo import make_config
-    from sea3d.stereo.depth import compute_depth, max_disparity_for_depth
+    from sea3d.stereo.recipe import StereoDepth
 
-    if not (0 < args.min_depth < args.max_depth):
-        raise StereoError(
-            f"need 0 < --min-depth < --max-depth, got {args.min_depth} and {args.max_depth}"
-        )
+    _check_depth_range(args)
+    config = depth_config(args)
     rig = load_rig(args.rig)
     if args.max_disparity is not None:
         _check_range(args.max_disparity, rig.width, args.engine, f"the rig {args.rig}")
@@ -289,13 +285,11 @@ def _cmd_depth(args: argparse.Namespace) -> int:
                 f"{args.rig} is {rig.width}x{rig.height}"
             )
     t0 = time.perf_counter()
-    maps = rectify_rig(rig, depth_range_m=(args.min_depth, args.max_depth))
+    stereo = StereoDepth(rig, config)
     rectify_maps_s = time.perf_counter() - t0
-    max_d = args.max_disparity or max_disparity_for_depth(maps, args.min_depth)
-    config = make_config(args.engine, max_d)
-    compile_s = _warm_up(args.engine)
-    res = compute_depth(maps, left, right, config, max_depth_m=args.max_depth,
-                        min_confidence=args.min_confidence)
+    maps, max_d = stereo.maps, stereo.max_disparity_px
+    compile_s = stereo.warm_up()
+    res = stereo.compute(left, right)
     write_depth(args.output, res.depth_m)
     if args.points:
         write_ply(args.points, res.points_left, res.colors_rgb)
@@ -310,6 +304,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
         "focal_px": maps.focal_px,
         "baseline_m": maps.baseline_m,
         "max_disparity_px": max_d,
+        "depth_range_m": list(stereo.depth_range_m),
         "engine": args.engine,
         "match_s": res.timings_s["match_s"],
         "rectify_s": res.timings_s["rectify_s"],
@@ -406,22 +401,10 @@ def register(sub: Any) -> None:
         type=_positive_int,
         default=None,
         metavar="N",
-        help="largest disparity searched (default: from --min-depth)",
+        help="largest disparity searched (default: from --min-depth, else an eighth of the "
+        "image width)",
     )
-    d.add_argument(
-        "--min-depth",
-        type=_positive_float,
-        default=0.5,
-        metavar="M",
-        help="nearest depth to resolve, metres (sets the disparity range)",
-    )
-    d.add_argument(
-        "--max-depth",
-        type=_positive_float,
-        default=10.0,
-        metavar="M",
-        help="farthest depth kept, metres (refractive rectification range too)",
-    )
+    add_depth_range(d, far="farthest depth kept (refractive rectification range too)")
     d.add_argument(
         "--min-confidence",
         type=float,

@@ -14,6 +14,8 @@ import logging
 from pathlib import Path
 from typing import Any
 
+from sea3d.cli._args import add_depth_range
+
 __all__ = ["register", "register_eval"]
 
 _log = logging.getLogger(__name__)
@@ -156,17 +158,15 @@ def _session_depth(rig: Any, args: argparse.Namespace) -> Any:
     """A callable (left, right) -> (range_left, range_right) from our stereo depth."""
     import numpy as np
 
+    from sea3d.cli._args import depth_config
     from sea3d.enhance.seathru import range_from_points
-    from sea3d.rectify import rectify_rig
-    from sea3d.stereo import make_config
-    from sea3d.stereo.depth import compute_depth, max_disparity_for_depth
+    from sea3d.stereo.recipe import StereoDepth
 
-    maps = rectify_rig(rig, depth_range_m=(args.min_depth, args.max_depth))
-    config = make_config(args.engine, max_disparity_for_depth(maps, args.min_depth))
+    stereo = StereoDepth(rig, depth_config(args))
     T_right_left = np.linalg.inv(rig.T_left_right)
 
     def ranges(left: Any, right: Any) -> tuple[Any, Any]:
-        res = compute_depth(maps, left, right, config, max_depth_m=args.max_depth)
+        res = stereo.compute(left, right)
         pts_l = res.points_left
         pts_r = pts_l @ T_right_left[:3, :3].T + T_right_left[:3, 3]
         return range_from_points(pts_l, rig.left), range_from_points(pts_r, rig.right)
@@ -179,7 +179,7 @@ def _cmd_enhance_session(args: argparse.Namespace) -> int:
 
     from sea3d.enhance.api import enhance_pair
     from sea3d.errors import EnhanceError
-    from sea3d.io.rig_file import load_rig, rig_from_yaml
+    from sea3d.io.rig_file import resolve_rig
     from sea3d.io.session import SessionWriter, layout_of, open_session
 
     out_path = Path(args.output)
@@ -190,19 +190,14 @@ def _cmd_enhance_session(args: argparse.Namespace) -> int:
         params["clip_limit"] = args.clip_limit
     statuses: dict[str, int] = {}
     with open_session(args.session) as session:
-        rig = None
-        if args.rig is not None:
-            rig = load_rig(args.rig)
-        elif session.rig_yaml:
-            rig = rig_from_yaml(session.rig_yaml, f"{args.session} (stored rig.yaml)")
         ranges = None
         cfg = None
         if args.method == "seathru":
-            if rig is None:
+            if args.rig is None and not session.rig_yaml:
                 raise EnhanceError(
                     f"{args.session} stores no rig; Sea-thru needs stereo depth: pass --rig"
                 )
-            ranges = _session_depth(rig, args)
+            ranges = _session_depth(resolve_rig(args.rig, session), args)
             cfg = _seathru_config(args)
         n_pairs = len(session.match_pairs())
         if n_pairs == 0:
@@ -302,10 +297,8 @@ def register(sub: Any) -> None:
         "--engine", choices=("sea3d", "opencv"), default="sea3d",
         help="session + seathru: stereo engine for the depth (default sea3d)",
     )
-    p.add_argument("--min-depth", type=float, default=0.5, metavar="M",
-                   help="session + seathru: nearest depth (default 0.5 m)")
-    p.add_argument("--max-depth", type=float, default=10.0, metavar="M",
-                   help="session + seathru: farthest depth (default 10 m)")
+    add_depth_range(p, near="session + seathru: nearest depth",
+                    far="session + seathru: farthest depth")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(handler=_cmd_enhance)
 

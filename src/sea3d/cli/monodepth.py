@@ -14,6 +14,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from sea3d.cli._args import add_depth_range
+
 __all__ = ["register"]
 
 _FLOAT_SUFFIXES = (".npy", ".pfm", ".tif", ".tiff")
@@ -49,8 +51,7 @@ def register(sub: Any) -> None:
                    help="input normalisation (default ImageNet mean/std)")
     p.add_argument("--device", choices=["cpu", "cuda", "auto"], default="cpu",
                    help="onnxruntime provider (auto: CUDA when available)")
-    p.add_argument("--min-depth", type=float, default=0.5, help="stereo: nearest depth, m")
-    p.add_argument("--max-depth", type=float, default=10.0, help="stereo: farthest depth, m")
+    add_depth_range(p, near="stereo: nearest depth", far="stereo: farthest depth")
     p.add_argument("--engine", default="sea3d", choices=["sea3d", "opencv", "sea3d-gpu"],
                    help="stereo matching engine")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -87,29 +88,24 @@ class _Stereo:
     """Stereo depth of pairs with one rig (rectification maps and matcher built once)."""
 
     def __init__(self, rig: Any, args: argparse.Namespace) -> None:
+        from sea3d.cli._args import depth_config
         from sea3d.errors import MonoDepthError
-        from sea3d.rectify import rectify_rig
-        from sea3d.stereo import make_config
-        from sea3d.stereo.depth import max_disparity_for_depth
+        from sea3d.stereo.recipe import StereoDepth
 
-        if not 0 < args.min_depth < args.max_depth:
-            raise MonoDepthError(f"need 0 < --min-depth < --max-depth, got {args.min_depth} "
-                                 f"and {args.max_depth}")
+        lo, hi = args.min_depth, args.max_depth
+        if lo is not None and hi is not None and not 0 < lo < hi:
+            raise MonoDepthError(f"need 0 < --min-depth < --max-depth, got {lo} and {hi}")
         self.rig = rig
-        self.maps = rectify_rig(rig, depth_range_m=(args.min_depth, args.max_depth))
-        self.config = make_config(args.engine, max_disparity_for_depth(self.maps,
-                                                                       args.min_depth))
-        self.max_depth = args.max_depth
+        self.stereo = StereoDepth(rig, depth_config(args))
 
     def depth(self, left: Any, right: Any, where: str) -> tuple[Any, Any]:
         from sea3d.errors import MonoDepthError
-        from sea3d.stereo.depth import compute_depth
 
         for name, img in (("left", left), ("right", right)):
             if img.shape[:2] != (self.rig.height, self.rig.width):
                 raise MonoDepthError(f"{where}: {name} image is {img.shape[1]}x{img.shape[0]} "
                                      f"but the rig is {self.rig.width}x{self.rig.height}")
-        res = compute_depth(self.maps, left, right, self.config, max_depth_m=self.max_depth)
+        res = self.stereo.compute(left, right)
         return res.depth_m, res.rect_left
 
 
@@ -250,7 +246,7 @@ def _session(args: argparse.Namespace, model: Any, src: Path, out: Path) -> int:
 
     from sea3d.errors import MonoDepthError
     from sea3d.io.depth_files import write_depth_png_mm
-    from sea3d.io.rig_file import load_rig, rig_from_yaml
+    from sea3d.io.rig_file import resolve_rig
     from sea3d.io.session import open_session
     from sea3d.io.sfm_files import write_summary
 
@@ -259,18 +255,15 @@ def _session(args: argparse.Namespace, model: Any, src: Path, out: Path) -> int:
                              "camera (stereo) or --align-sfm aligns each frame")
     frames: list[dict[str, Any]] = []
     with open_session(src) as reader:
-        rig = load_rig(args.rig) if args.rig else (
-            rig_from_yaml(reader.rig_yaml, f"{src} (stored rig.yaml)") if reader.rig_yaml
-            else None)
         stereo = None
         if not args.align_sfm:
-            if rig is None:
+            if args.rig is None and not reader.rig_yaml:
                 raise MonoDepthError(f"{src}: the session stores no rig; pass --rig or "
                                      "--align-sfm")
             if reader.stamps("right").size == 0:
                 raise MonoDepthError(f"{src}: the session has no right camera images for "
                                      "stereo alignment; pass --align-sfm")
-            stereo = _Stereo(rig, args)
+            stereo = _Stereo(resolve_rig(args.rig, reader), args)
         (out / "depth").mkdir(parents=True, exist_ok=True)
         match = reader.match_pairs() if stereo is not None else None
         stamps = reader.stamps("left")

@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from sea3d.cli._args import add_depth_range, depth_config
 from sea3d.errors import ConfigError
 
 __all__ = ["register", "register_calibrate_imu"]
@@ -53,22 +54,7 @@ def register(sub: Any) -> None:
         default="sea3d",
         help="stereo engine for the depth (sea3d, sea3d-gpu, opencv; default sea3d)",
     )
-    p.add_argument(
-        "--min-depth",
-        "--min-depth-m",
-        dest="min_depth_m",
-        type=float,
-        metavar="M",
-        help="nearest depth searched, metres (default: from the rig, f B / max disparity)",
-    )
-    p.add_argument(
-        "--max-depth",
-        "--max-depth-m",
-        dest="max_depth_m",
-        type=float,
-        metavar="M",
-        help="farthest depth used, metres (default: from the rig, f B / 4 px)",
-    )
+    add_depth_range(p, near="nearest depth searched", far="farthest depth kept")
     p.add_argument("--max-frames", type=int, help="stop after this many frames")
     p.add_argument("--no-loop-closure", action="store_true", help="odometry only")
     g = p.add_argument_group("rgbd")
@@ -205,7 +191,6 @@ def _run(args: argparse.Namespace) -> int:
     for name in ("color", "depth", "intrinsics"):
         if getattr(args, name) is not None:
             raise ConfigError(f"--{name} belongs to 'sea3d odometry rgbd'")
-    from sea3d.odometry.observe import ObserveConfig
     from sea3d.pipeline.odometry import session_odometry
 
     bar: Any = None
@@ -220,9 +205,7 @@ def _run(args: argparse.Namespace) -> int:
             args.session,
             rig_path=args.rig,
             use_imu=not args.no_imu,
-            observe=ObserveConfig(
-                engine=args.engine, min_depth_m=args.min_depth_m, max_depth_m=args.max_depth_m
-            ),
+            observe=depth_config(args),
             config=_config(args),
             max_frames=args.max_frames,
             progress=lambda k: bar.update(k) if bar is not None else None,
@@ -295,8 +278,8 @@ def _calibrate_imu(args: argparse.Namespace) -> int:
     from sea3d.geometry.rig import ImuSpec
     from sea3d.geometry.se3 import R_to_rotvec
     from sea3d.odometry import TrackingStatus
-    from sea3d.odometry.observe import ObserveConfig
     from sea3d.pipeline.odometry import open_stereo_source, session_odometry
+    from sea3d.stereo.recipe import DepthConfig
 
     src = open_stereo_source(args.session, args.rig)
     rig = src.rig
@@ -310,7 +293,7 @@ def _calibrate_imu(args: argparse.Namespace) -> int:
             args.session,
             rig_path=args.rig,
             use_imu=False,
-            observe=ObserveConfig(engine=args.engine),
+            observe=DepthConfig(engine=args.engine),
             max_frames=args.max_frames,
             progress=bar.update,
         )

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import image_size
+from sea3d.cli._args import add_depth_range, image_size, plural
 
 __all__ = ["register", "register_eval"]
 
@@ -32,10 +32,6 @@ def _bar_factory(enabled: bool) -> Any:
         return bar
 
     return make
-
-
-def _plural(n: int, word: str) -> str:
-    return f"{n} {word}" + ("" if n == 1 else "s")
 
 
 # ------------------------------------------------------------------------------------ process
@@ -71,12 +67,12 @@ def _cmd_process(args: argparse.Namespace) -> int:
         sys.stdout.write("\n")
         return 0
     print(
-        f"{_plural(s['frames'], 'frame')}: {_plural(s['keyframes'], 'keyframe')}, "
-        f"{s['frames_lost']} lost, {_plural(s['loop_closures'], 'loop closure')}, path "
+        f"{plural(s['frames'], 'frame')}: {plural(s['keyframes'], 'keyframe')}, "
+        f"{s['frames_lost']} lost, {plural(s['loop_closures'], 'loop closure')}, path "
         f"{s['path_length_m']:.2f} m; poses from {s['odometry']}"
     )
     fps = s.get("frames_per_second")
-    print(f"{s['frames_fused']} frames fused into {_plural(s['submaps'], 'submap')}; "
+    print(f"{s['frames_fused']} frames fused into {plural(s['submaps'], 'submap')}; "
           f"{s['mesh']['triangles']} triangles, {s['cloud']['points']} cloud points"
           + (f"; {fps:.2f} frames/s" if fps else "")
           + (f" ({s['frames_from_cache']} from the cache)" if s["frames_from_cache"] else ""))
@@ -152,7 +148,7 @@ def _cmd_fuse(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(out, indent=2))
     else:
-        print(f"{_plural(res.frames, 'frame')} fused ({res.skipped} without a pose), "
+        print(f"{plural(res.frames, 'frame')} fused ({res.skipped} without a pose), "
               f"{out['tsdf_ms_per_frame_median']:.1f} ms per frame; "
               f"{out['triangles']} triangles -> {args.output}"
               + (f"; {n_cloud} points -> {args.cloud}" if args.cloud else ""))
@@ -260,10 +256,7 @@ def register(sub: Any) -> None:
     p.add_argument("--engine", default="sea3d",
                    choices=["sea3d", "sea3d-gpu", "opencv", "opencv-hh", "opencv-3way"],
                    help="stereo matching engine (default sea3d)")
-    p.add_argument("--min-depth", type=float, default=0.5, metavar="M",
-                   help="nearest depth resolved, metres (default 0.5)")
-    p.add_argument("--max-depth", type=float, default=4.0, metavar="M",
-                   help="farthest depth fused, metres (default 4)")
+    add_depth_range(p, near="nearest depth resolved", far="farthest depth fused")
     p.add_argument("--integrate", choices=["trusted", "keyframes"], default="trusted",
                    help="fuse every frame with a trusted pose (default) or keyframes only")
     p.add_argument("--fresh", action="store_true",

@@ -236,12 +236,10 @@ def _run_survey(args: argparse.Namespace) -> int:
     rig = _load_rig(args.rig, args.size)
     scene = load_scene(args.scene)
     fmt = args.format or layout_of(args.out)
-    if args.gt is not None:
-        gt_dir = args.gt
-    elif fmt == "folder":
-        gt_dir = args.out / "gt"
-    else:
-        gt_dir = args.out.with_name(args.out.stem + "_gt")
+    from sea3d.io.ground_truth import ground_truth_dir
+
+    gt_dir = args.gt if args.gt is not None else ground_truth_dir(args.out,
+                                                                  folder=fmt == "folder")
     config = SurveyConfig(
         frames=args.frames,
         fps=args.fps,

@@ -7,6 +7,8 @@ import json
 import sys
 from typing import Any
 
+from sea3d.cli._args import add_depth_range, depth_config
+
 __all__ = ["register_eval"]
 
 
@@ -56,8 +58,7 @@ def register_eval(esub: Any) -> None:
     p.add_argument(
         "--window-s", type=float, default=5.0, help="frames within this time of a ping (5 s)"
     )
-    p.add_argument("--min-depth", type=float, default=0.5, help="nearest depth (m), as sea3d depth")
-    p.add_argument("--max-depth", type=float, default=10.0, help="farthest depth (m)")
+    add_depth_range(p, near="nearest depth (as sea3d depth)", far="farthest depth kept")
     p.add_argument("--no-truth", action="store_true", help="ignore the simulator's ground truth")
     p.add_argument("--report", metavar="OUT.html", help="write an HTML report with a plot")
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
@@ -90,11 +91,10 @@ def _eval_sonar(args: argparse.Namespace) -> int:
             poses_path=args.poses,
             depth_dir=args.depth,
             depth_frame=args.depth_frame,
-            engine=args.engine,
+            depth=depth_config(args),
             every=args.every,
             beam_deg=args.beam_deg,
             window_s=args.window_s,
-            depth_range_m=(args.min_depth, args.max_depth),
             use_truth=not args.no_truth,
             progress=bar.update,
         )

@@ -14,6 +14,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F32
 from sea3d.errors import EnhanceError
 
 __all__ = [
@@ -27,7 +28,6 @@ __all__ = [
     "srgb_to_linear",
 ]
 
-F32 = NDArray[np.float32]
 Encoding = Literal["srgb", "linear"]
 
 # Rec. 709 / sRGB luminance weights of linear RGB (IEC 61966-2-1).

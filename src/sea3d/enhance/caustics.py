@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F32, F64
 from sea3d.enhance._image import (
     Encoding,
     as_unit_float,
@@ -46,9 +47,6 @@ from sea3d.errors import EnhanceError
 from sea3d.geometry.camera import CameraModel
 
 __all__ = ["CausticConfig", "CausticResult", "points_from_depth", "remove_caustics", "warp_to"]
-
-F32 = NDArray[np.float32]
-F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -34,6 +34,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F32, F64
 from sea3d.enhance._image import (
     Encoding,
     as_unit_float,
@@ -56,8 +57,6 @@ __all__ = [
 
 _log = logging.getLogger(__name__)
 
-F32 = NDArray[np.float32]
-F64 = NDArray[np.float64]
 
 WHITE_BALANCE_METHODS = ("grey-world", "shades-of-grey", "red-comp")
 

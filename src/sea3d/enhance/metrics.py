@@ -62,6 +62,7 @@ from scipy.optimize import minimize, minimize_scalar
 from skimage.color import deltaE_ciede2000, rgb2lab
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
+from sea3d._typing import F64
 from sea3d.enhance._image import as_unit_float, linear_to_srgb, srgb_to_linear
 from sea3d.errors import EnhanceError
 
@@ -80,7 +81,6 @@ __all__ = [
     "uiqm",
 ]
 
-F64 = NDArray[np.float64]
 
 UIQM_COEFFS = (0.0282, 0.2953, 3.5753)  # Panetta et al. 2016: UICM, UISM, UIConM weights
 UICM_COEFFS = (-0.0268, 0.1586)  # Panetta et al. 2016: mean and spread terms of UICM

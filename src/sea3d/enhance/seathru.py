@@ -61,10 +61,10 @@ from typing import Literal
 import cv2
 import numpy as np
 import scipy.sparse as sp
-from numpy.typing import NDArray
 from scipy.optimize import least_squares
 from scipy.sparse.linalg import splu
 
+from sea3d._typing import F32, F64, BoolArray
 from sea3d.enhance._image import (
     Encoding,
     as_unit_float,
@@ -91,9 +91,6 @@ __all__ = [
 
 _log = logging.getLogger(__name__)
 
-F32 = NDArray[np.float32]
-F64 = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 _MIN_POINTS = 64
 # Linear luminance below which a pixel counts as black (about 6/255 in sRGB).

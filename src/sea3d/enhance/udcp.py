@@ -19,14 +19,12 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from numpy.typing import NDArray
 
+from sea3d._typing import F32
 from sea3d.enhance._image import as_unit_float, from_unit_float, require_rgb
 from sea3d.errors import EnhanceError
 
 __all__ = ["udcp"]
-
-F32 = NDArray[np.float32]
 
 
 def _min_filter(x: F32, patch_px: int) -> F32:

@@ -35,6 +35,7 @@ import numpy as np
 import numpy.typing as npt
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.errors import GeometryError
 from sea3d.geometry.camera import CameraModel
 from sea3d.geometry.se3 import check_T, invert_T
@@ -55,7 +56,6 @@ __all__ = [
 ]
 
 _log = logging.getLogger(__name__)
-F64 = NDArray[np.float64]
 
 # Blue Robotics Ping (Ping2) echosounder: 115 kHz, 100 m range, 25 degree beam (the first Ping:
 # 30 m, 30 degrees), from the Ping sonar technical guide

@@ -25,12 +25,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.errors import ReconError
 from sea3d.eval.trajectory import ErrorStats, error_stats
 
 __all__ = ["SurfaceMetrics", "point_to_mesh_distance", "sample_surface", "surface_metrics"]
 
-F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
 DEFAULT_THRESHOLDS_M = (0.01, 0.02, 0.05)

@@ -35,6 +35,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.errors import OdometryError
 
 __all__ = [
@@ -49,7 +50,6 @@ __all__ = [
 ]
 
 Align = Literal["se3", "sim3", "none"]
-F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
 

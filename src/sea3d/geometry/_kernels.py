@@ -6,11 +6,11 @@ import math
 
 import numba as nb
 import numpy as np
-from numpy.typing import NDArray
+
+from sea3d._typing import FloatArray
 
 __all__ = ["undistort", "undistort_point"]
 
-FloatArray = NDArray[np.float64]
 _NAN = math.nan
 
 

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
-from numpy.typing import NDArray
 
+from sea3d._typing import BoolArray, FloatArray
 from sea3d.errors import GeometryError
 
 if TYPE_CHECKING:  # annotations only: geometry never imports refraction at run time
@@ -20,9 +20,6 @@ if TYPE_CHECKING:  # annotations only: geometry never imports refraction at run 
     from sea3d.refraction.ports import DomePort, FlatPort
 
 __all__ = ["CameraModel", "Rays", "as_pixels", "as_points"]
-
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 
 @dataclass(frozen=True, eq=False)

@@ -19,16 +19,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
 
+from sea3d._typing import BoolArray, FloatArray
 from sea3d.errors import CameraModelError
 from sea3d.geometry._kernels import undistort as undistort_kernel
 from sea3d.geometry.camera import Rays, as_pixels, as_points
 
 __all__ = ["DISTORTION_LENGTHS", "PinholeCamera"]
 
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 DISTORTION_LENGTHS = (0, 4, 5, 8, 12, 14)
 

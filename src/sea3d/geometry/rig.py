@@ -10,15 +10,13 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from sea3d._typing import FloatArray
 from sea3d.errors import GeometryError
 from sea3d.geometry.camera import CameraModel
 from sea3d.geometry.se3 import check_T, invert_T
 
 __all__ = ["ImuSpec", "SonarSpec", "StereoRig"]
-
-FloatArray = NDArray[np.float64]
 
 
 def _positive(value: float, name: str, *, allow_zero: bool = False) -> float:

@@ -8,9 +8,9 @@ name says otherwise (``quat_xyzw`` for TUM files).
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from sea3d._typing import FloatArray
 from sea3d.errors import GeometryError
 
 __all__ = [
@@ -26,7 +26,6 @@ __all__ = [
     "transform_points",
 ]
 
-FloatArray = NDArray[np.float64]
 
 _ORTHO_TOL = 1e-6
 

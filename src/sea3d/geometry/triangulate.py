@@ -3,14 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 
+from sea3d._typing import FloatArray
 from sea3d.errors import GeometryError
 from sea3d.geometry.camera import Rays
 
 __all__ = ["triangulate_midpoint"]
-
-FloatArray = NDArray[np.float64]
 
 
 def triangulate_midpoint(rays_a: Rays, rays_b: Rays) -> tuple[FloatArray, FloatArray]:

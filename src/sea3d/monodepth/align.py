@@ -19,13 +19,12 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F32, F64
 from sea3d.errors import MonoDepthError
 
 __all__ = ["Alignment", "align_depth", "fill_holes", "sparse_depth_from_points"]
 
 log = logging.getLogger(__name__)
-F32 = NDArray[np.float32]
-F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True, kw_only=True)

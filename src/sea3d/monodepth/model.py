@@ -25,14 +25,13 @@ from typing import Any
 
 import cv2
 import numpy as np
-from numpy.typing import NDArray
 
+from sea3d._typing import F32
 from sea3d.errors import ConfigError, MonoDepthError
 
 __all__ = ["MonoDepthConfig", "OnnxDepthModel", "select_providers"]
 
 log = logging.getLogger(__name__)
-F32 = NDArray[np.float32]
 OUTPUT_KINDS = ("inverse", "depth", "metric")
 _IMAGENET_MEAN = np.array([0.485, 0.456, 0.406], dtype=np.float32)
 _IMAGENET_STD = np.array([0.229, 0.224, 0.225], dtype=np.float32)

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.odometry.stereo_geometry import RectifiedStereo
 
 __all__ = ["KeyframeState", "SmootherBackend", "SmootherFailure"]
@@ -32,7 +32,6 @@ log = logging.getLogger(__name__)
 
 LANDMARK_PRIOR_SIGMA_M = 50.0
 """Standard deviation of the weak prior on each new landmark (see ``add_keyframe``), metres."""
-F64 = NDArray[np.float64]
 
 
 class SmootherFailure(RuntimeError):

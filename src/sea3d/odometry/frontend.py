@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.odometry.config import OdometryConfig
 from sea3d.odometry.stereo_geometry import RectifiedStereo
 
@@ -33,8 +34,6 @@ __all__ = [
     "track_klt",
 ]
 
-F64 = NDArray[np.float64]
-F32 = NDArray[np.float32]
 B = NDArray[np.bool_]
 
 

@@ -14,15 +14,14 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.geometry.rig import ImuSpec
 from sea3d.odometry.types import ImuChunk
 
 __all__ = ["ImuBuffer", "gravity_aligned_rotation", "preintegration_params"]
 
 log = logging.getLogger(__name__)
-F64 = NDArray[np.float64]
 
 
 def gravity_aligned_rotation(accel_mean_mps2: F64) -> F64:

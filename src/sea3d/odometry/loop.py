@@ -22,6 +22,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
+
 _NO_DIST = np.zeros(4)  # rectified, virtual-pinhole consistent pixels: no distortion
 
 __all__ = [
@@ -33,7 +35,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-F64 = NDArray[np.float64]
 U8 = NDArray[np.uint8]
 
 _POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.uint8)

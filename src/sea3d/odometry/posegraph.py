@@ -15,12 +15,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+
+from sea3d._typing import F64
 
 __all__ = ["PoseGraph"]
 
 log = logging.getLogger(__name__)
-F64 = NDArray[np.float64]
 
 
 @dataclass

@@ -19,12 +19,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation, Slerp
 
+from sea3d._typing import F64
 from sea3d.errors import OdometryError
 from sea3d.odometry.types import FrameObservation, OdometryEstimate, TrackingStatus
 
 __all__ = ["KnownPoses", "KnownPosesConfig"]
-
-F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -30,14 +30,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.errors import OdometryError
 from sea3d.odometry.types import FrameObservation, OdometryEstimate, TrackingStatus
 
 __all__ = ["DenseRgbdConfig", "DenseRgbdOdometry"]
 
 log = logging.getLogger(__name__)
-
-F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True, kw_only=True)

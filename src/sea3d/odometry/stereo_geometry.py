@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.errors import OdometryError
 from sea3d.geometry.camera import CameraModel
 from sea3d.geometry.pinhole import PinholeCamera
@@ -36,7 +37,6 @@ from sea3d.rectify.maps import RectifyMaps
 
 __all__ = ["RectifiedStereo"]
 
-F64 = NDArray[np.float64]
 B = NDArray[np.bool_]
 
 

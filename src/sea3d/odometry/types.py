@@ -20,6 +20,8 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
+
 __all__ = [
     "FrameObservation",
     "ImuChunk",
@@ -27,8 +29,6 @@ __all__ = [
     "OdometryEstimate",
     "TrackingStatus",
 ]
-
-F64 = NDArray[np.float64]
 
 
 class TrackingStatus(enum.StrEnum):

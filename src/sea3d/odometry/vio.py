@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.errors import OdometryError
 from sea3d.geometry.rig import ImuSpec
 from sea3d.geometry.se3 import invert_T
@@ -55,7 +56,6 @@ from sea3d.odometry.types import FrameObservation, OdometryEstimate, TrackingSta
 __all__ = ["StereoInertialOdometry"]
 
 log = logging.getLogger(__name__)
-F64 = NDArray[np.float64]
 
 
 def _rotation_angle(R: F64) -> float:

@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.errors import ConfigError
+from sea3d.io.ground_truth import GroundTruth, ground_truth_dir
 
 __all__ = ["DemoConfig", "DemoResult", "run_demo"]
 
@@ -141,10 +142,11 @@ def run_demo(
         else builtin_scene(config.scene)
     )
     session = out / "session"
+    gt = GroundTruth(ground_truth_dir(session, folder=True))
     if session.exists():
         import shutil
 
-        if not (session / "gt" / "sim.json").is_file():
+        if not gt.sim_meta_path.is_file():
             raise ConfigError(f"{session} exists and is not a session the demo simulated; "
                               "choose another --out")
         shutil.rmtree(session)  # a fresh dive each run (results below are recomputed too)
@@ -159,7 +161,7 @@ def run_demo(
     # the session's rig describes the simulated IMU (and echosounder), so the odometry uses it
     session_rig = with_survey_sensors(rig, survey)
     with SessionWriter(session, format="folder", rig_yaml=rig_to_yaml(session_rig)) as writer:
-        simulate_survey(scene, rig, survey, writer, session / "gt",
+        simulate_survey(scene, rig, survey, writer, gt.root,
                         progress=bar.update if bar else None)
     if bar is not None:
         bar.close()
@@ -172,7 +174,7 @@ def run_demo(
     timings["compile_s"] = compile_s
 
     have_odometry = odometry_available()
-    poses = None if have_odometry else session / "gt" / "poses_left.tum"
+    poses = None if have_odometry else gt.poses_left_path
     step("processing the dive: depth, " + ("odometry" if have_odometry else
          "ground-truth poses (this build has no odometry yet)") + ", TSDF fusion, mesh")
     t0 = time.perf_counter()
@@ -223,31 +225,24 @@ def _depth_check(config: DemoConfig, rig: Any, session: Path, out: Path
     from sea3d.eval.depth_gt import depth_error_map, point_depth_errors
     from sea3d.io.session import open_session
     from sea3d.pipeline.report import depth_check_html
-    from sea3d.rectify import rectify_rig
     from sea3d.refraction.presets import paper_rig
-    from sea3d.stereo import make_config
-    from sea3d.stereo.depth import compute_depth, disparity_to_depth
+    from sea3d.stereo.depth import disparity_to_depth
+    from sea3d.stereo.recipe import DepthConfig, StereoDepth
 
-    compile_s = 0.0
-    if config.engine == "sea3d":
-        from sea3d.stereo.sgm import warm_up
-
-        compile_s = warm_up()
+    depth_cfg = DepthConfig(engine=config.engine, max_disparity_px=_scaled_disparity(config))
+    stereo = StereoDepth(rig, depth_cfg)
+    compile_s = stereo.warm_up()
     with open_session(session) as s:
         t_ns = int(s.stamps("left")[0])
         left = s.image("left", 0, by="index")
         right = s.image("right", 0, by="index")
-    from sea3d.sim.survey import gt_depth_path, read_gt_depth
-
-    gt_depth = read_gt_depth(gt_depth_path(session / "gt" / "depth", t_ns))
-    maps = rectify_rig(rig, depth_range_m=(0.5, 8.0))
-    max_disp = _scaled_disparity(config)
-    engine_config = make_config(config.engine, max_disp)
-    depth = compute_depth(maps, left, right, engine_config, max_depth_m=20.0)
+    gt_depth = GroundTruth(ground_truth_dir(session, folder=True)).read_depth(t_ns)
+    maps = stereo.maps
+    depth = stereo.compute(left, right)
     errors = point_depth_errors(depth.points_left, rig.left, gt_depth)
     # Baseline: the best-fitting pinhole in water (z = f B / d), no refraction correction.
     z_pin = disparity_to_depth(depth.disparity_px, maps.focal_px, maps.baseline_m)
-    ok = np.isfinite(z_pin) & (z_pin < 20.0)
+    ok = np.isfinite(z_pin) & (z_pin <= stereo.max_depth_m)
     vv, uu = np.nonzero(ok)
     zz = z_pin[ok].astype(np.float64)
     rect_pts = np.stack(
@@ -258,13 +253,13 @@ def _depth_check(config: DemoConfig, rig: Any, session: Path, out: Path
     if config.port != "none":
         # What a user gets by taking the in-air calibration underwater and ignoring the ports.
         rig_air = paper_rig("none").scaled(*config.size_px)
-        depth_air = compute_depth(rectify_rig(rig_air), left, right, engine_config,
-                                  max_depth_m=20.0)
+        depth_air = StereoDepth(rig_air, depth_cfg).compute(left, right)
         ignored = point_depth_errors(depth_air.points_left, rig.left, gt_depth)
     summary: dict[str, Any] = {
         "t_ns": t_ns,
         "image_size_px": list(config.size_px),
-        "max_disparity_px": max_disp,
+        "max_disparity_px": stereo.max_disparity_px,
+        "depth_range_m": list(stereo.depth_range_m),
         "valid_fraction": float(np.isfinite(depth.depth_m).mean()),
         "points": len(depth.points_left),
         "refraction_corrected": errors.as_dict(),
@@ -279,8 +274,8 @@ def _depth_check(config: DemoConfig, rig: Any, session: Path, out: Path
     fragment = depth_check_html(
         left=left,
         right=right,
-        disparity_rgb=_colorize(depth.disparity_px, 0.0, float(max_disp)),
-        disparity_range=(0.0, float(max_disp)),
+        disparity_rgb=_colorize(depth.disparity_px, 0.0, float(stereo.max_disparity_px)),
+        disparity_range=(0.0, float(stereo.max_disparity_px)),
         depth_rgb=_colorize(depth.depth_m, 0.5, 5.0),
         depth_range_m=(0.5, 5.0),
         error_rgb=_colorize(depth_error_map(depth, gt_depth), -0.05, 0.05),

@@ -3,8 +3,9 @@
 :func:`process_frame` is a pure function of a :class:`FrameStageConfig` and one raw stereo
 pair (arrays, not paths), so it runs unchanged in the client, in a local worker process or on
 a Dask worker on another machine, which needs only the sea3d package: the rig travels inside
-the config as its YAML text, the client hands each worker the rectification maps it built
-once (:func:`install_geometry`: no worker fits the virtual pinholes again), and each process
+the config (a :class:`~sea3d.geometry.rig.StereoRig` pickles), the client hands each worker the
+:class:`~sea3d.stereo.recipe.StereoDepth` it built once (:func:`install_geometry`: no worker
+fits the virtual pinholes again), and each process
 compiles the matcher's kernels once (loaded from numba's cache, timed as ``warmup_s`` so that
 reports can say it is one-off).
 
@@ -17,11 +18,13 @@ view's virtual pinhole sees it (what the pinhole TSDF integrates;
 from __future__ import annotations
 
 import functools
+import hashlib
 import importlib
 import logging
+import pickle
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Literal
 
 import cv2
@@ -29,10 +32,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.errors import ConfigError, Sea3dError
+from sea3d.geometry.rig import StereoRig
 from sea3d.recon.depth_resample import ResampleMethod, virtual_pinhole_depth
+from sea3d.stereo.recipe import DepthConfig, StereoDepth
 
 __all__ = ["FrameResult", "FrameStageConfig", "install_geometry", "process_frame",
-           "stage_geometry"]
+           "stage_depth", "stage_geometry"]
 
 log = logging.getLogger(__name__)
 
@@ -44,19 +49,14 @@ EnhanceHook = Callable[[NDArray[np.uint8]], NDArray[np.uint8]]
 class FrameStageConfig:
     """Everything the per-frame stage needs (shipped to every worker)."""
 
-    rig_yaml: str
-    """The rig file's YAML text (at the session's recorded image size)."""
+    rig: StereoRig
+    """The rig at the session's recorded image size."""
     size_px: tuple[int, int] | None = None
     """Process at ``(width, height)`` (raw images resized, intrinsics scaled); None: as
     recorded."""
-    engine: str = "sea3d"
-    """Matching engine (``sea3d``, ``sea3d-gpu``, ``opencv``, ...)."""
-    max_disparity_px: int | None = None
-    """Disparity search range; None derives it from ``min_depth_m``."""
-    min_depth_m: float = 0.5
-    """Nearest depth resolved, metres (sets the disparity range and the virtual-pinhole fit)."""
-    max_depth_m: float = 6.0
-    """Farther depth is dropped, metres."""
+    depth: DepthConfig = field(default_factory=DepthConfig)
+    """Engine, disparity range and depth range (None ranges: from the rig, see
+    :mod:`sea3d.stereo.recipe`)."""
     resample: ResampleMethod = "resample"
     """How exact depth is put into the virtual pinhole for fusion (see
     :mod:`sea3d.recon.depth_resample`)."""
@@ -74,11 +74,10 @@ class FrameStageConfig:
     """Threads for numba and OpenCV inside one worker (None: the libraries' default)."""
 
     def __post_init__(self) -> None:
-        if not (0 < self.min_depth_m < self.max_depth_m):
-            raise ConfigError(f"need 0 < min_depth_m < max_depth_m, got {self.min_depth_m}, "
-                              f"{self.max_depth_m}")
-        if self.max_disparity_px is not None and self.max_disparity_px < 1:
-            raise ConfigError(f"--max-disparity must be >= 1, got {self.max_disparity_px}")
+        if not isinstance(self.rig, StereoRig):
+            raise ConfigError(f"rig must be a StereoRig, got {type(self.rig).__name__}")
+        if not isinstance(self.depth, DepthConfig):
+            raise ConfigError(f"depth must be a DepthConfig, got {type(self.depth).__name__}")
         if self.size_px is not None and (self.size_px[0] < 32 or self.size_px[1] < 24):
             raise ConfigError(f"--size must be at least 32x24, got {self.size_px}")
         if isinstance(self.enhance, str) and ":" not in self.enhance:
@@ -89,7 +88,11 @@ class FrameStageConfig:
 
     def fingerprint(self) -> dict[str, Any]:
         """What identifies the per-frame results (the cache is valid only for the same one)."""
-        d = asdict(self)
+        from sea3d.io.rig_file import rig_to_yaml
+
+        d = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("rig", "depth")}
+        d["rig_yaml"] = rig_to_yaml(self.rig)
+        d["depth"] = asdict(self.depth)
         d.pop("threads")
         if self.restore_colours == "none":
             d.pop("restore_colours")  # caches written before the option stay valid
@@ -171,46 +174,50 @@ class FrameResult:
                    colour_status=str(meta.get("colour_status", "")))
 
 
-@functools.lru_cache(maxsize=4)
-def _geometry(rig_yaml: str, size_px: tuple[int, int] | None, min_depth_m: float,
-              max_depth_m: float) -> Any:
-    from sea3d.io.rig_file import rig_from_yaml
-    from sea3d.rectify import rectify_rig
-
-    rig = rig_from_yaml(rig_yaml, "the session's rig")
-    if size_px is not None:
-        rig = rig.scaled(*size_px)
-    maps = rectify_rig(rig, depth_range_m=(min_depth_m, max_depth_m))
-    return rig, maps
-
-
-_INSTALLED: dict[tuple[Any, ...], tuple[Any, Any]] = {}
+_INSTALLED: dict[tuple[Any, ...], StereoDepth] = {}
+_BUILT: dict[tuple[Any, ...], StereoDepth] = {}
 
 
 def _geometry_key(config: FrameStageConfig) -> tuple[Any, ...]:
-    return (config.rig_yaml, config.size_px, config.min_depth_m, config.max_depth_m)
+    rig_digest = hashlib.sha1(pickle.dumps(config.rig), usedforsecurity=False).hexdigest()
+    return (rig_digest, config.size_px, config.depth)
 
 
-def install_geometry(config: FrameStageConfig, geometry: tuple[Any, Any]) -> None:
-    """Give this process the ``(rig, maps)`` of ``config``, built elsewhere (the client), so
-    that a worker does not fit the virtual pinholes again (seconds per worker at 640x360)."""
-    _INSTALLED[_geometry_key(config)] = geometry
+def install_geometry(config: FrameStageConfig, stereo: StereoDepth) -> None:
+    """Give this process the :class:`~sea3d.stereo.recipe.StereoDepth` of ``config``, built
+    elsewhere (the client), so that a worker does not fit the virtual pinholes again (seconds
+    per worker at 640x360)."""
+    _INSTALLED[_geometry_key(config)] = stereo
+
+
+def stage_depth(config: FrameStageConfig) -> StereoDepth:
+    """The :class:`~sea3d.stereo.recipe.StereoDepth` of ``config`` (its rig scaled to
+    ``size_px``): as installed by :func:`install_geometry`, or built once per process and
+    configuration.
+
+    Raises:
+        ConfigError, RectifyError: a rig or depth configuration that cannot be used.
+    """
+    key = _geometry_key(config)
+    got = _INSTALLED.get(key) or _BUILT.get(key)
+    if got is not None:
+        return got
+    rig = config.rig if config.size_px is None else config.rig.scaled(*config.size_px)
+    if len(_BUILT) >= 4:
+        _BUILT.pop(next(iter(_BUILT)))
+    stereo = _BUILT[key] = StereoDepth(rig, config.depth)
+    return stereo
 
 
 def stage_geometry(config: FrameStageConfig) -> tuple[Any, Any]:
-    """``(rig, maps)``: the (scaled) :class:`~sea3d.geometry.rig.StereoRig` and its
-    :class:`~sea3d.rectify.maps.RectifyMaps`: as installed by :func:`install_geometry`, or
-    built once per process and configuration.
+    """``(rig, maps)`` of :func:`stage_depth`: the (scaled)
+    :class:`~sea3d.geometry.rig.StereoRig` and its :class:`~sea3d.rectify.maps.RectifyMaps`.
 
     Raises:
-        RigFileError, RectifyError: an invalid rig.
+        ConfigError, RectifyError: an invalid rig.
     """
-    got = _INSTALLED.get(_geometry_key(config))
-    if got is not None:
-        return got
-    out: tuple[Any, Any] = _geometry(config.rig_yaml, config.size_px, config.min_depth_m,
-                                     config.max_depth_m)
-    return out
+    stereo = stage_depth(config)
+    return stereo.rig, stereo.maps
 
 
 @functools.lru_cache(maxsize=8)
@@ -238,14 +245,10 @@ def _prepare_process(config: FrameStageConfig) -> float:
         numba.set_num_threads(max(1, min(config.threads, numba.config.NUMBA_NUM_THREADS)))
         cv2.setNumThreads(config.threads)
         _THREADS[:] = [config.threads]
-    if config.engine in _WARM:
+    if config.depth.engine in _WARM:
         return 0.0
-    _WARM.add(config.engine)
-    if config.engine == "sea3d":
-        from sea3d.stereo.sgm import warm_up
-
-        return warm_up()
-    return 0.0
+    _WARM.add(config.depth.engine)
+    return stage_depth(config).warm_up()
 
 
 def _to_u8(img: NDArray[Any]) -> NDArray[np.uint8]:
@@ -258,15 +261,15 @@ def _to_u8(img: NDArray[Any]) -> NDArray[np.uint8]:
 
 
 def process_frame(config: FrameStageConfig, t_ns: int, left: NDArray[Any],
-                  right: NDArray[Any], geometry: tuple[Any, Any] | None = None) -> FrameResult:
+                  right: NDArray[Any], geometry: StereoDepth | None = None) -> FrameResult:
     """Enhance (if configured), rectify, match and triangulate one raw stereo pair.
 
     Args:
         config: :class:`FrameStageConfig`.
         t_ns: the pair's stamp.
         left, right: raw images (H, W) or (H, W, 3) RGB, uint8 or uint16, at the recorded size.
-        geometry: ``(rig, maps)`` of ``config`` built by the caller (see
-            :func:`install_geometry`); None builds or reuses this process's own.
+        geometry: the :class:`~sea3d.stereo.recipe.StereoDepth` of ``config`` built by the
+            caller (see :func:`install_geometry`); None builds or reuses this process's own.
 
     Returns:
         :class:`FrameResult` (``failed`` with a message for images it cannot use, never an
@@ -275,16 +278,14 @@ def process_frame(config: FrameStageConfig, t_ns: int, left: NDArray[Any],
     Raises:
         RigFileError, RectifyError, ConfigError: the configuration itself is unusable.
     """
-    from sea3d.stereo import make_config
-    from sea3d.stereo.depth import compute_depth, max_disparity_for_depth
-
     timings: dict[str, float] = {}
     if geometry is not None and _geometry_key(config) not in _INSTALLED:
         install_geometry(config, geometry)
     warm = _prepare_process(config)
     if warm > 0:
         timings["warmup_s"] = warm
-    _, maps = stage_geometry(config)
+    stereo = stage_depth(config)
+    maps = stereo.maps
     try:
         if left.shape[:2] != (maps.height, maps.width):
             if config.size_px is None:
@@ -302,9 +303,7 @@ def process_frame(config: FrameStageConfig, t_ns: int, left: NDArray[Any],
             te = time.perf_counter()
             left, right = fn(left), fn(right)
             timings["enhance_s"] = time.perf_counter() - te
-        max_d = config.max_disparity_px or max_disparity_for_depth(maps, config.min_depth_m)
-        engine = make_config(config.engine, max_d)
-        res = compute_depth(maps, left, right, engine, max_depth_m=config.max_depth_m)
+        res = stereo.compute(left, right)
         tr = time.perf_counter()
         rect_right = cv2.remap(right, maps.map_right_x, maps.map_right_y, cv2.INTER_LINEAR,
                                borderMode=cv2.BORDER_CONSTANT)

@@ -1,49 +1,20 @@
-"""Ground truth beside a session, as the simulator writes it (``sea3d sim``; see
-:mod:`sea3d.sim.survey`): ``gt/`` inside a folder session, ``<name>_gt/`` next to an MCAP
-file, holding ``poses_left.tum``, ``scene.ply``, ``depth/<t_ns>.npy`` and ``sim.json``."""
+"""Reconstruction-side use of a session's ground truth (found and read through
+:mod:`sea3d.io.ground_truth`, which owns where it lives and what its files are called)."""
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.geometry.camera import CameraModel
-from sea3d.sim.survey import gt_depth_path, read_gt_depth
+from sea3d.io.ground_truth import GroundTruth, find_ground_truth, gt_depth_path, read_gt_depth
 
 __all__ = ["GroundTruth", "find_ground_truth", "observed_surface_points"]
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True, kw_only=True)
-class GroundTruth:
-    """Paths of a session's ground truth (each None when absent)."""
-
-    root: Path
-    poses_left: Path | None
-    scene_mesh: Path | None
-    depth_dir: Path | None
-
-
-def find_ground_truth(session: Path) -> GroundTruth | None:
-    """The ground truth of ``session`` if the simulator left one beside it, else None."""
-    s = Path(session)
-    root = s / "gt" if s.is_dir() else s.with_name(s.stem + "_gt")
-    if not root.is_dir():
-        return None
-
-    def have(p: Path) -> Path | None:
-        return p if p.exists() else None
-
-    gt = GroundTruth(root=root, poses_left=have(root / "poses_left.tum"),
-                     scene_mesh=have(root / "scene.ply"), depth_dir=have(root / "depth"))
-    if gt.poses_left is None and gt.scene_mesh is None:
-        return None
-    return gt
 
 
 def observed_surface_points(
@@ -62,7 +33,7 @@ def observed_surface_points(
     unprojected through ``camera`` (refraction included) to the point of that depth.
 
     Args:
-        depth_dir: ``gt/depth`` with ``<t_ns>.npy``.
+        depth_dir: ``gt/depth`` with ``<t_ns>.tiff`` (:attr:`GroundTruth.depth_folder`).
         camera: the raw left camera, at the ground truth's image size.
         t_ns, T_world_left: (N,) stamps and (N, 4, 4) true poses of the frames to use.
         max_depth_m: farther points are left out (what the reconstruction could not see).

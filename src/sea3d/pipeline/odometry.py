@@ -25,12 +25,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.errors import ConfigError, OdometryError
 from sea3d.geometry.rig import StereoRig
 from sea3d.odometry.config import OdometryConfig
-from sea3d.odometry.observe import ObserveConfig, Observer, imu_chunks
+from sea3d.odometry.observe import Observer, imu_chunks
 from sea3d.odometry.rgbd_dense import DenseRgbdConfig
 from sea3d.odometry.types import FrameObservation, ImuChunk, TrackingStatus
+from sea3d.stereo.recipe import DepthConfig
 
 __all__ = [
     "OdometryRun",
@@ -42,7 +44,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-F64 = NDArray[np.float64]
 
 
 @dataclass
@@ -89,11 +90,11 @@ def open_stereo_source(
     (an EuRoC folder then needs no ``imu0``).
 
     Raises:
-        SessionError: unreadable input. RigFileError: a bad ``--rig``. OdometryError: no rig
-            (neither stored with the session nor given), or fewer than two stereo pairs.
+        SessionError: unreadable input, or no rig (neither stored with the session nor
+            given). RigFileError: a bad ``--rig``. OdometryError: fewer than two stereo pairs.
     """
     from sea3d.io.euroc import is_euroc, read_euroc
-    from sea3d.io.rig_file import load_rig, rig_from_yaml
+    from sea3d.io.rig_file import load_rig, resolve_rig
 
     p = Path(path)
     rig_given = load_rig(rig_path) if rig_path is not None else None
@@ -113,15 +114,7 @@ def open_stereo_source(
 
         reader = open_session(p)
         try:
-            if rig_given is not None:
-                rig = rig_given
-            elif reader.rig_yaml is not None:
-                rig = rig_from_yaml(reader.rig_yaml, f"{p} (stored rig)")
-            else:
-                raise OdometryError(
-                    f"{p}: the session stores no rig; pass --rig RIG (a rig.yaml from "
-                    "'sea3d rig create' or 'sea3d calibrate')"
-                )
+            rig = rig_given if rig_given is not None else resolve_rig(None, reader)
             match = reader.match_pairs()
             ls, rs = reader.stamps("left"), reader.stamps("right")
             li, ri = match.left_index, match.right_index
@@ -320,7 +313,7 @@ def session_odometry(
     *,
     rig_path: str | os.PathLike[str] | None = None,
     use_imu: bool = True,
-    observe: ObserveConfig | None = None,
+    observe: DepthConfig | None = None,
     config: OdometryConfig | None = None,
     max_frames: int | None = None,
     progress: Callable[[int], None] | None = None,
@@ -332,6 +325,7 @@ def session_odometry(
         SessionError, RigFileError, OdometryError: unusable input (see the module docstring).
     """
     from sea3d.odometry import create_odometry
+    from sea3d.stereo.recipe import StereoDepth
 
     if max_frames is not None and int(max_frames) < 1:
         raise ConfigError(f"--max-frames must be >= 1, got {max_frames}")
@@ -344,11 +338,12 @@ def session_odometry(
             notes.append(why)
         if on_open is not None:
             on_open(src, imu_ok, why)
-        observer = Observer.for_rig(src.rig, observe)
-        maps = observer.maps
+        stereo = StereoDepth(src.rig, observe)
+        maps = stereo.maps
         odo = create_odometry(src.rig, maps, use_imu=imu_ok, config=cfg)
         if why:
             odo.imu_disabled_reason = why
+        observer = Observer(stereo)
         n = src.t_ns.size if max_frames is None else min(src.t_ns.size, int(max_frames))
         chunks: list[ImuChunk | None] = [None] * n
         if imu_ok and src.rig.imu is not None:

@@ -38,6 +38,7 @@ from typing import Any, Literal, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.errors import ConfigError, Sea3dError, SessionError
 from sea3d.odometry.types import (
     FrameObservation,
@@ -51,8 +52,9 @@ from sea3d.pipeline.frame_stage import (
     FrameStageConfig,
     install_geometry,
     process_frame,
-    stage_geometry,
+    stage_depth,
 )
+from sea3d.stereo.recipe import DepthConfig
 
 __all__ = [
     "ProcessConfig",
@@ -65,7 +67,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-F64 = NDArray[np.float64]
 TRUSTED = (TrackingStatus.TRACKING, TrackingStatus.RELOCALISED)
 
 
@@ -115,12 +116,14 @@ class ProcessConfig:
     """Known poses (TUM, KITTI or EuRoC CSV of ``T_world_left``) instead of odometry."""
     engine: str = "sea3d"
     """Stereo matching engine."""
-    min_depth_m: float = 0.5
-    """Nearest depth resolved, metres."""
-    max_depth_m: float = 4.0
-    """Farthest depth used (stereo and TSDF), metres."""
+    min_depth_m: float | None = None
+    """Nearest depth resolved, metres; None: from the rig and the disparity range
+    (:mod:`sea3d.stereo.recipe`)."""
+    max_depth_m: float | None = None
+    """Farthest depth used (stereo and TSDF), metres; None: from the rig (the smallest useful
+    disparity, :mod:`sea3d.stereo.recipe`)."""
     max_disparity_px: int | None = None
-    """Disparity range; None derives it from ``min_depth_m``."""
+    """Disparity range; None derives it from ``min_depth_m``, else from the image width."""
     integrate: Literal["trusted", "keyframes"] = "trusted"
     """Fuse every frame with a trusted pose, or keyframes only."""
     keyframes_per_submap: int = 20
@@ -343,7 +346,7 @@ def run_process(
     """
     from sea3d.io.mesh_files import write_mesh, write_point_cloud
     from sea3d.io.result_cache import DiskSubmapStore, FrameCache
-    from sea3d.io.rig_file import rig_to_yaml
+    from sea3d.io.rig_file import resolve_rig
     from sea3d.io.session import open_session
     from sea3d.io.trajectory_files import read_trajectory, write_tum
     from sea3d.pipeline.executors import make_executor
@@ -363,14 +366,7 @@ def run_process(
 
     with open_session(session_path) as session:
         # -- rig, geometry, frames ------------------------------------------------------
-        if config.rig_path is not None:
-            from sea3d.io.rig_file import load_rig
-
-            rig_yaml = rig_to_yaml(load_rig(config.rig_path))
-        elif session.rig_yaml:
-            rig_yaml = session.rig_yaml
-        else:
-            raise SessionError(f"{session_path} stores no rig; pass --rig rig.yaml")
+        native = resolve_rig(config.rig_path, session)
         match = session.match_pairs()
         n_pairs = len(match)
         if n_pairs == 0:
@@ -381,18 +377,16 @@ def run_process(
         order = [int(left_stamps[i]) for i in match.left_index[:n_pairs]]
         n_local = config.workers if config.workers is not None else min(os.cpu_count() or 1, 8)
         stage_cfg = FrameStageConfig(
-            rig_yaml=rig_yaml, size_px=config.size_px, engine=config.engine,
-            max_disparity_px=config.max_disparity_px, min_depth_m=config.min_depth_m,
-            max_depth_m=config.max_depth_m, enhance=config.enhance,
+            rig=native, size_px=config.size_px,
+            depth=DepthConfig(engine=config.engine, max_disparity_px=config.max_disparity_px,
+                              min_depth_m=config.min_depth_m, max_depth_m=config.max_depth_m),
+            enhance=config.enhance,
             restore_colours=config.restore_colours,
             threads=max(1, (os.cpu_count() or 1) // max(1, n_local))
             if config.scheduler is None else None,
         )
         executor: Any = None
         try:
-            from sea3d.io.rig_file import rig_from_yaml
-
-            native = rig_from_yaml(rig_yaml, "the rig")
             first = session.image("left", int(match.left_index[0]), by="index")
             if first.shape[:2] != (native.height, native.width):
                 raise SessionError(
@@ -401,12 +395,13 @@ def run_process(
                     " (--size then sets the processing size)"
                 )
             t0 = time.perf_counter()
-            rig, maps = stage_geometry(stage_cfg)
+            stereo = stage_depth(stage_cfg)
+            rig, maps = stereo.rig, stereo.maps
             timer.add("rectify_maps_s", time.perf_counter() - t0)
             executor = make_executor(config.workers, config.scheduler,
-                                     setup=(install_geometry, (stage_cfg, (rig, maps))))
+                                     setup=(install_geometry, (stage_cfg, stereo)))
             n_workers = max(1, executor.workers)
-            geometry_arg = executor.share((rig, maps))
+            geometry_arg = executor.share(stereo)
             imu = session.imu()
             has_imu = len(imu) > 0
             use_imu = config.use_imu and has_imu
@@ -445,8 +440,8 @@ def run_process(
                 )
             cached = cache.stamps()
             # -- ordered stages' state --------------------------------------------------
-            tsdf_cfg = TsdfConfig(voxel_m=config.voxel_m, depth_min_m=config.min_depth_m,
-                                  depth_max_m=config.max_depth_m)
+            tsdf_cfg = TsdfConfig(voxel_m=config.voxel_m, depth_min_m=stereo.min_depth_m,
+                                  depth_max_m=stereo.max_depth_m)
             fusion = SubmapFusion(FusionConfig(
                 tsdf=tsdf_cfg, integrate=config.integrate,
                 keyframes_per_submap=config.keyframes_per_submap,
@@ -662,6 +657,8 @@ def run_process(
                      "in_flight": window},
         "image_size_px": [int(maps.width), int(maps.height)],
         "refractive": bool(maps.refractive),
+        "depth_range_m": list(stereo.depth_range_m),
+        "max_disparity_px": stereo.max_disparity_px,
         "virtual_pinhole_rms_px": (maps.report_left.rms_px if maps.report_left else 0.0),
         "voxel_m": config.voxel_m,
         "integrate": config.integrate,
@@ -685,7 +682,7 @@ def run_process(
     # -- evaluation against the simulator's ground truth -----------------------------------
     if config.evaluate:
         te = time.perf_counter()
-        summary.update(_evaluate(session_path, result, rig_yaml, config))
+        summary.update(_evaluate(session_path, result, native, stereo.max_depth_m))
         timer.add("evaluate_s", time.perf_counter() - te)
     timings = dict(timer.s)
     timings["total_s"] = time.perf_counter() - t_start
@@ -768,13 +765,12 @@ def _pose_alignment(t_est: NDArray[np.int64], T_est: F64, t_ref: NDArray[np.int6
     return S
 
 
-def _evaluate(session_path: Path, result: ProcessResult, rig_yaml: str,
-              config: ProcessConfig) -> dict[str, Any]:
+def _evaluate(session_path: Path, result: ProcessResult, rig: Any,
+              max_depth_m: float) -> dict[str, Any]:
     """Trajectory and surface figures against the simulator's ground truth, if present."""
     from sea3d.eval.surface import surface_metrics
     from sea3d.eval.trajectory import evaluate_trajectory
     from sea3d.io.mesh_files import read_mesh
-    from sea3d.io.rig_file import rig_from_yaml
     from sea3d.io.trajectory_files import read_trajectory
     from sea3d.pipeline.groundtruth import find_ground_truth, observed_surface_points
 
@@ -802,10 +798,9 @@ def _evaluate(session_path: Path, result: ProcessResult, rig_yaml: str,
             mesh_gt = result.mesh.transformed(T_ref_est)
             observed = None
             if gt.depth_dir is not None and gt_traj is not None:
-                rig = rig_from_yaml(rig_yaml, "the session's rig")
                 observed = observed_surface_points(
                     gt.depth_dir, rig.left, gt_traj.t_ns, gt_traj.T_world_x,
-                    max_depth_m=config.max_depth_m)
+                    max_depth_m=max_depth_m)
                 if len(observed) == 0:
                     observed = None
             sm = surface_metrics(mesh_gt.vertices, mesh_gt.triangles, ref.vertices,

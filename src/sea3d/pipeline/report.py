@@ -235,7 +235,9 @@ def write_process_report(path: Path, result: Any, *, title: str | None = None,
     T_ref_est = np.eye(4)
     tv = s.get("trajectory_vs_gt")
     if isinstance(tv, dict) and "T_ref_est" in tv and s.get("ground_truth"):
-        gt_path = Path(s["ground_truth"]) / "poses_left.tum"
+        from sea3d.io.ground_truth import GroundTruth
+
+        gt_path = GroundTruth(Path(s["ground_truth"])).poses_left_path
         if gt_path.is_file():
             gt = read_trajectory(gt_path)
             T_ref_est = np.asarray(tv["T_ref_est"], np.float64)

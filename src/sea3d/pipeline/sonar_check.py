@@ -19,7 +19,6 @@ from __future__ import annotations
 import base64
 import html
 import io
-import json
 import logging
 import os
 from collections.abc import Callable
@@ -41,21 +40,15 @@ from sea3d.eval.sonar import (
 from sea3d.geometry.pinhole import PinholeCamera
 from sea3d.geometry.rig import StereoRig
 from sea3d.geometry.se3 import invert_T
+from sea3d.io.ground_truth import GroundTruth, find_ground_truth
+from sea3d.stereo.recipe import DepthConfig
 
-__all__ = ["find_ground_truth", "run_sonar_check", "sonar_mount", "write_sonar_report"]
+__all__ = ["run_sonar_check", "sonar_mount", "write_sonar_report"]
 
 _log = logging.getLogger(__name__)
 
 
-def find_ground_truth(session: str | os.PathLike[str]) -> Path | None:
-    """The simulator's ground-truth folder of a session: ``<name>_gt/`` next to an ``.mcap``
-    file, ``gt/`` inside a folder session; None when there is none."""
-    p = Path(session)
-    cand = p / "gt" if p.is_dir() else p.with_name(p.stem + "_gt")
-    return cand if cand.is_dir() else None
-
-
-def sonar_mount(rig: StereoRig, gt_dir: Path | None) -> tuple[np.ndarray, float, str]:
+def sonar_mount(rig: StereoRig, gt: GroundTruth | None) -> tuple[np.ndarray, float, str]:
     """``(T_left_sonar, beam_deg, where it came from)``.
 
     Raises:
@@ -67,13 +60,13 @@ def sonar_mount(rig: StereoRig, gt_dir: Path | None) -> tuple[np.ndarray, float,
             float(rig.sonar.beam_deg),
             "the rig's sonar: block",
         )
-    sim = None if gt_dir is None else gt_dir / "sim.json"
-    if sim is not None and sim.is_file():
+    sim = None if gt is None else gt.sim_meta
+    if gt is not None and sim is not None:
         try:
-            meta = json.loads(sim.read_text())
+            meta = gt.read_meta()
             T_body_left = np.asarray(meta["T_body_left"], dtype=np.float64)
             T_body_sonar = np.asarray(meta["T_body_sonar"], dtype=np.float64)
-        except (OSError, ValueError, KeyError) as err:
+        except (SessionError, ValueError, KeyError) as err:
             raise SessionError(f"{sim}: no usable T_body_left / T_body_sonar ({err})") from err
         return invert_T(T_body_left) @ T_body_sonar, 0.0, f"{sim} (T_body_left, T_body_sonar)"
     raise SessionError(
@@ -127,19 +120,20 @@ def _load_views(
     *,
     depth_dir: Path | None,
     depth_frame: str,
-    engine: str,
+    depth: DepthConfig,
     every: int,
-    depth_range_m: tuple[float, float],
     pose_t: np.ndarray | None,
     pose_T: np.ndarray | None,
     max_width_px: int | None,
     progress: Callable[[int], None] | None,
 ) -> list[DepthView]:
-    from sea3d.rectify import rectify_rig
+    from sea3d.stereo.recipe import StereoDepth
 
-    maps = None
+    stereo = maps = None
     if depth_frame == "rect" or depth_dir is None:
-        maps = rectify_rig(rig, depth_range_m=depth_range_m)
+        # the same rectification as ``sea3d depth`` with the same range
+        stereo = StereoDepth(rig, depth)
+        maps = stereo.maps
     views: list[DepthView] = []
     if depth_frame == "rect":
         assert maps is not None
@@ -194,11 +188,7 @@ def _load_views(
                 DepthView(t_ns=t, depth_m=small, camera=cam, T_world_camera=T @ T_left_cam)
             )
         return views
-    from sea3d.stereo import make_config
-    from sea3d.stereo.depth import compute_depth, max_disparity_for_depth
-
-    assert maps is not None
-    config = make_config(engine, max_disparity_for_depth(maps, depth_range_m[0]))
+    assert stereo is not None
     match = session.match_pairs()
     ls = session.stamps("left")
     idx = list(zip(match.left_index.tolist(), match.right_index.tolist(), strict=True))[::every]
@@ -215,7 +205,7 @@ def _load_views(
         except SessionError as err:
             _log.warning("eval sonar: skipping frame %d: %s", t, err)
             continue
-        res = compute_depth(maps, left, right, config, max_depth_m=depth_range_m[1])
+        res = stereo.compute(left, right)
         small, cam = _shrink(res.depth_m, camera, max_width_px)
         views.append(DepthView(t_ns=t, depth_m=small, camera=cam, T_world_camera=T @ T_left_cam))
     return views
@@ -265,16 +255,19 @@ def run_sonar_check(
     poses_path: str | os.PathLike[str] | None = None,
     depth_dir: str | os.PathLike[str] | None = None,
     depth_frame: str = "rect",
-    engine: str = "opencv",
+    depth: DepthConfig | None = None,
     every: int = 1,
     beam_deg: float | None = None,
     window_s: float = 5.0,
-    depth_range_m: tuple[float, float] = (0.5, 10.0),
     max_width_px: int | None = 480,
     use_truth: bool = True,
     progress: Callable[[int], None] | None = None,
 ) -> tuple[SonarEvaluation, dict[str, Any]]:
     """Evaluate a session's echosounder against its stereo (see the module docstring).
+
+    ``depth`` says how stereo depth is computed (default: OpenCV's engine, ranges from the
+    rig); with ``depth_dir`` in the rectified frame its rectification must be that of the run
+    that wrote the maps (the same :class:`~sea3d.stereo.recipe.DepthConfig`).
 
     Returns:
         The :class:`~sea3d.eval.sonar.SonarEvaluation` and a dict saying where the mount,
@@ -283,7 +276,9 @@ def run_sonar_check(
     Raises:
         SessionError: no echosounder samples, no rig, no sonar mount, unreadable inputs.
     """
-    from sea3d.io.rig_file import rig_from_yaml
+    from sea3d.io.rig_file import resolve_rig
+
+    depth_cfg = depth if depth is not None else DepthConfig(engine="opencv")
     from sea3d.io.session import open_session
     from sea3d.io.trajectory_files import read_trajectory
 
@@ -300,9 +295,7 @@ def run_sonar_check(
                 "compare the stereo with"
             )
         if rig is None:
-            if not session.rig_yaml:
-                raise SessionError(f"{session_path} stores no rig; pass --rig rig.yaml")
-            rig = rig_from_yaml(session.rig_yaml, f"{session_path} (stored rig.yaml)")
+            rig = resolve_rig(None, session)
         T_left_sonar, rig_beam, mount_src = sonar_mount(rig, gt)
         beam = rig_beam if beam_deg is None else float(beam_deg)
         pose_t = pose_T = None
@@ -311,18 +304,17 @@ def run_sonar_check(
             traj = read_trajectory(poses_path, "tum")
             pose_t, pose_T = traj.t_ns, traj.T_world_x
             pose_src = f"{poses_path}"
-        elif gt is not None and (gt / "poses_left.tum").is_file():
-            traj = read_trajectory(gt / "poses_left.tum", "tum")
+        elif gt is not None and gt.poses_left is not None:
+            traj = read_trajectory(gt.poses_left, "tum")
             pose_t, pose_T = traj.t_ns, traj.T_world_x
-            pose_src = f"ground truth {gt / 'poses_left.tum'} (simulator)"
+            pose_src = f"ground truth {gt.poses_left} (simulator)"
         views = _load_views(
             session,
             rig,
             depth_dir=None if depth_dir is None else Path(depth_dir),
             depth_frame=depth_frame,
-            engine=engine,
+            depth=depth_cfg,
             every=every,
-            depth_range_m=depth_range_m,
             pose_t=pose_t,
             pose_T=pose_T,
             max_width_px=max_width_px,
@@ -331,20 +323,15 @@ def run_sonar_check(
     depth_src = (
         f"{depth_dir} ({depth_frame} left camera)"
         if depth_dir is not None
-        else f"computed ({engine})"
+        else f"computed ({depth_cfg.engine})"
     )
     truth = None
     truth_src = None
-    if (
-        use_truth
-        and gt is not None
-        and (gt / "scene.ply").is_file()
-        and (gt / "poses_left.tum").is_file()
-    ):
-        gt_traj = read_trajectory(gt / "poses_left.tum", "tum")
+    if use_truth and gt is not None and gt.scene_mesh is not None and gt.poses_left is not None:
+        gt_traj = read_trajectory(gt.poses_left, "tum")
         gt_t, gt_T = gt_traj.t_ns, gt_traj.T_world_x
-        truth = _true_ranges(gt / "scene.ply", gt_t, gt_T, sonar.t_ns, T_left_sonar, beam)
-        truth_src = f"beam cast against {gt / 'scene.ply'} from the true poses"
+        truth = _true_ranges(gt.scene_mesh, gt_t, gt_T, sonar.t_ns, T_left_sonar, beam)
+        truth_src = f"beam cast against {gt.scene_mesh} from the true poses"
     r = np.asarray(sonar.range_m, dtype=np.float64).copy()
     conf = np.asarray(sonar.confidence, dtype=np.float64)
     r[np.isfinite(conf) & (conf <= 0)] = np.nan  # the sensor said it had no echo

@@ -13,11 +13,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.errors import ReconError
 
 __all__ = ["CleanCloud", "CloudConfig", "clean_point_cloud"]
-
-F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -33,13 +33,12 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F32, F64
 from sea3d.errors import ReconError
 
 __all__ = ["ResampleMethod", "pinhole_offsets", "virtual_pinhole_depth"]
 
 ResampleMethod = Literal["resample", "raster", "none"]
-F32 = NDArray[np.float32]
-F64 = NDArray[np.float64]
 
 
 def pinhole_offsets(depth_m: F32, points_rect: F64, K: F64) -> tuple[F32, F32]:

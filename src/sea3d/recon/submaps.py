@@ -32,7 +32,9 @@ from typing import Literal, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.errors import ReconError
+from sea3d.geometry.se3 import invert_T
 from sea3d.recon.tsdf import TsdfConfig, TsdfVolume
 from sea3d.recon.types import Mesh, Submap, VoxelBlocks
 
@@ -47,7 +49,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-F64 = NDArray[np.float64]
 
 IntegratePolicy = Literal["keyframes", "trusted"]
 FuseStatus = Literal["integrated", "skipped_untrusted", "skipped_not_keyframe", "skipped_no_depth",
@@ -165,7 +166,7 @@ class SubmapFusion:
             replace(tsdf, initial_blocks=min(tsdf.initial_blocks, self.config.max_blocks)))
         self._active_id += 1
         self._anchor_id = anchor_id
-        self._T_anchor_grid = _rigid_inverse(T_world_anchor)  # grid = world, now
+        self._T_anchor_grid = invert_T(T_world_anchor)  # grid = world, now
         self._keyframes = []
         self._t_first = t_ns
 
@@ -255,7 +256,7 @@ class SubmapFusion:
         if T_world_anchor is None:
             raise ReconError(f"keyframe_poses lacks the active anchor keyframe {self._anchor_id}")
         T_world_grid = np.asarray(T_world_anchor, np.float64) @ self._T_anchor_grid
-        T_grid_cam = _rigid_inverse(T_world_grid) @ np.asarray(T_world_cam, np.float64)
+        T_grid_cam = invert_T(T_world_grid) @ np.asarray(T_world_cam, np.float64)
         touched = self._active.integrate(depth_m, color_rgb, K, T_grid_cam)
         self.frames_integrated += 1
         self.peak_memory_bytes = max(self.peak_memory_bytes, self._active.memory_bytes)
@@ -265,14 +266,6 @@ class SubmapFusion:
     def finish(self) -> Submap | None:
         """Finish the active submap (after the last frame) and return it, or None."""
         return self._finish()
-
-
-def _rigid_inverse(T: F64) -> F64:
-    out = np.eye(4)
-    R = T[:3, :3]
-    out[:3, :3] = R.T
-    out[:3, 3] = -R.T @ T[:3, 3]
-    return out
 
 
 # ------------------------------------------------------------------------------------ merging

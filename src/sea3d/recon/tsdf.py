@@ -29,14 +29,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.errors import ReconError
 from sea3d.recon.types import Mesh, VoxelBlocks
 
 __all__ = ["TsdfConfig", "TsdfVolume"]
 
 log = logging.getLogger(__name__)
-
-F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -13,12 +13,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F32, F64
 from sea3d.errors import ReconError
 
 __all__ = ["Mesh", "Submap", "VoxelBlocks"]
-
-F64 = NDArray[np.float64]
-F32 = NDArray[np.float32]
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)

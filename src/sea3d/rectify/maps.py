@@ -25,8 +25,8 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from numpy.typing import NDArray
 
+from sea3d._typing import F32, F64
 from sea3d.errors import RectifyError
 from sea3d.geometry.camera import CameraModel
 from sea3d.geometry.pinhole import PinholeCamera
@@ -42,8 +42,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-F32 = NDArray[np.float32]
-F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True, kw_only=True)

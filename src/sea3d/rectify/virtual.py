@@ -24,15 +24,13 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F32, F64
 from sea3d.errors import RectifyError
 from sea3d.geometry.camera import CameraModel
 from sea3d.geometry.pinhole import PinholeCamera
 from sea3d.rectify.maps import VirtualPinholeReport, fit_virtual_pinhole
 
 __all__ = ["VirtualPinholeMaps", "virtual_pinhole_maps"]
-
-F32 = NDArray[np.float32]
-F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)

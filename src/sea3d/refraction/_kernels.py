@@ -14,11 +14,9 @@ import math
 
 import numba as nb
 import numpy as np
-from numpy.typing import NDArray
 
+from sea3d._typing import FloatArray
 from sea3d.geometry._kernels import undistort_point
-
-FloatArray = NDArray[np.float64]
 
 KIND_DOME = 0.0
 KIND_FLAT = 1.0

@@ -22,8 +22,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
 
+from sea3d._typing import BoolArray, FloatArray
 from sea3d.errors import RefractionError
 from sea3d.geometry.camera import Rays, as_pixels, as_points
 from sea3d.geometry.pinhole import PinholeCamera
@@ -39,8 +39,6 @@ __all__ = [
     "FlatPortCamera",
 ]
 
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 # Indices from the paper's Table 2.4 (air, sea water, acrylic).
 N_AIR = 1.000292

@@ -14,14 +14,11 @@ ray, and this module says so instead of returning a reflected or clipped one.
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 
+from sea3d._typing import BoolArray, FloatArray
 from sea3d.errors import GeometryError
 
 __all__ = ["refract"]
-
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 
 def refract(

@@ -36,8 +36,8 @@ from typing import Any
 
 import cv2
 import numpy as np
-from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.errors import SfmError
 from sea3d.geometry.camera import CameraModel
 from sea3d.geometry.rig import StereoRig
@@ -48,7 +48,6 @@ from sea3d.sfm.types import PosePriors, SfmConfig, SfmFrame, SfmResult
 __all__ = ["run_sfm"]
 
 log = logging.getLogger(__name__)
-F64 = NDArray[np.float64]
 Progress = Callable[[str, int, int], None]
 
 # ------------------------------------------------------------------------------ features

@@ -41,15 +41,14 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation, Slerp
 
+from sea3d._typing import F64
 from sea3d.errors import SfmError
 
 __all__ = ["ImuScaleResult", "estimate_imu_scale", "smooth_rotations"]
 
 log = logging.getLogger(__name__)
-F64 = NDArray[np.float64]
 # Movella MTi-300 noise densities (as in sea3d.sim.motion): accelerometer 60 ug/sqrt(Hz),
 # gyroscope 0.01 deg/s/sqrt(Hz).
 DEFAULT_ACCEL_NOISE_MPS2_SQRTHZ = 60.0 * 9.81e-6

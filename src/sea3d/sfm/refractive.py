@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 from scipy.sparse import csr_matrix
 
+from sea3d._typing import F64
 from sea3d.geometry.rig import StereoRig
 from sea3d.geometry.se3 import invert_T
 from sea3d.sfm.types import RefractiveBaReport
@@ -38,7 +39,6 @@ from sea3d.sfm.types import RefractiveBaReport
 __all__ = ["RayObservations", "ray_bundle_adjust", "refine"]
 
 log = logging.getLogger(__name__)
-F64 = NDArray[np.float64]
 IntArray = NDArray[np.intp]
 
 

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.errors import ConfigError
 from sea3d.rectify.maps import VirtualPinholeReport
 
@@ -30,7 +31,6 @@ __all__ = [
     "SfmResult",
 ]
 
-F64 = NDArray[np.float64]
 ImageLike = np.ndarray | Callable[[], np.ndarray]
 """An image (``(H, W)`` or ``(H, W, 3)`` RGB, uint8 or uint16) or a function that loads it."""
 

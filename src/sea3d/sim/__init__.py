@@ -6,7 +6,7 @@ flat ports is exact; water follows Akkaynak and Treibitz (CVPR 2018).
 
 from sea3d.sim.motion import HandHeld, ImuNoise, Lawnmower, Mount, Orbit, imu_samples
 from sea3d.sim.optics import WATER_PRESETS, Imaging, Water
-from sea3d.sim.render import GroundTruth, RenderedView, Renderer
+from sea3d.sim.render import RenderedView, Renderer, ViewTruth
 from sea3d.sim.scene import (
     Scene,
     SceneObject,
@@ -25,7 +25,6 @@ from sea3d.sim.survey import (
 __all__ = [
     "WATER_PRESETS",
     "CalibrationSet",
-    "GroundTruth",
     "HandHeld",
     "Imaging",
     "ImuNoise",
@@ -38,6 +37,7 @@ __all__ = [
     "SceneObject",
     "SurveyConfig",
     "SurveyResult",
+    "ViewTruth",
     "Water",
     "builtin_scene",
     "imu_samples",

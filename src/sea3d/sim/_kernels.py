@@ -6,10 +6,8 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F32, F64
 from sea3d.sim.noise import CACHE_COLS, fbm1, fbm1_cached
-
-F32 = NDArray[np.float32]
-F64 = NDArray[np.float64]
 
 
 @numba.njit(cache=True, parallel=True)

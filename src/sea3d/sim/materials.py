@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import FloatArray
 from sea3d.errors import SimulationError
 from sea3d.sim._kernels import sand_albedo
 from sea3d.sim.noise import fbm
@@ -29,7 +30,6 @@ __all__ = [
     "SolidMaterial",
 ]
 
-FloatArray = NDArray[np.float64]
 AlbedoArray = NDArray[np.float32]
 
 

@@ -27,6 +27,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import FloatArray
 from sea3d.errors import SimulationError
 
 __all__ = [
@@ -43,7 +44,6 @@ __all__ = [
     "sample_times_ns",
 ]
 
-FloatArray = NDArray[np.float64]
 GRAVITY_WORLD = np.array([0.0, 0.0, -9.81])
 _DEG = np.pi / 180.0
 _UG = 9.81e-6  # one micro-g in m/s^2

@@ -30,13 +30,11 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F32, FloatArray
 from sea3d.errors import SimulationError
 from sea3d.sim._kernels import caustic_raw, expose, light_and_water, noise_and_encode
 
 __all__ = ["WATER_PRESETS", "Imaging", "Water", "encode_srgb", "water_preset"]
-
-FloatArray = NDArray[np.float64]
-F32 = NDArray[np.float32]
 
 
 @dataclass(frozen=True, kw_only=True)

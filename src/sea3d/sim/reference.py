@@ -27,9 +27,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import FloatArray
 from sea3d.geometry.rig import StereoRig
 from sea3d.sim.optics import Imaging
-from sea3d.sim.render import GroundTruth, Renderer
+from sea3d.sim.render import Renderer, ViewTruth
 from sea3d.sim.scene import Scene, load_scene
 
 __all__ = [
@@ -40,7 +41,6 @@ __all__ = [
 ]
 
 Image = NDArray[np.uint8]
-FloatArray = NDArray[np.float64]
 
 
 def water_model_dict(imaging: Imaging) -> dict[str, Any]:
@@ -97,7 +97,7 @@ class ReferencePair:
     right_clean: Image
     left_unattenuated: Image
     right_unattenuated: Image
-    gt: GroundTruth
+    gt: ViewTruth
     exposure_clean: float
     exposure_unattenuated: float
     water: dict[str, Any]

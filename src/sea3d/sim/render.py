@@ -31,6 +31,7 @@ import numpy as np
 import open3d as o3d
 from numpy.typing import NDArray
 
+from sea3d._typing import F32, FloatArray
 from sea3d.errors import SimulationError
 from sea3d.geometry.camera import CameraModel
 from sea3d.sim._kernels import (
@@ -49,16 +50,13 @@ from sea3d.sim.noise import rigid_transform
 from sea3d.sim.optics import Imaging, caustic_mean
 from sea3d.sim.scene import Scene
 
-__all__ = ["GroundTruth", "Hits", "RenderedView", "Renderer"]
+__all__ = ["Hits", "RenderedView", "Renderer", "ViewTruth"]
 
 _log = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
-F32 = NDArray[np.float32]
-
 
 @dataclass(frozen=True, kw_only=True, eq=False)
-class GroundTruth:
+class ViewTruth:
     """Per-pixel ground truth of one rendered view (see the module docstring).
 
     Attributes:
@@ -83,12 +81,12 @@ class RenderedView:
     Attributes:
         image: ``(H, W, 3)`` uint8 sRGB image (RGB order).
         radiance: ``(H, W, 3)`` float32 linear radiance before the sensor model.
-        gt: :class:`GroundTruth`.
+        gt: :class:`ViewTruth`.
     """
 
     image: NDArray[np.uint8]
     radiance: F32
-    gt: GroundTruth
+    gt: ViewTruth
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -401,7 +399,7 @@ class Renderer:
         t4 = time.perf_counter()
         image = imaging.sensor(radiance, rng)
         self.timings_s["sensor"] += time.perf_counter() - t4
-        gt = GroundTruth(
+        gt = ViewTruth(
             depth_m=depth, range_m=rng_m, points_cam=points, normals_cam=normals, object_id=obj_id
         )
         return RenderedView(image=image, radiance=radiance, gt=gt)
@@ -508,7 +506,7 @@ class Renderer:
         c0 = _clock()
         image = imaging.sensor(radiance, rng)
         self._lap("sensor", c0)
-        gt = GroundTruth(
+        gt = ViewTruth(
             depth_m=depth, range_m=rng_m, points_cam=points, normals_cam=normals, object_id=obj_id
         )
         return RenderedView(image=image, radiance=radiance, gt=gt)

@@ -25,8 +25,8 @@ from typing import Any
 import numpy as np
 import open3d as o3d
 import yaml
-from numpy.typing import NDArray
 
+from sea3d._typing import FloatArray
 from sea3d.calib.targets import BoardSpec, board_origin_offset_m, parse_board, render_board
 from sea3d.errors import ConfigError, SimulationError
 from sea3d.sim.materials import (
@@ -52,7 +52,6 @@ __all__ = [
 
 _log = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
 BUILTIN_SCENES = ("tank", "lake", "reef")
 
 

@@ -7,7 +7,8 @@
   200 Hz, echosounder at 10 Hz, written through any writer with ``write_stereo``, ``write_imu``
   and ``write_sonar`` (:class:`sea3d.io.session.SessionWriter`), plus ground truth in ``gt/``.
 
-Ground truth on disk (``gt/``, written by :func:`simulate_survey`):
+Ground truth on disk (``gt/``, written by :func:`simulate_survey` through
+:mod:`sea3d.io.ground_truth`, which owns the folder rule and the file names):
 
 - ``depth/<t_ns>.tiff``: left depth, float32 metres along the left camera's z axis, NaN where
   nothing is hit, bit for bit (TIFF, deflate with the floating-point predictor: about 2.6 times
@@ -38,11 +39,13 @@ import numpy as np
 import open3d as o3d
 from numpy.typing import NDArray
 
+from sea3d._typing import FloatArray
 from sea3d.calib.targets import BoardSpec
 from sea3d.errors import SimulationError
 from sea3d.geometry.camera import CameraModel
 from sea3d.geometry.rig import ImuSpec, SonarSpec, StereoRig
 from sea3d.geometry.se3 import invert_T
+from sea3d.io.ground_truth import GroundTruth, write_gt_depth
 from sea3d.io.trajectory_files import write_tum
 from sea3d.sim.motion import (
     GRAVITY_WORLD,
@@ -59,7 +62,7 @@ from sea3d.sim.motion import (
 )
 from sea3d.sim.optics import Imaging
 from sea3d.sim.reference import unclipped_exposure, water_model_dict
-from sea3d.sim.render import GroundTruth, Renderer
+from sea3d.sim.render import Renderer, ViewTruth
 from sea3d.sim.scene import Scene, load_scene, make_board, sim_board
 
 __all__ = [
@@ -73,7 +76,6 @@ __all__ = [
 
 _log = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
 Image = NDArray[np.uint8]
 
 
@@ -110,7 +112,7 @@ def simulate_pair(
     time_s: float = 0.0,
     supersample: int = 2,
     renderer: Renderer | None = None,
-) -> tuple[Image, Image, GroundTruth]:
+) -> tuple[Image, Image, ViewTruth]:
     """Render one stereo pair.
 
     Args:
@@ -490,68 +492,6 @@ def default_trajectory(scene: Scene, config: SurveyConfig) -> Trajectory:
     return make_trajectory(kind, duration_s=duration)  # raises for an unknown kind
 
 
-# Ground-truth depth on disk: float32 TIFF, deflate (zlib level 1) with the floating-point
-# predictor (TIFF predictor 3). Lossless; on the lake scene 0.36 of the .npy size at level 1,
-# 0.34 at level 6 for twice the encoding time (benchmarks/bench_sim_storage.py).
-GT_DEPTH_SUFFIX = ".tiff"
-_GT_DEPTH_ZLIB_LEVEL = 1
-
-
-def write_gt_depth(path: Path, depth_m: NDArray[np.float32]) -> None:
-    """Write a ground-truth depth map losslessly (float32 TIFF, deflate + floating-point
-    predictor; NaN kept).
-
-    Args:
-        path: output file (``.tiff``).
-        depth_m: ``(H, W)`` depth, metres, NaN where nothing is hit.
-    """
-    import tifffile
-
-    tifffile.imwrite(
-        path,
-        np.ascontiguousarray(depth_m, dtype=np.float32),
-        compression="zlib",
-        predictor=3,
-        compressionargs={"level": _GT_DEPTH_ZLIB_LEVEL},
-    )
-
-
-def gt_depth_path(depth_dir: str | Path, t_ns: int) -> Path:
-    """The ground-truth depth file of frame ``t_ns`` in a ``gt/depth`` folder: ``<t_ns>.tiff``
-    (lossless, since the simulator stopped writing ``.npy``), else the ``.npy`` of earlier
-    versions (which need not exist: :func:`read_gt_depth` then names the missing file)."""
-    d = Path(depth_dir)
-    tiff, npy = d / f"{int(t_ns)}{GT_DEPTH_SUFFIX}", d / f"{int(t_ns)}.npy"
-    return npy if npy.is_file() and not tiff.is_file() else tiff
-
-
-def read_gt_depth(path: str | Path) -> NDArray[np.float32]:
-    """Read a ground-truth depth map written by :func:`simulate_survey`: ``depth/<t_ns>.tiff``
-    (or the ``.npy`` files of earlier versions).
-
-    Returns:
-        ``(H, W)`` float32 metres, NaN where nothing was hit.
-
-    Raises:
-        SimulationError: the file is missing or not a one-channel float32 depth map.
-    """
-    p = Path(path)
-    try:
-        if p.suffix.lower() == ".npy":
-            depth = np.load(p, allow_pickle=False)
-        else:
-            import tifffile
-
-            depth = tifffile.imread(p)
-    except (OSError, ValueError) as err:
-        raise SimulationError(f"cannot read ground-truth depth {p}: {err}") from err
-    if depth.ndim != 2 or depth.dtype != np.float32:
-        raise SimulationError(
-            f"{p}: expected a 2-D float32 depth map, got {depth.dtype} {depth.shape}"
-        )
-    return np.asarray(depth)
-
-
 @dataclass(frozen=True, kw_only=True)
 class SurveyCost:
     """What a simulated survey will write and take, estimated before it starts.
@@ -627,8 +567,9 @@ def _write_clean_reference(
     left = sensor.sensor(lv.radiance, rng)
     right = sensor.sensor(rv.radiance, rng)
     try:
-        cv2.imwrite(str(gt_dir / "clean" / "left" / f"{t_ns}.png"), left[:, :, ::-1])
-        cv2.imwrite(str(gt_dir / "clean" / "right" / f"{t_ns}.png"), right[:, :, ::-1])
+        gt = GroundTruth(gt_dir)
+        cv2.imwrite(str(gt.clean_folder("left") / f"{t_ns}.png"), left[:, :, ::-1])
+        cv2.imwrite(str(gt.clean_folder("right") / f"{t_ns}.png"), right[:, :, ::-1])
     except OSError as err:
         raise SimulationError(f"cannot write clean reference to {gt_dir}: {err}") from err
     return e
@@ -751,15 +692,16 @@ def simulate_survey(
     )
     T_wb = poses(traj, frame_t.astype(np.float64) * 1e-9)
     T_wl = T_wb @ mount.T_body_left
-    if gt_dir is not None:
+    gt = GroundTruth(Path(gt_dir)) if gt_dir is not None else None
+    if gt is not None:
         try:
-            (gt_dir / "depth").mkdir(parents=True, exist_ok=True)
-            (gt_dir / "object_id").mkdir(parents=True, exist_ok=True)
-            write_tum(gt_dir / "poses_left.tum", frame_t.tolist(), T_wl)
-            write_tum(gt_dir / "poses_body.tum", frame_t.tolist(), T_wb)
-            o3d.io.write_triangle_mesh(str(gt_dir / "scene.ply"), scene.combined_mesh())  # type: ignore[arg-type]
+            gt.depth_folder.mkdir(parents=True, exist_ok=True)
+            gt.object_id_folder.mkdir(parents=True, exist_ok=True)
+            write_tum(gt.poses_left_path, frame_t.tolist(), T_wl)
+            write_tum(gt.poses_body_path, frame_t.tolist(), T_wb)
+            o3d.io.write_triangle_mesh(str(gt.scene_mesh_path), scene.combined_mesh())  # type: ignore[arg-type]
             np.savetxt(
-                gt_dir / "imu_bias.csv",
+                gt.imu_bias_path,
                 np.column_stack(
                     [imu.t_ns[:n_imu], imu.accel_bias_mps2[:n_imu], imu.gyro_bias_radps[:n_imu]]
                 ),
@@ -787,13 +729,13 @@ def simulate_survey(
                 "water_model": water_model_dict(imaging),
             }
             if config.clean_reference:
-                (gt_dir / "clean" / "left").mkdir(parents=True, exist_ok=True)
-                (gt_dir / "clean" / "right").mkdir(parents=True, exist_ok=True)
+                gt.clean_folder("left").mkdir(parents=True, exist_ok=True)
+                gt.clean_folder("right").mkdir(parents=True, exist_ok=True)
                 meta["clean_reference"] = (
                     "clean/{left,right}/<t_ns>.png: the same views without water, same sensor "
                     "noise, exposure clean_reference_exposure"
                 )
-            (gt_dir / "sim.json").write_text(json.dumps(meta, indent=1))
+            gt.sim_meta_path.write_text(json.dumps(meta, indent=1))
         except OSError as err:
             raise SimulationError(f"cannot write ground truth to {gt_dir}: {err}") from err
     i_imu = 0
@@ -821,16 +763,16 @@ def simulate_survey(
                 renderer, rig, T_wl[k], imaging, time_s, noise_state, gt_dir, int(t_ns),
                 ref_exposure,
             )
-        if gt_dir is not None:
-            write_gt_depth(gt_dir / "depth" / f"{int(t_ns)}{GT_DEPTH_SUFFIX}", lv.gt.depth_m)
+        if gt is not None:
+            write_gt_depth(gt.new_depth_path(int(t_ns)), lv.gt.depth_m)
             cv2.imwrite(
-                str(gt_dir / "object_id" / f"{int(t_ns)}.png"),
+                str(gt.object_id_folder / f"{int(t_ns)}.png"),
                 (lv.gt.object_id + 1).astype(np.uint16),
             )
         if progress is not None:
             progress(1)
-    if config.clean_reference and gt_dir is not None and ref_exposure is not None:
-        meta_path = gt_dir / "sim.json"
+    if config.clean_reference and gt is not None and ref_exposure is not None:
+        meta_path = gt.sim_meta_path
         meta = json.loads(meta_path.read_text())
         meta["clean_reference_exposure"] = ref_exposure
         meta_path.write_text(json.dumps(meta, indent=1))
@@ -847,12 +789,9 @@ __all__ += [
     "SurveyCost",
     "default_trajectory",
     "estimate_survey_cost",
-    "gt_depth_path",
     "in_air",
-    "read_gt_depth",
     "survey_imu_noise",
     "survey_mount",
     "with_survey_sensors",
     "write_calibration_set",
-    "write_gt_depth",
 ]

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F32, F64
 from sea3d.errors import StereoError
 from sea3d.geometry.camera import Rays
 from sea3d.geometry.triangulate import triangulate_midpoint
@@ -37,9 +38,6 @@ __all__ = [
     "max_disparity_for_depth",
     "triangulate_disparity",
 ]
-
-F32 = NDArray[np.float32]
-F64 = NDArray[np.float64]
 
 
 def disparity_to_depth(disparity_px: np.ndarray, focal_px: float, baseline_m: float) -> F32:

@@ -18,8 +18,8 @@ from typing import Any
 import cv2
 import numpy as np
 from numba import njit, prange
-from numpy.typing import NDArray
 
+from sea3d._typing import F32
 from sea3d.errors import ConfigError, StereoError
 
 __all__ = [
@@ -39,8 +39,6 @@ __all__ = [
     "parse_filter_chain",
     "remove_speckles",
 ]
-
-F32 = NDArray[np.float32]
 
 
 @njit(cache=True, inline="always")

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.errors import ConfigError
 from sea3d.geometry.camera import CameraModel, Rays
 from sea3d.geometry.pinhole import PinholeCamera
@@ -50,7 +51,6 @@ __all__ = [
 ]
 
 _log = logging.getLogger(__name__)
-F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True, kw_only=True)

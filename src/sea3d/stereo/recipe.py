@@ -45,9 +45,10 @@ about the water's index, a centred dome not at all). The virtual pinholes are fi
 range first estimated from the lens focal length (times ``n_water / n_air`` behind a flat
 port) and the baseline, so one fit serves both.
 
-Examples (``f B`` in px m; range in m): a car rig with ``B = 0.54 m``, ``f = 718 px`` at
-1241x376 (``d_max = 159``): 2.4 .. 97; the paper's dome rig at 640x360 (``f B = 38.6``,
-``d_max = 79``): 0.49 .. 9.7, and at 1920x1080 (``d_max = 239``): 0.48 .. 29.
+Examples (``f B`` of the rectified views in px m; range in m): a car rig with ``B = 0.54 m``,
+``f = 718 px`` at 1241x376 (``f B = 388``, ``d_max = 159``): 2.44 .. 97; the paper's dome rig at
+640x360 (``f B = 37.8``, ``d_max = 79``): 0.48 .. 9.44, at 1920x1080 (``d_max = 239``):
+0.47 .. 28.3; its flat-port rig at 640x360 (``f B = 62.1``, magnified by the water): 0.79 .. 15.5.
 """
 
 from __future__ import annotations
