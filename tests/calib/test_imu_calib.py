@@ -71,3 +71,39 @@ def test_unrelated_gyro_and_too_few_frames_are_statuses_not_exceptions() -> None
     assert few.status is CameraImuStatus.TOO_FEW
     with pytest.raises(CalibrationError, match="expected R_world_cam"):
         estimate_camera_imu(t_cam, R[:3], t_imu, noise)
+
+
+def test_weak_excitation_names_the_idle_axes_and_the_motion_to_record() -> None:
+    traj = Lawnmower(duration_s=40.0, width_m=3.0, speed_mps=0.3)
+    t_cam, R, t_imu, gyro, _ = _data(traj, 0.0, 2, duration=40.0)
+    res = estimate_camera_imu(t_cam, R, t_imu, gyro)
+    assert res.status is CameraImuStatus.WEAK_EXCITATION
+    text = " ".join(res.advice)
+    # a level lawnmower turns about the world vertical only: two camera axes idle
+    assert "too little rotation about the camera's" in text
+    idle = [n for n in ("x (tilt", "y (pan", "z (roll") if n in res.advice[0]]
+    assert len(idle) == 2
+    assert "turn the rig by 15-30 deg" in text and "rad/s" in text
+    assert res.duration_s == pytest.approx(39.0, abs=0.2)  # 40 s less the +-0.5 s searched
+    assert res.as_dict()["advice"] == res.advice
+
+
+def test_a_short_good_clip_is_told_how_long_to_record() -> None:
+    R_true = rotvec_to_R([0.4, -2.0, 0.9])
+    t_cam, R, t_imu, gyro, _ = _data(HandHeld(duration_s=4.0), 0.0, 5, R_true, duration=4.0)
+    res = estimate_camera_imu(t_cam, R, t_imu, gyro, max_rotation_sigma_deg=0.02)
+    assert res.status is CameraImuStatus.WEAK_EXCITATION
+    assert any("record about" in a for a in res.advice) or any(
+        "too little rotation" in a for a in res.advice
+    )
+    ok = estimate_camera_imu(t_cam, R, t_imu, gyro)
+    assert ok.advice == [] if ok.status is CameraImuStatus.OK else ok.advice
+
+
+def test_too_few_and_no_match_say_what_to_do() -> None:
+    t_cam, R, t_imu, _gyro, _ = _data(HandHeld(duration_s=20.0), 0.0, 3)
+    noise = np.random.default_rng(9).normal(0, 0.2, (t_imu.size, 3))
+    nm = estimate_camera_imu(t_cam, R, t_imu, noise)
+    assert nm.status is CameraImuStatus.NO_MATCH and "--max-offset-s" in nm.advice[0]
+    few = estimate_camera_imu(t_cam[:5], R[:5], t_imu, noise)
+    assert "record at least 10 s" in few.advice[0]

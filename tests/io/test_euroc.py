@@ -33,3 +33,46 @@ def test_euroc_micro_reads_with_rig_imu_and_ground_truth(data_dir) -> None:
 def test_euroc_reader_refuses_other_folders(tmp_path: Path) -> None:
     with pytest.raises(SessionError, match="not an EuRoC folder"):
         read_euroc(tmp_path)
+
+
+def _euroc_without_imu(data_dir, tmp_path: Path, frames: int = 6) -> Path:
+    """A copy of the micro excerpt's first frames with no imu0 folder at all."""
+    import shutil
+
+    src = data_dir / EUROC / "mav0"
+    dst = tmp_path / "seq" / "mav0"
+    for cam in ("cam0", "cam1"):
+        (dst / cam / "data").mkdir(parents=True)
+        shutil.copy(src / cam / "sensor.yaml", dst / cam / "sensor.yaml")
+        lines = (src / cam / "data.csv").read_text().splitlines()
+        rows = [ln for ln in lines if not ln.startswith("#")][:frames]
+        (dst / cam / "data.csv").write_text("\n".join([lines[0], *rows]) + "\n")
+        for row in rows:
+            name = row.split(",")[1].strip()
+            shutil.copy(src / cam / "data" / name, dst / cam / "data" / name)
+    return dst.parent
+
+
+@pytest.mark.data
+def test_euroc_without_imu0_reads_the_cameras(data_dir, tmp_path: Path) -> None:
+    root = _euroc_without_imu(data_dir, tmp_path)
+    seq = read_euroc(root, imu=False)
+    assert len(seq.t_ns) == 6 and seq.rig.imu is None and seq.imu_t_ns.size == 0
+    # asked for the IMU, a folder without imu0 reads as a sequence without IMU
+    assert read_euroc(root).rig.imu is None
+
+
+@pytest.mark.data
+def test_odometry_of_euroc_without_imu0(data_dir, tmp_path: Path, capsys) -> None:
+    import json
+
+    from sea3d.cli import main
+
+    root = _euroc_without_imu(data_dir, tmp_path)
+    for extra in (["--no-imu"], []):
+        out = tmp_path / "t.tum"
+        argv = ["odometry", str(root), "-o", str(out), "--engine", "opencv", "--json", *extra]
+        assert main(argv) == 0
+        text = capsys.readouterr().out
+        s = json.loads(text[text.index("{"):])
+        assert s["frames"] == 6 and s["imu"] is False

@@ -76,7 +76,6 @@ def test_euroc_ground_truth_csv(data_dir):
     [
         ("0 0 0 0 0 0 0 1\n0.1 0 0\n", "t.tum:2: expected 8 values"),
         ("0 0 0 0 0 0 0 2\n", "quaternion norm"),
-        ("0 0 0 0 0 0 0 1\n0 1 1 1 0 0 0 1\n", "duplicate stamp"),
         ("0 0 0 x 0 0 0 1\n", "t.tum:1: not a number"),
         ("# only a comment\n", "holds no poses"),
     ],
@@ -92,3 +91,17 @@ def test_unsorted_stamps_are_sorted(tmp_path):
     t = read_trajectory(tmp_path / "t.tum")
     assert t.t_ns.tolist() == [1_000_000_000, 2_000_000_000]
     assert t.T_world_x[0, 0, 3] == 1.0
+
+
+def test_repeated_stamps_keep_the_first_pose_with_a_count(tmp_path, caplog):
+    (tmp_path / "t.tum").write_text(
+        "0 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n1 9 9 9 0 0 0 1\n2 2 0 0 0 0 0 1\n"
+        "2 8 8 8 0 0 0 1\n0.5 0.5 0 0 0 0 0 1\n"
+    )
+    with caplog.at_level("WARNING"):
+        t = read_trajectory(tmp_path / "t.tum")
+    assert t.t_ns.tolist() == [0, 500_000_000, 1_000_000_000, 2_000_000_000]
+    assert t.T_world_x[:, 0, 3].tolist() == [0.0, 0.5, 1.0, 2.0]  # the first of each stamp
+    assert t.duplicates_dropped == 2 and t.unsorted
+    assert "2 pose(s) repeat an earlier stamp" in caplog.text
+    assert any("2 pose(s) with a repeated stamp dropped" in n for n in t.notes)

@@ -18,9 +18,10 @@ The translation of ``T_left_imu`` cannot be seen from rotations; the rig's own (
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -73,10 +74,19 @@ class CameraImuCalibration:
     excitation_radps: F64
     rotation_sigma_deg: float = float("nan")
     time_offset_sigma_s: float = float("nan")
+    duration_s: float = 0.0
+    """Time span of the camera rates used, seconds."""
+    axis_rate_rms_radps: F64 = field(default_factory=lambda: np.zeros(3))
+    """(3,) RMS of the camera's mean-free angular rate about its own x, y, z axes."""
+    advice: list[str] = field(default_factory=list)
+    """What motion to record for an answer (empty when the status is OK)."""
 
     def as_dict(self) -> dict[str, object]:
         """Plain values for JSON."""
         return {
+            "duration_s": self.duration_s,
+            "axis_rate_rms_radps": np.asarray(self.axis_rate_rms_radps).tolist(),
+            "advice": list(self.advice),
             "status": self.status.value,
             "R_cam_imu": self.R_cam_imu.tolist(),
             "time_offset_s": self.time_offset_s,
@@ -128,6 +138,69 @@ def _box_average(t_query: F64, half_s: F64, t: F64, values: F64) -> F64:
     a = _interp(t_query - half_s, t, cum)
     b = _interp(t_query + half_s, t, cum)
     return (b - a) / (2 * half_s)[:, None]
+
+
+# Advice on motion: an axis turning with under this fraction of the best axis's RMS rate is
+# called idle; a hand-held rig tracks well at up to about 1 rad/s (blur beyond) and a clip
+# needs at least this long for the offset's cross-correlation to find one peak
+_IDLE_AXIS_FRACTION = 0.25
+_GOOD_RATE_RADPS = (0.3, 1.0)
+_MIN_CLIP_S = 10.0
+_MAX_ADVISED_S = 120.0
+_AXIS_NAMES = ("x (tilt up-down)", "y (pan left-right)", "z (roll about the view)")
+
+
+def _advice(status: CameraImuStatus, *, duration_s: float, axis_rms: F64, directions: F64,
+            rot_sigma_deg: float,
+            max_sigma_deg: float, samples: int, correlation: float,
+            max_offset_s: float) -> list[str]:
+    """What motion would give an answer, from what this clip lacked.
+
+    ``axis_rms`` (3,) are the RMS rates along the principal ``directions`` (3, 3 rows, camera
+    frame) of the camera's mean-free angular rate, largest first."""
+    if status is CameraImuStatus.OK:
+        return []
+    lo, hi = _GOOD_RATE_RADPS
+    turn = (f"turn the rig by 15-30 deg back and forth about each axis in turn at "
+            f"{lo:g}-{hi:g} rad/s ({np.degrees(lo):.0f}-{np.degrees(hi):.0f} deg/s), "
+            "keeping the scene in view")
+    if status is CameraImuStatus.TOO_FEW:
+        return [f"only {samples} camera rates overlap the IMU with a tracked orientation: record "
+                f"at least {_MIN_CLIP_S:g} s of tracked frames with the IMU running; {turn}"]
+    if status is CameraImuStatus.NO_MATCH:
+        return [f"the gyro and the camera's rotation do not agree at any offset within "
+                f"+-{max_offset_s:g} s (best correlation {correlation:.2f}): check the IMU "
+                "belongs to this rig, or widen --max-offset-s; if the clip barely turns, "
+                + turn]
+    out = []
+    # principal directions of the rate: a survey turns about one (its heading), whatever
+    # the camera's tilt, so name the idle directions by their nearest camera axis
+    top = float(axis_rms[0]) if axis_rms.size else 0.0
+    idle = [k for k in range(3) if axis_rms[k] < _IDLE_AXIS_FRACTION * top]
+    if top <= 0:
+        idle = [0, 1, 2]
+    if idle:
+        parts = []
+        for k in idle:
+            v = directions[k]
+            i = int(np.argmax(np.abs(v)))
+            parts.append(f"{'' if abs(v[i]) > 0.9 else 'mostly '}{_AXIS_NAMES[i]} "
+                         f"({axis_rms[k]:.3f} rad/s)")
+        out.append(f"too little rotation about the camera's {' and '.join(parts)}, against "
+                   f"{top:.3f} rad/s about its best-turned direction (RMS rates): the mounting "
+                   "rotation about those directions is not determined")
+    # the rotation's sigma falls as 1/sqrt(duration) and as 1/rate
+    need = max(rot_sigma_deg / max(max_sigma_deg, 1e-9), 1.0)
+    longer = min(max(duration_s * need**2, _MIN_CLIP_S), _MAX_ADVISED_S)
+    if top < lo or idle:
+        out.append(f"{turn}; about {max(_MIN_CLIP_S, min(longer, 30.0)):.0f} s of such motion "
+                   f"should bring the rotation's sigma ({rot_sigma_deg:.2f} deg) under "
+                   f"{max_sigma_deg:g} deg")
+    else:
+        out.append(f"the motion is good but the clip is short ({duration_s:.1f} s): record about "
+                   f"{longer:.0f} s to bring the rotation's sigma ({rot_sigma_deg:.2f} deg) under "
+                   f"{max_sigma_deg:g} deg")
+    return out
 
 
 def estimate_camera_imu(
@@ -197,8 +270,23 @@ def estimate_camera_imu(
         t_mid + half + max_offset_s <= t_imu_s[-1]
     )
     t_mid, w_cam, half = t_mid[inside], w_cam[inside], half[inside]
+    def finish(res: CameraImuCalibration) -> CameraImuCalibration:
+        dur = float(t_mid[-1] - t_mid[0]) if t_mid.size > 1 else 0.0
+        rms = (np.sqrt(np.mean((w_cam - w_cam.mean(axis=0)) ** 2, axis=0)) if t_mid.size
+               else np.zeros(3))
+        pr, dirs = np.zeros(3), np.eye(3)
+        if t_mid.size >= 3:
+            wc = w_cam - w_cam.mean(axis=0)
+            _, sv_, dirs = np.linalg.svd(wc, full_matrices=False)
+            pr = sv_ / np.sqrt(wc.shape[0])
+        adv = _advice(res.status, duration_s=dur, axis_rms=pr, directions=dirs,
+                      rot_sigma_deg=res.rotation_sigma_deg, max_sigma_deg=max_rotation_sigma_deg,
+                      samples=int(t_mid.size), correlation=res.correlation,
+                      max_offset_s=max_offset_s)
+        return dataclasses.replace(res, duration_s=dur, axis_rate_rms_radps=rms, advice=adv)
+
     if t_mid.size < 20:
-        return empty
+        return finish(empty)
     # 1. offset from the speeds
     speed_cam = np.linalg.norm(w_cam, axis=1)
     step = float(np.median(np.diff(t_imu_s)))
@@ -218,7 +306,7 @@ def estimate_camera_imu(
         if den < 0:
             dt0 += 0.5 * (y0 - y2) / den * (offsets[1] - offsets[0])
     if corr[best] < 0.5:
-        return CameraImuCalibration(
+        return finish(CameraImuCalibration(
             status=CameraImuStatus.NO_MATCH,
             R_cam_imu=eye,
             time_offset_s=dt0,
@@ -227,7 +315,7 @@ def estimate_camera_imu(
             correlation=float(corr[best]),
             samples=int(t_mid.size),
             excitation_radps=np.zeros(3),
-        )
+        ))
     # 2. rotation in closed form on mean-free rates (the bias drops out)
     w_imu = _box_average(t_mid + dt0, half, t_imu_s, g)
     A = w_imu - w_imu.mean(axis=0)
@@ -266,7 +354,7 @@ def estimate_camera_imu(
     rot_sigma_deg = float(np.degrees(np.max(sig[:3])))
     weak = bool(rot_sigma_deg > max_rotation_sigma_deg)
     status = CameraImuStatus.WEAK_EXCITATION if weak else CameraImuStatus.OK
-    return CameraImuCalibration(
+    return finish(CameraImuCalibration(
         status=status,
         R_cam_imu=np.asarray(R_final),
         time_offset_s=float(x[3]),
@@ -277,4 +365,4 @@ def estimate_camera_imu(
         excitation_radps=sv,
         rotation_sigma_deg=rot_sigma_deg,
         time_offset_sigma_s=float(sig[3]),
-    )
+    ))

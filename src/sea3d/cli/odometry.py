@@ -104,9 +104,50 @@ def _write_status(path: Path, run: Any) -> None:
     path.write_text("\n".join(lines) + "\n")
 
 
+def _check_output(args: argparse.Namespace) -> None:
+    for path in (args.output, args.status):
+        if path is not None and Path(path).is_dir():
+            raise ConfigError(f"{path} is a folder; give a file name for the trajectory")
+
+
+def _check_poses(run: Any) -> None:
+    """Refuse a run that has no pose to report (identity poses are not a trajectory)."""
+    import numpy as np
+
+    from sea3d.errors import OdometryError
+    from sea3d.odometry import TrackingStatus
+
+    n = len(run.statuses)
+    trusted = [s in (TrackingStatus.TRACKING, TrackingStatus.RELOCALISED,
+                     TrackingStatus.IMU_ONLY) for s in run.statuses]
+    no_depth = int(run.summary.get("frames_without_depth", 0))
+    rng = run.summary.get("depth_range_m")
+    within = f" {rng[0]:.3g}..{rng[1]:.3g} m" if rng else ""
+    if n and no_depth == n:
+        raise OdometryError(
+            f"no frame has valid depth in the depth range{within} ({n} frames): the range "
+            "excludes the whole scene, or the images have nothing to track; set "
+            "--min-depth/--max-depth; no trajectory written"
+        )
+    if n and not any(trusted[1:]):
+        raise OdometryError(
+            f"no frame could be tracked ({n} frames, none with a pose beyond the first): the "
+            "images have nothing to track (black, flat or featureless), or the depth range"
+            f"{within} holds too little of the scene (--min-depth/--max-depth); no trajectory "
+            "written"
+        )
+    T = np.asarray(run.T_world_left)
+    if n > 2 and np.allclose(T, np.eye(4), atol=1e-12):
+        raise OdometryError(
+            f"every one of the {n} poses is the identity: nothing was tracked; no trajectory "
+            "written"
+        )
+
+
 def _report(args: argparse.Namespace, run: Any) -> int:
     from sea3d.io.trajectory_files import write_tum
 
+    _check_poses(run)
     write_tum(
         args.output,
         run.t_ns,
@@ -142,6 +183,9 @@ def _report(args: argparse.Namespace, run: Any) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
+    _check_output(args)
+    if args.max_frames is not None and args.max_frames < 1:
+        raise ConfigError(f"--max-frames must be >= 1, got {args.max_frames}")
     if args.session == "rgbd":
         return _run_rgbd(args)
     for name in ("color", "depth", "intrinsics"):
@@ -295,6 +339,9 @@ def _calibrate_imu(args: argparse.Namespace) -> int:
             + (f"; wrote {args.output}" if "rig" in out else "")
         )
     if res.status is not CameraImuStatus.OK:
+        if not args.json:
+            for line in res.advice:
+                print(f"advice: {line}")
         print(
             f"sea3d: warning: no usable estimate ({res.status.value}); the rig was not written"
             if args.output

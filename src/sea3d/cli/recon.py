@@ -160,6 +160,8 @@ def _cmd_eval_trajectory(args: argparse.Namespace) -> int:
 
     est = read_trajectory(args.estimate, args.est_format, kitti_times=args.est_times)
     ref = read_trajectory(args.ground_truth, args.gt_format, kitti_times=args.gt_times)
+    for note in est.notes + ref.notes:
+        print(f"sea3d: warning: {note}", file=sys.stderr)
     by_index = not (est.timed and ref.timed)
     m = evaluate_trajectory(est.t_ns, est.T_world_x, ref.t_ns, ref.T_world_x, align=args.align,
                             max_diff_s=args.max_diff_s, by_index=by_index,
@@ -167,19 +169,28 @@ def _cmd_eval_trajectory(args: argparse.Namespace) -> int:
     if args.json:
         d = m.as_dict()
         d["paired_by"] = "index" if by_index else "time"
+        d["duplicates_dropped"] = {"estimate": est.duplicates_dropped,
+                                   "reference": ref.duplicates_dropped}
         print(json.dumps(d, indent=2))
+        for w in m.warnings:
+            print(f"sea3d: warning: {w}", file=sys.stderr)
         return 0
     a = m.ate_m
     print(f"{m.matched} of {m.estimate_poses} poses paired by {'index' if by_index else 'time'}"
           f", aligned {m.align}" + (f" (scale {m.scale:.4f})" if m.align == "sim3" else "")
           + f"; path {m.path_length_m:.2f} m")
     print(f"ATE: rmse {a.rmse:.4f} m, mean {a.mean:.4f}, median {a.median:.4f}, std {a.std:.4f},"
-          f" min {a.min:.4f}, max {a.max:.4f} m; rotation rmse {m.ate_rotation_deg.rmse:.3f} deg")
+          f" min {a.min:.4f}, max {a.max:.4f} m; rotation rmse {m.ate_rotation_deg.rmse:.3f} deg"
+          + ("" if m.rotation_meaningful else " (meaningless: see the warning)"))
     for r in m.rpe:
         t = r.translation_m
         print(f"RPE {r.delta_m:g} m ({t.count} pairs): rmse {t.rmse:.4f} m ({r.drift_pct:.2f} %),"
               f" mean {t.mean:.4f}, median {t.median:.4f}, max {t.max:.4f} m; rotation rmse "
-              f"{r.rotation_deg.rmse:.3f} deg")
+              f"{r.rotation_deg.rmse:.3f} deg"
+              + (" (meaningless: see the warning)"
+                 if any(w.startswith(f"RPE over {r.delta_m:g} m") for w in m.warnings) else ""))
+    for w in m.warnings:
+        print(f"sea3d: warning: {w}", file=sys.stderr)
     return 0
 
 

@@ -19,6 +19,10 @@ GPL and is neither used nor copied, its stored results are golden values in the 
   ``E = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)`` with reference ``Q`` and estimate ``P``, the error is
   ``|t(E)|`` (metres) and the angle of ``R(E)`` (degrees). Inverses are rigid (``R^T``).
   ``drift_pct`` is the RMSE as a percentage of ``delta``.
+- **Meaning**: ``warnings`` says when a figure cannot mean anything: the alignment's rotation
+  (hence the rotation error) when the reference spreads across its second axis by less than
+  3 times the ATE (TUM fr1/xyz: 7.6 times; a still drone: about 1); the RPE when the path is
+  jitter about a still point, has under 5 pairs, or the error exceeds the distance.
 
 Statistics of every error array: rmse, mean, median, std (population), min, max, sse, p90.
 """
@@ -121,6 +125,12 @@ class TrajectoryMetrics:
     ate_rotation_deg: ErrorStats
     """Absolute rotation error after alignment, degrees."""
     rpe: list[RpeResult] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    """Why some figures mean nothing (a path too short, too still or too straight); each
+    names the figure. Empty when every figure is meaningful."""
+    rotation_meaningful: bool = True
+    """False when the alignment's rotation is not determined by the path, so neither is the
+    rotation error."""
 
     @property
     def ate_rmse_m(self) -> float:
@@ -260,6 +270,62 @@ def _rpe(Q: F64, P: F64, delta_m: float, along: str) -> RpeResult:
                      drift_pct=drift)
 
 
+# Subsampling a path by this many poses keeps at least this fraction of its length when the
+# path is motion; a still camera's jitter loses most of it (its steps are noise, not travel)
+_STILL_SUBSAMPLE = 10
+_STILL_LENGTH_RATIO = 0.5
+# The alignment's rotation is determined when the path spreads across two axes by this many
+# times the position error (and at least a millimetre)
+_ROTATION_SPREAD_ATE = 3.0
+_ROTATION_SPREAD_MIN_M = 1e-3
+_RPE_MIN_PAIRS = 5
+
+
+def _motion_ratio(positions: F64) -> float:
+    """Length of the path through every ``_STILL_SUBSAMPLE``-th pose over its full length
+    (about 1 for travel, about ``1 / _STILL_SUBSAMPLE`` for jitter about a still point)."""
+    full = path_length_m(positions)
+    if full <= 0 or len(positions) < 3 * _STILL_SUBSAMPLE:
+        return 1.0
+    sub = np.concatenate([positions[::_STILL_SUBSAMPLE], positions[-1:]])
+    return path_length_m(sub) / full
+
+
+def _meaning_warnings(Q: F64, ate: ErrorStats, rot: ErrorStats, rpes: list[RpeResult],
+                      align: str) -> tuple[list[str], bool]:
+    """Warnings for figures the path cannot support (see :attr:`TrajectoryMetrics.warnings`)."""
+    out: list[str] = []
+    pos = Q[:, :3, 3]
+    rotation_ok = True
+    if align != "none":
+        ev = np.sort(np.linalg.eigvalsh(np.cov((pos - pos.mean(axis=0)).T)))[::-1]
+        spread = float(np.sqrt(max(ev[1], 0.0)))
+        need = max(_ROTATION_SPREAD_ATE * ate.rmse, _ROTATION_SPREAD_MIN_M)
+        if spread < need:
+            rotation_ok = False
+            out.append(
+                f"the reference path spreads only {spread:.3g} m across its second axis (need "
+                f"{need:.3g} m: {_ROTATION_SPREAD_ATE:g} x the ATE): too short, still or "
+                f"straight for the {align} alignment's rotation to be determined, so the "
+                f"rotation error ({rot.rmse:.1f} deg) means nothing; use --align none for "
+                "estimates that share the reference's start"
+            )
+    ratio = _motion_ratio(pos)
+    still = ratio < _STILL_LENGTH_RATIO
+    for r in rpes:
+        why = None
+        if still:
+            why = (f"the reference path is mostly jitter about a still point (subsampled it "
+                   f"keeps {ratio:.0%} of its length)")
+        elif r.translation_m.count < _RPE_MIN_PAIRS:
+            why = f"only {r.translation_m.count} pose pairs (need {_RPE_MIN_PAIRS})"
+        elif r.drift_pct > 100.0:
+            why = "its error exceeds the distance itself"
+        if why:
+            out.append(f"RPE over {r.delta_m:g} m ({r.drift_pct:.0f} %) means nothing: {why}")
+    return out, rotation_ok
+
+
 def default_rpe_deltas(length_m: float) -> list[float]:
     """RPE distances for a path: 1, 10 and 100 m, those shorter than half the path (at least
     the path's tenth, for short paths)."""
@@ -346,6 +412,7 @@ def evaluate_trajectory(
         if not d > 0:
             raise OdometryError(f"RPE distances must be > 0 m, got {d}")
         rpes.append(_rpe(Q, P, float(d), rpe_along))
+    warnings, rotation_ok = _meaning_warnings(Q, ate, rot, rpes, align)
     return TrajectoryMetrics(
         matched=len(ie),
         estimate_poses=len(Pe),
@@ -357,6 +424,8 @@ def evaluate_trajectory(
         ate_m=ate,
         ate_rotation_deg=rot,
         rpe=rpes,
+        warnings=warnings,
+        rotation_meaningful=rotation_ok,
     )
 
 

@@ -157,22 +157,12 @@ def _frames(cam: Path) -> tuple[NDArray[np.int64], list[Path]]:
     return np.asarray(stamps, dtype=np.int64)[order], [paths[i] for i in order]
 
 
-def read_euroc(path: str | os.PathLike[str]) -> EurocSequence:
-    """Read an EuRoC sequence folder (the one holding ``mav0``, or ``mav0`` itself).
-
-    Raises:
-        SessionError: not an EuRoC folder, or unreadable calibration or CSV files.
-    """
-    root = _mav0(path)
-    if root is None:
-        raise SessionError(f"{path}: not an EuRoC folder (expected mav0/cam0/data.csv, cam1, imu0)")
-    left, T_B_c0 = _camera(root / "cam0" / "sensor.yaml")
-    right, T_B_c1 = _camera(root / "cam1" / "sensor.yaml")
+def _imu_spec(root: Path, T_B_c0: NDArray[np.float64]) -> ImuSpec:
     imu_path = root / "imu0" / "sensor.yaml"
     imu_data = _yaml(imu_path)
     T_B_imu = _T_BS(imu_data, imu_path)
     try:
-        imu = ImuSpec(
+        return ImuSpec(
             T_left_imu=invert_T(T_B_c0) @ T_B_imu,
             rate_hz=float(imu_data.get("rate_hz", 200.0)),
             gyro_noise_density_radps_sqrthz=float(imu_data["gyroscope_noise_density"]),
@@ -180,9 +170,36 @@ def read_euroc(path: str | os.PathLike[str]) -> EurocSequence:
             accel_noise_density_mps2_sqrthz=float(imu_data["accelerometer_noise_density"]),
             accel_random_walk_mps2_sqrts=float(imu_data["accelerometer_random_walk"]),
         )
-        rig = StereoRig(left=left, right=right, T_left_right=invert_T(T_B_c0) @ T_B_c1, imu=imu)
     except KeyError as err:
         raise SessionError(f"{imu_path}: key {err}: missing") from err
+    except Sea3dError as err:
+        raise SessionError(f"{imu_path}: {err}") from err
+
+
+def read_euroc(path: str | os.PathLike[str], *, imu: bool = True) -> EurocSequence:
+    """Read an EuRoC sequence folder (the one holding ``mav0``, or ``mav0`` itself).
+
+    Only what is used is read: ``imu=False`` (visual-only) ignores ``imu0`` entirely; with
+    ``imu=True`` a folder without ``imu0`` gives a rig without an IMU block and no samples
+    (the odometry then runs visual-only and says so), while a damaged ``imu0`` is an error.
+
+    Raises:
+        SessionError: not an EuRoC folder, or unreadable calibration or CSV files.
+    """
+    root = _mav0(path)
+    if root is None:
+        raise SessionError(f"{path}: not an EuRoC folder (expected mav0/cam0/data.csv and "
+                           "mav0/cam1/data.csv)")
+    left, T_B_c0 = _camera(root / "cam0" / "sensor.yaml")
+    right, T_B_c1 = _camera(root / "cam1" / "sensor.yaml")
+    spec: ImuSpec | None = None
+    has_imu = imu and (root / "imu0").is_dir()
+    if imu and not has_imu:
+        log.warning("%s: no imu0 folder: the sequence has no IMU", root)
+    if has_imu:
+        spec = _imu_spec(root, T_B_c0)
+    try:
+        rig = StereoRig(left=left, right=right, T_left_right=invert_T(T_B_c0) @ T_B_c1, imu=spec)
     except Sea3dError as err:
         raise SessionError(f"{root}: {err}") from err
     tl, pl = _frames(root / "cam0")
@@ -194,12 +211,18 @@ def read_euroc(path: str | os.PathLike[str]) -> EurocSequence:
             root,
             tl.size - common.size,
         )
-    imu_csv = root / "imu0" / "data.csv"
-    try:
-        raw = np.loadtxt(imu_csv, delimiter=",", comments="#", dtype=np.float64, ndmin=2)
-        t_imu = np.loadtxt(imu_csv, delimiter=",", comments="#", usecols=0, dtype=np.int64, ndmin=1)
-    except (OSError, ValueError) as err:
-        raise SessionError(f"{imu_csv}: cannot read: {err}") from err
+    raw: NDArray[np.float64] = np.zeros((0, 7))
+    t_imu: NDArray[np.int64] = np.zeros(0, np.int64)
+    if has_imu:
+        imu_csv = root / "imu0" / "data.csv"
+        try:
+            raw = np.loadtxt(imu_csv, delimiter=",", comments="#", dtype=np.float64, ndmin=2)
+            t_imu = np.loadtxt(imu_csv, delimiter=",", comments="#", usecols=0, dtype=np.int64,
+                               ndmin=1)
+        except (OSError, ValueError) as err:
+            raise SessionError(f"{imu_csv}: cannot read: {err}") from err
+        if raw.shape[1] < 7:
+            raise SessionError(f"{imu_csv}: {raw.shape[1]} columns, expected 7 (t, gyro, accel)")
     gt_csv = root / "state_groundtruth_estimate0" / "data.csv"
     gt_t: NDArray[np.int64] = np.zeros(0, np.int64)
     gt_T: NDArray[np.float64] = np.zeros((0, 4, 4))

@@ -3,7 +3,9 @@
 Depth: integer images (16-bit PNG as Kinect, RealSense, OAK-D and 7-Scenes write them) hold
 ``metres * depth_scale`` (``depth_scale`` 1000 for millimetres, 5000 for the TUM RGB-D
 benchmark), 0 invalid; float images (``.tif``/``.tiff``, ``.npy``, ``.pfm``) hold metres,
-NaN or non-positive invalid. Returned depth is float32 metres, NaN invalid.
+NaN or non-positive invalid. Returned depth is float32 metres, NaN invalid. 8-bit images are
+refused: 256 levels are no metric depth (they are a visualisation, or a colour image given as
+depth).
 """
 
 from __future__ import annotations
@@ -52,7 +54,8 @@ def read_depth(path: str | os.PathLike[str], depth_scale: float = 1000.0) -> NDA
     """A depth image as (H, W) float32 metres, NaN invalid (see the module docstring).
 
     Raises:
-        ReconError: missing or unreadable file, several channels, or a bad scale.
+        ReconError: missing or unreadable file, several channels, 8-bit values, or a bad
+            scale.
     """
     p = Path(path)
     if not depth_scale > 0:
@@ -80,6 +83,11 @@ def read_depth(path: str | os.PathLike[str], depth_scale: float = 1000.0) -> NDA
         d = img
     if d.ndim != 2:
         raise ReconError(f"{p}: a depth image has one channel, got shape {d.shape}")
+    if d.dtype.itemsize == 1:
+        raise ReconError(
+            f"{p}: 8-bit depth ({d.dtype}) holds only 256 levels and is no metric depth; give "
+            "16-bit depth (units of 1/depth_scale m) or float depth in metres"
+        )
     if d.dtype.kind in "ui":
         z = d.astype(np.float32) / np.float32(depth_scale)
         z[d == 0] = np.nan

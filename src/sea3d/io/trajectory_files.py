@@ -52,6 +52,9 @@ class TrajectoryFile:
         format: ``tum``, ``kitti`` or ``euroc``.
         timed: False when the file carries no stamps (KITTI without ``times.txt``).
         path: where it was read from.
+        duplicates_dropped: poses dropped because their stamp repeats an earlier one (the
+            first pose of each stamp is kept).
+        unsorted: the file's stamps were not in order (they were sorted).
     """
 
     t_ns: NDArray[np.int64]
@@ -59,6 +62,21 @@ class TrajectoryFile:
     format: str
     timed: bool
     path: Path
+    duplicates_dropped: int = 0
+    unsorted: bool = False
+
+    @property
+    def notes(self) -> list[str]:
+        """What was repaired while reading, for the user (empty for a clean file)."""
+        out = []
+        if self.unsorted:
+            out.append(f"{self.path}: stamps were not in order; sorted")
+        if self.duplicates_dropped:
+            out.append(
+                f"{self.path}: {self.duplicates_dropped} pose(s) with a repeated stamp dropped "
+                "(the first pose of each stamp kept)"
+            )
+        return out
 
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])
@@ -153,11 +171,14 @@ def read_trajectory(
         kitti_times: for KITTI, a ``times.txt`` with one stamp per pose.
 
     Returns:
-        :class:`TrajectoryFile`, sorted by stamp (a warning is logged if the file was not).
+        :class:`TrajectoryFile`, sorted by stamp, one pose per stamp. Stamps out of order are
+        sorted and repeated stamps keep their first pose (as estimators such as open VIO
+        systems write them at a re-initialisation), each with a logged warning and a count in
+        the result (``unsorted``, ``duplicates_dropped``, ``notes``).
 
     Raises:
         OdometryError: missing file, unknown format, a malformed line (file and line named),
-            a non-unit quaternion, duplicate stamps, or a times file of another length.
+            a non-unit quaternion, or a times file of another length.
     """
     p = Path(path)
     if not p.is_file():
@@ -210,16 +231,23 @@ def read_trajectory(
         if len(t_ns) != n:
             raise OdometryError(f"{kitti_times} has {len(t_ns)} stamps but {p} has {n} poses")
         timed = True
-    if np.any(np.diff(t_ns) < 0):
+    unsorted = bool(np.any(np.diff(t_ns) < 0))
+    if unsorted:
         log.warning("%s: stamps are not in order; sorting them", p)
-        order = np.argsort(t_ns, kind="stable")
+        order = np.argsort(t_ns, kind="stable")  # equal stamps keep their order in the file
         t_ns, T = t_ns[order], T[order]
-    dup = np.flatnonzero(np.diff(t_ns) == 0)
-    if dup.size:
-        raise OdometryError(
-            f"{p}: {dup.size} duplicate stamp(s), the first t = {format_tum_stamp(t_ns[dup[0]])} s"
+    keep = np.concatenate([[True], np.diff(t_ns) != 0])
+    dropped = int(keep.size - np.count_nonzero(keep))
+    if dropped:
+        first = int(t_ns[np.flatnonzero(~keep)[0]])
+        log.warning(
+            "%s: %d pose(s) repeat an earlier stamp (the first at t = %s s); keeping the first "
+            "pose of each stamp",
+            p, dropped, format_tum_stamp(first),
         )
-    return TrajectoryFile(t_ns=t_ns, T_world_x=T, format=fmt, timed=timed, path=p)
+        t_ns, T = t_ns[keep], T[keep]
+    return TrajectoryFile(t_ns=t_ns, T_world_x=T, format=fmt, timed=timed, path=p,
+                          duplicates_dropped=dropped, unsorted=unsorted)
 
 
 def write_tum(
@@ -254,6 +282,8 @@ def write_tum(
             f"{format_tum_stamp(t)} {x:.9f} {y:.9f} {z:.9f} "
             f"{qi[1]:.12f} {qi[2]:.12f} {qi[3]:.12f} {qi[0]:.12f}"
         )
+    if p.is_dir():
+        raise OdometryError(f"cannot write trajectory {p}: it is a folder")
     try:
         atomic_write(p, "\n".join(lines) + "\n")
     except OSError as err:

@@ -37,10 +37,12 @@ class OdometryConfig:
     """Largest row difference of a left-right match in the rectified pair, pixels."""
     stereo_depth_agreement_px: float = 1.5
     """Largest disagreement between the matched disparity and the depth map's, pixels."""
-    min_depth_m: float = 0.2
-    """Nearest point used, metres."""
-    max_depth_m: float = 12.0
-    """Farthest point used, metres (far points constrain rotation only)."""
+    min_depth_m: float | None = None
+    """Nearest point used, metres; None: every point the depth map holds (its range comes
+    from the rig: :class:`~sea3d.stereo.recipe.StereoDepth`)."""
+    max_depth_m: float | None = None
+    """Farthest point used, metres; None: every point the depth map holds (the rig's range:
+    ``f B / 4 px``, where the relative depth error reaches about 1/16)."""
     min_disparity_px: float = 2.0
     """Smallest disparity of a point used, pixels."""
     pnp_threshold_px: float = 2.0
@@ -117,7 +119,7 @@ class OdometryConfig:
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
-            if isinstance(value, bool):
+            if isinstance(value, bool) or (value is None and f.name.endswith("depth_m")):
                 continue
             if not isinstance(value, int | float) or not math.isfinite(value) or value < 0:
                 raise ConfigError(
@@ -142,7 +144,8 @@ class OdometryConfig:
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ConfigError(f"odometry config {name} must be > 0, got {getattr(self, name)}")
-        if self.min_depth_m >= self.max_depth_m:
+        if (self.min_depth_m is not None and self.max_depth_m is not None
+                and self.min_depth_m >= self.max_depth_m):
             raise ConfigError(
                 f"min_depth_m ({self.min_depth_m}) must be below max_depth_m ({self.max_depth_m})"
             )

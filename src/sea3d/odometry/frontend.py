@@ -260,7 +260,9 @@ def stereo_points(
         ok &= np.isfinite(pts).all(axis=1)
     z = pts[:, 2]
     with np.errstate(invalid="ignore"):
-        ok &= (z > config.min_depth_m) & (z < config.max_depth_m)
+        ok &= z > (config.min_depth_m if config.min_depth_m is not None else 0.0)
+        if config.max_depth_m is not None:
+            ok &= z < config.max_depth_m
     meas = geometry.project(pts)
     with np.errstate(invalid="ignore"):
         ok &= (meas[:, 0] - meas[:, 1]) > config.min_disparity_px

@@ -47,6 +47,11 @@ class Observer:
         """The rig's rectification."""
         return self.stereo.maps
 
+    @property
+    def depth_range_m(self) -> tuple[float, float]:
+        """``(min, max)`` depth kept, metres (the rig's, unless the config gives them)."""
+        return self.stereo.depth_range_m
+
     def engine(self) -> EngineConfig:
         """The stereo engine config in use."""
         return self.stereo.engine_config

@@ -236,13 +236,12 @@ def run_live_replay(session_path: Any, config: Any, live: LiveConfig | None = No
                                max_frames=config.max_frames)
         stage = config.frame_stage(source.native_rig)
         stereo = stage_depth(stage)
-        odo, odometry_name, imu_used = _odometry(config, stereo, path, len(source.imu) > 0,
-                                                 None)
+        odo, odometry_name, imu_used, imu_note = _odometry(config, stereo, source, None)
         store = DiskSubmapStore(out / "submaps")
         store.clear()
         fusion_cfg = config.fusion(stereo.depth_range_m)
         stages = OrderedStages(odo, SubmapFusion(fusion_cfg), store, stereo.maps,
-                               use_imu=config.use_imu and len(source.imu) > 0, timer=timer)
+                               use_imu=imu_used, timer=timer)
         executor = ProcessExecutor(1, setup=(install_geometry, (stage, stereo)))
         try:
             stats = run_live(ReplayFrames(source, rate=rate), stage, stereo, stages, executor,
@@ -258,7 +257,7 @@ def run_live_replay(session_path: Any, config: Any, live: LiveConfig | None = No
                                   rig=stereo.rig)
     summary = run_summary(stages, rec, session=str(path),
                           pairs_in_session=source.pairs_in_session, odometry=odometry_name,
-                          imu_used=imu_used, voxel_m=config.voxel_m)
+                          imu_used=imu_used, imu_note=imu_note, voxel_m=config.voxel_m)
     summary["live"] = {**stats.as_dict(), "rate": rate,
                        "depth_in_flight": (live or LiveConfig()).depth_in_flight}
     summary["timings_s"] = dict(timer.s)

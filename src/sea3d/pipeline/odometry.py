@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import logging
 import os
-import re
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator
@@ -27,7 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d._typing import F64
-from sea3d.errors import ConfigError, OdometryError, SessionError
+from sea3d.errors import ConfigError, OdometryError
 from sea3d.geometry.rig import StereoRig
 from sea3d.odometry.config import OdometryConfig
 from sea3d.odometry.observe import Observer, imu_chunks
@@ -82,9 +81,13 @@ def _frame_gaps(t_ns: NDArray[np.int64]) -> int:
 
 
 def open_stereo_source(
-    path: str | os.PathLike[str], rig_path: str | os.PathLike[str] | None = None
+    path: str | os.PathLike[str],
+    rig_path: str | os.PathLike[str] | None = None,
+    *,
+    imu: bool = True,
 ) -> StereoSource:
-    """Open a sea3d session (MCAP or folder) or an EuRoC folder.
+    """Open a sea3d session (MCAP or folder) or an EuRoC folder; ``imu=False`` reads no IMU
+    (an EuRoC folder then needs no ``imu0``).
 
     Raises:
         SessionError: unreadable input, or no rig (neither stored with the session nor
@@ -96,7 +99,7 @@ def open_stereo_source(
     p = Path(path)
     rig_given = load_rig(rig_path) if rig_path is not None else None
     if is_euroc(p):
-        seq = read_euroc(p)
+        seq = read_euroc(p, imu=imu)
         src = StereoSource(
             path=p,
             rig=rig_given or seq.rig,
@@ -115,7 +118,7 @@ def open_stereo_source(
             match = reader.match_pairs()
             ls, rs = reader.stamps("left"), reader.stamps("right")
             li, ri = match.left_index, match.right_index
-            imu = reader.imu()
+            imu_series = reader.imu() if imu else None
         except BaseException:
             reader.close()
             raise
@@ -137,9 +140,15 @@ def open_stereo_source(
             rig=rig,
             t_ns=np.asarray(ls[li], dtype=np.int64),
             load=load,
-            imu_t_ns=np.asarray(imu.t_ns, dtype=np.int64),
-            accel_mps2=np.asarray(imu.accel_mps2, dtype=np.float64).reshape(-1, 3),
-            gyro_radps=np.asarray(imu.gyro_radps, dtype=np.float64).reshape(-1, 3),
+            imu_t_ns=np.asarray(
+                imu_series.t_ns if imu_series is not None else [], dtype=np.int64
+            ),
+            accel_mps2=np.asarray(
+                imu_series.accel_mps2 if imu_series is not None else [], dtype=np.float64
+            ).reshape(-1, 3),
+            gyro_radps=np.asarray(
+                imu_series.gyro_radps if imu_series is not None else [], dtype=np.float64
+            ).reshape(-1, 3),
             notes=notes,
             close=reader.close,
         )
@@ -156,8 +165,52 @@ def open_stereo_source(
     return src
 
 
-def imu_decision(src: StereoSource, use_imu: bool) -> tuple[bool, str | None]:
-    """Whether the IMU can be used, and why not."""
+def imu_clock_check(
+    frame_t_ns: NDArray[np.int64],
+    imu_t_ns: NDArray[np.int64],
+    time_offset_s: float = 0.0,
+    *,
+    tolerance_s: float = 1.0,
+) -> str | None:
+    """Why an IMU series cannot be used with these camera frames, or None when it can.
+
+    The IMU must cover the frames' time span, on the camera's clock (``t_imu - offset``), to
+    within ``tolerance_s`` at both ends: an IMU clock seconds away from the camera's (an
+    unsynchronised recorder, a wrong offset) fails this, as does an IMU that stopped early.
+
+    Args:
+        frame_t_ns: (N,) camera stamps in use, increasing.
+        imu_t_ns: (M,) IMU stamps, increasing.
+        time_offset_s: the rig's ``t_imu = t_cam + offset``.
+        tolerance_s: allowed shortfall at either end, seconds
+            (:attr:`~sea3d.odometry.config.OdometryConfig.imu_max_clock_offset_s`).
+    """
+    if imu_t_ns.size == 0:
+        return "the session has no IMU samples"
+    if frame_t_ns.size == 0:
+        return None
+    ti = imu_t_ns.astype(np.float64) * 1e-9 - time_offset_s
+    tc = frame_t_ns.astype(np.float64) * 1e-9
+    if ti[0] > tc[0] + tolerance_s or ti[-1] < tc[-1] - tolerance_s:
+        start, end = ti[0] - tc[0], ti[-1] - tc[-1]
+        return (
+            f"the IMU stamps ({ti[0]:.3f}..{ti[-1]:.3f} s, after the rig's offset "
+            f"{time_offset_s:g} s) do not cover the camera's ({tc[0]:.3f}..{tc[-1]:.3f} s): they "
+            f"start {start:+.2f} s and end {end:+.2f} s from it (more than {tolerance_s:g} s); "
+            "clocks not synchronised or a wrong time offset"
+        )
+    return None
+
+
+def imu_decision(
+    src: StereoSource, use_imu: bool, n_frames: int | None = None, tolerance_s: float = 1.0
+) -> tuple[bool, str | None]:
+    """Whether the IMU can be used for the first ``n_frames`` frames, and why not.
+
+    Policy: an unusable IMU (none, no ``imu`` block in the rig, clocks that disagree) is never
+    an error: the odometry runs visual-only, which is right for the intact camera data, and
+    the reason is said (``imu_note``, ``imu_used`` false).
+    """
     if not use_imu:
         return False, "--no-imu: visual-only"
     if src.imu_t_ns.size == 0:
@@ -167,16 +220,12 @@ def imu_decision(src: StereoSource, use_imu: bool) -> tuple[bool, str | None]:
             "the rig has no imu block (T_left_imu): visual-only; add it with 'sea3d rig create "
             "--kalibr' or estimate it with 'sea3d calibrate imu'"
         )
-    off = src.rig.imu.time_offset_s
-    ti = src.imu_t_ns.astype(np.float64) * 1e-9 - off
-    tc = src.t_ns.astype(np.float64) * 1e-9
-    overlap = min(ti[-1], tc[-1]) - max(ti[0], tc[0])
-    span = max(tc[-1] - tc[0], 1e-9)
-    if overlap < 0.5 * span:
-        return False, (
-            f"the IMU stamps ({ti[0]:.3f}..{ti[-1]:.3f} s) cover {max(overlap, 0) / span:.0%} of "
-            f"the camera's ({tc[0]:.3f}..{tc[-1]:.3f} s): clocks not synchronised, visual-only"
-        )
+    t = src.t_ns if n_frames is None else src.t_ns[: max(int(n_frames), 1)]
+    why = imu_clock_check(
+        t, src.imu_t_ns, src.rig.imu.time_offset_s, tolerance_s=tolerance_s
+    )
+    if why is not None:
+        return False, why + ": visual-only"
     return True, None
 
 
@@ -278,9 +327,12 @@ def session_odometry(
     from sea3d.odometry import create_odometry
     from sea3d.stereo.recipe import StereoDepth
 
-    src = open_stereo_source(path, rig_path)
+    if max_frames is not None and int(max_frames) < 1:
+        raise ConfigError(f"--max-frames must be >= 1, got {max_frames}")
+    cfg = config or OdometryConfig()
+    src = open_stereo_source(path, rig_path, imu=use_imu)
     try:
-        imu_ok, why = imu_decision(src, use_imu)
+        imu_ok, why = imu_decision(src, use_imu, max_frames, cfg.imu_max_clock_offset_s)
         notes = list(src.notes)
         if why:
             notes.append(why)
@@ -288,7 +340,7 @@ def session_odometry(
             on_open(src, imu_ok, why)
         stereo = StereoDepth(src.rig, observe)
         maps = stereo.maps
-        odo = create_odometry(src.rig, maps, use_imu=imu_ok, config=config)
+        odo = create_odometry(src.rig, maps, use_imu=imu_ok, config=cfg)
         if why:
             odo.imu_disabled_reason = why
         observer = Observer(stereo)
@@ -299,6 +351,7 @@ def session_odometry(
             off_ns = round(src.rig.imu.time_offset_s * 1e9)
             chunks = imu_chunks(src.t_ns[:n] + off_ns, src.imu_t_ns, src.accel_mps2, src.gyro_radps)
         depth_s = [0.0]
+        no_depth = [0]
 
         def frames() -> Iterator[FrameObservation]:
             for i in range(n):
@@ -306,26 +359,35 @@ def session_odometry(
                 t1 = time.perf_counter()
                 obs = observer.observe(int(src.t_ns[i]), left, right, chunks[i])
                 depth_s[0] += time.perf_counter() - t1
+                if not np.isfinite(obs.depth_m).any():
+                    no_depth[0] += 1
                 yield obs
 
         run = run_odometry(
             frames(), odo, progress=progress, notes=notes, seconds_depth=lambda: depth_s[0]
         )
         run.summary["frame_gaps"] = src.frame_gaps
+        run.summary["frames_without_depth"] = no_depth[0]
+        lo, hi = observer.depth_range_m
+        run.summary["depth_range_m"] = [lo, hi]
+        if no_depth[0]:
+            run.summary["notes"].append(
+                f"{no_depth[0]} of {n} frames have no valid depth in the depth range "
+                f"{lo:.3g}..{hi:.3g} m: the range may exclude the scene (set --min-depth/"
+                "--max-depth)"
+            )
         return run
     finally:
         src.close()
 
 
 # ---------------------------------------------------------------------- RGB-D
-def _natural_key(path: Path) -> list[Any]:
-    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", str(path))]
-
-
 def _expand(pattern: str, what: str) -> list[Path]:
     import glob
 
-    paths = sorted((Path(p) for p in glob.glob(pattern)), key=_natural_key)
+    from sea3d.io.rgbd_files import natural_key
+
+    paths = sorted((Path(p) for p in glob.glob(pattern)), key=natural_key)
     if not paths:
         raise ConfigError(f"--{what} {pattern!r} matches no files")
     return paths
@@ -352,6 +414,11 @@ def frame_times_s(paths: list[Path]) -> F64:
     return np.arange(len(paths), dtype=np.float64)
 
 
+# A depth camera's valid range is centimetres to tens of metres: a median outside this says the
+# depth units are wrong (millimetres read as metres, or metres as millimetres)
+_RGBD_MEDIAN_DEPTH_RANGE_M = (0.02, 200.0)
+
+
 def rgbd_observations(
     color: str,
     depth: str,
@@ -360,17 +427,21 @@ def rgbd_observations(
     depth_scale: float = 1000.0,
 ) -> tuple[list[Path], list[Path], F64, tuple[int, int]]:
     """Resolve and check RGB-D inputs: sorted colour and depth files, their times (seconds),
-    and the image size.
+    and the image size. Files are read by :mod:`sea3d.io.rgbd_files` (16-bit depth in units
+    of ``1 / depth_scale`` m, float depth in metres).
 
     Raises:
-        ConfigError: no files, different counts, bad intrinsics or scale.
-        SessionError: an unreadable first image, or colour and depth of different sizes.
+        ConfigError: no files, different counts, bad intrinsics (a principal point outside
+            the image) or scale, a first depth image whose median is no plausible depth.
+        ReconError: an unreadable first image, 8-bit depth, or colour and depth of different
+            sizes.
     """
-    import cv2
+    from sea3d.errors import ReconError
+    from sea3d.io.rgbd_files import read_color, read_depth
 
     if not depth_scale > 0:
         raise ConfigError(f"--depth-scale must be > 0, got {depth_scale}")
-    fx, fy, _, _ = intrinsics
+    fx, fy, cx, cy = intrinsics
     if not (fx > 0 and fy > 0):
         raise ConfigError(f"--intrinsics: focal lengths must be > 0, got {intrinsics}")
     cp, dp = _expand(color, "color"), _expand(depth, "depth")
@@ -379,37 +450,41 @@ def rgbd_observations(
             f"--color matches {len(cp)} files but --depth {len(dp)}; they must "
             "pair up one to one in sorted order"
         )
-    c0 = cv2.imread(str(cp[0]), cv2.IMREAD_COLOR)
-    d0 = cv2.imread(str(dp[0]), cv2.IMREAD_UNCHANGED)
-    if c0 is None:
-        raise SessionError(f"{cp[0]}: cannot read the colour image")
-    if d0 is None:
-        raise SessionError(f"{dp[0]}: cannot read the depth image")
+    c0 = read_color(cp[0])
+    d0 = read_depth(dp[0], depth_scale)
+    h, w = d0.shape
     if c0.shape[:2] != d0.shape[:2]:
-        raise SessionError(
-            f"{cp[0]} is {c0.shape[1]}x{c0.shape[0]} but {dp[0]} is {d0.shape[1]}x{d0.shape[0]}: "
+        raise ReconError(
+            f"{cp[0]} is {c0.shape[1]}x{c0.shape[0]} but {dp[0]} is {w}x{h}: "
             "colour must be registered to depth"
         )
-    return cp, dp, frame_times_s(cp), (int(c0.shape[1]), int(c0.shape[0]))
+    if not (0 <= cx < w and 0 <= cy < h):
+        raise ConfigError(
+            f"--intrinsics: the principal point ({cx:g}, {cy:g}) px lies outside the "
+            f"{w}x{h} image of {dp[0]}; give FX FY CX CY in pixels of this image"
+        )
+    valid = d0[np.isfinite(d0)]
+    if valid.size == 0:
+        raise ConfigError(f"{dp[0]}: the first depth image has no valid depth")
+    med = float(np.median(valid))
+    lo, hi = _RGBD_MEDIAN_DEPTH_RANGE_M
+    if not lo <= med <= hi:
+        raise ConfigError(
+            f"{dp[0]}: median depth {med:.4g} m with --depth-scale {depth_scale:g} is no "
+            f"plausible depth ({lo:g}..{hi:g} m); give the depth units per metre "
+            "(1000 for millimetres, 5000 for TUM) or float depth in metres"
+        )
+    return cp, dp, frame_times_s(cp), (int(w), int(h))
 
 
 def read_rgbd_frame(
     color_path: Path, depth_path: Path, depth_scale: float
 ) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
-    """Colour (RGB uint8) and depth (float32 metres, NaN where the file has 0)."""
-    import cv2
+    """Colour (RGB uint8) and depth (float32 metres, NaN invalid) through
+    :mod:`sea3d.io.rgbd_files`."""
+    from sea3d.io.rgbd_files import read_color, read_depth
 
-    c = cv2.imread(str(color_path), cv2.IMREAD_COLOR)
-    d = cv2.imread(str(depth_path), cv2.IMREAD_UNCHANGED)
-    if c is None:
-        raise SessionError(f"{color_path}: cannot read the colour image")
-    if d is None:
-        raise SessionError(f"{depth_path}: cannot read the depth image")
-    if d.ndim == 3:
-        raise SessionError(f"{depth_path}: depth must have one channel, it has {d.shape[2]}")
-    z = d.astype(np.float32) / np.float32(depth_scale)
-    z[(d == 0) | ~np.isfinite(z)] = np.nan
-    return np.ascontiguousarray(c[:, :, ::-1]), z
+    return read_color(color_path), read_depth(depth_path, depth_scale)
 
 
 def rgbd_odometry(
@@ -430,6 +505,7 @@ def rgbd_odometry(
     (:class:`~sea3d.odometry.rgbd_dense.DenseRgbdOdometry`, ``dense_config``); ``"features"``:
     the stereo engine's sparse features, keyframes and windowed BA (``config``).
     """
+    from sea3d.errors import ReconError
     from sea3d.odometry import create_dense_rgbd_odometry, create_rgbd_odometry
 
     if method not in ("dense", "features"):
@@ -450,7 +526,7 @@ def rgbd_odometry(
         for i, (c, d) in enumerate(zip(cp, dp, strict=True)):
             rgb, z = read_rgbd_frame(c, d, depth_scale)
             if rgb.shape[:2] != (h, w) or z.shape != (h, w):
-                raise SessionError(f"{c} or {d}: size differs from the first frame's {w}x{h}")
+                raise ReconError(f"{c} or {d}: size differs from the first frame's {w}x{h}")
             yield FrameObservation(
                 t_ns=int(t_ns[i]),
                 rect_left=rgb,

@@ -258,21 +258,42 @@ def _frame_cache(out: Path, stage: FrameStageConfig, session_path: Path, fresh: 
     return cache
 
 
-def _odometry(config: ProcessConfig, stereo: Any, session_path: Path, has_imu: bool,
-              factory: Callable[[Any, Any], Odometry] | None) -> tuple[Odometry, str, bool]:
-    """The pose stage, its description, and whether it gets the IMU."""
-    from sea3d.io.trajectory_files import read_trajectory
+def _odometry(config: ProcessConfig, stereo: Any, source: Any,
+              factory: Callable[[Any, Any], Odometry] | None
+              ) -> tuple[Odometry, str, bool, str | None]:
+    """The pose stage, its description, whether it gets the IMU, and why not (or None).
 
+    The IMU is used only when it covers the frames in time (the same clock check as
+    ``sea3d odometry``, :func:`~sea3d.pipeline.odometry.imu_clock_check`): an IMU seconds away
+    from the cameras is left out, the odometry runs visual-only (right for the camera data),
+    and the summary says why.
+    """
+    from sea3d.io.trajectory_files import read_trajectory
+    from sea3d.pipeline.odometry import imu_clock_check
+
+    has_imu = len(source.imu) > 0
     use_imu = config.use_imu and has_imu
+    note: str | None = None
     if config.use_imu and not has_imu:
-        log.warning("%s has no IMU samples: the odometry runs visual-only", session_path)
+        log.warning("%s has no IMU samples: the odometry runs visual-only", source.path)
+    elif use_imu:
+        rig = stereo.rig
+        offset_s = rig.imu.time_offset_s if rig.imu is not None else 0.0
+        tol_s = getattr(config.odometry_config, "imu_max_clock_offset_s", 1.0)
+        note = imu_clock_check(np.array([p.t_ns for p in source.pairs], np.int64),
+                               np.asarray(source.imu.t_ns, np.int64), offset_s,
+                               tolerance_s=tol_s)
+        if note is not None:
+            log.warning("%s: %s: the odometry runs visual-only", source.path, note)
+            use_imu = False
     if factory is not None:
         odo = factory(stereo.rig, stereo.maps)
-        return odo, str(getattr(odo, "name", type(odo).__name__)), use_imu
+        return odo, str(getattr(odo, "name", type(odo).__name__)), use_imu, note
     poses = read_trajectory(config.poses_path) if config.poses_path else None
     odo, name = make_odometry(stereo.rig, stereo.maps, use_imu=use_imu, poses=poses,
                               config=config.odometry_config)
-    return odo, name, use_imu and poses is None
+    disabled = getattr(odo, "imu_disabled_reason", None)
+    return odo, name, use_imu and poses is None and disabled is None, note or disabled
 
 
 @locks_out_dir  # two runs into one folder: the second is refused (OutputInUseError)
@@ -328,14 +349,14 @@ def run_process(
         executor = make_executor(config.workers, config.scheduler,
                                  setup=(install_geometry, (stage_cfg, stereo)))
         try:
-            odo, odometry_name, imu_used = _odometry(config, stereo, session_path,
-                                                     len(source.imu) > 0, odometry)
+            odo, odometry_name, imu_used, imu_note = _odometry(config, stereo, source,
+                                                               odometry)
             cache = _frame_cache(out, stage_cfg, session_path, config.fresh)
             fusion_cfg = config.fusion(stereo.depth_range_m)
             store = DiskSubmapStore(out / "submaps")
             store.clear()
             stages = OrderedStages(odo, SubmapFusion(fusion_cfg), store, stereo.maps,
-                                   use_imu=config.use_imu and len(source.imu) > 0, timer=timer)
+                                   use_imu=imu_used, timer=timer)
             window = config.in_flight or 2 * max(1, executor.workers) + 2
             bars = [bar(name, len(source)) for name in ("depth", "odometry", "fusion")]
             depth = DepthScheduler(source, executor, stage_cfg, executor.share(stereo), cache,
@@ -361,13 +382,13 @@ def run_process(
         raise SessionError(f"{session_path}: no frame could be processed "
                            f"({depth.unreadable} unreadable, {stages.failed} failed)")
     return _finish(session_path, out, config, stages, store, fusion_cfg, stereo, source,
-                   depth, executor, window, odometry_name, imu_used, timer, t_start, bar,
-                   on_result)
+                   depth, executor, window, odometry_name, (imu_used, imu_note), timer, t_start,
+                   bar, on_result)
 
 
 def _finish(session_path: Path, out: Path, config: ProcessConfig, stages: OrderedStages,
             store: Any, fusion_cfg: Any, stereo: Any, source: Any, depth: Any, executor: Any,
-            window: int, odometry_name: str, imu_used: bool, timer: StageTimer,
+            window: int, odometry_name: str, imu: tuple[bool, str | None], timer: StageTimer,
             t_start: float, bar: ProgressFactory,
             on_result: Callable[[ProcessResult], None] | None) -> ProcessResult:
     """Merge, write the outputs, evaluate, report (the finish step of :func:`run_process`)."""
@@ -387,7 +408,7 @@ def _finish(session_path: Path, out: Path, config: ProcessConfig, stages: Ordere
     summary = run_summary(
         stages, rec, session=str(session_path), pairs_in_session=source.pairs_in_session,
         frames_unreadable=depth.unreadable, frames_from_cache=depth.from_cache,
-        odometry=odometry_name, imu_used=imu_used,
+        odometry=odometry_name, imu_used=imu[0], imu_note=imu[1],
         executor={"kind": executor.name, "workers": executor.workers, "in_flight": window},
         image_size_px=[int(maps.width), int(maps.height)], refractive=bool(maps.refractive),
         depth_range_m=list(stereo.depth_range_m), max_disparity_px=stereo.max_disparity_px,
