@@ -47,13 +47,18 @@ def test_quiet_and_verbose_after_the_subcommand(argv, verbose, quiet):
     assert (args.verbose, args.quiet) == (verbose, quiet)
 
 
-def test_quiet_after_the_subcommand_silences_info(tmp_path, capsys):
+def test_quiet_after_the_subcommand_silences_info(tmp_path, capsys, monkeypatch):
     root = logging.getLogger()
-    for h in list(root.handlers):
-        root.removeHandler(h)
-    assert main(["rig", "create", "--preset", "sea3d-paper", "-o", str(tmp_path / "r.yaml"),
-                 "-q"]) == 0
-    assert root.level == logging.WARNING
+    # basicConfig configures only a bare root; the handler it adds (on this test's captured
+    # stderr) must not outlive the test, nor the level it sets
+    monkeypatch.setattr(root, "handlers", [])
+    level = root.level
+    try:
+        assert main(["rig", "create", "--preset", "sea3d-paper", "-o",
+                     str(tmp_path / "r.yaml"), "-q"]) == 0
+        assert root.level == logging.WARNING
+    finally:
+        root.setLevel(level)
 
 
 def test_a_session_loop_logs_each_message_once_and_counts_the_rest(caplog):
@@ -76,8 +81,10 @@ def test_json_turns_bars_off_and_quiet_does_too(capsys):
     from sea3d.cli._progress import bar
 
     assert bar(10, "x", enabled=False).disable is True
-    logging.getLogger().setLevel(logging.WARNING)
+    root = logging.getLogger()
+    level = root.level
+    root.setLevel(logging.WARNING)
     try:
         assert bar(10, "x").disable is True
     finally:
-        logging.getLogger().setLevel(logging.INFO)
+        root.setLevel(level)
