@@ -33,15 +33,7 @@ PACKAGE_DIR = SRC / "sea3d"
 MAX_FUNCTION_LINES = 150
 
 # Functions allowed to stay long, keyed by (path relative to src/, qualified name), with why.
-_LONG_FUNCTION_EXEMPT: dict[tuple[str, str], str] = {
-    (
-        "sea3d/sim/_kernels.py",
-        "shade_fused",
-    ): "numba @njit(parallel=True) kernel: one prange loop over pixels that casts, "
-    "refracts and shades in registers; splitting it into helper calls per pixel costs "
-    "inlining and register reuse in the renderer's hottest loop, and its steps are "
-    "already written as small @njit helpers where that is free",
-}
+_LONG_FUNCTION_EXEMPT: dict[tuple[str, str], str] = {}
 
 # TEMPORARY: long functions in files another helper (``newuser``) was editing while this
 # test was written. The lead splits them after merging that branch and empties this list.
