@@ -441,7 +441,7 @@ def estimate_imu_scale(
     g = x[1:4]
     if not np.all(np.isfinite(g)) or np.linalg.norm(g) < 1e-9:
         return _failed("the linear solution has no gravity direction", len(t))
-    full, gv, z, J = _fix_gravity_magnitude(Aw_m, yw_v, x, gravity_mps2)
+    full, gv, z, J = _fix_gravity_magnitude(Aw_m, yw_v, np.asarray(x, np.float64), gravity_mps2)
     r = Aw_m @ full - yw_v
     dof = max(1, len(r) - len(z))
     chi2 = float(r @ r / dof)
