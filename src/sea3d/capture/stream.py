@@ -563,6 +563,31 @@ def _even(v: int) -> int:
     return max(2, v - (v % 2))
 
 
+def _open_mpegts(sink: _UdpSink, width: int, height: int, fps: float) -> tuple[Any, Any]:
+    """Open a low-latency MPEG-TS muxer on ``sink`` with one H.264 stream of ``PTS_HZ`` ticks.
+
+    Returns:
+        The PyAV output container and its video stream.
+    """
+    import av
+
+    out = av.open(
+        sink,
+        "w",
+        format="mpegts",
+        container_options={
+            "flush_packets": "1",
+            "omit_video_pes_length": "0",
+            "max_delay": "0",
+        },
+    )
+    vstream = out.add_mux_stream(
+        "h264", rate=Fraction(fps).limit_denominator(1000), width=width, height=height
+    )
+    vstream.time_base = Fraction(1, PTS_HZ)
+    return out, vstream
+
+
 class StreamSender:
     """Encode ``(t_ns, left, right)`` pairs as H.264 and send them as MPEG-TS over UDP.
 
@@ -608,16 +633,17 @@ class StreamSender:
             out.append(img)
         return out[0] if len(out) == 1 else np.ascontiguousarray(np.hstack(out))
 
-    def run(self, pairs: Iterator[Pair], *, duration_s: float | None = None) -> StreamSummary:
-        """Send until the pairs end, ``duration_s`` passes or :meth:`request_stop` is called.
+    def _first_pairs(self, it: Iterator[Pair]) -> tuple[list[Pair], float]:
+        """Read the first pair (two without a configured rate); set the sent size.
+
+        Returns:
+            The pairs read (to be sent first) and the frame rate, Hz: the configured one, else
+            from the first two stamps, else 10, clamped to [0.5, 240].
 
         Raises:
-            CaptureError: no encoder opens, or the sources fail.
+            CaptureError: the source gave no frames, or the first has no camera image.
         """
-        import av
-
         cfg = self.config
-        it = iter(pairs)
         first: list[Pair] = []
         for item in it:  # the first pair fixes the size; two stamps estimate the rate
             first.append(item)
@@ -637,7 +663,19 @@ class StreamSender:
                 if len(first) == 2 and first[1][0] > first[0][0]
                 else 10.0
             )
-        fps = float(min(max(fps, 0.5), 240.0))
+        return first, float(min(max(fps, 0.5), 240.0))
+
+    def run(self, pairs: Iterator[Pair], *, duration_s: float | None = None) -> StreamSummary:
+        """Send until the pairs end, ``duration_s`` passes or :meth:`request_stop` is called.
+
+        Raises:
+            CaptureError: no encoder opens, or the sources fail.
+        """
+        import av
+
+        cfg = self.config
+        it = iter(pairs)
+        first, fps = self._first_pairs(it)
         ncam = 2 if cfg.cameras == "both" else 1
         width, height = self._size[0] * ncam, self._size[1]
         self.choice = choice = pick_encoder(cfg, width, height, fps)
@@ -656,20 +694,7 @@ class StreamSender:
             cfg.cameras
         ]
         sink = _UdpSink(self.host, self.port)
-        out = av.open(
-            sink,
-            "w",
-            format="mpegts",
-            container_options={
-                "flush_packets": "1",
-                "omit_video_pes_length": "0",
-                "max_delay": "0",
-            },
-        )
-        vstream = out.add_mux_stream(
-            "h264", rate=Fraction(fps).limit_denominator(1000), width=width, height=height
-        )
-        vstream.time_base = Fraction(1, PTS_HZ)
+        out, vstream = _open_mpegts(sink, width, height, fps)
         gop = max(1, round(cfg.keyframe_s * fps))
         gst: _GstEncoder | None = None
         enc: Any = None

@@ -38,9 +38,11 @@ the result then says so (``status="weak"``).
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation, Slerp
 
 from sea3d._typing import F64
@@ -207,6 +209,119 @@ def _noise_cov(tau: F64, q: float, sigma_pos: float) -> F64:
     return np.asarray(c + sigma_pos**2 * np.eye(len(tau)), dtype=np.float64)
 
 
+def _window_rows(
+    wi: int,
+    idx: NDArray[np.intp],
+    *,
+    t: F64,
+    c: F64,
+    R_mc: F64,
+    t_cb: F64,
+    ti: F64,
+    f: F64,
+    R_model_body: Callable[[F64], F64],
+    n_x: int,
+) -> tuple[F64, F64, F64]:
+    """The linear rows of window ``wi`` (frames ``idx``): ``s c_k - g tau^2/2 + Psi b - p_a -
+    v_a tau = Phi - R_mc t_cb``.
+
+    Returns:
+        ``A`` ``(k, 3, n_x)``, ``y`` ``(k, 3)`` and ``tau`` ``(k,)`` seconds since the window's
+        first frame.
+    """
+    ta, tb = t[idx[0]], t[idx[-1]]
+    sel = (ti >= ta) & (ti <= tb)
+    ts = np.concatenate([[ta], ti[sel], [tb]])
+
+    def f_at(tq: float) -> F64:
+        return np.array([[np.interp(tq, ti, f[:, j]) for j in range(3)]])
+
+    fs = np.concatenate([f_at(ta), f[sel], f_at(tb)])
+    ts, keep = np.unique(ts, return_index=True)
+    fs = fs[keep]
+    R_mb = R_model_body(ts)
+    Phi = _double_integrals(ts, np.einsum("nij,nj->ni", R_mb, fs), t[idx])
+    Psi = _double_integrals(ts, R_mb, t[idx])
+    tau = t[idx] - ta
+    k = len(idx)
+    A = np.zeros((k, 3, n_x))
+    A[:, :, 0] = c[idx]
+    A[:, :, 1:4] = -0.5 * tau[:, None, None] ** 2 * np.eye(3)[None]
+    A[:, :, 4:7] = Psi
+    A[:, :, 7 + 6 * wi: 10 + 6 * wi] = -np.eye(3)[None]
+    A[:, :, 10 + 6 * wi: 13 + 6 * wi] = -tau[:, None, None] * np.eye(3)[None]
+    y = Phi - np.einsum("kij,j->ki", R_mc[idx], t_cb)
+    return A, y, tau
+
+
+def _whitened_system(
+    rows: list[tuple[F64, F64]], covs: list[F64], accel_bias_std_mps2: float | None, n_x: int
+) -> tuple[F64, F64]:
+    """Stack the windows' rows whitened by their noise, plus the accelerometer bias prior.
+
+    Raises:
+        SfmError: ``accel_bias_std_mps2`` is not positive.
+    """
+    # Whitening per window and axis: L^-1 with C = L L^T (axes independent, same C).
+    Aw, yw = [], []
+    for (A, y), C in zip(rows, covs, strict=True):
+        L = np.linalg.cholesky(C)
+        for ax in range(3):
+            Aw.append(np.linalg.solve(L, A[:, ax, :]))
+            yw.append(np.linalg.solve(L, y[:, ax]))
+    if accel_bias_std_mps2 is not None:
+        if not accel_bias_std_mps2 > 0:
+            raise SfmError(f"accel_bias_std_mps2 must be > 0, got {accel_bias_std_mps2}")
+        prior = np.zeros((3, n_x))
+        prior[:, 4:7] = np.eye(3) / accel_bias_std_mps2
+        Aw.append(prior)
+        yw.append(np.zeros(3))
+    return np.concatenate(Aw), np.concatenate(yw)
+
+
+def _fix_gravity_magnitude(
+    Aw_m: F64, yw_v: F64, x: F64, gravity_mps2: float
+) -> tuple[F64, F64, F64, F64]:
+    """Gauss-Newton on the whitened system with ``g = gravity_mps2 * u(theta, phi)``.
+
+    Starts from the linear solution ``x`` (whose ``x[1:4]`` has a direction).
+
+    Returns:
+        ``full`` (the state with ``g`` in place), ``g`` ``(3,)``, the reduced parameters
+        ``z`` and the Jacobian of the last step.
+    """
+    n_x = Aw_m.shape[1]
+    g = x[1:4]
+    u = g / np.linalg.norm(g)
+    th, ph = np.arccos(np.clip(u[2], -1, 1)), np.arctan2(u[1], u[0])
+    keep_cols = [0] + list(range(4, n_x))
+
+    def split(z: F64) -> tuple[F64, F64]:
+        th_, ph_ = z[-2], z[-1]
+        gv = gravity_mps2 * np.array([np.sin(th_) * np.cos(ph_), np.sin(th_) * np.sin(ph_),
+                                      np.cos(th_)])
+        full = np.zeros(n_x)
+        full[keep_cols] = z[:-2]
+        full[1:4] = gv
+        return full, gv
+
+    z = np.concatenate([x[keep_cols], [th, ph]])
+    for _ in range(20):
+        full, gv = split(z)
+        r = Aw_m @ full - yw_v
+        dg_dth = gravity_mps2 * np.array([np.cos(z[-2]) * np.cos(z[-1]),
+                                          np.cos(z[-2]) * np.sin(z[-1]), -np.sin(z[-2])])
+        dg_dph = gravity_mps2 * np.array([-np.sin(z[-2]) * np.sin(z[-1]),
+                                          np.sin(z[-2]) * np.cos(z[-1]), 0.0])
+        J = np.column_stack([Aw_m[:, keep_cols], Aw_m[:, 1:4] @ dg_dth, Aw_m[:, 1:4] @ dg_dph])
+        step, *_ = np.linalg.lstsq(J, -r, rcond=None)
+        z = z + step
+        if np.max(np.abs(step)) < 1e-12 * (1 + np.max(np.abs(z))):
+            break
+    full, gv = split(z)
+    return full, gv, z, J
+
+
 def estimate_imu_scale(
     t_s: F64,
     T_model_cam: F64,
@@ -308,81 +423,25 @@ def estimate_imu_scale(
                            rotation_noise_rad, gyro_bias_std_radps)
     n_w = len(windows)
     n_x = 1 + 3 + 3 + 6 * n_w  # s, g, b, then (p_a, v_a) per window
-    rows_A, rows_y, covs = [], [], []
-    for wi, idx in enumerate(windows):
-        ta, tb = t[idx[0]], t[idx[-1]]
-        sel = (ti >= ta) & (ti <= tb)
-        ts = np.concatenate([[ta], ti[sel], [tb]])
-        def f_at(tq: float) -> F64:
-            return np.array([[np.interp(tq, ti, f[:, j]) for j in range(3)]])
 
-        fs = np.concatenate([f_at(ta), f[sel], f_at(tb)])
-        ts, keep = np.unique(ts, return_index=True)
-        fs = fs[keep]
-        R_mb = slerp(ts).as_matrix() @ R_cb if track is None else track(ts)
-        Phi = _double_integrals(ts, np.einsum("nij,nj->ni", R_mb, fs), t[idx])
-        Psi = _double_integrals(ts, R_mb, t[idx])
-        tau = t[idx] - ta
-        k = len(idx)
-        A = np.zeros((k, 3, n_x))
-        A[:, :, 0] = c[idx]
-        A[:, :, 1:4] = -0.5 * tau[:, None, None] ** 2 * np.eye(3)[None]
-        A[:, :, 4:7] = Psi
-        A[:, :, 7 + 6 * wi: 10 + 6 * wi] = -np.eye(3)[None]
-        A[:, :, 10 + 6 * wi: 13 + 6 * wi] = -tau[:, None, None] * np.eye(3)[None]
-        y = Phi - np.einsum("kij,j->ki", R_mc[idx], t_cb)
-        rows_A.append(A)
-        rows_y.append(y)
-        covs.append(_noise_cov(tau, accel_noise_density_mps2_sqrthz, position_noise_m))
-    # Whitening per window and axis: L^-1 with C = L L^T (axes independent, same C).
-    Aw, yw = [], []
-    for A, y, C in zip(rows_A, rows_y, covs, strict=True):
-        L = np.linalg.cholesky(C)
-        for ax in range(3):
-            Aw.append(np.linalg.solve(L, A[:, ax, :]))
-            yw.append(np.linalg.solve(L, y[:, ax]))
-    if accel_bias_std_mps2 is not None:
-        if not accel_bias_std_mps2 > 0:
-            raise SfmError(f"accel_bias_std_mps2 must be > 0, got {accel_bias_std_mps2}")
-        prior = np.zeros((3, n_x))
-        prior[:, 4:7] = np.eye(3) / accel_bias_std_mps2
-        Aw.append(prior)
-        yw.append(np.zeros(3))
-    Aw_m = np.concatenate(Aw)
-    yw_v = np.concatenate(yw)
+    def R_model_body(ts: F64) -> F64:
+        return slerp(ts).as_matrix() @ R_cb if track is None else track(ts)
+
+    rows = [
+        _window_rows(wi, idx, t=t, c=c, R_mc=R_mc, t_cb=t_cb, ti=ti, f=f,
+                     R_model_body=R_model_body, n_x=n_x)
+        for wi, idx in enumerate(windows)
+    ]
+    covs = [_noise_cov(tau, accel_noise_density_mps2_sqrthz, position_noise_m)
+            for _, _, tau in rows]
+    Aw_m, yw_v = _whitened_system([(A, y) for A, y, _ in rows], covs, accel_bias_std_mps2, n_x)
     x, *_ = np.linalg.lstsq(Aw_m, yw_v, rcond=None)
     log.debug("linear solution: scale %.6g, |g| %.4f", x[0], np.linalg.norm(x[1:4]))
     # Gauss-Newton with |g| fixed: g = gravity * u(theta, phi).
     g = x[1:4]
     if not np.all(np.isfinite(g)) or np.linalg.norm(g) < 1e-9:
         return _failed("the linear solution has no gravity direction", len(t))
-    u = g / np.linalg.norm(g)
-    th, ph = np.arccos(np.clip(u[2], -1, 1)), np.arctan2(u[1], u[0])
-    keep_cols = [0] + list(range(4, n_x))
-
-    def split(z: F64) -> tuple[F64, F64]:
-        th_, ph_ = z[-2], z[-1]
-        gv = gravity_mps2 * np.array([np.sin(th_) * np.cos(ph_), np.sin(th_) * np.sin(ph_),
-                                      np.cos(th_)])
-        full = np.zeros(n_x)
-        full[keep_cols] = z[:-2]
-        full[1:4] = gv
-        return full, gv
-
-    z = np.concatenate([x[keep_cols], [th, ph]])
-    for _ in range(20):
-        full, gv = split(z)
-        r = Aw_m @ full - yw_v
-        dg_dth = gravity_mps2 * np.array([np.cos(z[-2]) * np.cos(z[-1]),
-                                          np.cos(z[-2]) * np.sin(z[-1]), -np.sin(z[-2])])
-        dg_dph = gravity_mps2 * np.array([-np.sin(z[-2]) * np.sin(z[-1]),
-                                          np.sin(z[-2]) * np.cos(z[-1]), 0.0])
-        J = np.column_stack([Aw_m[:, keep_cols], Aw_m[:, 1:4] @ dg_dth, Aw_m[:, 1:4] @ dg_dph])
-        step, *_ = np.linalg.lstsq(J, -r, rcond=None)
-        z = z + step
-        if np.max(np.abs(step)) < 1e-12 * (1 + np.max(np.abs(z))):
-            break
-    full, gv = split(z)
+    full, gv, z, J = _fix_gravity_magnitude(Aw_m, yw_v, np.asarray(x, np.float64), gravity_mps2)
     r = Aw_m @ full - yw_v
     dof = max(1, len(r) - len(z))
     chi2 = float(r @ r / dof)

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -224,6 +225,36 @@ def ray_bundle_adjust(
     x = np.concatenate([np.column_stack([np.zeros((n_free, 3)), t0[free]]).ravel(),
                         points_world.ravel()])
     r0 = residuals(x)[: 2 * m]
+    x, nfev = _huber_irls(residuals, jacobian, x, sqrt_w, huber_px=huber_px,
+                          irls_rounds=irls_rounds, max_nfev=max_nfev)
+    R, t, X, _ = unpack(x)
+    r1 = residuals(x)[: 2 * m]
+    T = np.tile(np.eye(4), (n_f, 1, 1))
+    T[:, :3, :3] = R
+    T[:, :3, 3] = t
+    return T, X, _fit_info(r0, r1, huber_px=huber_px, nfev=nfev)
+
+
+def _huber_irls(
+    residuals: Callable[[F64], F64],
+    jacobian: Callable[[F64], csr_matrix],
+    x: F64,
+    sqrt_w: F64,
+    *,
+    huber_px: float,
+    irls_rounds: int,
+    max_nfev: int,
+) -> tuple[F64, int]:
+    """Minimise the Huber loss of ``residuals`` by iteratively reweighted least squares.
+
+    ``residuals`` and ``jacobian`` read the per-observation weights ``sqrt_w`` (``(M,)``),
+    which this sets in place each round and leaves at 1 on return; the first ``2 M``
+    residuals are the observations' pixel pairs.
+
+    Returns:
+        The solution and the number of function evaluations.
+    """
+    m = sqrt_w.shape[0]
     nfev = 0
     # Huber by iteratively reweighted least squares: scipy's robust losses converge slowly on
     # this problem; a plain Gauss-Newton solve per reweighting converges in a few steps.
@@ -241,21 +272,22 @@ def ray_bundle_adjust(
         x = sol.x
         nfev += int(sol.nfev)
     sqrt_w[:] = 1.0
-    R, t, X, _ = unpack(x)
-    r1 = residuals(x)[: 2 * m]
-    T = np.tile(np.eye(4), (n_f, 1, 1))
-    T[:, :3, :3] = R
-    T[:, :3, 3] = t
-    # RMS over the inliers of the initial solution (outliers would dominate both figures)
+    return x, nfev
+
+
+def _fit_info(r0: F64, r1: F64, *, huber_px: float, nfev: int) -> dict[str, float]:
+    """RMS pixel error before and after, over the initial solution's inliers.
+
+    Outliers (beyond 4 Huber widths at the start) would dominate both figures.
+    """
     e0 = np.hypot(r0[0::2], r0[1::2])
     e1 = np.hypot(r1[0::2], r1[1::2])
     inl = e0 < 4 * huber_px
-    info = {
+    return {
         "rms_before_px": float(np.sqrt(np.mean(e0[inl] ** 2))) if inl.any() else float("nan"),
         "rms_after_px": float(np.sqrt(np.mean(e1[inl] ** 2))) if inl.any() else float("nan"),
         "nfev": float(nfev),
     }
-    return T, X, info
 
 
 def refine(rec: Any, sensors: list[Any], rig: StereoRig, *, fix_scale: bool,

@@ -348,6 +348,44 @@ def _sand_shade(
     return shade
 
 
+@numba.njit(cache=True, inline="always")
+def _object_point(
+    T_inv: F64, k: int, px: float, py: float, pz: float
+) -> tuple[float, float, float]:
+    """World point ``(px, py, pz)`` in object ``k``'s frame: ``T_inv[k] @ p``, metres."""
+    qx = T_inv[k, 0, 0] * px + T_inv[k, 0, 1] * py + T_inv[k, 0, 2] * pz + T_inv[k, 0, 3]
+    qy = T_inv[k, 1, 0] * px + T_inv[k, 1, 1] * py + T_inv[k, 1, 2] * pz + T_inv[k, 1, 3]
+    qz = T_inv[k, 2, 0] * px + T_inv[k, 2, 1] * py + T_inv[k, 2, 2] * pz + T_inv[k, 2, 3]
+    return qx, qy, qz
+
+
+@numba.njit(cache=True, inline="always")
+def _caustic_raw_at(
+    px: float,
+    py: float,
+    t_lattice: float,
+    caustic_scale: float,
+    s77: np.uint64,
+    s78: np.uint64,
+    cache: NDArray[np.float64],
+) -> np.float32:
+    """:func:`caustic_raw`'s value at one world point (two ridged noise layers), float32."""
+    cx = px / caustic_scale
+    cy = py / caustic_scale
+    a = fbm1_cached(cx, cy, t_lattice, 0.0, 1.0, 2, 0.4, s77, cache, 10)
+    b = fbm1_cached(
+        cx * 1.37 + 11.0, cy * 1.37 + 11.0, t_lattice * 1.37 + 11.0, 0.0, 1.0, 2, 0.4, s78,
+        cache, 12,
+    )  # fmt: skip
+    ra = 1.0 - abs(2.0 * a - 1.0)
+    rb = 1.0 - abs(2.0 * b - 1.0)
+    ra2 = ra * ra
+    rb2 = rb * rb
+    ra8 = ra2 * ra2 * ra2 * ra2
+    rb8 = rb2 * rb2 * rb2 * rb2
+    return np.float32(ra8 * ra2 + rb8 * rb2)
+
+
 @numba.njit(cache=True, parallel=True)
 def shade_fused(
     o_cam: F32,
@@ -421,24 +459,7 @@ def shade_fused(
             if sand[k]:
                 qx, qy, qz = px, py, pz
                 if has_T[k]:
-                    qx = (
-                        T_inv[k, 0, 0] * px
-                        + T_inv[k, 0, 1] * py
-                        + T_inv[k, 0, 2] * pz
-                        + T_inv[k, 0, 3]
-                    )
-                    qy = (
-                        T_inv[k, 1, 0] * px
-                        + T_inv[k, 1, 1] * py
-                        + T_inv[k, 1, 2] * pz
-                        + T_inv[k, 1, 3]
-                    )
-                    qz = (
-                        T_inv[k, 2, 0] * px
-                        + T_inv[k, 2, 1] * py
-                        + T_inv[k, 2, 2] * pz
-                        + T_inv[k, 2, 3]
-                    )
+                    qx, qy, qz = _object_point(T_inv, k, px, py, pz)
                 shade = _sand_shade(
                     qx,
                     qy,
@@ -463,28 +484,7 @@ def shade_fused(
             if caustics > 0.0:
                 fade = np.exp(-depth_below / caustic_fade_depth)
                 if (nx * sun32[0] + ny * sun32[1] + nz * sun32[2] > 0) and fade > 0.02:
-                    cx = px / caustic_scale
-                    cy = py / caustic_scale
-                    a = fbm1_cached(cx, cy, t_lattice, 0.0, 1.0, 2, 0.4, s77, cache, 10)
-                    b = fbm1_cached(
-                        cx * 1.37 + 11.0,
-                        cy * 1.37 + 11.0,
-                        t_lattice * 1.37 + 11.0,
-                        0.0,
-                        1.0,
-                        2,
-                        0.4,
-                        s78,
-                        cache,
-                        12,
-                    )
-                    ra = 1.0 - abs(2.0 * a - 1.0)
-                    rb = 1.0 - abs(2.0 * b - 1.0)
-                    ra2 = ra * ra
-                    rb2 = rb * rb
-                    ra8 = ra2 * ra2 * ra2 * ra2
-                    rb8 = rb2 * rb2 * rb2 * rb2
-                    raw = np.float32(ra8 * ra2 + rb8 * rb2)
+                    raw = _caustic_raw_at(px, py, t_lattice, caustic_scale, s77, s78, cache)
                     cval = np.float64(raw) / caustic_mean
                     mod = np.float32(1.0 + caustics * fade * (cval - 1.0))
             lam = nx * sun_dir[0] + ny * sun_dir[1] + nz * sun_dir[2]
