@@ -19,11 +19,12 @@ from foxglove_client import FoxgloveClient
 from sea3d.capture.foxglove_live import FoxgloveBridge, FoxgloveConfig, FoxglovePublisher
 from sea3d.capture.monitor import SessionPlayer
 from sea3d.cli import main
-from sea3d.errors import CaptureError
+from sea3d.errors import CaptureError, ConfigError
 from sea3d.geometry.pinhole import PinholeCamera
 from sea3d.geometry.rig import StereoRig
 from sea3d.io.rig_file import rig_to_yaml
 from sea3d.io.session import SessionWriter, open_session
+from sea3d.pipeline.live_preview import DepthPreview
 
 W, H, FX, B, D = 320, 180, 200.0, 0.1, 10
 PLANE_DEPTH_M = FX * B / D  # 2.0 m
@@ -89,7 +90,15 @@ def test_replay_reaches_a_websocket_client_with_images_imu_sonar_and_depth(sessi
             client.subscribe(topics)
             time.sleep(0.2)
             player.start()
-            with FoxgloveBridge(pub, player, imu=player.imu, sonar=player.sonar, restamp=True):
+            bridge = FoxgloveBridge(
+                pub,
+                player,
+                imu=player.imu,
+                sonar=player.sonar,
+                restamp=True,
+                depth=DepthPreview(pub.rig, cfg.depth_width_px),
+            )
+            with bridge:
                 imgs = client.wait_for("/cam/left/image", 5)
                 imu = client.wait_for("/imu", 60)
                 sonar = client.wait_for("/sonar", 3)
@@ -330,3 +339,28 @@ def test_the_sdk_alone_rejects_the_old_name_so_the_shim_is_needed():
             pytest.raises(websocket.WebSocketBadStatusException, match="400"):
         websocket.create_connection(f"ws://127.0.0.1:{pub.port}",
                                     subprotocols=["foxglove.websocket.v1"], timeout=5.0)
+
+
+def test_capture_runs_no_depth_without_a_provider_and_refuses_a_bad_one(session):
+    """Capture hands frames on: depth runs only through the provider its caller gives."""
+    path, _ = session
+    player = SessionPlayer(path, speed=1.0, loop=True)
+    cfg = FoxgloveConfig(port=0, depth_width_px=160)
+    calls: list[tuple[int, int]] = []
+
+    def fake(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, bool]:
+        calls.append((left.shape[1], right.shape[1]))
+        return np.ones((4, 4), np.float32), False
+
+    with FoxglovePublisher(cfg, rig=_rig()) as pub:
+        with pytest.raises(ConfigError, match="compute"):
+            FoxgloveBridge(pub, player, depth=42)
+        none = FoxgloveBridge(pub, player).start()
+        names = [t.name for t in none._threads]
+        none.stop()
+        with_depth = FoxgloveBridge(pub, player, depth=fake).start()
+        names_depth = [t.name for t in with_depth._threads]
+        with_depth.stop()
+    assert "sea3d-foxglove-depth" not in names
+    assert "sea3d-foxglove-depth" in names_depth
+    assert calls == []  # no client subscribed to /depth: the provider was never called
