@@ -294,8 +294,10 @@ def test_poses_clouds_and_meshes_reach_the_client():
     assert tf.transforms[0].child_frame_id == "left" and tf.transforms[0].translation.y == 2.0
 
 
-@pytest.mark.parametrize("offer", [["foxglove.websocket.v1"], ["foxglove.sdk.v1"],
-                                   ["foxglove.sdk.v1", "foxglove.websocket.v1"]])
+@pytest.mark.parametrize(
+    "offer",
+    [["foxglove.websocket.v1"], ["foxglove.sdk.v1"], ["foxglove.sdk.v1", "foxglove.websocket.v1"]],
+)
 def test_clients_of_either_subprotocol_name_connect_and_get_data(offer):
     """Issue 23.3: a client offering only the old name (Lichtblick before foxglove.sdk.v1) is
     accepted, answered with the name it offered, and speaks the same protocol."""
@@ -304,8 +306,9 @@ def test_clients_of_either_subprotocol_name_connect_and_get_data(offer):
     import websocket
 
     with FoxglovePublisher(FoxgloveConfig(port=0)) as pub:
-        ws = websocket.create_connection(f"ws://127.0.0.1:{pub.port}", subprotocols=offer,
-                                         timeout=5.0)
+        ws = websocket.create_connection(
+            f"ws://127.0.0.1:{pub.port}", subprotocols=offer, timeout=5.0
+        )
         try:
             assert ws.getsubprotocol() in offer
             info = json.loads(ws.recv())
@@ -313,8 +316,11 @@ def test_clients_of_either_subprotocol_name_connect_and_get_data(offer):
             adverts = json.loads(ws.recv())
             assert adverts["op"] == "advertise"
             imu = next(c for c in adverts["channels"] if c["topic"] == "/imu")
-            ws.send(json.dumps({"op": "subscribe",
-                                "subscriptions": [{"id": 7, "channelId": imu["id"]}]}))
+            ws.send(
+                json.dumps(
+                    {"op": "subscribe", "subscriptions": [{"id": 7, "channelId": imu["id"]}]}
+                )
+            )
             deadline = time.monotonic() + 5.0
             frame = None
             while time.monotonic() < deadline:
@@ -335,10 +341,13 @@ def test_clients_of_either_subprotocol_name_connect_and_get_data(offer):
 def test_the_sdk_alone_rejects_the_old_name_so_the_shim_is_needed():
     import websocket
 
-    with FoxglovePublisher(FoxgloveConfig(port=0, accept_old_subprotocol=False)) as pub, \
-            pytest.raises(websocket.WebSocketBadStatusException, match="400"):
-        websocket.create_connection(f"ws://127.0.0.1:{pub.port}",
-                                    subprotocols=["foxglove.websocket.v1"], timeout=5.0)
+    with (
+        FoxglovePublisher(FoxgloveConfig(port=0, accept_old_subprotocol=False)) as pub,
+        pytest.raises(websocket.WebSocketBadStatusException, match="400"),
+    ):
+        websocket.create_connection(
+            f"ws://127.0.0.1:{pub.port}", subprotocols=["foxglove.websocket.v1"], timeout=5.0
+        )
 
 
 def test_capture_runs_no_depth_without_a_provider_and_refuses_a_bad_one(session):

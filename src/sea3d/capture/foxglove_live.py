@@ -25,8 +25,8 @@ import collections
 import logging
 import threading
 import time
-from dataclasses import dataclass
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -161,8 +161,7 @@ class FoxglovePublisher:
 
         # The SDK's server on a loopback port behind a shim on the public address, which also
         # accepts clients of the protocol's old name (foxglove.websocket.v1).
-        self._shim = SubprotocolShim(cfg.host, cfg.port, 0) if cfg.accept_old_subprotocol \
-            else None
+        self._shim = SubprotocolShim(cfg.host, cfg.port, 0) if cfg.accept_old_subprotocol else None
         try:
             self._server = foxglove.start_server(
                 name=cfg.name,
