@@ -11,8 +11,8 @@ import pytest
 from sea3d.enhance import enhance_pair
 from sea3d.errors import EnhanceError
 from sea3d.eval import disparity_metrics
-from sea3d.pipeline.enhance_tasks import correct_feature_matches, stereo_with_enhancement
 from sea3d.geometry.pinhole import PinholeCamera
+from sea3d.pipeline.enhance_tasks import correct_feature_matches, stereo_with_enhancement
 from sea3d.stereo import SgmConfig, match
 
 W, H = 192, 144
