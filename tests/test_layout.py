@@ -15,6 +15,10 @@ Rules (each failure names the file, the line and the rule):
 - ``bottom-imports-up``: ``sea3d.geometry`` and ``sea3d.refraction`` import nothing of sea3d
   but each other (refraction may use geometry; geometry may not use refraction), errors,
   ``_typing`` and ``_text``.
+- ``capture-runs-stage``: ``sea3d.capture`` hands frames on and imports only io, geometry,
+  refraction, errors, ``_typing`` and ``_text`` (a stage it needs is given by its caller).
+- ``eval-runs-stage``: ``sea3d.eval`` computes metrics from given arrays and imports no stage
+  at run time (a stage's types only under ``if TYPE_CHECKING:``).
 
 Every rule is also run on a planted violation so that the test is seen to fail.
 """
