@@ -65,8 +65,8 @@ from sea3d.enhance import (
 from sea3d.enhance._image import luminance, srgb_to_linear
 from sea3d.enhance.water import WaterFitConfig, WaterModel, fit_water_model, restore
 from sea3d.eval.enhance_formation import JERLOV_WATERS, degrade
-from sea3d.eval.enhance_tasks import correct_feature_matches, stereo_with_enhancement
 from sea3d.geometry.se3 import look_at
+from sea3d.pipeline.enhance_tasks import correct_feature_matches, stereo_with_enhancement
 from sea3d.refraction.presets import paper_rig
 from sea3d.sim import Imaging, Renderer, builtin_scene
 from sea3d.sim.reference import simulate_pair_with_reference

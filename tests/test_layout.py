@@ -15,6 +15,10 @@ Rules (each failure names the file, the line and the rule):
 - ``bottom-imports-up``: ``sea3d.geometry`` and ``sea3d.refraction`` import nothing of sea3d
   but each other (refraction may use geometry; geometry may not use refraction), errors,
   ``_typing`` and ``_text``.
+- ``capture-runs-stage``: ``sea3d.capture`` hands frames on and imports only io, geometry,
+  refraction, errors, ``_typing`` and ``_text`` (a stage it needs is given by its caller).
+- ``eval-runs-stage``: ``sea3d.eval`` computes metrics from given arrays and imports no stage
+  at run time (a stage's types only under ``if TYPE_CHECKING:``).
 
 Every rule is also run on a planted violation so that the test is seen to fail.
 """
@@ -386,3 +390,125 @@ def test_allowed_shapes_pass(rel_path: str, source: str) -> None:
     module = parse_module(source, rel_path)
     problems = check_function_length(module, exempt={}) + check_imports(module, sim_allowed={})
     assert not problems, problems
+
+
+# -- capture hands frames on; eval computes metrics (issue 18) ---------------------------------
+
+# ``capture`` reads cameras and sensors and hands frames on: it runs no stage.
+_CAPTURE_ALLOWED = (
+    "sea3d.capture",
+    "sea3d.io",
+    "sea3d.geometry",
+    "sea3d.refraction",
+    "sea3d.errors",
+    "sea3d._typing",
+    "sea3d._text",
+)
+# ``eval`` computes metrics from arrays it is given: it may name a stage's types for
+# annotations (under ``if TYPE_CHECKING:``) but never runs one.
+_EVAL_FORBIDDEN = (
+    "sea3d.stereo",
+    "sea3d.rectify",
+    "sea3d.enhance",
+    "sea3d.odometry",
+    "sea3d.recon",
+    "sea3d.pipeline",
+    "sea3d.calib",
+    "sea3d.sfm",
+    "sea3d.monodepth",
+    "sea3d.sim",
+    "sea3d.capture",
+    "sea3d.cli",
+)
+
+
+def check_capture_and_eval_imports(module: Module) -> list[str]:
+    """Violations of ``capture-runs-stage`` and ``eval-runs-stage`` in one module."""
+    problems: list[str] = []
+    sub = module.subpackage
+    for imp in imports_of(module):
+        at = f"src/{module.rel_path}:{imp.line}:"
+        if sub == "capture" and imp.target != "sea3d":
+            if not any(_within(imp.target, p) for p in _CAPTURE_ALLOWED):
+                problems.append(
+                    f"{at} [capture-runs-stage] imports {imp.target}; capture hands frames on "
+                    f"and may import only {', '.join(_CAPTURE_ALLOWED)} (a stage it needs is "
+                    "given by its caller)"
+                )
+        stage = next((p for p in _EVAL_FORBIDDEN if _within(imp.target, p)), None)
+        if sub == "eval" and stage is not None and not imp.type_only:
+            problems.append(
+                f"{at} [eval-runs-stage] imports {imp.target}; eval computes metrics from the "
+                f"arrays it is given and may name {stage} only under `if TYPE_CHECKING:`"
+            )
+    return problems
+
+
+def test_capture_and_eval_run_no_stage(modules: list[Module]) -> None:
+    problems = [p for m in modules for p in check_capture_and_eval_imports(m)]
+    assert not problems, "\n".join(problems)
+
+
+@pytest.mark.parametrize(
+    ("rel_path", "source", "rule"),
+    [
+        (
+            "sea3d/capture/x.py",
+            "from sea3d.stereo.recipe import StereoDepth\n",
+            "capture-runs-stage",
+        ),
+        ("sea3d/capture/x.py", "def f():\n    from ..rectify import maps\n", "capture-runs-stage"),
+        ("sea3d/capture/sub/x.py", "from ...pipeline import live\n", "capture-runs-stage"),
+        ("sea3d/capture/x.py", "from sea3d import enhance\n", "capture-runs-stage"),
+        ("sea3d/capture/x.py", "import sea3d.recon.mesh\n", "capture-runs-stage"),
+        ("sea3d/capture/x.py", "from sea3d.odometry import track\n", "capture-runs-stage"),
+        ("sea3d/eval/x.py", "def f():\n    from sea3d.stereo import match\n", "eval-runs-stage"),
+        ("sea3d/eval/x.py", "from ..enhance.api import enhance_pair\n", "eval-runs-stage"),
+        ("sea3d/eval/x.py", "from sea3d import pipeline\n", "eval-runs-stage"),
+        (
+            "sea3d/eval/x.py",
+            "import importlib\nm = importlib.import_module('sea3d.odometry')\n",
+            "eval-runs-stage",
+        ),
+        (
+            "sea3d/eval/x.py",
+            "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    pass\nelse:\n"
+            "    from sea3d.rectify.maps import RectifyMaps\n",
+            "eval-runs-stage",
+        ),
+    ],
+)
+def test_capture_and_eval_rules_trip_on_a_planted_violation(
+    rel_path: str, source: str, rule: str
+) -> None:
+    problems = check_capture_and_eval_imports(parse_module(source, rel_path))
+    assert any(f"[{rule}]" in p and f"src/{rel_path}:" in p for p in problems), problems
+
+
+@pytest.mark.parametrize(
+    ("rel_path", "source"),
+    [
+        ("sea3d/capture/x.py", "from sea3d.io import foxglove_msgs\nfrom .sources import S\n"),
+        (
+            "sea3d/capture/x.py",
+            "from sea3d.geometry.rig import StereoRig\nfrom sea3d import errors\n",
+        ),
+        (
+            "sea3d/capture/x.py",
+            "from sea3d.refraction import DomePort\nfrom sea3d._text import p\n",
+        ),
+        (
+            "sea3d/eval/x.py",
+            "from sea3d.geometry.camera import CameraModel\nfrom .disparity import d\n",
+        ),
+        ("sea3d/eval/x.py", "from sea3d.io.ground_truth import load\nfrom sea3d.errors import E\n"),
+        (
+            "sea3d/eval/x.py",
+            "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
+            "    from sea3d.stereo.depth import DepthResult\n",
+        ),
+        ("sea3d/pipeline/x.py", "from sea3d.stereo import match\nfrom sea3d.capture import R\n"),
+    ],
+)
+def test_capture_and_eval_allowed_shapes_pass(rel_path: str, source: str) -> None:
+    assert not check_capture_and_eval_imports(parse_module(source, rel_path))

@@ -19,11 +19,12 @@ from foxglove_client import FoxgloveClient
 from sea3d.capture.foxglove_live import FoxgloveBridge, FoxgloveConfig, FoxglovePublisher
 from sea3d.capture.monitor import SessionPlayer
 from sea3d.cli import main
-from sea3d.errors import CaptureError
+from sea3d.errors import CaptureError, ConfigError
 from sea3d.geometry.pinhole import PinholeCamera
 from sea3d.geometry.rig import StereoRig
 from sea3d.io.rig_file import rig_to_yaml
 from sea3d.io.session import SessionWriter, open_session
+from sea3d.pipeline.live_preview import DepthPreview
 
 W, H, FX, B, D = 320, 180, 200.0, 0.1, 10
 PLANE_DEPTH_M = FX * B / D  # 2.0 m
@@ -89,7 +90,15 @@ def test_replay_reaches_a_websocket_client_with_images_imu_sonar_and_depth(sessi
             client.subscribe(topics)
             time.sleep(0.2)
             player.start()
-            with FoxgloveBridge(pub, player, imu=player.imu, sonar=player.sonar, restamp=True):
+            bridge = FoxgloveBridge(
+                pub,
+                player,
+                imu=player.imu,
+                sonar=player.sonar,
+                restamp=True,
+                depth=DepthPreview(pub.rig, cfg.depth_width_px),
+            )
+            with bridge:
                 imgs = client.wait_for("/cam/left/image", 5)
                 imu = client.wait_for("/imu", 60)
                 sonar = client.wait_for("/sonar", 3)
@@ -285,8 +294,10 @@ def test_poses_clouds_and_meshes_reach_the_client():
     assert tf.transforms[0].child_frame_id == "left" and tf.transforms[0].translation.y == 2.0
 
 
-@pytest.mark.parametrize("offer", [["foxglove.websocket.v1"], ["foxglove.sdk.v1"],
-                                   ["foxglove.sdk.v1", "foxglove.websocket.v1"]])
+@pytest.mark.parametrize(
+    "offer",
+    [["foxglove.websocket.v1"], ["foxglove.sdk.v1"], ["foxglove.sdk.v1", "foxglove.websocket.v1"]],
+)
 def test_clients_of_either_subprotocol_name_connect_and_get_data(offer):
     """Issue 23.3: a client offering only the old name (Lichtblick before foxglove.sdk.v1) is
     accepted, answered with the name it offered, and speaks the same protocol."""
@@ -295,8 +306,9 @@ def test_clients_of_either_subprotocol_name_connect_and_get_data(offer):
     import websocket
 
     with FoxglovePublisher(FoxgloveConfig(port=0)) as pub:
-        ws = websocket.create_connection(f"ws://127.0.0.1:{pub.port}", subprotocols=offer,
-                                         timeout=5.0)
+        ws = websocket.create_connection(
+            f"ws://127.0.0.1:{pub.port}", subprotocols=offer, timeout=5.0
+        )
         try:
             assert ws.getsubprotocol() in offer
             info = json.loads(ws.recv())
@@ -304,8 +316,11 @@ def test_clients_of_either_subprotocol_name_connect_and_get_data(offer):
             adverts = json.loads(ws.recv())
             assert adverts["op"] == "advertise"
             imu = next(c for c in adverts["channels"] if c["topic"] == "/imu")
-            ws.send(json.dumps({"op": "subscribe",
-                                "subscriptions": [{"id": 7, "channelId": imu["id"]}]}))
+            ws.send(
+                json.dumps(
+                    {"op": "subscribe", "subscriptions": [{"id": 7, "channelId": imu["id"]}]}
+                )
+            )
             deadline = time.monotonic() + 5.0
             frame = None
             while time.monotonic() < deadline:
@@ -326,7 +341,35 @@ def test_clients_of_either_subprotocol_name_connect_and_get_data(offer):
 def test_the_sdk_alone_rejects_the_old_name_so_the_shim_is_needed():
     import websocket
 
-    with FoxglovePublisher(FoxgloveConfig(port=0, accept_old_subprotocol=False)) as pub, \
-            pytest.raises(websocket.WebSocketBadStatusException, match="400"):
-        websocket.create_connection(f"ws://127.0.0.1:{pub.port}",
-                                    subprotocols=["foxglove.websocket.v1"], timeout=5.0)
+    with (
+        FoxglovePublisher(FoxgloveConfig(port=0, accept_old_subprotocol=False)) as pub,
+        pytest.raises(websocket.WebSocketBadStatusException, match="400"),
+    ):
+        websocket.create_connection(
+            f"ws://127.0.0.1:{pub.port}", subprotocols=["foxglove.websocket.v1"], timeout=5.0
+        )
+
+
+def test_capture_runs_no_depth_without_a_provider_and_refuses_a_bad_one(session):
+    """Capture hands frames on: depth runs only through the provider its caller gives."""
+    path, _ = session
+    player = SessionPlayer(path, speed=1.0, loop=True)
+    cfg = FoxgloveConfig(port=0, depth_width_px=160)
+    calls: list[tuple[int, int]] = []
+
+    def fake(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, bool]:
+        calls.append((left.shape[1], right.shape[1]))
+        return np.ones((4, 4), np.float32), False
+
+    with FoxglovePublisher(cfg, rig=_rig()) as pub:
+        with pytest.raises(ConfigError, match="compute"):
+            FoxgloveBridge(pub, player, depth=42)
+        none = FoxgloveBridge(pub, player).start()
+        names = [t.name for t in none._threads]
+        none.stop()
+        with_depth = FoxgloveBridge(pub, player, depth=fake).start()
+        names_depth = [t.name for t in with_depth._threads]
+        with_depth.stop()
+    assert "sea3d-foxglove-depth" not in names
+    assert "sea3d-foxglove-depth" in names_depth
+    assert calls == []  # no client subscribed to /depth: the provider was never called

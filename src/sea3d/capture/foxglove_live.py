@@ -8,9 +8,10 @@ on a top-side machine with Foxglove or Lichtblick and no ROS install.
   :class:`~sea3d.capture.recorder.Recorder` (``sea3d record --foxglove``) or a
   :class:`~sea3d.capture.monitor.SessionPlayer` (``sea3d monitor --foxglove``): the newest frame
   of each camera (polled, so a slow link never holds the recorder back), every IMU and
-  echosounder sample (the recorder's listener hook, or the session's series in replay), and a
-  low-resolution depth image (refraction-corrected with the rig; a raw disparity preview
-  without one) in a thread of its own.
+  echosounder sample (the recorder's listener hook, or the session's series in replay), and,
+  when its caller gives it a depth provider (e.g.
+  :class:`sea3d.pipeline.live_preview.DepthPreview`), a depth image in a thread of its own.
+  Capture runs no stage itself: without a provider no depth is published.
 
 The server listens on loopback (127.0.0.1) unless another address is given; it has no
 authentication, so expose it only on a trusted tether network. A client that goes away
@@ -24,6 +25,7 @@ import collections
 import logging
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -52,7 +54,8 @@ class FoxgloveConfig:
             resolution); the published camera calibration is scaled to match.
         image_rate_hz: at most this many images per second per camera (None: every new frame).
         depth_rate_hz: depth (or disparity) images per second; 0 turns them off.
-        depth_width_px: width of the depth image (the rig is scaled to it).
+        depth_width_px: width of the depth image, for the caller's depth provider (see
+            :class:`FoxgloveBridge`; the rig is scaled to it).
         backlog_messages: outgoing messages buffered per client; a client that falls this far
             behind is disconnected by the server (it can reconnect).
         accept_old_subprotocol: also accept clients that offer only ``foxglove.websocket.v1``
@@ -158,8 +161,7 @@ class FoxglovePublisher:
 
         # The SDK's server on a loopback port behind a shim on the public address, which also
         # accepts clients of the protocol's old name (foxglove.websocket.v1).
-        self._shim = SubprotocolShim(cfg.host, cfg.port, 0) if cfg.accept_old_subprotocol \
-            else None
+        self._shim = SubprotocolShim(cfg.host, cfg.port, 0) if cfg.accept_old_subprotocol else None
         try:
             self._server = foxglove.start_server(
                 name=cfg.name,
@@ -350,51 +352,6 @@ class FoxglovePublisher:
         self.stop()
 
 
-class _DepthPreview:
-    """Low-resolution depth (with a rig) or raw disparity (without) of a stereo pair."""
-
-    def __init__(self, rig: Any, width_px: int) -> None:
-        self.rig = rig
-        self.width_px = int(width_px)
-        self._stereo: Any = None
-        self.failed = False
-
-    def compute(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, bool]:
-        """(image, is_disparity)."""
-        import cv2
-
-        if self.rig is None:
-            return self._disparity(left, right), True
-        if self._stereo is None:
-            from sea3d.stereo.recipe import DepthConfig, StereoDepth
-
-            scale = self.width_px / self.rig.width
-            small = self.rig.scaled(self.width_px, max(1, round(self.rig.height * scale)))
-            # OpenCV's engine is the fastest on a CPU; ranges from the (small) rig
-            self._stereo = StereoDepth(small, DepthConfig(engine="opencv"))
-        size = (self._stereo.rig.width, self._stereo.rig.height)
-        ls = cv2.resize(left, size, interpolation=cv2.INTER_AREA)
-        rs = cv2.resize(right, size, interpolation=cv2.INTER_AREA)
-        return self._stereo.compute(ls, rs).depth_m, False
-
-    def _disparity(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
-        import cv2
-
-        def grey(img: np.ndarray) -> np.ndarray:
-            g = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
-            if g.dtype == np.uint16:
-                g = (g.astype(np.uint16) >> 8).astype(np.uint8)
-            h, w = g.shape
-            return cv2.resize(g, (self.width_px, max(1, round(h * self.width_px / w))))
-
-        gl, gr = grey(left), grey(right)
-        n = max(16, (gl.shape[1] // 6) // 16 * 16)
-        sgbm = cv2.StereoSGBM.create(0, n, 5, P1=8 * 25, P2=32 * 25, uniquenessRatio=10)
-        disp = sgbm.compute(gl, gr).astype(np.float32) / 16.0  # SGBM's fixed point, x16
-        disp[disp <= 0] = np.nan
-        return disp
-
-
 class FoxgloveBridge:
     """Feed a :class:`FoxglovePublisher` from a recorder or a session player.
 
@@ -410,9 +367,16 @@ class FoxgloveBridge:
             continues forward in time (replays look live; Foxglove's live view wants time to
             advance).
         poll_interval_s: how often the provider is asked for new frames.
+        depth: the depth provider: a callable ``(left, right) -> (image, is_disparity)`` or
+            an object with such a ``compute`` method (e.g.
+            :class:`sea3d.pipeline.live_preview.DepthPreview`); it is called with the newest
+            pair at most ``depth_rate_hz`` times a second while a client subscribes to
+            ``/depth`` or ``/disparity``, and switched off for good when it raises. None (the
+            default): no depth is published.
 
     Raises:
-        ConfigError: a provider without ``latest``.
+        ConfigError: a provider without ``latest``, or a depth provider that is neither
+            callable nor has ``compute``.
     """
 
     def __init__(
@@ -424,9 +388,13 @@ class FoxgloveBridge:
         sonar: Any = None,
         restamp: bool = False,
         poll_interval_s: float = 0.005,
+        depth: Any = None,
     ) -> None:
         if not callable(getattr(provider, "latest", None)):
             raise ConfigError(f"{provider!r} has no latest(stream) method to feed Foxglove from")
+        compute = getattr(depth, "compute", depth)
+        if depth is not None and not callable(compute):
+            raise ConfigError(f"{depth!r} is neither callable nor has compute(left, right)")
         self.publisher = publisher
         self.provider = provider
         self.imu, self.sonar = imu, sonar
@@ -442,7 +410,8 @@ class FoxgloveBridge:
         self._lap_ns = 0
         self._series_t = -1
         self.errors: list[str] = []
-        self._depth = _DepthPreview(publisher.rig, publisher.config.depth_width_px)
+        self._depth: Callable[[Any, Any], tuple[np.ndarray, bool]] | None = compute
+        self._depth_failed = False
         self._pair_lock = threading.Lock()
         self._pair: tuple[int, Any, Any] | None = None
 
@@ -459,7 +428,7 @@ class FoxgloveBridge:
         """Start the publishing (and depth) threads; returns self."""
         t = threading.Thread(target=self._run, name="sea3d-foxglove", daemon=True)
         self._threads = [t]
-        if self.publisher.config.depth_rate_hz > 0:
+        if self._depth is not None and self.publisher.config.depth_rate_hz > 0:
             self._threads.append(
                 threading.Thread(target=self._run_depth, name="sea3d-foxglove-depth", daemon=True)
             )
@@ -587,14 +556,14 @@ class FoxgloveBridge:
             if pair is None or pair[0] == last_t:
                 continue
             wanted = pub.subscribed(pub.depth) or pub.subscribed(pub.disparity)
-            if not wanted or self._depth.failed:
+            if not wanted or self._depth_failed or self._depth is None:
                 continue
             last_t = pair[0]
             try:
-                img, is_disp = self._depth.compute(pair[1], pair[2])
+                img, is_disp = self._depth(pair[1], pair[2])
                 pub.publish_depth(pair[0], img, disparity=is_disp)
             except Exception as err:
-                self._depth.failed = True
+                self._depth_failed = True
                 msg = f"Foxglove depth preview off: {type(err).__name__}: {err}"
                 self.errors.append(msg)
                 _log.warning("%s", msg)

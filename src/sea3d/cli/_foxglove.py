@@ -58,6 +58,7 @@ def start_foxglove(
     from sea3d.capture.foxglove_live import FoxgloveBridge, FoxgloveConfig, FoxglovePublisher
     from sea3d.capture.monitor import parse_address
     from sea3d.errors import CaptureError
+    from sea3d.pipeline.live_preview import DepthPreview
 
     host, port = parse_address(address, default_port=8765)
     try:
@@ -73,6 +74,7 @@ def start_foxglove(
         imu=None if replay is None else replay.imu,
         sonar=None if replay is None else replay.sonar,
         restamp=replay is not None,
+        depth=DepthPreview(publisher.rig, publisher.config.depth_width_px),
     )
     add_listener = getattr(provider, "add_listener", None)
     if replay is None and callable(add_listener):

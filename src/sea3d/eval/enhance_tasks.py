@@ -1,72 +1,36 @@
-"""What enhancement does to the tasks that use the images: dense stereo and sparse features.
+"""What enhancement does to the tasks that use the images, measured from given arrays.
 
-- :func:`stereo_with_enhancement`: disparity figures (bad-2, density, ...) of a matcher on a
-  stereo pair, raw and after each enhancement method (white balances shared by the pair).
-- :func:`correct_feature_matches`: ratio-test SIFT matches from one view to another, each
-  judged against ground-truth geometry (the first view's depth and the relative pose): a
-  match is correct when the keypoint, lifted to 3D with the true depth and projected into the
-  second view, lands within ``tol_px`` of the matched keypoint.
+- :func:`judge_feature_matches`: matched keypoints from one view to another, each judged
+  against ground-truth geometry (the first view's depth and the relative pose): a match is
+  correct when the keypoint, lifted to 3D with the true depth and projected into the second
+  view, lands within ``tol_px`` of the matched keypoint.
+- Disparity figures against ground truth are :func:`sea3d.eval.disparity.disparity_metrics`.
 
+Eval runs no stage: the part that enhances, matches and detects features is
+:mod:`sea3d.pipeline.enhance_tasks` (``stereo_with_enhancement``, ``correct_feature_matches``);
 ``benchmarks/bench_enhance.py`` prints both on simulated underwater scenes (docs/enhance.md).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
-import cv2
 import numpy as np
 
-from sea3d.enhance.api import enhance_pair
-from sea3d.enhance.caustics import points_from_depth
 from sea3d.errors import EnhanceError
-from sea3d.eval.disparity import DisparityMetrics, disparity_metrics
 from sea3d.geometry.camera import CameraModel
 
-__all__ = ["FeatureMatchCount", "correct_feature_matches", "stereo_with_enhancement"]
-
-
-def stereo_with_enhancement(
-    left: np.ndarray,
-    right: np.ndarray,
-    gt_disparity_px: np.ndarray,
-    engine: Any,
-    methods: Sequence[str] = ("none", "grey-world", "shades-of-grey", "red-comp", "clahe",
-                              "udcp"),
-) -> dict[str, DisparityMetrics]:
-    """Disparity figures of ``engine`` on a rectified pair, raw (``none``) and enhanced.
-
-    Args:
-        left, right: rectified RGB pair, uint8.
-        gt_disparity_px: ``(H, W)`` float32 true left disparity, NaN (or 0) unknown.
-        engine: a matching config for :func:`sea3d.stereo.match` (e.g. ``SgmConfig``).
-        methods: ``none`` and names of :data:`sea3d.enhance.METHODS` except ``seathru``
-            (which needs the depth that matching produces).
-
-    Returns:
-        ``{method: DisparityMetrics}`` in the order of ``methods``.
-    """
-    from sea3d.stereo import match
-
-    out: dict[str, DisparityMetrics] = {}
-    for m in methods:
-        if m == "seathru":
-            raise EnhanceError("seathru needs depth: it cannot run before matching")
-        a, b = (left, right) if m == "none" else enhance_pair(left, right, m).images
-        out[m] = disparity_metrics(match(a, b, engine).disparity_px, gt_disparity_px)
-    return out
+__all__ = ["FeatureMatchCount", "judge_feature_matches"]
 
 
 @dataclass(frozen=True, kw_only=True)
 class FeatureMatchCount:
-    """Ratio-test matches from view a to view b, judged by ground truth.
+    """Matches from view a to view b, judged by ground truth.
 
     Attributes:
         correct: matches whose reprojection error is at most ``tol_px``.
         judged: matches whose keypoint in a has true depth (and projects into b).
-        matches: all ratio-test matches.
+        matches: all matches given.
         tol_px: the threshold used.
     """
 
@@ -81,57 +45,58 @@ class FeatureMatchCount:
         return self.correct / self.judged if self.judged else 0.0
 
 
-def correct_feature_matches(
-    image_a: np.ndarray,
-    image_b: np.ndarray,
+def judge_feature_matches(
+    uv_a: np.ndarray,
+    uv_b: np.ndarray,
     depth_a_m: np.ndarray,
     camera: CameraModel,
     T_b_a: np.ndarray,
     *,
     tol_px: float = 3.0,
-    n_features: int = 3000,
-    ratio: float = 0.8,
 ) -> FeatureMatchCount:
-    """Count correct SIFT matches between two views of a known scene (OpenCV SIFT, brute-force
-    L2 matching, Lowe's ratio test).
+    """Judge matched keypoints by the true depth of view a and the true pose of b.
+
+    Each keypoint of view a takes the true depth of its nearest pixel; that pixel centre's ray
+    (``camera.unproject``, so port cameras work too) is followed to the point whose
+    camera-frame z equals the depth, moved into view b and projected.
 
     Args:
-        image_a, image_b: RGB (or grey) uint8 views, the camera's size.
+        uv_a, uv_b: ``(N, 2)`` pixel coordinates of the N matches in views a and b.
         depth_a_m: ``(H, W)`` true depth of view a (z in the camera frame), NaN unknown.
         camera: the camera of both views (any :class:`CameraModel`, ports included).
         T_b_a: 4x4 pose mapping view a's camera frame into view b's.
         tol_px: reprojection threshold of a correct match, pixels.
-        n_features: SIFT keypoints per image at most.
-        ratio: Lowe's ratio.
 
     Raises:
-        EnhanceError: depth of another size than the camera's image.
+        EnhanceError: depth of another size than the camera's image, or keypoint arrays
+            that are not two matching ``(N, 2)`` arrays.
     """
-    pts, ok = points_from_depth(camera, depth_a_m)
-    sift = cv2.SIFT_create(nfeatures=n_features)  # type: ignore[attr-defined]
-
-    def grey(img: np.ndarray) -> np.ndarray:
-        return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img
-
-    ka, da = sift.detectAndCompute(grey(image_a), None)
-    kb, db = sift.detectAndCompute(grey(image_b), None)
-    if da is None or db is None or len(ka) < 2 or len(kb) < 2:
+    z = np.asarray(depth_a_m, dtype=np.float64)
+    if z.shape != (camera.height, camera.width):
+        raise EnhanceError(
+            f"depth map is {z.shape[1]}x{z.shape[0]} but the camera is "
+            f"{camera.width}x{camera.height}"
+        )
+    uv_a = np.asarray(uv_a, np.float64).reshape(-1, 2)
+    uv_b = np.asarray(uv_b, np.float64).reshape(-1, 2)
+    if len(uv_a) != len(uv_b):
+        raise EnhanceError(f"{len(uv_a)} keypoints in view a but {len(uv_b)} in view b")
+    if not len(uv_a):
         return FeatureMatchCount(correct=0, judged=0, matches=0, tol_px=tol_px)
-    pairs = cv2.BFMatcher(cv2.NORM_L2).knnMatch(da, db, k=2)
-    good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < ratio * p[1].distance]
-    if not good:
-        return FeatureMatchCount(correct=0, judged=0, matches=0, tol_px=tol_px)
-    h, w = depth_a_m.shape
-    uv_a = np.array([ka[m.queryIdx].pt for m in good], np.float64)
-    uv_b = np.array([kb[m.trainIdx].pt for m in good], np.float64)
+    h, w = z.shape
     col = np.clip(np.rint(uv_a[:, 0]).astype(np.int64), 0, w - 1)
     row = np.clip(np.rint(uv_a[:, 1]).astype(np.int64), 0, h - 1)
-    idx = row * w + col
-    has = ok[idx]
+    zk = z[row, col]
+    rays = camera.unproject(np.stack([col, row], axis=1).astype(np.float64))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = (zk - rays.origins[:, 2]) / rays.directions[:, 2]
+        has = np.isfinite(zk) & (zk > 0) & np.isfinite(t) & (t > 0) & rays.valid
+    pts = rays.origins[has] + t[has, None] * rays.directions[has]
     T = np.asarray(T_b_a, np.float64)
-    p_b = pts[idx[has]] @ T[:3, :3].T + T[:3, 3]
+    p_b = pts @ T[:3, :3].T + T[:3, 3]
     proj, vis = camera.project(p_b)
     err = np.linalg.norm(proj - uv_b[has], axis=1)
     good_mask = vis & (err <= tol_px)
-    return FeatureMatchCount(correct=int(good_mask.sum()), judged=int(vis.sum()),
-                             matches=len(good), tol_px=tol_px)
+    return FeatureMatchCount(
+        correct=int(good_mask.sum()), judged=int(vis.sum()), matches=len(uv_a), tol_px=tol_px
+    )

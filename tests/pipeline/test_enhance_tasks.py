@@ -1,5 +1,6 @@
-"""Task metrics of enhancement (sea3d.eval.enhance_tasks): disparity figures with and without
-each method, and feature matches judged by ground-truth geometry."""
+"""Task metrics of enhancement (sea3d.pipeline.enhance_tasks runs the stages; the figures come
+from sea3d.eval): disparity figures with and without each method, and feature matches judged
+by ground-truth geometry."""
 
 from __future__ import annotations
 
@@ -10,8 +11,8 @@ import pytest
 from sea3d.enhance import enhance_pair
 from sea3d.errors import EnhanceError
 from sea3d.eval import disparity_metrics
-from sea3d.eval.enhance_tasks import correct_feature_matches, stereo_with_enhancement
 from sea3d.geometry.pinhole import PinholeCamera
+from sea3d.pipeline.enhance_tasks import correct_feature_matches, stereo_with_enhancement
 from sea3d.stereo import SgmConfig, match
 
 W, H = 192, 144
