@@ -280,7 +280,8 @@ def _colour_html(colours: Any, pictures: Any) -> str:
                 + '<p class="note">The first restored frame: as recorded (left) and restored '
                   "(right).</p>")
     return (f"<h2>Colours</h2><p>{html.escape(str(colours['restore']))} on every frame "
-            f"({counts}).</p>{_water_model_html(colours.get('water_model'))}{pics}<details><summary>status per frame</summary><table>"
+            f"({counts}).</p>{_water_model_html(colours.get('water_model'))}{pics}"
+            "<details><summary>status per frame</summary><table>"
             f"<tr><th>t (ns)</th><th>colour status</th></tr>{cells}</table></details>")
 
 
