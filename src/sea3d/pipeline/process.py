@@ -6,6 +6,8 @@
                                             [enhance] ─► rectify ─► match ─► exact depth
                                             ─► depth for the virtual pinhole
             ◄── results stream back, cached in OUT/cache/frames/<t_ns>.s3c as they arrive
+    [--restore-colours water-model: the dive's one water model, fitted in the client from the
+     first frames, restores every frame's colours (held until it exists)]
     ordered stages, in time order:  odometry ─► fusion into keyframe-anchored TSDF submaps
                                     (finished submaps spilled to OUT/submaps/)
     after the last frame:           final keyframe poses ─► merged mesh and cloud
