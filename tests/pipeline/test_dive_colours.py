@@ -150,6 +150,10 @@ def test_a_dive_whose_water_cannot_be_fitted_gets_grey_world_with_a_stated_statu
         assert np.isfinite(img).all() and 10 < img.mean() < 245
     info = dive.summary()
     assert info["water_model"] is None and "no frame with depth" in info["fit_error"]
+    # Held frames are bounded: without depth, the fit is tried after 2 x 2 x 1 frames.
+    d1 = DiveColours(MAPS, DiveColourConfig(fit_frames=2, fit_stride=1))
+    got = [len(d1.push(_frame(k, rng, status="no_depth")[0])) for k in range(6)]
+    assert got == [0, 0, 0, 4, 1, 1] and d1.fits == 1
     # Frames with depth but a saturated view: the fit raises, every frame says so.
     sat, _ = _frame(0, rng)
     sat = dataclasses.replace(sat, rect_left=np.full_like(sat.rect_left, 255))

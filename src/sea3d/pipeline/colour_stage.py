@@ -16,7 +16,7 @@ Frames before the model exists are **held**, not passed on: the first
 :attr:`DiveColourConfig.fit_frames` frames with depth, taken every
 :attr:`DiveColourConfig.fit_stride`-th frame (so the fit sees the start of the dive, not one
 instant), are buffered with every frame between them; when the last is in (or the session
-ends sooner) the model is fitted once and every held frame is restored with it and handed on
+ends sooner, or ``2 fit_frames fit_stride`` frames are held without enough depth) the model is fitted once and every held frame is restored with it and handed on
 in time order. So every frame is restored with the dive's one model and carries its status;
 none goes out unrestored under an ``ok``. A dive whose water cannot be fitted at all (no
 frame with range) gives every frame grey world with ``fallback-grey-world`` and the reason.
@@ -113,7 +113,9 @@ class DiveColours:
                 self._samples.append((res.rect_left, frame_range_m(res, self.maps)))
                 self.fit_stamps.append(int(res.t_ns))
             self._seen_with_depth += 1
-        if len(self._samples) < self.config.fit_frames:
+        # Held frames are bounded: where depth is rare, fit with what came in twice the span.
+        max_held = 2 * self.config.fit_frames * self.config.fit_stride
+        if len(self._samples) < self.config.fit_frames and len(self._held) < max_held:
             return []
         return self._fit_and_release()
 
