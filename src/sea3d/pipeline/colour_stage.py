@@ -16,10 +16,11 @@ Frames before the model exists are **held**, not passed on: the first
 :attr:`DiveColourConfig.fit_frames` frames with depth, taken every
 :attr:`DiveColourConfig.fit_stride`-th frame (so the fit sees the start of the dive, not one
 instant), are buffered with every frame between them; when the last is in (or the session
-ends sooner, or ``2 fit_frames fit_stride`` frames are held without enough depth) the model is fitted once and every held frame is restored with it and handed on
-in time order. So every frame is restored with the dive's one model and carries its status;
-none goes out unrestored under an ``ok``. A dive whose water cannot be fitted at all (no
-frame with range) gives every frame grey world with ``fallback-grey-world`` and the reason.
+ends sooner, or ``2 fit_frames fit_stride`` frames are held without enough depth) the model
+is fitted once and every held frame is restored with it and handed on in time order. So
+every frame is restored with the dive's one model and carries its status; none goes out
+unrestored under an ``ok``. A dive whose water cannot be fitted at all (no frame with
+range) gives every frame grey world with ``fallback-grey-world`` and the reason.
 """
 
 from __future__ import annotations
