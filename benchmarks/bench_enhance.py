@@ -26,9 +26,11 @@ Sections (``--section``, default all):
   must shrink, SSIM of L* to the input must stay high); pictures for the docs.
 - ``speed``: wall and CPU time per 1920x1080 image for each method, beside OpenCV's xphoto
   grey world and OpenCV's CLAHE on 8-bit L (medians of ``--repeats`` runs).
-- ``process``: ``sea3d process --restore-colours seathru`` on a two-frame simulated coastal
-  survey: the colour cast of raw and restored frames against the clean view, and how closely
-  the fused cloud and mesh follow the restored colours.
+- ``process``: ``sea3d process --restore-colours seathru|water-model`` on a simulated coastal
+  dive (``--process-frames``, default 12): per-image Sea-thru, the dive's one water model and
+  grey world against the clean views (CIEDE2000 after one gain, colour cast and its spread
+  over the frames), the fused cloud's and mesh's cast, and restoring against matching per
+  frame.
 
 Run: ``PYTHONPATH=src nice python benchmarks/bench_enhance.py [--section colour] [--size 480x270]
 [--pictures docs/img]``. Figures go to stdout; ``--json FILE`` keeps them.
@@ -513,52 +515,99 @@ def _log_chroma(pixels: np.ndarray) -> np.ndarray:
 
 
 def section_process(args: argparse.Namespace) -> None:
-    """``sea3d process --restore-colours seathru`` on a short simulated coastal survey with clean
-    references: the colour cast of the frames and of the fused cloud and mesh."""
+    """``sea3d process --restore-colours`` on a simulated coastal dive of the lake with clean
+    references: per-image Sea-thru (``seathru``), the dive's one water model
+    (``water-model``) and grey world of each frame, in the same run. Per frame: CIEDE2000
+    after one exposure gain and the colour cast against the clean view (rectified the same
+    way), over the pixels with depth, and the spread of the cast over the frames (frame-to-
+    frame stability); per run: the cast of the fused cloud and mesh against the clean views'
+    mean colour, and the per-frame cost of restoring against matching (summary.json)."""
     import tempfile
 
+    from sea3d.enhance.colour import grey_world
     from sea3d.io.rig_file import rig_to_yaml
     from sea3d.io.session import SessionWriter, open_session
-    from sea3d.pipeline.frame_stage import FrameStageConfig, process_frame
+    from sea3d.pipeline.colour_stage import DiveColourConfig, DiveColours
+    from sea3d.pipeline.frame_stage import FrameStageConfig, process_frame, stage_depth
     from sea3d.pipeline.process import ProcessConfig, run_process
     from sea3d.sim.survey import SurveyConfig, simulate_survey
     from sea3d.stereo.recipe import DepthConfig
 
     size = (192, 108)  # as tests/enhance/test_process_colours.py
+    n_frames = args.process_frames
     rig = paper_rig("none", size_px=size)
+    depth_cfg = DepthConfig(max_depth_m=8.0)
     with tempfile.TemporaryDirectory() as tmp:
         src, gt = Path(tmp) / "lake", Path(tmp) / "lake_gt"
-        cfg = SurveyConfig(frames=2, water="coastal", supersample=1, clean_reference=True)
+        cfg = SurveyConfig(frames=n_frames, water="coastal", supersample=1,
+                           clean_reference=True)
         with SessionWriter(src, format="folder", rig_yaml=rig_to_yaml(rig)) as w:
             simulate_survey(builtin_scene("lake"), rig, cfg, w, gt)
+        plain_cfg = FrameStageConfig(rig=rig, depth=depth_cfg)
+        per_image_cfg = FrameStageConfig(rig=rig, depth=depth_cfg, restore_colours="seathru")
+        maps = stage_depth(plain_cfg).maps
+        frames, cleans = [], []
         with open_session(src) as s:
-            t0 = int(s.stamps("left")[0])
-            left, right = s.image("left", t0), s.image("right", t0)
-        clean = _read(gt / "clean" / "left" / f"{t0}.png")
-        plain = process_frame(FrameStageConfig(rig=rig, depth=DepthConfig(max_depth_m=8.0)), t0,
-                              left, right)
-        rest = process_frame(FrameStageConfig(rig=rig, depth=DepthConfig(max_depth_m=8.0),
-                                              restore_colours="seathru"), t0, left, right)
-        res = run_process(src, ProcessConfig(
-            out_dir=Path(tmp) / "out", workers=0, poses_path=gt / "poses_left.tum",
-            restore_colours="seathru", max_depth_m=8.0, report=False, evaluate=False))
-    has = np.isfinite(rest.depth_m)
-    ref = _log_chroma(clean)
-
-    def cast(px: np.ndarray) -> float:
-        return float(np.abs(_log_chroma(px) - ref).sum())
-
-    want = _log_chroma(rest.colors()[has])
-    print(f"\n== process --restore-colours seathru: lake, coastal, {size[0]}x{size[1]}, frame 0 "
-          f"(depth on {100 * has.mean():.0f} %)")
-    print(f"colour cast |log R/G| + |log B/G| against the clean view: raw "
-          f"{cast(plain.rect_left[has]):.2f}, restored {cast(rest.colors()[has]):.2f}")
-    for name, colors in (("cloud", res.cloud_colors), ("mesh", res.mesh.colors_rgb)):
-        d = np.abs(_log_chroma(np.asarray(colors)) - want).max()
-        print(f"{name}: log chromaticity within {d:.3f} of the restored frame's "
-              f"(raw frame: {np.abs(_log_chroma(plain.rect_left[has]) - want).max():.2f})")
-    OUT["process"] = {"raw_cast": cast(plain.rect_left[has]),
-                      "restored_cast": cast(rest.colors()[has])}
+            for t in s.stamps("left"):
+                left, right = s.image("left", int(t)), s.image("right", int(t))
+                frames.append((process_frame(plain_cfg, int(t), left, right),
+                               process_frame(per_image_cfg, int(t), left, right)))
+                clean = _read(gt / "clean" / "left" / f"{int(t)}.png")
+                cleans.append(cv2.remap(clean, maps.map_left_x, maps.map_left_y,
+                                        cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT))
+        dive = DiveColours(maps)
+        dived = [r for plain, _ in frames for r in dive.push(plain)] + dive.flush()
+        other_wb = {}
+        for wb in ("locus", "grey-world"):
+            d = DiveColours(maps, DiveColourConfig(water=WaterFitConfig(white_balance=wb)))
+            other_wb[wb] = [r.colors() for plain, _ in frames for r in d.push(plain)] + [
+                r.colors() for r in d.flush()]
+        runs = {}
+        for mode in ("seathru", "water-model"):
+            runs[mode] = run_process(src, ProcessConfig(
+                out_dir=Path(tmp) / mode, workers=0, poses_path=gt / "poses_left.tum",
+                restore_colours=mode, max_depth_m=8.0, report=False, evaluate=False))
+    variants = {
+        "input": [plain.rect_left for plain, _ in frames],
+        "grey world (per frame)": [grey_world(plain.rect_left) for plain, _ in frames],
+        "sea-thru per image (seathru)": [rest.colors() for _, rest in frames],
+        "dive water model (water-model)": [r.colors() for r in dived],
+        "dive water model, wb locus": other_wb["locus"],
+        "dive water model, wb grey world": other_wb["grey-world"],
+    }
+    masks = [np.isfinite(plain.depth_m) & (c.max(axis=2) > 0)
+             for (plain, _), c in zip(frames, cleans, strict=True)]
+    ref_all = np.concatenate([c[m] for c, m in zip(cleans, masks, strict=True)])
+    print(f"\n== process --restore-colours: lake, coastal, {size[0]}x{size[1]}, {n_frames} "
+          f"frames (depth on {100 * np.mean([m.mean() for m in masks]):.0f} %)")
+    print(f"{'method':34s} {'dE00 gain':>9s} {'cast':>6s} {'cast sd':>7s}")
+    rows: dict[str, Any] = {}
+    for name, imgs in variants.items():
+        de = [ciede2000_after_gain(img, c, m)[0]
+              for img, c, m in zip(imgs, cleans, masks, strict=True)]
+        casts = [np.abs(_log_chroma(img[m]) - _log_chroma(c[m])).sum()
+                 for img, c, m in zip(imgs, cleans, masks, strict=True)]
+        chroma = np.stack([_log_chroma(img[m]) - _log_chroma(c[m])
+                           for img, c, m in zip(imgs, cleans, masks, strict=True)])
+        sd = float(np.max(np.std(chroma, axis=0)))
+        rows[name] = {"dE00_gain_median": float(np.median(de)),
+                      "cast_median": float(np.median(casts)), "cast_sd_over_frames": sd}
+        print(f"{name:34s} {np.median(de):9.2f} {np.median(casts):6.3f} {sd:7.3f}")
+    ref = _log_chroma(ref_all)
+    print("fused outputs, colour cast |log R/G| + |log B/G| against the clean views' mean:")
+    for mode, res in runs.items():
+        per = res.summary["colours"].get("per_frame_s", {})
+        casts = {name: float(np.abs(_log_chroma(np.asarray(c)) - ref).sum())
+                 for name, c in (("cloud", res.cloud_colors), ("mesh", res.mesh.colors_rgb))}
+        print(f"  {mode:12s} cloud {casts['cloud']:.3f}  mesh {casts['mesh']:.3f}  status "
+              f"{res.summary['colours']['restore_status']}  per frame: restore "
+              f"{per.get('restore_colours_s', 0):.4f} s, match {per.get('match_s', 0):.4f} s")
+        rows[f"process {mode}"] = {**casts, "per_frame_s": per}
+    wm = dive.summary()["water_model"] or {}
+    print(f"dive water model: status {wm.get('status')}, beta_D {wm.get('beta_D_per_m')}, "
+          f"B_inf {wm.get('B_inf_rgb')}, fit {dive.fit_s:.2f} s over "
+          f"{len(dive.fit_stamps)} frames")
+    OUT["process"] = rows
 
 
 def _picture(path: Path, panels: list[np.ndarray], height: int = 160) -> None:
@@ -588,6 +637,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--size", default="480x270", help="simulated image size WxH")
     ap.add_argument("--data", type=Path, default=DATA, help="the shared data folder")
     ap.add_argument("--repeats", type=int, default=3, help="timed runs per method")
+    ap.add_argument("--process-frames", type=int, default=12,
+                    help="frames of the simulated dive of --section process")
     ap.add_argument("--ruie-stride", type=int, default=5, help="use every n-th RUIE image")
     ap.add_argument("--pictures", type=Path, help="write the docs' pictures to this folder")
     ap.add_argument("--json", type=Path, help="also write the figures as JSON")

@@ -7,6 +7,7 @@ The session is a short simulated survey of the lake in coastal water with clean 
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import cv2
@@ -16,8 +17,10 @@ import pytest
 from sea3d.cli import main as sea3d_main
 from sea3d.enhance.registry import ENHANCEMENTS, process_enhance_hook
 from sea3d.errors import EnhanceError
+from sea3d.io.result_cache import read_entry
 from sea3d.io.rig_file import rig_to_yaml
 from sea3d.io.session import SessionWriter, open_session
+from sea3d.pipeline.colour_stage import DiveColourConfig
 from sea3d.pipeline.frame_stage import FrameResult, FrameStageConfig, _resolve_hook, process_frame
 from sea3d.pipeline.process import ProcessConfig, run_process
 from sea3d.pipeline.report import _colour_html
@@ -121,8 +124,9 @@ def test_process_colours_mesh_and_cloud_with_the_restored_frames(
         out_dir=out, workers=0, poses_path=Path(str(survey["gt"])) / "poses_left.tum",
         restore_colours="seathru", max_depth_m=MAX_DEPTH_M, report=False, evaluate=False))
     colours = res.summary["colours"]
-    assert {k: v for k, v in colours.items() if k != "per_frame"} == {
+    assert {k: v for k, v in colours.items() if k not in ("per_frame", "per_frame_s")} == {
         "enhance": "none", "restore": "seathru", "restore_status": {"ok": 2}}
+    assert set(colours["per_frame_s"]) == {"match_s", "restore_colours_s"}
     assert [st for _t, st in colours["per_frame"]] == ["ok", "ok"]
     restored, plain = survey["restored"], survey["plain"]
     assert isinstance(restored, FrameResult) and isinstance(plain, FrameResult)
@@ -166,3 +170,112 @@ def test_cli_refuses_an_unknown_enhancement_in_one_line(
     assert "sharpen" in err and "clahe" in err
     with pytest.raises(SystemExit):
         sea3d_main(["process", str(survey["session"]), "-o", "y", "--restore-colours", "fit"])
+
+
+@pytest.fixture(scope="module")
+def dive(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """8 frames of the lake in coastal water (a short dive), with clean references."""
+    root = tmp_path_factory.mktemp("dive")
+    rig = paper_rig("none", size_px=SIZE_PX)
+    src, gt = root / "lake", root / "lake_gt"
+    cfg = SurveyConfig(frames=8, water="coastal", supersample=1, clean_reference=True)
+    with SessionWriter(src, format="folder", rig_yaml=rig_to_yaml(rig)) as w:
+        simulate_survey(builtin_scene("lake"), rig, cfg, w, gt)
+    return {"root": root, "session": src, "gt": gt}
+
+
+def _water_run(dive: dict[str, Path], out: Path, **kw: object) -> object:
+    return run_process(dive["session"], ProcessConfig(
+        out_dir=out, workers=0, poses_path=dive["gt"] / "poses_left.tum",
+        restore_colours="water-model", dive_colours=DiveColourConfig(fit_frames=3, fit_stride=2),
+        max_depth_m=MAX_DEPTH_M, report=False, evaluate=False, **kw))  # type: ignore[arg-type]
+
+
+def test_process_fits_one_water_model_per_run_and_the_cache_holds_no_colours(
+    dive: dict[str, Path], monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from sea3d.pipeline import colour_stage
+
+    calls: list[int] = []
+    real_fit = colour_stage.fit_water_model
+
+    def counting_fit(frames, config=None):  # type: ignore[no-untyped-def]
+        calls.append(len(frames))
+        return real_fit(frames, config)
+
+    monkeypatch.setattr(colour_stage, "fit_water_model", counting_fit)
+    out = dive["root"] / "water"
+    res = _water_run(dive, out)
+    assert calls == [3]  # once per run, from 3 frames (every 2nd of the start), not per frame
+    colours = res.summary["colours"]  # type: ignore[attr-defined]
+    info = colours["water_model"]
+    assert info["fits"] == 1 and len(info["fit_frames_t_ns"]) == 3
+    model = info["water_model"]
+    assert model["status"] in ("ok", "attenuation-unidentified", "backscatter-unidentified")
+    # Every frame restored with the model, each with the model's status: none passed on early.
+    assert [st for _t, st in colours["per_frame"]] == [model["status"]] * 8
+    assert colours["restore_status"] == {model["status"]: 8}
+    assert colours["per_frame_s"]["restore_colours_s"] > 0
+    # The per-frame stage, its fingerprint and its cache are those of a run without
+    # restoration: nothing cached depends on the model.
+    plain = ProcessConfig(out_dir=out, restore_colours="none")
+    water = ProcessConfig(out_dir=out, restore_colours="water-model")
+    rig = paper_rig("none", size_px=SIZE_PX)
+    assert water.frame_stage(rig).fingerprint() == plain.frame_stage(rig).fingerprint()
+    entries = sorted((out / "cache").rglob("*.s3c"))
+    assert len(entries) == 8
+    assert all("color_left" not in read_entry(e)[0] for e in entries)
+    # A rerun from the cache fits the same model again and colours the cloud the same way.
+    again = _water_run(dive, out)
+    assert again.summary["frames_from_cache"] == 8  # type: ignore[attr-defined]
+    assert calls == [3, 3]
+    assert again.summary["colours"]["water_model"]["water_model"] == model  # type: ignore[attr-defined]
+    # (the cloud's points come out in another order: compare them sorted)
+    def by_point(r: object) -> np.ndarray:
+        pts, col = r.cloud_points, r.cloud_colors  # type: ignore[attr-defined]
+        return np.asarray(col)[np.lexsort(np.asarray(pts).T)]
+
+    np.testing.assert_array_equal(by_point(again), by_point(res))
+    # report.html names the model, its fit status and parameters.
+    page = _colour_html(colours, None)
+    assert "Water model of the dive" in page and model["status"] in page
+    assert f"{model['beta_D_per_m'][0]:.3f}" in page and "B_inf" in page
+
+
+def test_report_says_when_the_dive_water_could_not_be_fitted() -> None:
+    page = _colour_html({"restore": "water-model", "restore_status": {"fallback-grey-world": 2},
+                         "per_frame": [(1, "fallback-grey-world"), (2, "fallback-grey-world")],
+                         "water_model": {"water_model": None, "fit_error": "no frame with "
+                                         "depth and colour to fit the water to"}}, None)
+    assert "<b>not fitted</b>" in page and "no frame with depth" in page
+
+
+def test_the_dive_model_keeps_the_restoration_stable_whatever_fed_matching(
+    survey: dict[str, object], dive: dict[str, Path],
+) -> None:
+    """The frame-to-frame test above with the dive's one model: the same camera frame with
+    slightly different range (other matches) restores to the same colour."""
+    from sea3d.pipeline.colour_stage import DiveColours
+    from sea3d.pipeline.frame_stage import stage_depth
+
+    rig = survey["rig"]
+    plain_cfg = FrameStageConfig(rig=rig, depth=DepthConfig(max_depth_m=MAX_DEPTH_M))  # type: ignore[arg-type]
+    hooked_cfg = FrameStageConfig(rig=rig, depth=DepthConfig(max_depth_m=MAX_DEPTH_M),  # type: ignore[arg-type]
+                                  enhance=_zero_green_blue)
+    t0, left, right = int(survey["t0"]), survey["left"], survey["right"]  # type: ignore[call-overload]
+    plain = process_frame(plain_cfg, t0, left, right)
+    hooked = process_frame(hooked_cfg, t0, left, right)
+    # Matching saw the hooked images; the colours come from the camera's own, as in process
+    # (its ordered stages restore FrameResult.rect_left, which a hook does not touch there:
+    # restore the plain frame's rectified image with the hooked frame's range).
+    assert hooked.rect_left[..., 1:].max() == 0
+    maps = stage_depth(plain_cfg).maps
+    dive_colours = DiveColours(maps, DiveColourConfig(fit_frames=1))
+    (a,) = dive_colours.push(plain)
+    (b,) = dive_colours.push(dataclasses.replace(plain, depth_m=hooked.depth_m))
+    assert dive_colours.fits == 1
+    both = np.isfinite(plain.depth_m) & np.isfinite(hooked.depth_m)
+    assert both.mean() > 0.3
+    d = np.abs(_chroma(a.colors()[both]) - _chroma(b.colors()[both]))
+    # measured 0.0012 (a water model fitted to each of the two frames: 0.08)
+    assert d.max() < HOOKED_LOG_CHROMA_TOL

@@ -357,10 +357,12 @@ def register(sub: Any) -> None:
                         "red-comp, clahe, udcp, or a package.module:function (docs/enhance.md)"
                         "; --enhance is a deprecated alias, kept for one release")
     p.add_argument("--restore-colors", "--restore-colours", dest="restore_colours",
-                   choices=["none", "seathru"], default="none",
-                   help="colours of mesh and cloud: seathru restores them after depth with "
-                        "the stereo range (default none); --restore-colours is a deprecated "
-                        "alias, kept for one release")
+                   choices=["none", "seathru", "water-model"], default="none",
+                   help="colours of mesh and cloud, restored after depth with the stereo "
+                        "range: seathru (per-image Sea-thru in the per-frame stage) or "
+                        "water-model (one water model fitted to the dive's first 8 frames, "
+                        "every frame inverted with it); default none; --restore-colours is a "
+                        "deprecated alias, kept for one release")
     p.add_argument("--max-frames", type=int, metavar="N", help="only the first N pairs")
     p.add_argument("--no-report", action="store_true", help="skip report.html")
     p.add_argument("--json", action="store_true", help="print summary.json (no progress bars)")

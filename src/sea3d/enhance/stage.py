@@ -42,10 +42,11 @@ class ColourConfig:
     """``water-model``: invert the dive's :class:`WaterModel` (``water_model``, or one fitted
     to the frame when None; measured well below grey world under an independent formation
     model, ``docs/enhance.md``); ``seathru-per-image``: the per-image Sea-thru of
-    :mod:`sea3d.enhance.seathru`, still the default here because a water model fitted to each
+    :mod:`sea3d.enhance.seathru`, the default here because a water model fitted to each
     frame alone is less stable from frame to frame (log chromaticity 0.08 apart with
-    slightly different range on a 192x108 frame, against 0.001) until ``process`` fits one
-    per dive."""
+    slightly different range on a 192x108 frame, against 0.001); ``sea3d process
+    --restore-colours water-model`` fits one per dive instead and passes the model here
+    (:mod:`sea3d.pipeline.colour_stage`)."""
     water_model: WaterModel | None = None
     """The dive's water model (fitted once, :func:`fit_water_model`)."""
     seathru: SeathruConfig = field(default_factory=SeathruConfig)

@@ -6,6 +6,8 @@
                                             [enhance] ─► rectify ─► match ─► exact depth
                                             ─► depth for the virtual pinhole
             ◄── results stream back, cached in OUT/cache/frames/<t_ns>.s3c as they arrive
+    [--restore-colours water-model: the dive's one water model, fitted in the client from the
+     first frames, restores every frame's colours (held until it exists)]
     ordered stages, in time order:  odometry ─► fusion into keyframe-anchored TSDF submaps
                                     (finished submaps spilled to OUT/submaps/)
     after the last frame:           final keyframe poses ─► merged mesh and cloud
@@ -46,6 +48,7 @@ from numpy.typing import NDArray
 from sea3d._typing import F64
 from sea3d.errors import ConfigError, SessionError
 from sea3d.odometry.types import Odometry, TrackingStatus
+from sea3d.pipeline.colour_stage import DiveColourConfig, DiveColours
 from sea3d.pipeline.depth_scheduler import StageTimer
 from sea3d.pipeline.frame_stage import FrameStageConfig, install_geometry, stage_depth
 from sea3d.pipeline.lock import locks_out_dir
@@ -133,8 +136,14 @@ class ProcessConfig:
     """Ignore (delete) cached per-frame results instead of resuming."""
     enhance: Any = None
     """Enhancement hook of the per-frame stage (see :class:`FrameStageConfig`)."""
-    restore_colours: Literal["none", "seathru"] = "none"
-    """Sea-thru on the output colours after depth (see :class:`FrameStageConfig`)."""
+    restore_colours: Literal["none", "seathru", "water-model"] = "none"
+    """The output colours after depth: ``seathru``, the per-image Sea-thru in the per-frame
+    stage (see :class:`FrameStageConfig`); ``water-model``, one water model fitted to the
+    dive's first frames in the client and every frame restored with it
+    (:mod:`sea3d.pipeline.colour_stage`)."""
+    dive_colours: DiveColourConfig | None = None
+    """How ``water-model`` fits the dive's model (None: :class:`DiveColourConfig`'s
+    defaults)."""
     cloud_voxel_m: float | None = None
     """Voxel of cloud.ply's downsampling; None: half ``voxel_m``."""
     merge_tile_m: float | None = 8.0
@@ -157,7 +166,9 @@ class ProcessConfig:
             depth=DepthConfig(engine=self.engine, max_disparity_px=self.max_disparity_px,
                               min_depth_m=self.min_depth_m, max_depth_m=self.max_depth_m),
             enhance=self.enhance,
-            restore_colours=self.restore_colours,
+            # The dive's water model restores in the client, after the fit: the per-frame
+            # stage (and its cache) stays as without restoration.
+            restore_colours="seathru" if self.restore_colours == "seathru" else "none",
             threads=max(1, (os.cpu_count() or 1) // max(1, n_local))
             if self.scheduler is None else None)
 
@@ -178,6 +189,9 @@ class ProcessConfig:
             raise ConfigError(f"--workers must be >= 0, got {self.workers}")
         if self.in_flight is not None and self.in_flight < 1:
             raise ConfigError(f"in_flight must be >= 1, got {self.in_flight}")
+        if self.restore_colours not in ("none", "seathru", "water-model"):
+            raise ConfigError(f"--restore-colours must be none, seathru or water-model, got "
+                              f"{self.restore_colours!r}")
         if self.max_frames is not None and self.max_frames < 1:
             raise ConfigError(f"--max-frames must be >= 1, got {self.max_frames}")
 
@@ -232,6 +246,16 @@ def make_odometry(rig: Any, maps: Any, *, use_imu: bool, poses: Any | None,
     reason = odo.imu_disabled_reason
     mode = "stereo-inertial" if use_imu and reason is None else "visual"
     return odo, f"sea3d {mode} odometry" + (f" ({reason})" if mode == "visual" and reason else "")
+
+
+def _per_frame_costs(worker_timings_s: dict[str, float], computed: int,
+                     restored: int) -> dict[str, float]:
+    """Mean seconds per frame of matching (over the ``computed`` frames: a cached one matched
+    nothing in this run) and of the colour restoration (what ``--restore-colours`` adds, over
+    the ``restored`` frames)."""
+    return {"match_s": worker_timings_s.get("match_s", 0.0) / max(computed, 1),
+            "restore_colours_s": (worker_timings_s.get("restore_colours_s", 0.0)
+                                  / max(restored, 1))}
 
 
 def _rss_mb(who: int) -> float:
@@ -361,16 +385,26 @@ def run_process(
             bars = [bar(name, len(source)) for name in ("depth", "odometry", "fusion")]
             depth = DepthScheduler(source, executor, stage_cfg, executor.share(stereo), cache,
                                    window=window, timer=timer, on_depth=bars[0].update)
+            colours = (DiveColours(stereo.maps, config.dive_colours)
+                       if config.restore_colours == "water-model" else None)
             t_loop, t_prev = time.perf_counter(), None
+
+            def step(res: Any) -> None:
+                nonlocal t_prev
+                if stages.step(res, imu_between(source.imu, t_prev, res.t_ns)) is None:
+                    return
+                t_prev = res.t_ns
+                bars[1].update(1)
+                bars[2].update(1)
+
             try:
                 for _pair, res in depth.results():
                     if res is None:
                         continue
-                    if stages.step(res, imu_between(source.imu, t_prev, res.t_ns)) is None:
-                        continue
-                    t_prev = res.t_ns
-                    bars[1].update(1)
-                    bars[2].update(1)
+                    for ready in [res] if colours is None else colours.push(res):
+                        step(ready)
+                for ready in [] if colours is None else colours.flush():
+                    step(ready)
             finally:
                 for b in bars:
                     b.close()
@@ -381,16 +415,19 @@ def run_process(
     if not stages.estimates:
         raise SessionError(f"{session_path}: no frame could be processed "
                            f"({depth.unreadable} unreadable, {stages.failed} failed)")
+    if colours is not None:
+        timer.add("water_fit_s", colours.fit_s)
     return _finish(session_path, out, config, stages, store, fusion_cfg, stereo, source,
                    depth, executor, window, odometry_name, (imu_used, imu_note), timer, t_start,
-                   bar, on_result)
+                   bar, on_result, colours)
 
 
 def _finish(session_path: Path, out: Path, config: ProcessConfig, stages: OrderedStages,
             store: Any, fusion_cfg: Any, stereo: Any, source: Any, depth: Any, executor: Any,
             window: int, odometry_name: str, imu: tuple[bool, str | None], timer: StageTimer,
             t_start: float, bar: ProgressFactory,
-            on_result: Callable[[ProcessResult], None] | None) -> ProcessResult:
+            on_result: Callable[[ProcessResult], None] | None,
+            colours: DiveColours | None = None) -> ProcessResult:
     """Merge, write the outputs, evaluate, report (the finish step of :func:`run_process`)."""
     from sea3d.io.process_outputs import write_process_outputs, write_summary_json
     from sea3d.pipeline.finish import finish_reconstruction, frame_rows, run_summary
@@ -418,6 +455,13 @@ def _finish(session_path: Path, out: Path, config: ProcessConfig, stages: Ordere
                           "restore": config.restore_colours,
                           "restore_status": stages.colour_status,
                           "per_frame": stages.colour_frames}
+    if colours is not None:
+        summary["colours"]["water_model"] = colours.summary()
+    computed = len(stages.estimates) - depth.from_cache
+    if config.restore_colours != "none":
+        summary["colours"]["per_frame_s"] = _per_frame_costs(
+            stages.worker_timings_s, computed,
+            len(stages.estimates) if colours is not None else computed)
     summary["timings_s"] = {}
     summary["worker_timings_s"] = stages.worker_timings_s
     summary["cache_mb_written"] = depth.cache.bytes_written / 2**20

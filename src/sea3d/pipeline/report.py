@@ -232,6 +232,36 @@ def _files_note(path: Path, result: Any) -> str:
             "results.mcap opens in Foxglove (trajectory, mesh, cloud).</p>")
 
 
+def _water_model_html(info: Any) -> str:
+    """The dive's water model (``--restore-colours water-model``): its fit status, checks and
+    parameters, or why it could not be fitted."""
+    if not isinstance(info, dict):
+        return ""
+    frames = len(info.get("fit_frames_t_ns", []))
+    model = info.get("water_model")
+    if not isinstance(model, dict):
+        why = html.escape(str(info.get("fit_error", "not fitted")))
+        return (f"<p>Water model: <b>not fitted</b> ({why}); every frame got grey world "
+                "(fallback-grey-world).</p>")
+
+    def rgb(key: str) -> str:
+        return " / ".join(f"{float(v):.3f}" for v in model.get(key, ()))
+
+    checks = "".join(f"<li>{html.escape(str(c))}</li>" for c in model.get("checks", []))
+    span = model.get("range_span_m", (0.0, 0.0))
+    return (f"<p>Water model of the dive: one fit to {frames} frames (every "
+            f"{info.get('fit_stride', 1)}-th frame of the start), status <b>"
+            f"{html.escape(str(model.get('status')))}</b>, range seen {float(span[0]):.2f}-"
+            f"{float(span[1]):.2f} m.</p><table><tr><th>R / G / B</th><th></th></tr>"
+            f"<tr><td>B_inf (linear)</td><td>{rgb('B_inf_rgb')}</td></tr>"
+            f"<tr><td>beta_B (1/m)</td><td>{rgb('beta_B_per_m')}</td></tr>"
+            f"<tr><td>beta_D (1/m)</td><td>{rgb('beta_D_per_m')}</td></tr>"
+            f"<tr><td>white-balance gains</td><td>{rgb('wb_gains')}</td></tr>"
+            f"<tr><td>exposure gain</td><td>{float(model.get('exposure_gain', 1.0)):.3f}"
+            "</td></tr></table>"
+            + (f"<p>Checks that failed:</p><ul>{checks}</ul>" if checks else ""))
+
+
 def _colour_html(colours: Any, pictures: Any) -> str:
     """The colour section: the restoration's status counts, each frame's status, and one
     frame before and after (``sea3d process --restore-colours``)."""
@@ -250,7 +280,8 @@ def _colour_html(colours: Any, pictures: Any) -> str:
                 + '<p class="note">The first restored frame: as recorded (left) and restored '
                   "(right).</p>")
     return (f"<h2>Colours</h2><p>{html.escape(str(colours['restore']))} on every frame "
-            f"({counts}).</p>{pics}<details><summary>status per frame</summary><table>"
+            f"({counts}).</p>{_water_model_html(colours.get('water_model'))}{pics}"
+            "<details><summary>status per frame</summary><table>"
             f"<tr><th>t (ns)</th><th>colour status</th></tr>{cells}</table></details>")
 
 
