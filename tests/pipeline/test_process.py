@@ -260,7 +260,7 @@ def test_no_rig_is_a_clear_error(tmp_path, rng):
     with SessionWriter(bare, format="folder") as w:
         w.write_stereo(0, img, img)
         w.write_stereo(100_000_000, img, img)
-    with pytest.raises(SessionError, match="stores no rig; pass --rig"):
+    with pytest.raises(SessionError, match="stores no rig; give a rig file"):
         run_process(bare, _config(tmp_path / "o"))
     from sea3d.io.rig_file import save_rig
     from sea3d.refraction.presets import paper_rig

@@ -95,7 +95,7 @@ class ReplayFrames:
                  clock: Callable[[], float] = time.monotonic,
                  sleep: Callable[[float], Any] = time.sleep) -> None:
         if not rate > 0:
-            raise ConfigError(f"--rate must be > 0, got {rate}")
+            raise ConfigError(f"rate must be > 0, got {rate}")
         self.source, self.rate, self.clock, self.sleep = source, rate, clock, sleep
         self.stop_reason = ""
 

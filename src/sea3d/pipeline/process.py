@@ -171,15 +171,15 @@ class ProcessConfig:
 
     def __post_init__(self) -> None:
         if not self.voxel_m > 0:
-            raise ConfigError(f"--voxel-m must be > 0, got {self.voxel_m}")
+            raise ConfigError(f"voxel_m must be > 0, got {self.voxel_m}")
         if self.workers is not None and self.scheduler is not None:
-            raise ConfigError("give either --workers or --scheduler, not both")
+            raise ConfigError("give either workers or scheduler, not both")
         if self.workers is not None and self.workers < 0:
-            raise ConfigError(f"--workers must be >= 0, got {self.workers}")
+            raise ConfigError(f"workers must be >= 0, got {self.workers}")
         if self.in_flight is not None and self.in_flight < 1:
             raise ConfigError(f"in_flight must be >= 1, got {self.in_flight}")
         if self.max_frames is not None and self.max_frames < 1:
-            raise ConfigError(f"--max-frames must be >= 1, got {self.max_frames}")
+            raise ConfigError(f"max_frames must be >= 1, got {self.max_frames}")
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -254,7 +254,7 @@ def _frame_cache(out: Path, stage: FrameStageConfig, session_path: Path, fresh: 
         cache.clear()
     if not cache.check_fingerprint():
         raise ConfigError(f"{out} holds cached results of another configuration or session; "
-                          "use another -o, or --fresh to discard them")
+                          "use another output folder, or fresh to discard them")
     return cache
 
 
