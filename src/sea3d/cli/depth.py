@@ -213,8 +213,8 @@ def _cmd_depth_session(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     import numpy as np
-    from tqdm import tqdm
 
+    from sea3d.cli._progress import bar as progress_bar
     from sea3d.errors import StereoError
     from sea3d.io.depth_files import write_depth_grid, write_depth_png_mm, write_ply
     from sea3d.io.rig_file import resolve_rig
@@ -241,7 +241,7 @@ def _cmd_depth_session(args: argparse.Namespace) -> int:
             (out / "cloud").mkdir(parents=True, exist_ok=True)
         done = 0
         valid = []
-        bar = tqdm(total=n_pairs, unit="pair", desc="depth", disable=args.json or None)
+        bar = progress_bar(n_pairs, "depth", unit="pair", enabled=not args.json)
         try:
             for pair in session.pairs():
                 if pair.left.shape[:2] != (rig.height, rig.width):

@@ -238,8 +238,7 @@ def _session_water_model(session: Any, ranges: Any, most: int = 8) -> Any:
 
 
 def _cmd_enhance_session(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
+    from sea3d.cli._progress import bar as progress_bar
     from sea3d.cli._progress import once_per_message
     from sea3d.enhance.api import enhance_pair
     from sea3d.errors import EnhanceError
@@ -278,8 +277,8 @@ def _cmd_enhance_session(args: argparse.Namespace) -> int:
             for k in range(len(sonar)):
                 writer.write_sonar(int(sonar.t_ns[k]), float(sonar.range_m[k]),
                                    float(sonar.confidence[k]))
-            bar = tqdm(total=n_pairs, unit="pair", desc=f"enhance {args.method}",
-                       disable=args.json or None)
+            bar = progress_bar(n_pairs, f"enhance {args.method}", unit="pair",
+                               enabled=not args.json)
             try:
                 for pair in session.pairs():
                     kw: dict[str, Any] = dict(params)

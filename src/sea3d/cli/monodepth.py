@@ -243,8 +243,8 @@ def _cmd_mono_depth(args: argparse.Namespace) -> int:
 
 def _session(args: argparse.Namespace, model: Any, src: Path, out: Path) -> int:
     import numpy as np
-    from tqdm import tqdm
 
+    from sea3d.cli._progress import bar
     from sea3d.errors import MonoDepthError
     from sea3d.io.depth_files import write_depth_png_mm
     from sea3d.io.rig_file import resolve_rig
@@ -270,7 +270,7 @@ def _session(args: argparse.Namespace, model: Any, src: Path, out: Path) -> int:
         stamps = reader.stamps("left")
         todo = (list(zip(match.left_index, match.right_index, strict=True)) if match is not None
                 else [(i, None) for i in range(stamps.size)])
-        for li, ri in tqdm(todo, unit="frame", desc="mono-depth", disable=args.json or None):
+        for li, ri in bar(len(todo), "mono-depth", enabled=not args.json, iterable=todo):
             t_ns = int(stamps[li])
             left = reader.image("left", int(li), by="index")
             where = f"{src} t_ns={t_ns}"
