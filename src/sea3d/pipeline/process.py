@@ -38,7 +38,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, Protocol
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -50,6 +50,7 @@ from sea3d.pipeline.depth_scheduler import StageTimer
 from sea3d.pipeline.frame_stage import FrameStageConfig, install_geometry, stage_depth
 from sea3d.pipeline.lock import locks_out_dir
 from sea3d.pipeline.ordered import TRUSTED, OrderedStages
+from sea3d.pipeline.progress import ProgressFactory, no_progress
 from sea3d.recon.submaps import FusionConfig
 from sea3d.recon.tsdf import TsdfConfig
 from sea3d.stereo.recipe import DepthConfig
@@ -66,28 +67,7 @@ log = logging.getLogger(__name__)
 
 
 
-class ProgressBar(Protocol):
-    """What the pipeline needs of a progress bar (tqdm has it)."""
-
-    def update(self, n: int = 1) -> Any: ...
-
-    def close(self) -> None: ...
-
-
-ProgressFactory = Callable[[str, int], ProgressBar]
-"""``factory(stage, total)`` makes one bar per stage; the CLI passes tqdm."""
-
-
-class _NoBar:
-    def update(self, n: int = 1) -> None:
-        return None
-
-    def close(self) -> None:
-        return None
-
-
-def _no_progress(stage: str, total: int) -> ProgressBar:
-    return _NoBar()
+_no_progress = no_progress
 
 
 @dataclass(frozen=True, kw_only=True)
