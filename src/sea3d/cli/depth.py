@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import add_depth_range, depth_config, plural
+from sea3d.cli._args import add_depth_range, config_option, depth_config, plural
 
 __all__ = ["register"]
 
@@ -419,7 +419,9 @@ def register(sub: Any) -> None:
         help="also write a coloured point cloud (.ply), left camera frame (with --session: a "
         "flag, one PLY per pair)",
     )
-    d.add_argument("--engine", choices=_ENGINES, default="sea3d", help="matching engine")
+    from sea3d.stereo.recipe import DepthConfig
+
+    config_option(d, DepthConfig, "engine", choices=_ENGINES, help="matching engine")
     d.add_argument(
         "--grid", choices=("rectified", "raw"), default="rectified",
         help="pixel grid of the depth file (one pair): rectified left view (default, as "

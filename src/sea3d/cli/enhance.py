@@ -14,7 +14,7 @@ import logging
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import add_depth_range
+from sea3d.cli._args import add_depth_range, config_option
 from sea3d.enhance.registry import METHODS
 
 __all__ = ["register", "register_eval"]
@@ -287,10 +287,12 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--focal-px", type=float, help="pinhole focal length for depth -> range (centred)"
     )
-    p.add_argument(
-        "--holes", choices=("inpaint", "mask"), default="inpaint",
-        help="pixels without depth: restore with inpainted range, or only white-balance them",
-    )
+    from sea3d.enhance.seathru import SeathruConfig
+    from sea3d.stereo.recipe import DepthConfig
+
+    config_option(p, SeathruConfig, "holes", choices=("inpaint", "mask"),
+                  help="pixels without depth: restore with inpainted range, or only "
+                  "white-balance them")
     p.add_argument(
         "--attenuation", choices=("water-model", "fit", "fit-scaled", "illuminant", "none"),
         default="water-model",
@@ -305,10 +307,8 @@ def register(sub: Any) -> None:
     p.add_argument("--clip-limit", type=float, default=2.0, help="CLAHE clip limit (default 2)")
     p.add_argument("--session", help="enhance every stereo pair of this session (MCAP or folder)")
     p.add_argument("--format", choices=("mcap", "folder"), help="output session layout")
-    p.add_argument(
-        "--engine", choices=("sea3d", "opencv"), default="sea3d",
-        help="session + seathru: stereo engine for the depth (default sea3d)",
-    )
+    config_option(p, DepthConfig, "engine", choices=("sea3d", "opencv"),
+                  help="session + seathru: stereo engine for the depth")
     add_depth_range(p, near="session + seathru: nearest depth",
                     far="session + seathru: farthest depth")
     p.add_argument("--json", action="store_true", help="print a JSON summary")

@@ -52,8 +52,10 @@ def register(sub: Any) -> None:
     opt("normalize", choices=["imagenet", "unit"])
     opt("device", choices=["cpu", "cuda", "auto"])
     add_depth_range(p, near="stereo: nearest depth", far="stereo: farthest depth")
-    p.add_argument("--engine", default="sea3d", choices=["sea3d", "opencv", "sea3d-gpu"],
-                   help="stereo matching engine")
+    from sea3d.stereo.recipe import DepthConfig
+
+    config_option(p, DepthConfig, "engine", choices=["sea3d", "opencv", "sea3d-gpu"],
+                  help="stereo matching engine")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(handler=_cmd_mono_depth)
 
