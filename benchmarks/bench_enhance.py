@@ -520,7 +520,13 @@ def section_process(args: argparse.Namespace) -> None:
     from sea3d.io.rig_file import rig_to_yaml
     from sea3d.io.session import SessionWriter, open_session
     from sea3d.pipeline.frame_stage import FrameStageConfig, process_frame
-    from sea3d.pipeline.process import ProcessConfig, run_process
+    from sea3d.pipeline.process import (
+        ColourConfig,
+        ExecutorConfig,
+        PoseConfig,
+        ProcessConfig,
+        run_process,
+    )
     from sea3d.sim.survey import SurveyConfig, simulate_survey
     from sea3d.stereo.recipe import DepthConfig
 
@@ -540,8 +546,10 @@ def section_process(args: argparse.Namespace) -> None:
         rest = process_frame(FrameStageConfig(rig=rig, depth=DepthConfig(max_depth_m=8.0),
                                               restore_colours="seathru"), t0, left, right)
         res = run_process(src, ProcessConfig(
-            out_dir=Path(tmp) / "out", workers=0, poses_path=gt / "poses_left.tum",
-            restore_colours="seathru", max_depth_m=8.0, report=False, evaluate=False))
+            out_dir=Path(tmp) / "out", executor=ExecutorConfig(workers=0),
+            poses=PoseConfig(poses_path=gt / "poses_left.tum"),
+            colours=ColourConfig(restore_colours="seathru"),
+            depth=DepthConfig(max_depth_m=8.0), report=False, evaluate=False))
     has = np.isfinite(rest.depth_m)
     ref = _log_chroma(clean)
 

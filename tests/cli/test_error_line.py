@@ -8,7 +8,7 @@ import pytest
 
 from sea3d.cli import error_line, main
 from sea3d.errors import ConfigError
-from sea3d.pipeline.process import ProcessConfig
+from sea3d.pipeline.process import ExecutorConfig, MapConfig, ProcessConfig
 
 OUT = Path("unused-out")
 
@@ -34,9 +34,9 @@ def test_error_line_leaves_words_that_are_not_field_references() -> None:
 
 def test_library_error_names_the_field_and_value() -> None:
     with pytest.raises(ConfigError, match=r"^voxel_m must be > 0, got 0\.0$"):
-        ProcessConfig(out_dir=OUT, voxel_m=0.0)
+        ProcessConfig(out_dir=OUT, map=MapConfig(voxel_m=0.0))
     with pytest.raises(ConfigError, match=r"^workers must be >= 0, got -1$"):
-        ProcessConfig(out_dir=OUT, workers=-1)
+        ProcessConfig(out_dir=OUT, executor=ExecutorConfig(workers=-1))
     with pytest.raises(ConfigError, match=r"^max_frames must be >= 1, got 0$"):
         ProcessConfig(out_dir=OUT, max_frames=0)
 

@@ -19,7 +19,13 @@ from sea3d.errors import EnhanceError
 from sea3d.io.rig_file import rig_to_yaml
 from sea3d.io.session import SessionWriter, open_session
 from sea3d.pipeline.frame_stage import FrameResult, FrameStageConfig, _resolve_hook, process_frame
-from sea3d.pipeline.process import ProcessConfig, run_process
+from sea3d.pipeline.process import (
+    ColourConfig,
+    ExecutorConfig,
+    PoseConfig,
+    ProcessConfig,
+    run_process,
+)
 from sea3d.pipeline.report import _colour_html
 from sea3d.refraction.presets import paper_rig
 from sea3d.sim.scene import builtin_scene
@@ -118,8 +124,10 @@ def test_process_colours_mesh_and_cloud_with_the_restored_frames(
 ) -> None:
     out = Path(str(survey["root"])) / "out"
     res = run_process(Path(str(survey["session"])), ProcessConfig(
-        out_dir=out, workers=0, poses_path=Path(str(survey["gt"])) / "poses_left.tum",
-        restore_colours="seathru", max_depth_m=MAX_DEPTH_M, report=False, evaluate=False))
+        out_dir=out, executor=ExecutorConfig(workers=0),
+        poses=PoseConfig(poses_path=Path(str(survey["gt"])) / "poses_left.tum"),
+        colours=ColourConfig(restore_colours="seathru"),
+        depth=DepthConfig(max_depth_m=MAX_DEPTH_M), report=False, evaluate=False))
     colours = res.summary["colours"]
     assert {k: v for k, v in colours.items() if k != "per_frame"} == {
         "enhance": "none", "restore": "seathru", "restore_status": {"ok": 2}}

@@ -38,7 +38,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -46,16 +46,20 @@ from numpy.typing import NDArray
 from sea3d._typing import F64
 from sea3d.errors import ConfigError, SessionError
 from sea3d.odometry.types import Odometry, TrackingStatus
+from sea3d.pipeline.config import ColourConfig, ExecutorConfig, MapConfig, PoseConfig
 from sea3d.pipeline.depth_scheduler import StageTimer
 from sea3d.pipeline.frame_stage import FrameStageConfig, install_geometry, stage_depth
 from sea3d.pipeline.lock import locks_out_dir
 from sea3d.pipeline.ordered import TRUSTED, OrderedStages
 from sea3d.pipeline.progress import ProgressFactory, no_progress
 from sea3d.recon.submaps import FusionConfig
-from sea3d.recon.tsdf import TsdfConfig
 from sea3d.stereo.recipe import DepthConfig
 
 __all__ = [
+    "ColourConfig",
+    "ExecutorConfig",
+    "MapConfig",
+    "PoseConfig",
     "ProcessConfig",
     "ProcessResult",
     "ProgressFactory",
@@ -72,7 +76,8 @@ _no_progress = no_progress
 
 @dataclass(frozen=True, kw_only=True)
 class ProcessConfig:
-    """Options of ``sea3d process`` (the CLI's flags map one to one)."""
+    """Options of ``sea3d process``: the run's own, then one nested config per stage (the
+    CLI's flags map one to one onto their fields)."""
 
     out_dir: Path
     """Output folder (created); also holds the cache that makes reruns resume."""
@@ -80,84 +85,47 @@ class ProcessConfig:
     """Rig file; None uses the rig stored with the session."""
     size_px: tuple[int, int] | None = None
     """Process at this ``(width, height)`` instead of the recorded size."""
-    voxel_m: float = 0.02
-    """TSDF voxel edge, metres."""
-    use_imu: bool = True
-    """Give the IMU to the odometry (``--no-imu``: visual only)."""
-    workers: int | None = None
-    """Local worker processes for the per-frame stage; None: one per core; 0: inline."""
-    scheduler: str | Any | None = None
-    """A Dask scheduler address (``tcp://HOST:PORT``) or ``distributed.Client``."""
-    poses_path: Path | None = None
-    """Known poses (TUM, KITTI or EuRoC CSV of ``T_world_left``) instead of odometry."""
-    engine: str = "sea3d"
-    """Stereo matching engine."""
-    min_depth_m: float | None = None
-    """Nearest depth resolved, metres; None: from the rig and the disparity range
-    (:mod:`sea3d.stereo.recipe`)."""
-    max_depth_m: float | None = None
-    """Farthest depth used (stereo and TSDF), metres; None: from the rig (the smallest useful
-    disparity, :mod:`sea3d.stereo.recipe`)."""
-    max_disparity_px: int | None = None
-    """Disparity range; None derives it from ``min_depth_m``, else from the image width."""
-    integrate: Literal["trusted", "keyframes"] = "trusted"
-    """Fuse every frame with a trusted pose, or keyframes only."""
-    keyframes_per_submap: int = 20
-    """Keyframes per TSDF submap."""
-    max_submap_blocks: int = 20_000
-    """Voxel blocks after which a submap is finished (bounds memory: 10 KB per block of 8^3
-    voxels)."""
-    in_flight: int | None = None
-    """Frames between reader and ordered stages at most; None: 2 per worker + 2."""
+    depth: DepthConfig = field(default_factory=DepthConfig)
+    """Stereo depth (engine, disparity and depth range; :class:`DepthConfig`)."""
+    map: MapConfig = field(default_factory=MapConfig)
+    """Fusion and merge (:class:`MapConfig`)."""
+    poses: PoseConfig = field(default_factory=PoseConfig)
+    """Odometry or known poses (:class:`PoseConfig`)."""
+    colours: ColourConfig = field(default_factory=ColourConfig)
+    """Enhancement and colour restoration (:class:`ColourConfig`)."""
+    executor: ExecutorConfig = field(default_factory=ExecutorConfig)
+    """Workers or a Dask scheduler (:class:`ExecutorConfig`)."""
     fresh: bool = False
     """Ignore (delete) cached per-frame results instead of resuming."""
-    enhance: Any = None
-    """Enhancement hook of the per-frame stage (see :class:`FrameStageConfig`)."""
-    restore_colours: Literal["none", "seathru"] = "none"
-    """Sea-thru on the output colours after depth (see :class:`FrameStageConfig`)."""
-    cloud_voxel_m: float | None = None
-    """Voxel of cloud.ply's downsampling; None: half ``voxel_m``."""
-    merge_tile_m: float | None = 8.0
-    """Edge of the tiles the final merge works through (bounds its memory)."""
     evaluate: bool = True
     """Compare with the simulator's ground truth when the session has one."""
     report: bool = True
     """Write report.html."""
-    odometry_config: Any = None
-    """Passed to ``create_odometry``."""
     max_frames: int | None = None
     """Process only the first N stereo pairs."""
 
     def frame_stage(self, rig: Any) -> FrameStageConfig:
         """The per-frame stage's configuration for ``rig`` (at the recorded size; threads per
         worker: the cores shared among the local workers; a Dask worker keeps its own)."""
-        n_local = self.workers if self.workers is not None else min(os.cpu_count() or 1, 8)
+        ex = self.executor
+        n_local = ex.workers if ex.workers is not None else min(os.cpu_count() or 1, 8)
         return FrameStageConfig(
-            rig=rig, size_px=self.size_px,
-            depth=DepthConfig(engine=self.engine, max_disparity_px=self.max_disparity_px,
-                              min_depth_m=self.min_depth_m, max_depth_m=self.max_depth_m),
-            enhance=self.enhance,
-            restore_colours=self.restore_colours,
+            rig=rig, size_px=self.size_px, depth=self.depth,
+            enhance=self.colours.enhance,
+            restore_colours=self.colours.restore_colours,
             threads=max(1, (os.cpu_count() or 1) // max(1, n_local))
-            if self.scheduler is None else None)
+            if ex.scheduler is None else None)
 
     def fusion(self, depth_range_m: tuple[float, float]) -> FusionConfig:
-        """The fusion stage's configuration (its TSDF over the stereo depth's range)."""
-        return FusionConfig(tsdf=TsdfConfig(voxel_m=self.voxel_m, depth_min_m=depth_range_m[0],
-                                            depth_max_m=depth_range_m[1]),
-                            integrate=self.integrate,
-                            keyframes_per_submap=self.keyframes_per_submap,
-                            max_blocks=self.max_submap_blocks)
+        """The fusion stage's configuration (:meth:`MapConfig.fusion`)."""
+        return self.map.fusion(depth_range_m)
 
     def __post_init__(self) -> None:
-        if not self.voxel_m > 0:
-            raise ConfigError(f"voxel_m must be > 0, got {self.voxel_m}")
-        if self.workers is not None and self.scheduler is not None:
-            raise ConfigError("give either workers or scheduler, not both")
-        if self.workers is not None and self.workers < 0:
-            raise ConfigError(f"workers must be >= 0, got {self.workers}")
-        if self.in_flight is not None and self.in_flight < 1:
-            raise ConfigError(f"in_flight must be >= 1, got {self.in_flight}")
+        for name, cls in (("depth", DepthConfig), ("map", MapConfig), ("poses", PoseConfig),
+                          ("colours", ColourConfig), ("executor", ExecutorConfig)):
+            if not isinstance(getattr(self, name), cls):
+                raise ConfigError(f"{name} must be a {cls.__name__}, got "
+                                  f"{type(getattr(self, name)).__name__}")
         if self.max_frames is not None and self.max_frames < 1:
             raise ConfigError(f"max_frames must be >= 1, got {self.max_frames}")
 
@@ -243,15 +211,15 @@ def _odometry(config: ProcessConfig, stereo: Any, session_path: Path, has_imu: b
     """The pose stage, its description, and whether it gets the IMU."""
     from sea3d.io.trajectory_files import read_trajectory
 
-    use_imu = config.use_imu and has_imu
-    if config.use_imu and not has_imu:
+    use_imu = config.poses.use_imu and has_imu
+    if config.poses.use_imu and not has_imu:
         log.warning("%s has no IMU samples: the odometry runs visual-only", session_path)
     if factory is not None:
         odo = factory(stereo.rig, stereo.maps)
         return odo, str(getattr(odo, "name", type(odo).__name__)), use_imu
-    poses = read_trajectory(config.poses_path) if config.poses_path else None
+    poses = read_trajectory(config.poses.poses_path) if config.poses.poses_path else None
     odo, name = make_odometry(stereo.rig, stereo.maps, use_imu=use_imu, poses=poses,
-                              config=config.odometry_config)
+                              config=config.poses.odometry_config)
     return odo, name, use_imu and poses is None
 
 
@@ -305,7 +273,7 @@ def run_process(
         t0 = time.perf_counter()
         stereo = stage_depth(stage_cfg)
         timer.add("rectify_maps_s", time.perf_counter() - t0)
-        executor = make_executor(config.workers, config.scheduler,
+        executor = make_executor(config.executor.workers, config.executor.scheduler,
                                  setup=(install_geometry, (stage_cfg, stereo)))
         try:
             odo, odometry_name, imu_used = _odometry(config, stereo, session_path,
@@ -315,8 +283,9 @@ def run_process(
             store = DiskSubmapStore(out / "submaps")
             store.clear()
             stages = OrderedStages(odo, SubmapFusion(fusion_cfg), store, stereo.maps,
-                                   use_imu=config.use_imu and len(source.imu) > 0, timer=timer)
-            window = config.in_flight or 2 * max(1, executor.workers) + 2
+                                   use_imu=config.poses.use_imu and len(source.imu) > 0,
+                                   timer=timer)
+            window = config.executor.in_flight or 2 * max(1, executor.workers) + 2
             bars = [bar(name, len(source)) for name in ("depth", "odometry", "fusion")]
             depth = DepthScheduler(source, executor, stage_cfg, executor.share(stereo), cache,
                                    window=window, timer=timer, on_depth=bars[0].update)
@@ -356,8 +325,8 @@ def _finish(session_path: Path, out: Path, config: ProcessConfig, stages: Ordere
     from sea3d.pipeline.groundtruth import evaluate_against_ground_truth
 
     maps = stereo.maps
-    rec = finish_reconstruction(stages, store, fusion_cfg.tsdf, tile_m=config.merge_tile_m,
-                                cloud_voxel_m=config.cloud_voxel_m or config.voxel_m / 2,
+    rec = finish_reconstruction(stages, store, fusion_cfg.tsdf, tile_m=config.map.merge_tile_m,
+                                cloud_voxel_m=config.map.cloud_voxel_m or config.map.voxel_m / 2,
                                 progress=bar, timer=timer)
     tw = time.perf_counter()
     files = write_process_outputs(out, t_ns=rec.t_ns, T_world_left=rec.T_world_left,
@@ -372,9 +341,9 @@ def _finish(session_path: Path, out: Path, config: ProcessConfig, stages: Ordere
         image_size_px=[int(maps.width), int(maps.height)], refractive=bool(maps.refractive),
         depth_range_m=list(stereo.depth_range_m), max_disparity_px=stereo.max_disparity_px,
         virtual_pinhole_rms_px=(maps.report_left.rms_px if maps.report_left else 0.0),
-        voxel_m=config.voxel_m, integrate=config.integrate)
-    summary["colours"] = {"enhance": str(config.enhance or "none"),
-                          "restore": config.restore_colours,
+        voxel_m=config.map.voxel_m, integrate=config.map.integrate)
+    summary["colours"] = {"enhance": str(config.colours.enhance or "none"),
+                          "restore": config.colours.restore_colours,
                           "restore_status": stages.colour_status,
                           "per_frame": stages.colour_frames}
     summary["timings_s"] = {}
