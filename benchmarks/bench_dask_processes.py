@@ -54,7 +54,7 @@ def _tree(pid: int) -> list[int]:
 def run(session: Path, frames: int, workers: int) -> dict:
     import distributed
 
-    from sea3d.pipeline.process import ProcessConfig, run_process
+    from sea3d.pipeline.process import ExecutorConfig, PoseConfig, ProcessConfig, run_process
 
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"
@@ -72,7 +72,8 @@ def run(session: Path, frames: int, workers: int) -> dict:
         out = ROOT / "out" / "bench_dask" / f"w{workers}"
         c0, w0 = time.process_time(), time.perf_counter()
         res = run_process(session, ProcessConfig(
-            out_dir=out, scheduler=address, poses_path=session / "gt" / "poses_left.tum",
+            out_dir=out, executor=ExecutorConfig(scheduler=address),
+            poses=PoseConfig(poses_path=session / "gt" / "poses_left.tum"),
             max_frames=frames, fresh=True, report=False, evaluate=False))
         wall = time.perf_counter() - w0
         cpu_client = time.process_time() - c0

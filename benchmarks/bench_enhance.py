@@ -529,7 +529,13 @@ def section_process(args: argparse.Namespace) -> None:
     from sea3d.io.session import SessionWriter, open_session
     from sea3d.pipeline.colour_stage import DiveColourConfig, DiveColours
     from sea3d.pipeline.frame_stage import FrameStageConfig, process_frame, stage_depth
-    from sea3d.pipeline.process import ProcessConfig, run_process
+    from sea3d.pipeline.process import (
+        ColourConfig,
+        ExecutorConfig,
+        PoseConfig,
+        ProcessConfig,
+        run_process,
+    )
     from sea3d.sim.survey import SurveyConfig, simulate_survey
     from sea3d.stereo.recipe import DepthConfig
 
@@ -565,8 +571,10 @@ def section_process(args: argparse.Namespace) -> None:
         runs = {}
         for mode in ("seathru", "water-model"):
             runs[mode] = run_process(src, ProcessConfig(
-                out_dir=Path(tmp) / mode, workers=0, poses_path=gt / "poses_left.tum",
-                restore_colours=mode, max_depth_m=8.0, report=False, evaluate=False))
+                out_dir=Path(tmp) / mode, executor=ExecutorConfig(workers=0),
+                poses=PoseConfig(poses_path=gt / "poses_left.tum"),
+                colours=ColourConfig(restore_colours=mode), depth=DepthConfig(max_depth_m=8.0),
+                report=False, evaluate=False))
     variants = {
         "input": [plain.rect_left for plain, _ in frames],
         "grey world (per frame)": [grey_world(plain.rect_left) for plain, _ in frames],

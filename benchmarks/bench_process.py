@@ -165,20 +165,26 @@ def paper_run(session: Path, frames: int | None, voxel_m: float = 0.02,
 def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
             fresh: bool) -> dict:
     """Process once in this process and return the figures (run in a subprocess)."""
-    from sea3d.pipeline.process import ProcessConfig, run_process
+    from sea3d.pipeline.process import (
+        ExecutorConfig,
+        MapConfig,
+        PoseConfig,
+        ProcessConfig,
+        run_process,
+    )
+    from sea3d.stereo.recipe import DepthConfig
 
     if kind == "paper":
         return paper_run(session, None)
     use_gt = odometry == "gt"
     poses = session / "gt" / "poses_left.tum" if use_gt else None
     # The depth range of the paper's chain below, so both fuse the same slab of the scene.
-    kw: dict = {"out_dir": out, "poses_path": poses, "fresh": fresh, "integrate": integrate,
-                "report": False, "min_depth_m": 0.5, "max_depth_m": 4.0}
+    ex: dict = {}
     cluster = client = None
     if kind == "inline":
-        kw["workers"] = 0
+        ex["workers"] = 0
     elif kind.startswith("procs"):
-        kw["workers"] = int(kind[5:])
+        ex["workers"] = int(kind[5:])
     elif kind.startswith("dask"):
         import distributed
 
@@ -187,10 +193,14 @@ def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
                                            protocol="tcp", host="127.0.0.1",
                                            dashboard_address=None)
         client = distributed.Client(cluster)
-        kw["scheduler"] = client
+        ex["scheduler"] = client
+    config = ProcessConfig(out_dir=out, poses=PoseConfig(poses_path=poses), fresh=fresh,
+                           map=MapConfig(integrate=integrate), report=False,
+                           depth=DepthConfig(min_depth_m=0.5, max_depth_m=4.0),
+                           executor=ExecutorConfig(**ex))
     t0 = time.perf_counter()
     try:
-        res = run_process(session, ProcessConfig(**kw))
+        res = run_process(session, config)
     finally:
         if client is not None:
             client.close()

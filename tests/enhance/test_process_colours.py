@@ -22,7 +22,13 @@ from sea3d.io.rig_file import rig_to_yaml
 from sea3d.io.session import SessionWriter, open_session
 from sea3d.pipeline.colour_stage import DiveColourConfig
 from sea3d.pipeline.frame_stage import FrameResult, FrameStageConfig, _resolve_hook, process_frame
-from sea3d.pipeline.process import ProcessConfig, run_process
+from sea3d.pipeline.process import (
+    ColourConfig,
+    ExecutorConfig,
+    PoseConfig,
+    ProcessConfig,
+    run_process,
+)
 from sea3d.pipeline.report import _colour_html
 from sea3d.refraction.presets import paper_rig
 from sea3d.sim.scene import builtin_scene
@@ -121,8 +127,10 @@ def test_process_colours_mesh_and_cloud_with_the_restored_frames(
 ) -> None:
     out = Path(str(survey["root"])) / "out"
     res = run_process(Path(str(survey["session"])), ProcessConfig(
-        out_dir=out, workers=0, poses_path=Path(str(survey["gt"])) / "poses_left.tum",
-        restore_colours="seathru", max_depth_m=MAX_DEPTH_M, report=False, evaluate=False))
+        out_dir=out, executor=ExecutorConfig(workers=0),
+        poses=PoseConfig(poses_path=Path(str(survey["gt"])) / "poses_left.tum"),
+        colours=ColourConfig(restore_colours="seathru"),
+        depth=DepthConfig(max_depth_m=MAX_DEPTH_M), report=False, evaluate=False))
     colours = res.summary["colours"]
     assert {k: v for k, v in colours.items() if k not in ("per_frame", "per_frame_s")} == {
         "enhance": "none", "restore": "seathru", "restore_status": {"ok": 2}}
@@ -184,11 +192,13 @@ def dive(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     return {"root": root, "session": src, "gt": gt}
 
 
-def _water_run(dive: dict[str, Path], out: Path, **kw: object) -> object:
+def _water_run(dive: dict[str, Path], out: Path) -> object:
     return run_process(dive["session"], ProcessConfig(
-        out_dir=out, workers=0, poses_path=dive["gt"] / "poses_left.tum",
-        restore_colours="water-model", dive_colours=DiveColourConfig(fit_frames=3, fit_stride=2),
-        max_depth_m=MAX_DEPTH_M, report=False, evaluate=False, **kw))  # type: ignore[arg-type]
+        out_dir=out, executor=ExecutorConfig(workers=0),
+        poses=PoseConfig(poses_path=dive["gt"] / "poses_left.tum"),
+        colours=ColourConfig(restore_colours="water-model",
+                             dive_colours=DiveColourConfig(fit_frames=3, fit_stride=2)),
+        depth=DepthConfig(max_depth_m=MAX_DEPTH_M), report=False, evaluate=False))
 
 
 def test_process_fits_one_water_model_per_run_and_the_cache_holds_no_colours(
@@ -218,8 +228,8 @@ def test_process_fits_one_water_model_per_run_and_the_cache_holds_no_colours(
     assert colours["per_frame_s"]["restore_colours_s"] > 0
     # The per-frame stage, its fingerprint and its cache are those of a run without
     # restoration: nothing cached depends on the model.
-    plain = ProcessConfig(out_dir=out, restore_colours="none")
-    water = ProcessConfig(out_dir=out, restore_colours="water-model")
+    plain = ProcessConfig(out_dir=out, colours=ColourConfig(restore_colours="none"))
+    water = ProcessConfig(out_dir=out, colours=ColourConfig(restore_colours="water-model"))
     rig = paper_rig("none", size_px=SIZE_PX)
     assert water.frame_stage(rig).fingerprint() == plain.frame_stage(rig).fingerprint()
     entries = sorted((out / "cache").rglob("*.s3c"))

@@ -33,5 +33,5 @@ def test_the_rig_file_wins_over_the_stored_rig(tmp_path: Path) -> None:
 
 def test_no_file_and_no_stored_rig_is_one_clear_error(tmp_path: Path) -> None:
     with open_session(_session(tmp_path / "s", None)) as s, \
-            pytest.raises(SessionError, match=r"s stores no rig; pass --rig"):
+            pytest.raises(SessionError, match=r"s stores no rig; give a rig file"):
         resolve_rig(None, s)

@@ -13,7 +13,7 @@ from sea3d.cli import main
 from sea3d.errors import SessionError
 from sea3d.pipeline.frame_source import SessionFrames
 from sea3d.pipeline.live import LiveConfig, run_live_replay
-from sea3d.pipeline.process import ProcessConfig
+from sea3d.pipeline.process import MapConfig, PoseConfig, ProcessConfig
 
 FRAMES = 12
 
@@ -32,8 +32,8 @@ def test_replay_tracks_every_frame_and_fuses_what_it_keeps_up_with(sim_session, 
                                                                    rate):
     """At the recorded rate (10 fps, 320x180) and 50 times faster: every frame reaches the
     odometry; frames whose depth was dropped are not fused, and say so; the count adds up."""
-    cfg = ProcessConfig(out_dir=tmp_path / "live", poses_path=_gt(sim_session),
-                        max_frames=FRAMES, keyframes_per_submap=2)
+    cfg = ProcessConfig(out_dir=tmp_path / "live", poses=PoseConfig(poses_path=_gt(sim_session)),
+                        max_frames=FRAMES, map=MapConfig(keyframes_per_submap=2))
     summary, stats = run_live_replay(sim_session, cfg, LiveConfig(), rate=rate)
     live = summary["live"]
     assert stats.frames == FRAMES and summary["frames"] == FRAMES
@@ -61,8 +61,8 @@ def test_a_camera_that_stops_keeps_the_mesh_so_far(sim_session, tmp_path, monkey
         return real_read(self, pair)
 
     monkeypatch.setattr(SessionFrames, "read", read)
-    cfg = ProcessConfig(out_dir=tmp_path / "stop", poses_path=_gt(sim_session),
-                        max_frames=FRAMES, keyframes_per_submap=2)
+    cfg = ProcessConfig(out_dir=tmp_path / "stop", poses=PoseConfig(poses_path=_gt(sim_session)),
+                        max_frames=FRAMES, map=MapConfig(keyframes_per_submap=2))
     summary, stats = run_live_replay(sim_session, cfg, rate=50.0)
     assert stats.frames == 6 and summary["frames"] == 6
     assert summary["live"]["stop_reason"] == ("camera stopped: left camera: no frame for "

@@ -60,7 +60,7 @@ def test_process_never_uses_a_renamed_image_of_a_folder_session(sim_session, tmp
     import os
 
     from sea3d.io.session import convert_session, open_session
-    from sea3d.pipeline.process import ProcessConfig, run_process
+    from sea3d.pipeline.process import ExecutorConfig, ProcessConfig, run_process
 
     folder = tmp_path / "dive"
     convert_session(sim_session, folder)
@@ -70,7 +70,8 @@ def test_process_never_uses_a_renamed_image_of_a_folder_session(sim_session, tmp
     new = moved + 50_000_000  # half a frame interval later
     os.replace(folder / "left" / f"{moved}.png", folder / "left" / f"{new}.png")
     with caplog.at_level(logging.WARNING):
-        res = run_process(folder, ProcessConfig(out_dir=tmp_path / "out", workers=0,
+        res = run_process(folder, ProcessConfig(out_dir=tmp_path / "out",
+                                                executor=ExecutorConfig(workers=0),
                                                 max_frames=4))  # fmt: skip
     text = "\n".join(r.getMessage() for r in caplog.records)
     assert f"{new}.png" in text and "no line in checksums.csv" in text

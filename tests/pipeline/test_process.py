@@ -23,7 +23,15 @@ from sea3d.io.mesh_files import read_mesh
 from sea3d.io.result_cache import FrameCache
 from sea3d.io.session import SessionWriter, open_session
 from sea3d.io.trajectory_files import read_trajectory
-from sea3d.pipeline.process import ProcessConfig, run_process
+from sea3d.pipeline.process import (
+    ColourConfig,
+    ExecutorConfig,
+    MapConfig,
+    PoseConfig,
+    ProcessConfig,
+    run_process,
+)
+from sea3d.stereo.recipe import DepthConfig
 
 # Mesh accuracy with true poses at 320x180 and 2 cm voxels (measured median 3.7 mm, 90th
 # percentile 12 mm): the budget leaves room for noise, and a scale or refraction error (5 %
@@ -33,10 +41,9 @@ MESH_P90_TOL_M = 0.025
 KEYFRAMES_PER_SUBMAP = 2
 
 
-def _config(out: Path, **kw) -> ProcessConfig:
-    base = {"out_dir": out, "workers": 0, "keyframes_per_submap": KEYFRAMES_PER_SUBMAP}
-    base.update(kw)
-    return ProcessConfig(**base)
+def _config(out: Path, *, workers: int | None = 0, scheduler=None, **kw) -> ProcessConfig:
+    return ProcessConfig(out_dir=out, executor=ExecutorConfig(workers=workers, scheduler=scheduler),
+                         map=MapConfig(keyframes_per_submap=KEYFRAMES_PER_SUBMAP), **kw)
 
 
 def _gt_dir(session: Path) -> Path:
@@ -185,8 +192,9 @@ def test_an_interrupted_run_resumes_from_its_cache(sim_session, first_run, tmp_p
 def test_a_cache_of_another_configuration_is_refused(sim_session, first_run, tmp_path):
     out = _with_cache(first_run[0], tmp_path / "other")
     with pytest.raises(ConfigError, match="another configuration"):
-        run_process(sim_session, _config(out, max_depth_m=3.0,
-                                         poses_path=_gt_dir(sim_session) / "poses_left.tum"))
+        run_process(sim_session, _config(
+            out, depth=DepthConfig(max_depth_m=3.0),
+            poses=PoseConfig(poses_path=_gt_dir(sim_session) / "poses_left.tum")))
 
 
 def test_local_processes_give_the_inline_depth(sim_session, first_run, tmp_path):
@@ -260,7 +268,7 @@ def test_no_rig_is_a_clear_error(tmp_path, rng):
     with SessionWriter(bare, format="folder") as w:
         w.write_stereo(0, img, img)
         w.write_stereo(100_000_000, img, img)
-    with pytest.raises(SessionError, match="stores no rig; pass --rig"):
+    with pytest.raises(SessionError, match="stores no rig; give a rig file"):
         run_process(bare, _config(tmp_path / "o"))
     from sea3d.io.rig_file import save_rig
     from sea3d.refraction.presets import paper_rig
@@ -275,7 +283,8 @@ def test_the_enhancement_hook_colours_the_mesh(sim_session, first_run, tmp_path)
     from scripted_odometry import tint_red
 
     gt = _gt(sim_session)
-    res = run_process(sim_session, _config(tmp_path / "enh", enhance=tint_red, max_frames=3),
+    res = run_process(sim_session, _config(tmp_path / "enh", colours=ColourConfig(enhance=tint_red),
+                                              max_frames=3),
                       odometry=lambda rig, maps: ScriptedOdometry(gt.t_ns, gt.T_world_x))
     plain = read_mesh(first_run[0] / "mesh.ply").colors_rgb.astype(float).mean(axis=0)
     tinted = res.mesh.colors_rgb.astype(float).mean(axis=0)

@@ -12,6 +12,7 @@ import argparse
 import importlib
 import logging
 import os
+import re
 import sys
 from collections.abc import Sequence
 from typing import Any
@@ -19,13 +20,44 @@ from typing import Any
 from sea3d import __version__
 from sea3d.errors import Sea3dError
 
-__all__ = ["build_parser", "main"]
+__all__ = ["build_parser", "error_line", "main"]
 
 # Modules under sea3d.cli that add subcommands, in the order they appear in --help.
 _COMMAND_MODULES = (
     "rig", "session", "record", "stream", "bag", "sim", "calibrate", "depth", "enhance",
     "odometry", "sfm", "monodepth", "recon", "live", "eval", "demo",
 )  # fmt: skip
+
+
+# Config field names that library errors name, and the option that sets each: the one-line
+# error speaks the command's language. A name is rewritten only where a message names it as a
+# field ("workers must be...", "either workers or scheduler", "(strict)"), never inside a word.
+_FLAG_OF_FIELD = {
+    "voxel_m": "--voxel-m", "workers": "--workers", "scheduler": "--scheduler",
+    "max_frames": "--max-frames", "rate": "--rate", "strict": "--strict",
+    "fresh": "--fresh", "range_m": "--depth", "max_disparity_px": "--max-disparity",
+    "min_depth_m": "--min-depth", "max_depth_m": "--max-depth",
+}  # fmt: skip
+_FIELD_RE = re.compile(
+    r"(?<![\w./-])(" + "|".join(_FLAG_OF_FIELD) + r")(?= must\b| or |\)|, not both| to discard)"
+    r"|(?<=either )(" + "|".join(_FLAG_OF_FIELD) + r")\b"
+)
+_PHRASES = {
+    "use another output folder, or": "use another -o, or",
+    "stores no rig; give a rig file": "stores no rig; pass --rig rig.yaml",
+    "add the echosounder's mount to rig.yaml and pass that rig":
+        "add the echosounder's mount to rig.yaml and pass --rig",
+    "size_px must be at least 32x24": "--size must be at least 32x24",
+    "a topic entry expects": "--topic expects", "in topic entry": "in --topic",
+}
+
+
+def error_line(message: str) -> str:
+    """A library error's message with the config fields it names spelt as this CLI's options
+    (``voxel_m must be > 0`` -> ``--voxel-m must be > 0``)."""
+    for lib, cli in _PHRASES.items():
+        message = message.replace(lib, cli)
+    return _FIELD_RE.sub(lambda m: _FLAG_OF_FIELD[m.group(1) or m.group(2)], message)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -82,7 +114,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         status = handler(args)
     except Sea3dError as err:
-        print(f"sea3d: error: {err}", file=sys.stderr)
+        print(f"sea3d: error: {error_line(str(err))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("sea3d: interrupted", file=sys.stderr)

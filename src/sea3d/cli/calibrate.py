@@ -140,16 +140,14 @@ def _detect_all(paths: list[Path], board: Any, quiet: bool, detector: str = "aut
                 ) -> dict[str, list[Any]]:
     """Detections of every image, per checkerboard detector (``{"": [...]}`` for other boards
     and for one named detector)."""
-    from tqdm import tqdm
-
     from sea3d.calib.targets import CHECKER_DETECTORS, detect_board, detect_checkerboard_all
+    from sea3d.cli._progress import bar
 
     detector = _DETECTOR_ALIASES.get(detector, detector)
     every = detector == "auto" and board.kind == "checkerboard"
     names = list(CHECKER_DETECTORS) if every else [detector]
     out: dict[str, list[Any]] = {n: [] for n in names}
-    for path in tqdm(paths, desc="detecting", unit="img", disable=quiet or not sys.stderr.isatty(),
-                     file=sys.stderr):
+    for path in bar(len(paths), "detecting", unit="img", enabled=not quiet, iterable=paths):
         img = _load_image(path)
         if img is None:
             for n in names:

@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import add_depth_range, depth_config, plural
+from sea3d.cli._args import add_depth_range, config_option, depth_config, plural
 
 __all__ = ["register"]
 
@@ -212,13 +212,11 @@ def _cmd_depth_session(args: argparse.Namespace) -> int:
     """Depth for every stereo pair of a session, with a progress bar."""
     from pathlib import Path
 
-    import numpy as np
-    from tqdm import tqdm
-
-    from sea3d.errors import StereoError
+    from sea3d.cli._progress import bar as progress_bar
     from sea3d.io.depth_files import write_depth_grid, write_depth_png_mm, write_ply
     from sea3d.io.rig_file import resolve_rig
     from sea3d.io.session import open_session
+    from sea3d.pipeline.depth_session import depth_session
     from sea3d.stereo.recipe import StereoDepth
 
     _check_depth_range(args)
@@ -226,49 +224,39 @@ def _cmd_depth_session(args: argparse.Namespace) -> int:
     out = Path(args.output)
     with open_session(args.session) as session:
         rig = resolve_rig(args.rig, session)
-        match = session.match_pairs()
-        n_pairs = len(match.left_index)
-        if n_pairs == 0:
+        if len(session.match_pairs().left_index) == 0:
+            from sea3d.errors import StereoError
+
             raise StereoError(f"{args.session}: no stereo pairs to process")
         if args.max_disparity is not None:
             _check_range(args.max_disparity, rig.width, args.engine, "the rig's images")
         stereo = StereoDepth(rig, config)
-        maps, max_d = stereo.maps, stereo.max_disparity_px
-        stereo.warm_up()
         (out / "depth").mkdir(parents=True, exist_ok=True)
-        grid = _rectified_grid(maps, rig)
+        grid = _rectified_grid(stereo.maps, rig)
         if args.points:
             (out / "cloud").mkdir(parents=True, exist_ok=True)
-        done = 0
-        valid = []
-        bar = tqdm(total=n_pairs, unit="pair", desc="depth", disable=args.json or None)
-        try:
-            for pair in session.pairs():
-                if pair.left.shape[:2] != (rig.height, rig.width):
-                    raise StereoError(
-                        f"{args.session}: frame {pair.t_ns} is {pair.left.shape[1]}x"
-                        f"{pair.left.shape[0]} but the rig is {rig.width}x{rig.height}"
-                    )
-                res = stereo.compute(pair.left, pair.right)
-                write_depth_png_mm(out / "depth" / f"{pair.t_ns}.png", res.depth_m)
-                write_depth_grid(out / "depth" / f"{pair.t_ns}.png", grid)
-                if args.points:
-                    write_ply(out / "cloud" / f"{pair.t_ns}.ply", res.points_left, res.colors_rgb)
-                valid.append(float(np.isfinite(res.depth_m).mean()))
-                done += 1
-                bar.update(1)
-        finally:
-            bar.close()
+
+        def save(t_ns: int, res: Any) -> None:
+            write_depth_png_mm(out / "depth" / f"{t_ns}.png", res.depth_m)
+            write_depth_grid(out / "depth" / f"{t_ns}.png", grid)
+            if args.points:
+                write_ply(out / "cloud" / f"{t_ns}.ply", res.points_left, res.colors_rgb)
+
+        result = depth_session(
+            session, stereo, on_pair=save, name=str(args.session),
+            progress=lambda stage, total: progress_bar(total, stage, unit="pair",
+                                                       enabled=not args.json))
+    done = result.pairs
     summary = {
         "session": str(args.session),
         "output": str(out),
         "pairs": done,
-        "unpaired_left": match.unpaired_left,
-        "unpaired_right": match.unpaired_right,
-        "mean_valid_fraction": float(np.mean(valid)) if valid else 0.0,
-        "refractive": maps.refractive,
-        "max_disparity_px": max_d,
-        "depth_range_m": list(stereo.depth_range_m),
+        "unpaired_left": result.unpaired_left,
+        "unpaired_right": result.unpaired_right,
+        "mean_valid_fraction": result.mean_valid_fraction,
+        "refractive": result.refractive,
+        "max_disparity_px": result.max_disparity_px,
+        "depth_range_m": list(result.depth_range_m),
         "engine": args.engine,
     }
     if args.json:
@@ -277,7 +265,8 @@ def _cmd_depth_session(args: argparse.Namespace) -> int:
         print(
             f"{plural(done, 'pair')} -> {out}/depth/<t_ns>.png (uint16 mm, 0 invalid)"
             + (f" and {out}/cloud/<t_ns>.ply" if args.points else "")
-            + f"; {match.unpaired_left} left and {plural(match.unpaired_right, 'right frame')} "
+            + f"; {result.unpaired_left} left and "
+            f"{plural(result.unpaired_right, 'right frame')} "
             "unpaired"
         )
     return 0
@@ -430,7 +419,9 @@ def register(sub: Any) -> None:
         help="also write a coloured point cloud (.ply), left camera frame (with --session: a "
         "flag, one PLY per pair)",
     )
-    d.add_argument("--engine", choices=_ENGINES, default="sea3d", help="matching engine")
+    from sea3d.stereo.recipe import DepthConfig
+
+    config_option(d, DepthConfig, "engine", choices=_ENGINES, help="matching engine")
     d.add_argument(
         "--grid", choices=("rectified", "raw"), default="rectified",
         help="pixel grid of the depth file (one pair): rectified left view (default, as "

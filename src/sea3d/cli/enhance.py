@@ -14,7 +14,7 @@ import logging
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import add_depth_range
+from sea3d.cli._args import add_depth_range, config_option
 from sea3d.enhance.registry import METHODS
 
 __all__ = ["register", "register_eval"]
@@ -198,53 +198,15 @@ def _cmd_enhance(args: argparse.Namespace) -> int:
     return 0
 
 
-def _session_depth(rig: Any, args: argparse.Namespace) -> Any:
-    """A callable (left, right) -> (range_left, range_right) from our stereo depth."""
-    import numpy as np
-
-    from sea3d.cli._args import depth_config
-    from sea3d.enhance.seathru import range_from_points
-    from sea3d.stereo.recipe import StereoDepth
-
-    stereo = StereoDepth(rig, depth_config(args))
-    T_right_left = np.linalg.inv(rig.T_left_right)
-
-    def ranges(left: Any, right: Any) -> tuple[Any, Any]:
-        res = stereo.compute(left, right)
-        pts_l = res.points_left
-        pts_r = pts_l @ T_right_left[:3, :3].T + T_right_left[:3, 3]
-        return range_from_points(pts_l, rig.left), range_from_points(pts_r, rig.right)
-
-    return ranges
-
-
-def _session_water_model(session: Any, ranges: Any, most: int = 8) -> Any:
-    """One water model for the whole dive, fitted to up to ``most`` pairs spread over it (both
-    images, each with its own stereo range)."""
-    import numpy as np
-
-    from sea3d.enhance.water import fit_water_model
-
-    n = len(session.match_pairs())
-    pick = set(np.linspace(0, n - 1, min(n, most)).round().astype(int).tolist())
-    frames = []
-    for k, pair in enumerate(session.pairs()):
-        if k in pick:
-            rl, rr = ranges(pair.left, pair.right)
-            frames += [(pair.left, rl), (pair.right, rr)]
-    model = fit_water_model(frames)
-    _log.info("water model of the dive (%d frames): %s", len(frames), model.as_dict())
-    return model
-
-
 def _cmd_enhance_session(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
+    from sea3d.cli._args import depth_config
+    from sea3d.cli._progress import bar as progress_bar
     from sea3d.cli._progress import once_per_message
-    from sea3d.enhance.api import enhance_pair
     from sea3d.errors import EnhanceError
     from sea3d.io.rig_file import resolve_rig
     from sea3d.io.session import SessionWriter, layout_of, open_session
+    from sea3d.pipeline.enhance_session import SessionEnhancement
+    from sea3d.stereo.recipe import StereoDepth
 
     out_path = Path(args.output)
     if out_path.exists():
@@ -252,22 +214,17 @@ def _cmd_enhance_session(args: argparse.Namespace) -> int:
     params: dict[str, Any] = {}
     if args.method == "clahe":
         params["clip_limit"] = args.clip_limit
-    statuses: dict[str, int] = {}
     with open_session(args.session) as session:
-        ranges = None
-        cfg = None
-        water = None
+        stereo = cfg = None
         if args.method == "seathru":
             if args.rig is None and not session.rig_yaml:
                 raise EnhanceError(
                     f"{args.session} stores no rig; Sea-thru needs stereo depth: pass --rig"
                 )
-            ranges = _session_depth(resolve_rig(args.rig, session), args)
+            stereo = StereoDepth(resolve_rig(args.rig, session), depth_config(args))
             cfg = _seathru_config(args)
-            water = _session_water_model(session, ranges) if cfg is None else None
-        n_pairs = len(session.match_pairs())
-        if n_pairs == 0:
-            raise EnhanceError(f"{args.session}: no stereo pairs to enhance")
+        job = SessionEnhancement(session, args.method, stereo=stereo, seathru_config=cfg,
+                                 params=params, name=str(args.session))
         imu = session.imu()
         sonar = session.sonar()
         with SessionWriter(
@@ -278,29 +235,14 @@ def _cmd_enhance_session(args: argparse.Namespace) -> int:
             for k in range(len(sonar)):
                 writer.write_sonar(int(sonar.t_ns[k]), float(sonar.range_m[k]),
                                    float(sonar.confidence[k]))
-            bar = tqdm(total=n_pairs, unit="pair", desc=f"enhance {args.method}",
-                       disable=args.json or None)
-            try:
-                for pair in session.pairs():
-                    kw: dict[str, Any] = dict(params)
-                    if ranges is not None:
-                        rl, rr = ranges(pair.left, pair.right)
-                        kw.update(range_left_m=rl, range_right_m=rr, seathru_config=cfg,
-                                  water_model=water)
-                    try:
-                        res = enhance_pair(pair.left, pair.right, args.method, **kw)
-                        lo, ro, status = res.images[0], res.images[1], res.status
-                    except EnhanceError as err:
-                        # One bad frame (no depth, saturated) must not end the session: it is
-                        # copied unchanged and counted.
-                        _log.warning("frame %d kept unchanged: %s", pair.t_ns, err)
-                        lo, ro, status = pair.left, pair.right, "unchanged"
-                    statuses[status] = statuses.get(status, 0) + 1
-                    writer.write_image("left", pair.t_ns, lo)
-                    writer.write_image("right", pair.right_t_ns or pair.t_ns, ro)
-                    bar.update(1)
-            finally:
-                bar.close()
+
+            def save(pair: Any, left: Any, right: Any, status: str) -> None:
+                writer.write_image("left", pair.t_ns, left)
+                writer.write_image("right", pair.right_t_ns or pair.t_ns, right)
+
+            result = job.run(save, progress=lambda stage, total: progress_bar(
+                total, stage, unit="pair", enabled=not args.json))
+    statuses = result.status_counts
     summary = {
         "session": str(args.session),
         "output": str(out_path),
@@ -345,10 +287,12 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--focal-px", type=float, help="pinhole focal length for depth -> range (centred)"
     )
-    p.add_argument(
-        "--holes", choices=("inpaint", "mask"), default="inpaint",
-        help="pixels without depth: restore with inpainted range, or only white-balance them",
-    )
+    from sea3d.enhance.seathru import SeathruConfig
+    from sea3d.stereo.recipe import DepthConfig
+
+    config_option(p, SeathruConfig, "holes", choices=("inpaint", "mask"),
+                  help="pixels without depth: restore with inpainted range, or only "
+                  "white-balance them")
     p.add_argument(
         "--attenuation", choices=("water-model", "fit", "fit-scaled", "illuminant", "none"),
         default="water-model",
@@ -363,10 +307,8 @@ def register(sub: Any) -> None:
     p.add_argument("--clip-limit", type=float, default=2.0, help="CLAHE clip limit (default 2)")
     p.add_argument("--session", help="enhance every stereo pair of this session (MCAP or folder)")
     p.add_argument("--format", choices=("mcap", "folder"), help="output session layout")
-    p.add_argument(
-        "--engine", choices=("sea3d", "opencv"), default="sea3d",
-        help="session + seathru: stereo engine for the depth (default sea3d)",
-    )
+    config_option(p, DepthConfig, "engine", choices=("sea3d", "opencv"),
+                  help="session + seathru: stereo engine for the depth")
     add_depth_range(p, near="session + seathru: nearest depth",
                     far="session + seathru: farthest depth")
     p.add_argument("--json", action="store_true", help="print a JSON summary")

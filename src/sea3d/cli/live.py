@@ -15,14 +15,14 @@ __all__ = ["register"]
 def _cmd_live(args: argparse.Namespace) -> int:
     from sea3d.errors import ConfigError
     from sea3d.pipeline.live import LiveConfig, run_live_replay
-    from sea3d.pipeline.process import ProcessConfig
+    from sea3d.pipeline.process import PoseConfig, ProcessConfig
 
     if args.replay is None:
         raise ConfigError("give --replay SESSION (live cameras: sea3d record's listener hook "
                           "is not wired to live yet)")
     config = ProcessConfig(out_dir=args.output, rig_path=args.rig, size_px=args.size,
-                           poses_path=args.poses, max_frames=args.max_frames,
-                           use_imu=not args.no_imu, report=False)
+                           poses=PoseConfig(poses_path=args.poses, use_imu=not args.no_imu),
+                           max_frames=args.max_frames, report=False)
     summary, stats = run_live_replay(args.replay, config,
                                      LiveConfig(depth_in_flight=args.depth_in_flight),
                                      rate=args.rate)

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -53,8 +52,10 @@ def register(sub: Any) -> None:
     opt("normalize", choices=["imagenet", "unit"])
     opt("device", choices=["cpu", "cuda", "auto"])
     add_depth_range(p, near="stereo: nearest depth", far="stereo: farthest depth")
-    p.add_argument("--engine", default="sea3d", choices=["sea3d", "opencv", "sea3d-gpu"],
-                   help="stereo matching engine")
+    from sea3d.stereo.recipe import DepthConfig
+
+    config_option(p, DepthConfig, "engine", choices=["sea3d", "opencv", "sea3d-gpu"],
+                  help="stereo matching engine")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(handler=_cmd_mono_depth)
 
@@ -85,29 +86,16 @@ def _read_metric(path: Path) -> Any:
     return read_disparity(path)  # float metres: non-positive and non-finite are holes
 
 
-class _Stereo:
-    """Stereo depth of pairs with one rig (rectification maps and matcher built once)."""
+def _stereo(rig: Any, args: argparse.Namespace) -> Any:
+    """The stereo depth of ``rig`` with the command's depth flags."""
+    from sea3d.cli._args import depth_config
+    from sea3d.errors import MonoDepthError
+    from sea3d.stereo.recipe import StereoDepth
 
-    def __init__(self, rig: Any, args: argparse.Namespace) -> None:
-        from sea3d.cli._args import depth_config
-        from sea3d.errors import MonoDepthError
-        from sea3d.stereo.recipe import StereoDepth
-
-        lo, hi = args.min_depth, args.max_depth
-        if lo is not None and hi is not None and not 0 < lo < hi:
-            raise MonoDepthError(f"need 0 < --min-depth < --max-depth, got {lo} and {hi}")
-        self.rig = rig
-        self.stereo = StereoDepth(rig, depth_config(args))
-
-    def depth(self, left: Any, right: Any, where: str) -> tuple[Any, Any]:
-        from sea3d.errors import MonoDepthError
-
-        for name, img in (("left", left), ("right", right)):
-            if img.shape[:2] != (self.rig.height, self.rig.width):
-                raise MonoDepthError(f"{where}: {name} image is {img.shape[1]}x{img.shape[0]} "
-                                     f"but the rig is {self.rig.width}x{self.rig.height}")
-        res = self.stereo.compute(left, right)
-        return res.depth_m, res.rect_left
+    lo, hi = args.min_depth, args.max_depth
+    if lo is not None and hi is not None and not 0 < lo < hi:
+        raise MonoDepthError(f"need 0 < --min-depth < --max-depth, got {lo} and {hi}")
+    return StereoDepth(rig, depth_config(args))
 
 
 def _sfm_sparse(model_dir: Path, image_name: str, width: int, height: int) -> Any:
@@ -144,37 +132,6 @@ def _sfm_sparse(model_dir: Path, image_name: str, width: int, height: int) -> An
     return sparse_depth_from_points(pix, K, width, height)
 
 
-def _one(model: Any, view: Any, sparse: Any, kind: str, fill: bool) -> tuple[Any, dict[str, Any]]:
-    import numpy as np
-
-    from sea3d.monodepth import align_depth, fill_holes
-
-    pred, timings = model.predict(view)
-    info: dict[str, Any] = {"timings_s": timings}
-    if sparse is None:
-        info["alignment"] = None
-        return pred, info
-    if sparse.shape != pred.shape:
-        from sea3d.errors import MonoDepthError
-
-        raise MonoDepthError(f"the sparse depth is {sparse.shape[1]}x{sparse.shape[0]} but the "
-                             f"image is {pred.shape[1]}x{pred.shape[0]}")
-    t0 = time.perf_counter()
-    aligned, al = align_depth(pred, sparse, kind=kind)
-    info["alignment"] = {"status": al.status, "message": al.message, "scale": al.scale,
-                         "shift": al.shift, "samples": al.samples, "inliers": al.inliers,
-                         "median_rel_error": al.median_rel_error}
-    out = aligned
-    valid_sparse = float(np.mean(np.isfinite(sparse)))
-    if fill and al.status == "ok":
-        out, filled = fill_holes(sparse, aligned)
-        info["filled_fraction"] = float(filled.mean())
-    info["sparse_fraction"] = valid_sparse
-    info["valid_fraction"] = float(np.mean(np.isfinite(out)))
-    timings["align_s"] = time.perf_counter() - t0
-    return out, info
-
-
 def _write(path: Path, depth: Any, metric: bool) -> None:
     from sea3d.errors import MonoDepthError
     from sea3d.io.depth_files import write_depth
@@ -193,6 +150,8 @@ def _cmd_mono_depth(args: argparse.Namespace) -> int:
     from sea3d.errors import MonoDepthError
     from sea3d.io.rig_file import load_rig
     from sea3d.monodepth import MonoDepthConfig, OnnxDepthModel
+    from sea3d.monodepth.metric import predict_metric
+    from sea3d.pipeline.monodepth_session import stereo_sparse_depth
 
     model = OnnxDepthModel(args.model, MonoDepthConfig(output_kind=args.output_kind,
                                                        normalize=args.normalize,
@@ -212,8 +171,8 @@ def _cmd_mono_depth(args: argparse.Namespace) -> int:
         if args.align_depth or args.align_sfm:
             raise MonoDepthError("give one alignment source: --rig/--right, --align-depth or "
                                  "--align-sfm")
-        stereo = _Stereo(load_rig(args.rig), args)
-        sparse, view = stereo.depth(left, _read_rgb(Path(args.right)), str(src))
+        sparse, view = stereo_sparse_depth(_stereo(load_rig(args.rig), args), left,
+                                           _read_rgb(Path(args.right)), str(src))
         fill, frame = True, "rect_left"
     elif args.align_depth:
         sparse = _read_metric(Path(args.align_depth))
@@ -224,7 +183,8 @@ def _cmd_mono_depth(args: argparse.Namespace) -> int:
         fill = True
     elif args.align_sfm:
         sparse = _sfm_sparse(Path(args.align_sfm), src.name, left.shape[1], left.shape[0])
-    depth, info = _one(model, view, sparse, args.output_kind, fill)
+    got = predict_metric(model, view, sparse, kind=args.output_kind, fill=fill)
+    depth, info = got.depth, got.info
     if info.get("alignment") and info["alignment"]["status"] != "ok":
         raise MonoDepthError(f"{src}: {info['alignment']['message']}")
     metric = sparse is not None or args.output_kind == "metric"
@@ -242,19 +202,17 @@ def _cmd_mono_depth(args: argparse.Namespace) -> int:
 
 
 def _session(args: argparse.Namespace, model: Any, src: Path, out: Path) -> int:
-    import numpy as np
-    from tqdm import tqdm
-
+    from sea3d.cli._progress import bar
     from sea3d.errors import MonoDepthError
     from sea3d.io.depth_files import write_depth_png_mm
     from sea3d.io.rig_file import resolve_rig
     from sea3d.io.session import open_session
     from sea3d.io.sfm_files import write_summary
+    from sea3d.pipeline.monodepth_session import monodepth_session
 
     if args.align_depth or args.right:
         raise MonoDepthError(f"{src}: for a session give no --align-depth/--right: its right "
                              "camera (stereo) or --align-sfm aligns each frame")
-    frames: list[dict[str, Any]] = []
     with open_session(src) as reader:
         stereo = None
         if not args.align_sfm:
@@ -264,40 +222,27 @@ def _session(args: argparse.Namespace, model: Any, src: Path, out: Path) -> int:
             if reader.stamps("right").size == 0:
                 raise MonoDepthError(f"{src}: the session has no right camera images for "
                                      "stereo alignment; pass --align-sfm")
-            stereo = _Stereo(resolve_rig(args.rig, reader), args)
+            stereo = _stereo(resolve_rig(args.rig, reader), args)
         (out / "depth").mkdir(parents=True, exist_ok=True)
-        match = reader.match_pairs() if stereo is not None else None
-        stamps = reader.stamps("left")
-        todo = (list(zip(match.left_index, match.right_index, strict=True)) if match is not None
-                else [(i, None) for i in range(stamps.size)])
-        for li, ri in tqdm(todo, unit="frame", desc="mono-depth", disable=args.json or None):
-            t_ns = int(stamps[li])
-            left = reader.image("left", int(li), by="index")
-            where = f"{src} t_ns={t_ns}"
-            if stereo is not None:
-                sparse, view = stereo.depth(left, reader.image("right", int(ri), by="index"),
-                                            where)
-            else:
-                sparse = _sfm_sparse(Path(args.align_sfm), f"left/{t_ns}.png", left.shape[1],
-                                     left.shape[0])
-                view = left
-            depth, info = _one(model, view, sparse, args.output_kind, stereo is not None)
-            al = info["alignment"]
-            if al["status"] == "ok":
-                write_depth_png_mm(out / "depth" / f"{t_ns}.png", depth)
-            frames.append({"t_ns": t_ns, **info})
-    ok = [f for f in frames if f["alignment"]["status"] == "ok"]
+        result = monodepth_session(
+            reader, model, kind=args.output_kind, stereo=stereo,
+            sfm_sparse=None if stereo is not None else partial(_sfm_sparse,
+                                                               Path(args.align_sfm)),
+            on_frame=lambda t_ns, depth: write_depth_png_mm(out / "depth" / f"{t_ns}.png",
+                                                            depth),
+            progress=lambda stage, total: bar(total, stage, enabled=not args.json),
+            name=str(src))
+    frames = result.frames
     summary = {
         "input": str(src), "model": str(args.model), "output": str(out),
-        "output_kind": args.output_kind, "frames": len(frames), "aligned": len(ok),
-        "frame": "rect_left" if stereo is not None else "left",
-        "median_rel_error": float(np.median([f["alignment"]["median_rel_error"] for f in ok]))
-        if ok else None, "providers": model.providers, "per_frame": frames,
+        "output_kind": args.output_kind, "frames": len(frames), "aligned": result.aligned,
+        "frame": result.frame, "median_rel_error": result.median_rel_error,
+        "providers": model.providers, "per_frame": frames,
     }
     write_summary(out / "summary.json", summary)
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
-        print(f"{len(ok)}/{len(frames)} frames aligned -> {out}/depth/<t_ns>.png (uint16 mm, 0 "
-              f"invalid), {out}/summary.json")
+        print(f"{result.aligned}/{len(frames)} frames aligned -> {out}/depth/<t_ns>.png "
+              f"(uint16 mm, 0 invalid), {out}/summary.json")
     return 0

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import add_depth_range, image_size, plural
+from sea3d.cli._args import add_depth_range, config_option, image_size, plural
 
 __all__ = ["register", "register_eval"]
 
@@ -25,25 +25,29 @@ __all__ = ["register", "register_eval"]
 
 
 def _cmd_process(args: argparse.Namespace) -> int:
+    from sea3d.cli._args import depth_config
     from sea3d.enhance.registry import process_enhance_hook
-    from sea3d.pipeline.process import ProcessConfig, run_process
+    from sea3d.pipeline.process import (
+        ColourConfig,
+        ExecutorConfig,
+        MapConfig,
+        PoseConfig,
+        ProcessConfig,
+        run_process,
+    )
 
     config = ProcessConfig(
         out_dir=args.output,
         rig_path=args.rig,
         size_px=args.size,
-        voxel_m=args.voxel_m,
-        use_imu=not args.no_imu,
-        workers=args.workers,
-        scheduler=args.scheduler,
-        poses_path=args.poses,
-        engine=args.engine,
-        min_depth_m=args.min_depth,
-        max_depth_m=args.max_depth,
-        integrate=args.integrate,
+        depth=depth_config(args),
+        map=MapConfig(voxel_m=args.voxel_m, integrate=args.integrate),
+        poses=PoseConfig(use_imu=not args.no_imu, poses_path=args.poses),
+        colours=ColourConfig(
+            enhance=process_enhance_hook(args.enhance) if args.enhance else None,
+            restore_colours=args.restore_colours),
+        executor=ExecutorConfig(workers=args.workers, scheduler=args.scheduler),
         fresh=args.fresh,
-        enhance=process_enhance_hook(args.enhance) if args.enhance else None,
-        restore_colours=args.restore_colours,
         report=not args.no_report,
         max_frames=args.max_frames,
     )
@@ -332,8 +336,11 @@ def register(sub: Any) -> None:
     p.add_argument("--rig", type=Path, help="rig file (default: the rig stored with the session)")
     p.add_argument("--size", type=image_size, metavar="WxH",
                    help="process at this size (images resized, intrinsics scaled)")
-    p.add_argument("--voxel-m", type=float, default=0.02, metavar="V",
-                   help="TSDF voxel edge in metres (default 0.02)")
+    from sea3d.pipeline.config import ColourConfig, MapConfig
+    from sea3d.stereo.recipe import DepthConfig
+
+    config_option(p, MapConfig, "voxel_m", type=float, metavar="V",
+                  help="TSDF voxel edge in metres")
     p.add_argument("--no-imu", action="store_true", help="visual odometry only")
     ex = p.add_mutually_exclusive_group()
     ex.add_argument("--workers", type=int, metavar="N",
@@ -343,12 +350,12 @@ def register(sub: Any) -> None:
                     help="run the per-frame stage on this Dask scheduler's workers")
     p.add_argument("--poses", type=Path, metavar="TRAJ",
                    help="known T_world_left poses (TUM, KITTI or EuRoC CSV) instead of odometry")
-    p.add_argument("--engine", default="sea3d",
-                   choices=["sea3d", "sea3d-gpu", "opencv", "opencv-hh", "opencv-3way"],
-                   help="stereo matching engine (default sea3d)")
+    config_option(p, DepthConfig, "engine",
+                  choices=["sea3d", "sea3d-gpu", "opencv", "opencv-hh", "opencv-3way"],
+                  help="stereo matching engine")
     add_depth_range(p, near="nearest depth resolved", far="farthest depth fused")
-    p.add_argument("--integrate", choices=["trusted", "keyframes"], default="trusted",
-                   help="fuse every frame with a trusted pose (default) or keyframes only")
+    config_option(p, MapConfig, "integrate", choices=["trusted", "keyframes"],
+                  help="fuse every frame with a trusted pose or keyframes only")
     p.add_argument("--fresh", action="store_true",
                    help="discard cached per-frame results in OUT instead of resuming")
     p.add_argument("--enhance-method", "--enhance", dest="enhance", metavar="METHOD",
@@ -356,13 +363,13 @@ def register(sub: Any) -> None:
                         "none (default: measured best for stereo), grey-world, shades-of-grey, "
                         "red-comp, clahe, udcp, or a package.module:function (docs/enhance.md)"
                         "; --enhance is a deprecated alias, kept for one release")
-    p.add_argument("--restore-colors", "--restore-colours", dest="restore_colours",
-                   choices=["none", "seathru", "water-model"], default="none",
-                   help="colours of mesh and cloud, restored after depth with the stereo "
-                        "range: seathru (per-image Sea-thru in the per-frame stage) or "
-                        "water-model (one water model fitted to the dive's first 8 frames, "
-                        "every frame inverted with it); default none; --restore-colours is a "
-                        "deprecated alias, kept for one release")
+    config_option(p, ColourConfig, "restore_colours", "--restore-colors", "--restore-colours",
+                  choices=["none", "seathru", "water-model"],
+                  help="colours of mesh and cloud, restored after depth with the stereo "
+                  "range: seathru (per-image Sea-thru in the per-frame stage) or "
+                  "water-model (one water model fitted to the dive's first 8 frames, every "
+                  "frame inverted with it); --restore-colours is a deprecated alias, kept "
+                  "for one release")
     p.add_argument("--max-frames", type=int, metavar="N", help="only the first N pairs")
     p.add_argument("--no-report", action="store_true", help="skip report.html")
     p.add_argument("--json", action="store_true", help="print summary.json (no progress bars)")

@@ -178,8 +178,8 @@ def _cmd_sfm(args: argparse.Namespace) -> int:
     import contextlib
 
     import numpy as np
-    from tqdm import tqdm
 
+    from sea3d.cli._progress import bar as progress_bar
     from sea3d.errors import SfmError
     from sea3d.io.depth_files import write_ply
     from sea3d.io.rig_file import load_rig, rig_from_yaml
@@ -259,7 +259,7 @@ def _cmd_sfm(args: argparse.Namespace) -> int:
                 for b in bars.values():
                     b.close()
                 unit = {"prepare": "img", "extract": "img", "match": "pair"}.get(stage, "frame")
-                bar = bars[stage] = tqdm(total=total, desc=stage, unit=unit, leave=False)
+                bar = bars[stage] = progress_bar(total, stage, unit=unit)
             bar.n = done
             bar.refresh()
 

@@ -92,7 +92,7 @@ def enhance_image(
     _check_method(method)
     if method == "seathru":
         if range_m is None:
-            raise EnhanceError("seathru needs a range or depth map (--depth)")
+            raise EnhanceError("seathru needs a range or depth map (range_m)")
         if seathru_config is None:
             return _water([(image, range_m)], water_model)
         cfg = seathru_config or SeathruConfig()

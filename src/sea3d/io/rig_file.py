@@ -1102,5 +1102,5 @@ def resolve_rig(path: str | os.PathLike[str] | None, session: _StoresRig) -> Ste
         return load_rig(path)
     text = session.rig_yaml
     if not text:
-        raise SessionError(f"{session.path} stores no rig; pass --rig rig.yaml")
+        raise SessionError(f"{session.path} stores no rig; give a rig file")
     return rig_from_yaml(text, f"{session.path} (stored rig.yaml)")

@@ -110,10 +110,10 @@ def parse_topic_args(items: Sequence[str]) -> dict[str, str]:
         role, sep, topic = item.partition("=")
         role = role.strip()
         if not sep or not role:
-            raise SessionError(f"--topic expects ROLE=/topic, got {item!r}")
+            raise SessionError(f"a topic entry expects ROLE=/topic, got {item!r}")
         if role not in ROLES:
             raise SessionError(
-                f"unknown role {role!r} in --topic {item!r}; roles: {', '.join(ROLES)}"
+                f"unknown role {role!r} in topic entry {item!r}; roles: {', '.join(ROLES)}"
             )
         topic = topic.strip()
         if topic and not topic.startswith("/"):

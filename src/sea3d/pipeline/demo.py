@@ -120,11 +120,12 @@ def run_demo(
     """
     from sea3d.io.rig_file import rig_to_yaml
     from sea3d.io.session import SessionWriter
-    from sea3d.pipeline.process import ProcessConfig, run_process
+    from sea3d.pipeline.process import ExecutorConfig, MapConfig, ProcessConfig, run_process
     from sea3d.pipeline.report import write_process_report
     from sea3d.refraction.presets import paper_rig
     from sea3d.sim import builtin_scene, load_scene
     from sea3d.sim.survey import SurveyConfig, simulate_survey, with_survey_sensors
+    from sea3d.stereo.recipe import DepthConfig
 
     def step(msg: str) -> None:
         log.debug(msg)
@@ -177,8 +178,9 @@ def run_demo(
     t0 = time.perf_counter()
     result = run_process(
         session,
-        ProcessConfig(out_dir=out / "process", voxel_m=config.voxel_m, workers=config.workers,
-                      engine=config.engine, report=False, fresh=True),
+        ProcessConfig(out_dir=out / "process", map=MapConfig(voxel_m=config.voxel_m),
+                      executor=ExecutorConfig(workers=config.workers),
+                      depth=DepthConfig(engine=config.engine), report=False, fresh=True),
         progress=bars,
     )
     timings["process_s"] = time.perf_counter() - t0

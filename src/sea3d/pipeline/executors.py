@@ -127,7 +127,7 @@ class ProcessExecutor:
     def __init__(self, workers: int,
                  setup: tuple[Callable[..., Any], tuple[Any, ...]] | None = None) -> None:
         if workers < 1:
-            raise ConfigError(f"--workers must be >= 1 for a process pool, got {workers}")
+            raise ConfigError(f"workers must be >= 1 for a process pool, got {workers}")
         self.workers = workers
         threads = max(1, (os.cpu_count() or 1) // workers)
         self._pool = ProcessPoolExecutor(
@@ -230,7 +230,7 @@ def make_executor(
     """
     if scheduler is not None:
         if workers is not None:
-            raise ConfigError("give either --workers or --scheduler, not both")
+            raise ConfigError("give either workers or scheduler, not both")
         return DaskExecutor(scheduler)
     if workers is None:
         # One single-threaded worker per core (up to 8): the per-frame stage has serial

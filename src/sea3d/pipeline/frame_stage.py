@@ -79,7 +79,7 @@ class FrameStageConfig:
         if not isinstance(self.depth, DepthConfig):
             raise ConfigError(f"depth must be a DepthConfig, got {type(self.depth).__name__}")
         if self.size_px is not None and (self.size_px[0] < 32 or self.size_px[1] < 24):
-            raise ConfigError(f"--size must be at least 32x24, got {self.size_px}")
+            raise ConfigError(f"size_px must be at least 32x24, got {self.size_px}")
         if isinstance(self.enhance, str) and ":" not in self.enhance:
             raise ConfigError(f"enhance must be 'package.module:function', got {self.enhance!r}")
         if isinstance(self.enhance, str):

@@ -95,7 +95,7 @@ class ReplayFrames:
                  clock: Callable[[], float] = time.monotonic,
                  sleep: Callable[[float], Any] = time.sleep) -> None:
         if not rate > 0:
-            raise ConfigError(f"--rate must be > 0, got {rate}")
+            raise ConfigError(f"rate must be > 0, got {rate}")
         self.source, self.rate, self.clock, self.sleep = source, rate, clock, sleep
         self.stop_reason = ""
 
@@ -249,15 +249,15 @@ def run_live_replay(session_path: Any, config: Any, live: LiveConfig | None = No
         finally:
             executor.close()
     stages.finish_fusion()
-    rec = finish_reconstruction(stages, store, fusion_cfg.tsdf, tile_m=config.merge_tile_m,
-                                cloud_voxel_m=config.cloud_voxel_m or config.voxel_m / 2,
+    rec = finish_reconstruction(stages, store, fusion_cfg.tsdf, tile_m=config.map.merge_tile_m,
+                                cloud_voxel_m=config.map.cloud_voxel_m or config.map.voxel_m / 2,
                                 progress=_no_progress, timer=timer)
     files = write_process_outputs(out, t_ns=rec.t_ns, T_world_left=rec.T_world_left,
                                   rows=frame_rows(stages), mesh=rec.mesh, cloud=rec.cloud,
                                   rig=stereo.rig)
     summary = run_summary(stages, rec, session=str(path),
                           pairs_in_session=source.pairs_in_session, odometry=odometry_name,
-                          imu_used=imu_used, imu_note=imu_note, voxel_m=config.voxel_m)
+                          imu_used=imu_used, imu_note=imu_note, voxel_m=config.map.voxel_m)
     summary["live"] = {**stats.as_dict(), "rate": rate,
                        "depth_in_flight": (live or LiveConfig()).depth_in_flight}
     summary["timings_s"] = dict(timer.s)

@@ -40,7 +40,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, Protocol
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -48,16 +48,21 @@ from numpy.typing import NDArray
 from sea3d._typing import F64
 from sea3d.errors import ConfigError, SessionError
 from sea3d.odometry.types import Odometry, TrackingStatus
-from sea3d.pipeline.colour_stage import DiveColourConfig, DiveColours
+from sea3d.pipeline.colour_stage import DiveColours
+from sea3d.pipeline.config import ColourConfig, ExecutorConfig, MapConfig, PoseConfig
 from sea3d.pipeline.depth_scheduler import StageTimer
 from sea3d.pipeline.frame_stage import FrameStageConfig, install_geometry, stage_depth
 from sea3d.pipeline.lock import locks_out_dir
 from sea3d.pipeline.ordered import TRUSTED, OrderedStages
+from sea3d.pipeline.progress import ProgressFactory, no_progress
 from sea3d.recon.submaps import FusionConfig
-from sea3d.recon.tsdf import TsdfConfig
 from sea3d.stereo.recipe import DepthConfig
 
 __all__ = [
+    "ColourConfig",
+    "ExecutorConfig",
+    "MapConfig",
+    "PoseConfig",
     "ProcessConfig",
     "ProcessResult",
     "ProgressFactory",
@@ -69,33 +74,13 @@ log = logging.getLogger(__name__)
 
 
 
-class ProgressBar(Protocol):
-    """What the pipeline needs of a progress bar (tqdm has it)."""
-
-    def update(self, n: int = 1) -> Any: ...
-
-    def close(self) -> None: ...
-
-
-ProgressFactory = Callable[[str, int], ProgressBar]
-"""``factory(stage, total)`` makes one bar per stage; the CLI passes tqdm."""
-
-
-class _NoBar:
-    def update(self, n: int = 1) -> None:
-        return None
-
-    def close(self) -> None:
-        return None
-
-
-def _no_progress(stage: str, total: int) -> ProgressBar:
-    return _NoBar()
+_no_progress = no_progress
 
 
 @dataclass(frozen=True, kw_only=True)
 class ProcessConfig:
-    """Options of ``sea3d process`` (the CLI's flags map one to one)."""
+    """Options of ``sea3d process``: the run's own, then one nested config per stage (the
+    CLI's flags map one to one onto their fields)."""
 
     out_dir: Path
     """Output folder (created); also holds the cache that makes reruns resume."""
@@ -103,97 +88,52 @@ class ProcessConfig:
     """Rig file; None uses the rig stored with the session."""
     size_px: tuple[int, int] | None = None
     """Process at this ``(width, height)`` instead of the recorded size."""
-    voxel_m: float = 0.02
-    """TSDF voxel edge, metres."""
-    use_imu: bool = True
-    """Give the IMU to the odometry (``--no-imu``: visual only)."""
-    workers: int | None = None
-    """Local worker processes for the per-frame stage; None: one per core; 0: inline."""
-    scheduler: str | Any | None = None
-    """A Dask scheduler address (``tcp://HOST:PORT``) or ``distributed.Client``."""
-    poses_path: Path | None = None
-    """Known poses (TUM, KITTI or EuRoC CSV of ``T_world_left``) instead of odometry."""
-    engine: str = "sea3d"
-    """Stereo matching engine."""
-    min_depth_m: float | None = None
-    """Nearest depth resolved, metres; None: from the rig and the disparity range
-    (:mod:`sea3d.stereo.recipe`)."""
-    max_depth_m: float | None = None
-    """Farthest depth used (stereo and TSDF), metres; None: from the rig (the smallest useful
-    disparity, :mod:`sea3d.stereo.recipe`)."""
-    max_disparity_px: int | None = None
-    """Disparity range; None derives it from ``min_depth_m``, else from the image width."""
-    integrate: Literal["trusted", "keyframes"] = "trusted"
-    """Fuse every frame with a trusted pose, or keyframes only."""
-    keyframes_per_submap: int = 20
-    """Keyframes per TSDF submap."""
-    max_submap_blocks: int = 20_000
-    """Voxel blocks after which a submap is finished (bounds memory: 10 KB per block of 8^3
-    voxels)."""
-    in_flight: int | None = None
-    """Frames between reader and ordered stages at most; None: 2 per worker + 2."""
+    depth: DepthConfig = field(default_factory=DepthConfig)
+    """Stereo depth (engine, disparity and depth range; :class:`DepthConfig`)."""
+    map: MapConfig = field(default_factory=MapConfig)
+    """Fusion and merge (:class:`MapConfig`)."""
+    poses: PoseConfig = field(default_factory=PoseConfig)
+    """Odometry or known poses (:class:`PoseConfig`)."""
+    colours: ColourConfig = field(default_factory=ColourConfig)
+    """Enhancement and colour restoration (:class:`ColourConfig`)."""
+    executor: ExecutorConfig = field(default_factory=ExecutorConfig)
+    """Workers or a Dask scheduler (:class:`ExecutorConfig`)."""
     fresh: bool = False
     """Ignore (delete) cached per-frame results instead of resuming."""
-    enhance: Any = None
-    """Enhancement hook of the per-frame stage (see :class:`FrameStageConfig`)."""
-    restore_colours: Literal["none", "seathru", "water-model"] = "none"
-    """The output colours after depth: ``seathru``, the per-image Sea-thru in the per-frame
-    stage (see :class:`FrameStageConfig`); ``water-model``, one water model fitted to the
-    dive's first frames in the client and every frame restored with it
-    (:mod:`sea3d.pipeline.colour_stage`)."""
-    dive_colours: DiveColourConfig | None = None
-    """How ``water-model`` fits the dive's model (None: :class:`DiveColourConfig`'s
-    defaults)."""
-    cloud_voxel_m: float | None = None
-    """Voxel of cloud.ply's downsampling; None: half ``voxel_m``."""
-    merge_tile_m: float | None = 8.0
-    """Edge of the tiles the final merge works through (bounds its memory)."""
     evaluate: bool = True
     """Compare with the simulator's ground truth when the session has one."""
     report: bool = True
     """Write report.html."""
-    odometry_config: Any = None
-    """Passed to ``create_odometry``."""
     max_frames: int | None = None
     """Process only the first N stereo pairs."""
 
     def frame_stage(self, rig: Any) -> FrameStageConfig:
         """The per-frame stage's configuration for ``rig`` (at the recorded size; threads per
         worker: the cores shared among the local workers; a Dask worker keeps its own)."""
-        n_local = self.workers if self.workers is not None else min(os.cpu_count() or 1, 8)
+        ex = self.executor
+        n_local = ex.workers if ex.workers is not None else min(os.cpu_count() or 1, 8)
         return FrameStageConfig(
-            rig=rig, size_px=self.size_px,
-            depth=DepthConfig(engine=self.engine, max_disparity_px=self.max_disparity_px,
-                              min_depth_m=self.min_depth_m, max_depth_m=self.max_depth_m),
-            enhance=self.enhance,
+            rig=rig, size_px=self.size_px, depth=self.depth,
+            enhance=self.colours.enhance,
             # The dive's water model restores in the client, after the fit: the per-frame
             # stage (and its cache) stays as without restoration.
-            restore_colours="seathru" if self.restore_colours == "seathru" else "none",
+            restore_colours=("seathru" if self.colours.restore_colours == "seathru"
+                             else "none"),
             threads=max(1, (os.cpu_count() or 1) // max(1, n_local))
-            if self.scheduler is None else None)
+            if ex.scheduler is None else None)
 
     def fusion(self, depth_range_m: tuple[float, float]) -> FusionConfig:
-        """The fusion stage's configuration (its TSDF over the stereo depth's range)."""
-        return FusionConfig(tsdf=TsdfConfig(voxel_m=self.voxel_m, depth_min_m=depth_range_m[0],
-                                            depth_max_m=depth_range_m[1]),
-                            integrate=self.integrate,
-                            keyframes_per_submap=self.keyframes_per_submap,
-                            max_blocks=self.max_submap_blocks)
+        """The fusion stage's configuration (:meth:`MapConfig.fusion`)."""
+        return self.map.fusion(depth_range_m)
 
     def __post_init__(self) -> None:
-        if not self.voxel_m > 0:
-            raise ConfigError(f"--voxel-m must be > 0, got {self.voxel_m}")
-        if self.workers is not None and self.scheduler is not None:
-            raise ConfigError("give either --workers or --scheduler, not both")
-        if self.workers is not None and self.workers < 0:
-            raise ConfigError(f"--workers must be >= 0, got {self.workers}")
-        if self.in_flight is not None and self.in_flight < 1:
-            raise ConfigError(f"in_flight must be >= 1, got {self.in_flight}")
-        if self.restore_colours not in ("none", "seathru", "water-model"):
-            raise ConfigError(f"--restore-colours must be none, seathru or water-model, got "
-                              f"{self.restore_colours!r}")
+        for name, cls in (("depth", DepthConfig), ("map", MapConfig), ("poses", PoseConfig),
+                          ("colours", ColourConfig), ("executor", ExecutorConfig)):
+            if not isinstance(getattr(self, name), cls):
+                raise ConfigError(f"{name} must be a {cls.__name__}, got "
+                                  f"{type(getattr(self, name)).__name__}")
         if self.max_frames is not None and self.max_frames < 1:
-            raise ConfigError(f"--max-frames must be >= 1, got {self.max_frames}")
+            raise ConfigError(f"max_frames must be >= 1, got {self.max_frames}")
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -278,7 +218,7 @@ def _frame_cache(out: Path, stage: FrameStageConfig, session_path: Path, fresh: 
         cache.clear()
     if not cache.check_fingerprint():
         raise ConfigError(f"{out} holds cached results of another configuration or session; "
-                          "use another -o, or --fresh to discard them")
+                          "use another output folder, or fresh to discard them")
     return cache
 
 
@@ -296,14 +236,14 @@ def _odometry(config: ProcessConfig, stereo: Any, source: Any,
     from sea3d.pipeline.odometry import imu_clock_check
 
     has_imu = len(source.imu) > 0
-    use_imu = config.use_imu and has_imu
+    use_imu = config.poses.use_imu and has_imu
     note: str | None = None
-    if config.use_imu and not has_imu:
+    if config.poses.use_imu and not has_imu:
         log.warning("%s has no IMU samples: the odometry runs visual-only", source.path)
     elif use_imu:
         rig = stereo.rig
         offset_s = rig.imu.time_offset_s if rig.imu is not None else 0.0
-        tol_s = getattr(config.odometry_config, "imu_max_clock_offset_s", 1.0)
+        tol_s = getattr(config.poses.odometry_config, "imu_max_clock_offset_s", 1.0)
         note = imu_clock_check(np.array([p.t_ns for p in source.pairs], np.int64),
                                np.asarray(source.imu.t_ns, np.int64), offset_s,
                                tolerance_s=tol_s)
@@ -313,9 +253,9 @@ def _odometry(config: ProcessConfig, stereo: Any, source: Any,
     if factory is not None:
         odo = factory(stereo.rig, stereo.maps)
         return odo, str(getattr(odo, "name", type(odo).__name__)), use_imu, note
-    poses = read_trajectory(config.poses_path) if config.poses_path else None
+    poses = read_trajectory(config.poses.poses_path) if config.poses.poses_path else None
     odo, name = make_odometry(stereo.rig, stereo.maps, use_imu=use_imu, poses=poses,
-                              config=config.odometry_config)
+                              config=config.poses.odometry_config)
     disabled = getattr(odo, "imu_disabled_reason", None)
     return odo, name, use_imu and poses is None and disabled is None, note or disabled
 
@@ -370,7 +310,7 @@ def run_process(
         t0 = time.perf_counter()
         stereo = stage_depth(stage_cfg)
         timer.add("rectify_maps_s", time.perf_counter() - t0)
-        executor = make_executor(config.workers, config.scheduler,
+        executor = make_executor(config.executor.workers, config.executor.scheduler,
                                  setup=(install_geometry, (stage_cfg, stereo)))
         try:
             odo, odometry_name, imu_used, imu_note = _odometry(config, stereo, source,
@@ -381,12 +321,12 @@ def run_process(
             store.clear()
             stages = OrderedStages(odo, SubmapFusion(fusion_cfg), store, stereo.maps,
                                    use_imu=imu_used, timer=timer)
-            window = config.in_flight or 2 * max(1, executor.workers) + 2
+            window = config.executor.in_flight or 2 * max(1, executor.workers) + 2
             bars = [bar(name, len(source)) for name in ("depth", "odometry", "fusion")]
             depth = DepthScheduler(source, executor, stage_cfg, executor.share(stereo), cache,
                                    window=window, timer=timer, on_depth=bars[0].update)
-            colours = (DiveColours(stereo.maps, config.dive_colours)
-                       if config.restore_colours == "water-model" else None)
+            colours = (DiveColours(stereo.maps, config.colours.dive_colours)
+                       if config.colours.restore_colours == "water-model" else None)
             t_loop, t_prev = time.perf_counter(), None
 
             def step(res: Any) -> None:
@@ -434,8 +374,8 @@ def _finish(session_path: Path, out: Path, config: ProcessConfig, stages: Ordere
     from sea3d.pipeline.groundtruth import evaluate_against_ground_truth
 
     maps = stereo.maps
-    rec = finish_reconstruction(stages, store, fusion_cfg.tsdf, tile_m=config.merge_tile_m,
-                                cloud_voxel_m=config.cloud_voxel_m or config.voxel_m / 2,
+    rec = finish_reconstruction(stages, store, fusion_cfg.tsdf, tile_m=config.map.merge_tile_m,
+                                cloud_voxel_m=config.map.cloud_voxel_m or config.map.voxel_m / 2,
                                 progress=bar, timer=timer)
     tw = time.perf_counter()
     files = write_process_outputs(out, t_ns=rec.t_ns, T_world_left=rec.T_world_left,
@@ -450,15 +390,15 @@ def _finish(session_path: Path, out: Path, config: ProcessConfig, stages: Ordere
         image_size_px=[int(maps.width), int(maps.height)], refractive=bool(maps.refractive),
         depth_range_m=list(stereo.depth_range_m), max_disparity_px=stereo.max_disparity_px,
         virtual_pinhole_rms_px=(maps.report_left.rms_px if maps.report_left else 0.0),
-        voxel_m=config.voxel_m, integrate=config.integrate)
-    summary["colours"] = {"enhance": str(config.enhance or "none"),
-                          "restore": config.restore_colours,
+        voxel_m=config.map.voxel_m, integrate=config.map.integrate)
+    summary["colours"] = {"enhance": str(config.colours.enhance or "none"),
+                          "restore": config.colours.restore_colours,
                           "restore_status": stages.colour_status,
                           "per_frame": stages.colour_frames}
     if colours is not None:
         summary["colours"]["water_model"] = colours.summary()
     computed = len(stages.estimates) - depth.from_cache
-    if config.restore_colours != "none":
+    if config.colours.restore_colours != "none":
         summary["colours"]["per_frame_s"] = _per_frame_costs(
             stages.worker_timings_s, computed,
             len(stages.estimates) if colours is not None else computed)

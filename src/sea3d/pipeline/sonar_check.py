@@ -71,7 +71,7 @@ def sonar_mount(rig: StereoRig, gt: GroundTruth | None) -> tuple[np.ndarray, flo
         return invert_T(T_body_left) @ T_body_sonar, 0.0, f"{sim} (T_body_left, T_body_sonar)"
     raise SessionError(
         "the rig has no sonar: block (T_left_sonar) and there is no simulator gt/sim.json; "
-        "add the echosounder's mount to rig.yaml and pass --rig"
+        "add the echosounder's mount to rig.yaml and pass that rig"
     )
 
 

@@ -68,7 +68,7 @@ def convert_session(
     def damaged(message: str, records: int = 1) -> None:
         nonlocal skipped
         if strict:
-            raise SessionError(f"{message}; refusing to convert a damaged session (--strict)")
+            raise SessionError(f"{message}; refusing to convert a damaged session (strict)")
         problems.append(message)
         skipped += records
 
@@ -79,7 +79,7 @@ def convert_session(
                 check()
             if reader.problems:
                 raise SessionError(
-                    f"{reader.problems[0]}; refusing to convert a damaged session (--strict)"
+                    f"{reader.problems[0]}; refusing to convert a damaged session (strict)"
                 )
         try:
             rig_yaml = reader.rig_yaml
@@ -133,7 +133,7 @@ def convert_session(
                         problems.append(msg)
                 if strict and reader.problems:
                     raise SessionError(
-                        f"{reader.problems[0]}; refusing to convert a damaged session (--strict)"
+                        f"{reader.problems[0]}; refusing to convert a damaged session (strict)"
                     )
         except SessionWriteError:
             raise

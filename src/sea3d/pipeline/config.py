@@ -1,0 +1,103 @@
+"""The nested parts of :class:`~sea3d.pipeline.process.ProcessConfig`, one per stage: light to
+import, so that the CLI takes its option defaults from them (each default written once)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal
+
+from sea3d.errors import ConfigError
+
+if TYPE_CHECKING:
+    from sea3d.pipeline.colour_stage import DiveColourConfig
+    from sea3d.recon.submaps import FusionConfig
+
+__all__ = ["ColourConfig", "ExecutorConfig", "MapConfig", "PoseConfig"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class MapConfig:
+    """How the depth maps become a map: fusion into TSDF submaps, then the merge."""
+
+    voxel_m: float = 0.02
+    """TSDF voxel edge, metres."""
+    integrate: Literal["trusted", "keyframes"] = "trusted"
+    """Fuse every frame with a trusted pose, or keyframes only."""
+    keyframes_per_submap: int = 20
+    """Keyframes per TSDF submap."""
+    max_submap_blocks: int = 20_000
+    """Voxel blocks after which a submap is finished (bounds memory: 10 KB per block of 8^3
+    voxels)."""
+    cloud_voxel_m: float | None = None
+    """Voxel of cloud.ply's downsampling; None: half ``voxel_m``."""
+    merge_tile_m: float | None = 8.0
+    """Edge of the tiles the final merge works through (bounds its memory)."""
+
+    def __post_init__(self) -> None:
+        if not self.voxel_m > 0:
+            raise ConfigError(f"voxel_m must be > 0, got {self.voxel_m}")
+
+    def fusion(self, depth_range_m: tuple[float, float]) -> FusionConfig:
+        """The fusion stage's configuration (its TSDF over the stereo depth's range)."""
+        from sea3d.recon.submaps import FusionConfig
+        from sea3d.recon.tsdf import TsdfConfig
+
+        return FusionConfig(tsdf=TsdfConfig(voxel_m=self.voxel_m, depth_min_m=depth_range_m[0],
+                                            depth_max_m=depth_range_m[1]),
+                            integrate=self.integrate,
+                            keyframes_per_submap=self.keyframes_per_submap,
+                            max_blocks=self.max_submap_blocks)
+
+
+@dataclass(frozen=True, kw_only=True)
+class PoseConfig:
+    """Where the poses come from: odometry (with or without the IMU), or a known trajectory."""
+
+    use_imu: bool = True
+    """Give the IMU to the odometry (``--no-imu``: visual only)."""
+    poses_path: Path | None = None
+    """Known poses (TUM, KITTI or EuRoC CSV of ``T_world_left``) instead of odometry."""
+    odometry_config: Any = None
+    """Passed to ``create_odometry``."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class ColourConfig:
+    """The colours of the images matched and of the mesh."""
+
+    enhance: Any = None
+    """Enhancement hook of the per-frame stage (see :class:`FrameStageConfig`)."""
+    restore_colours: Literal["none", "seathru", "water-model"] = "none"
+    """The output colours after depth: ``seathru``, the per-image Sea-thru in the per-frame
+    stage (see :class:`FrameStageConfig`); ``water-model``, one water model fitted to the
+    dive's first frames in the client and every frame restored with it
+    (:mod:`sea3d.pipeline.colour_stage`)."""
+    dive_colours: DiveColourConfig | None = None
+    """How ``water-model`` fits the dive's model (None: :class:`DiveColourConfig`'s
+    defaults)."""
+
+    def __post_init__(self) -> None:
+        if self.restore_colours not in ("none", "seathru", "water-model"):
+            raise ConfigError(f"restore_colours must be none, seathru or water-model, got "
+                              f"{self.restore_colours!r}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class ExecutorConfig:
+    """Where the per-frame stage runs."""
+
+    workers: int | None = None
+    """Local worker processes for the per-frame stage; None: one per core; 0: inline."""
+    scheduler: str | Any | None = None
+    """A Dask scheduler address (``tcp://HOST:PORT``) or ``distributed.Client``."""
+    in_flight: int | None = None
+    """Frames between reader and ordered stages at most; None: 2 per worker + 2."""
+
+    def __post_init__(self) -> None:
+        if self.workers is not None and self.scheduler is not None:
+            raise ConfigError("give either workers or scheduler, not both")
+        if self.workers is not None and self.workers < 0:
+            raise ConfigError(f"workers must be >= 0, got {self.workers}")
+        if self.in_flight is not None and self.in_flight < 1:
+            raise ConfigError(f"in_flight must be >= 1, got {self.in_flight}")
