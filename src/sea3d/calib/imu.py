@@ -203,6 +203,144 @@ def _advice(status: CameraImuStatus, *, duration_s: float, axis_rms: F64, direct
     return out
 
 
+def _usable_rates(
+    t_cam: NDArray[np.int64],
+    R: F64,
+    keep: NDArray[np.bool_],
+    t_imu_s: F64,
+    max_offset_s: float,
+) -> tuple[F64, F64, F64]:
+    """Camera rates from trusted frame pairs whose gyro window stays inside the IMU's span.
+
+    Returns ``(t_mid_s, w_cam_radps, half_s)``: (K,) mid times, (K, 3) rates, (K,) half-gaps.
+    """
+    t_mid, w_cam = angular_velocity(t_cam, R)
+    pair_ok = keep[:-1] & keep[1:] & np.isfinite(w_cam).all(axis=1)
+    half = np.diff(t_cam) * 0.5e-9
+    t_mid, w_cam, half = t_mid[pair_ok], w_cam[pair_ok], half[pair_ok]
+    # camera rates whose gyro window stays inside the IMU's span at every offset searched
+    inside = (t_mid - half - max_offset_s >= t_imu_s[0]) & (
+        t_mid + half + max_offset_s <= t_imu_s[-1]
+    )
+    return t_mid[inside], w_cam[inside], half[inside]
+
+
+def _with_advice(
+    res: CameraImuCalibration,
+    t_mid: F64,
+    w_cam: F64,
+    *,
+    max_offset_s: float,
+    max_rotation_sigma_deg: float,
+) -> CameraImuCalibration:
+    """``res`` with the data's duration, per-axis rate RMS and the advice for its status."""
+    dur = float(t_mid[-1] - t_mid[0]) if t_mid.size > 1 else 0.0
+    rms = (np.sqrt(np.mean((w_cam - w_cam.mean(axis=0)) ** 2, axis=0)) if t_mid.size
+           else np.zeros(3))
+    pr, dirs = np.zeros(3), np.eye(3)
+    if t_mid.size >= 3:
+        wc = w_cam - w_cam.mean(axis=0)
+        _, sv_, dirs = np.linalg.svd(wc, full_matrices=False)
+        pr = sv_ / np.sqrt(wc.shape[0])
+    adv = _advice(res.status, duration_s=dur, axis_rms=pr, directions=dirs,
+                  rot_sigma_deg=res.rotation_sigma_deg, max_sigma_deg=max_rotation_sigma_deg,
+                  samples=int(t_mid.size), correlation=res.correlation,
+                  max_offset_s=max_offset_s)
+    return dataclasses.replace(res, duration_s=dur, axis_rate_rms_radps=rms, advice=adv)
+
+
+def _offset_from_speeds(
+    speed_cam: F64, t_mid: F64, half: F64, t_imu_s: F64, g: F64, max_offset_s: float
+) -> tuple[float, float]:
+    """Step 1: the offset that best correlates camera and gyro speeds.
+
+    Returns ``(offset_s, correlation)``: the peak, refined by a parabola through its
+    neighbours, and the correlation at the sampled peak.
+    """
+    step = float(np.median(np.diff(t_imu_s)))
+    offsets = np.arange(-max_offset_s, max_offset_s + step / 2, step / 2)
+    corr = np.empty(offsets.size)
+    a = speed_cam - speed_cam.mean()
+    for i, dt in enumerate(offsets):
+        s = np.linalg.norm(_box_average(t_mid + dt, half, t_imu_s, g), axis=1)
+        b = s - s.mean()
+        den = float(np.sqrt((a @ a) * (b @ b)))
+        corr[i] = float(a @ b) / den if den > 0 else 0.0
+    best = int(np.argmax(corr))
+    dt0 = float(offsets[best])
+    if 0 < best < offsets.size - 1:
+        y0, y1, y2 = corr[best - 1], corr[best], corr[best + 1]
+        den = y0 - 2 * y1 + y2
+        if den < 0:
+            dt0 += 0.5 * (y0 - y2) / den * (offsets[1] - offsets[0])
+    return dt0, float(corr[best])
+
+
+def _closed_form_rotation(
+    w_cam: F64, w_imu: F64, R_cam_imu_guess: F64 | None
+) -> tuple[F64, F64, F64]:
+    """Step 2: rotation in closed form on mean-free rates (the bias drops out).
+
+    Returns ``(R0, bias0_radps, excitation_radps)``.
+    """
+    A = w_imu - w_imu.mean(axis=0)
+    Bc = w_cam - w_cam.mean(axis=0)
+    sv = np.linalg.svd(Bc, compute_uv=False) / np.sqrt(Bc.shape[0])
+    if R_cam_imu_guess is not None:
+        R0 = np.asarray(R_cam_imu_guess, dtype=np.float64)
+    else:
+        U, _, Vt = np.linalg.svd(Bc.T @ A)
+        D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+        R0 = U @ D @ Vt
+    b0 = w_imu.mean(axis=0) - R0.T @ w_cam.mean(axis=0)
+    return R0, b0, sv
+
+
+def _refine_jointly(
+    R0: F64,
+    dt0: float,
+    b0: F64,
+    speed_cam: F64,
+    t_mid: F64,
+    w_cam: F64,
+    half: F64,
+    t_imu_s: F64,
+    g: F64,
+) -> tuple[F64, F64, float, F64]:
+    """Step 3: joint robust refinement of rotation, offset and bias.
+
+    Returns ``(R_cam_imu, x, residual_rms_radps, sigmas)``: ``x`` is (7,) rotation vector
+    (about ``R0``), offset (s) and bias (rad/s); ``sigmas`` their (7,) standard deviations
+    from the Gauss-Newton covariance at the solution.
+    """
+    from scipy.optimize import least_squares
+    from scipy.spatial.transform import Rotation
+
+    scale = max(float(np.median(speed_cam)), 1e-3)
+
+    def residual(x: F64) -> F64:
+        Rx = Rotation.from_rotvec(x[:3]).as_matrix() @ R0
+        wi = _box_average(t_mid + x[3], half, t_imu_s, g)
+        return ((wi - x[4:7]) @ Rx.T - w_cam).ravel()
+
+    x0 = np.r_[np.zeros(3), dt0, b0]
+    sol = least_squares(residual, x0, loss="soft_l1", f_scale=0.1 * scale, x_scale="jac")
+    x = sol.x
+    R_final = Rotation.from_rotvec(x[:3]).as_matrix() @ R0
+    res = residual(x).reshape(-1, 3)
+    rms = float(np.sqrt(np.mean(np.sum(res**2, axis=1))))
+    # standard deviations from the Gauss-Newton covariance at the solution
+    J = sol.jac
+    dof = max(J.shape[0] - J.shape[1], 1)
+    s2 = float(np.sum(sol.fun**2)) / dof
+    try:
+        cov = np.linalg.inv(J.T @ J) * s2
+        sig = np.sqrt(np.clip(np.diag(cov), 0, None))
+    except np.linalg.LinAlgError:
+        sig = np.full(7, np.inf)
+    return np.asarray(R_final), x, rms, sig
+
+
 def estimate_camera_imu(
     t_cam_ns: NDArray[np.int64],
     R_world_cam: F64,
@@ -233,9 +371,6 @@ def estimate_camera_imu(
     Raises:
         CalibrationError: arrays of the wrong shape.
     """
-    from scipy.optimize import least_squares
-    from scipy.spatial.transform import Rotation
-
     t_cam = np.asarray(t_cam_ns, dtype=np.int64)
     R = np.asarray(R_world_cam, dtype=np.float64)
     ti = np.asarray(imu_t_ns, dtype=np.int64)
@@ -260,107 +395,41 @@ def estimate_camera_imu(
         keep = np.asarray(valid, dtype=bool)
     else:
         keep = np.ones(t_cam.size, dtype=bool)
-    t_mid, w_cam = angular_velocity(t_cam, R)
-    pair_ok = keep[:-1] & keep[1:] & np.isfinite(w_cam).all(axis=1)
-    half = np.diff(t_cam) * 0.5e-9
     t_imu_s = np.asarray(ti * 1e-9, dtype=np.float64)
-    t_mid, w_cam, half = t_mid[pair_ok], w_cam[pair_ok], half[pair_ok]
-    # camera rates whose gyro window stays inside the IMU's span at every offset searched
-    inside = (t_mid - half - max_offset_s >= t_imu_s[0]) & (
-        t_mid + half + max_offset_s <= t_imu_s[-1]
-    )
-    t_mid, w_cam, half = t_mid[inside], w_cam[inside], half[inside]
+    t_mid, w_cam, half = _usable_rates(t_cam, R, keep, t_imu_s, max_offset_s)
+
     def finish(res: CameraImuCalibration) -> CameraImuCalibration:
-        dur = float(t_mid[-1] - t_mid[0]) if t_mid.size > 1 else 0.0
-        rms = (np.sqrt(np.mean((w_cam - w_cam.mean(axis=0)) ** 2, axis=0)) if t_mid.size
-               else np.zeros(3))
-        pr, dirs = np.zeros(3), np.eye(3)
-        if t_mid.size >= 3:
-            wc = w_cam - w_cam.mean(axis=0)
-            _, sv_, dirs = np.linalg.svd(wc, full_matrices=False)
-            pr = sv_ / np.sqrt(wc.shape[0])
-        adv = _advice(res.status, duration_s=dur, axis_rms=pr, directions=dirs,
-                      rot_sigma_deg=res.rotation_sigma_deg, max_sigma_deg=max_rotation_sigma_deg,
-                      samples=int(t_mid.size), correlation=res.correlation,
-                      max_offset_s=max_offset_s)
-        return dataclasses.replace(res, duration_s=dur, axis_rate_rms_radps=rms, advice=adv)
+        return _with_advice(res, t_mid, w_cam, max_offset_s=max_offset_s,
+                            max_rotation_sigma_deg=max_rotation_sigma_deg)
 
     if t_mid.size < 20:
         return finish(empty)
-    # 1. offset from the speeds
     speed_cam = np.linalg.norm(w_cam, axis=1)
-    step = float(np.median(np.diff(t_imu_s)))
-    offsets = np.arange(-max_offset_s, max_offset_s + step / 2, step / 2)
-    corr = np.empty(offsets.size)
-    a = speed_cam - speed_cam.mean()
-    for i, dt in enumerate(offsets):
-        s = np.linalg.norm(_box_average(t_mid + dt, half, t_imu_s, g), axis=1)
-        b = s - s.mean()
-        den = float(np.sqrt((a @ a) * (b @ b)))
-        corr[i] = float(a @ b) / den if den > 0 else 0.0
-    best = int(np.argmax(corr))
-    dt0 = float(offsets[best])
-    if 0 < best < offsets.size - 1:
-        y0, y1, y2 = corr[best - 1], corr[best], corr[best + 1]
-        den = y0 - 2 * y1 + y2
-        if den < 0:
-            dt0 += 0.5 * (y0 - y2) / den * (offsets[1] - offsets[0])
-    if corr[best] < 0.5:
+    dt0, correlation = _offset_from_speeds(speed_cam, t_mid, half, t_imu_s, g, max_offset_s)
+    if correlation < 0.5:
         return finish(CameraImuCalibration(
             status=CameraImuStatus.NO_MATCH,
             R_cam_imu=eye,
             time_offset_s=dt0,
             gyro_bias_radps=np.zeros(3),
             residual_rms_radps=float("nan"),
-            correlation=float(corr[best]),
+            correlation=correlation,
             samples=int(t_mid.size),
             excitation_radps=np.zeros(3),
         ))
-    # 2. rotation in closed form on mean-free rates (the bias drops out)
     w_imu = _box_average(t_mid + dt0, half, t_imu_s, g)
-    A = w_imu - w_imu.mean(axis=0)
-    Bc = w_cam - w_cam.mean(axis=0)
-    sv = np.linalg.svd(Bc, compute_uv=False) / np.sqrt(Bc.shape[0])
-    if R_cam_imu_guess is not None:
-        R0 = np.asarray(R_cam_imu_guess, dtype=np.float64)
-    else:
-        U, _, Vt = np.linalg.svd(Bc.T @ A)
-        D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-        R0 = U @ D @ Vt
-    b0 = w_imu.mean(axis=0) - R0.T @ w_cam.mean(axis=0)
-    # 3. joint robust refinement
-    scale = max(float(np.median(speed_cam)), 1e-3)
-
-    def residual(x: F64) -> F64:
-        Rx = Rotation.from_rotvec(x[:3]).as_matrix() @ R0
-        wi = _box_average(t_mid + x[3], half, t_imu_s, g)
-        return ((wi - x[4:7]) @ Rx.T - w_cam).ravel()
-
-    x0 = np.r_[np.zeros(3), dt0, b0]
-    sol = least_squares(residual, x0, loss="soft_l1", f_scale=0.1 * scale, x_scale="jac")
-    x = sol.x
-    R_final = Rotation.from_rotvec(x[:3]).as_matrix() @ R0
-    res = residual(x).reshape(-1, 3)
-    rms = float(np.sqrt(np.mean(np.sum(res**2, axis=1))))
-    # standard deviations from the Gauss-Newton covariance at the solution
-    J = sol.jac
-    dof = max(J.shape[0] - J.shape[1], 1)
-    s2 = float(np.sum(sol.fun**2)) / dof
-    try:
-        cov = np.linalg.inv(J.T @ J) * s2
-        sig = np.sqrt(np.clip(np.diag(cov), 0, None))
-    except np.linalg.LinAlgError:
-        sig = np.full(7, np.inf)
+    R0, b0, sv = _closed_form_rotation(w_cam, w_imu, R_cam_imu_guess)
+    R_final, x, rms, sig = _refine_jointly(R0, dt0, b0, speed_cam, t_mid, w_cam, half, t_imu_s, g)
     rot_sigma_deg = float(np.degrees(np.max(sig[:3])))
     weak = bool(rot_sigma_deg > max_rotation_sigma_deg)
     status = CameraImuStatus.WEAK_EXCITATION if weak else CameraImuStatus.OK
     return finish(CameraImuCalibration(
         status=status,
-        R_cam_imu=np.asarray(R_final),
+        R_cam_imu=R_final,
         time_offset_s=float(x[3]),
         gyro_bias_radps=np.asarray(x[4:7]),
         residual_rms_radps=rms,
-        correlation=float(corr[best]),
+        correlation=correlation,
         samples=int(t_mid.size),
         excitation_radps=sv,
         rotation_sigma_deg=rot_sigma_deg,

@@ -666,6 +666,115 @@ def _robust_threshold(errors: FloatArray, cfg: StereoCalibConfig) -> tuple[float
     return max(med + cfg.mad_k * mad, cfg.min_ratio * med, cfg.min_reject_px), med, mad
 
 
+def _pair_image_size(left: Sequence[Detection], right: Sequence[Detection]) -> tuple[int, int]:
+    """The one image size of all left and right images.
+
+    Raises:
+        CalibrationError: left and right counts differ, or the images have mixed sizes.
+    """
+    if len(left) != len(right):
+        raise CalibrationError(
+            f"got {len(left)} left and {len(right)} right images; calibration needs pairs "
+            f"(left[i] with right[i])")
+    size_l = _check_sizes(left, "left")
+    size_r = _check_sizes(right, "right")
+    if size_l != size_r:
+        raise CalibrationError(f"left images are {size_l[0]}x{size_l[1]} but right images are "
+                               f"{size_r[0]}x{size_r[1]}")
+    return size_l
+
+
+def _reject_outliers(fit: _Fit, pairs: list[_Pair], rejected: list[RejectedView],
+                     size: tuple[int, int], flags: int, cfg: StereoCalibConfig) -> _Fit | str:
+    """Drop the worst pair and refit while its reprojection RMS is an outlier.
+
+    ``pairs`` and ``rejected`` are updated in place. Returns the last fit, or the failure
+    message when OpenCV's refit fails.
+    """
+    n_usable = len(pairs)
+    max_reject = math.floor(cfg.max_rejected_fraction * n_usable)
+    n_outliers = 0
+    while cfg.reject_outliers:
+        per_view = []
+        for k, p in enumerate(pairs):
+            rl, rr = _view_residuals(fit, p, fit.rvecs[k], fit.tvecs[k])
+            per_view.append(math.sqrt(0.5 * (_rms(rl) ** 2 + _rms(rr) ** 2)))
+        errs = np.asarray(per_view)
+        thr, med, mad = _robust_threshold(errs, cfg)
+        worst = int(np.argmax(errs))
+        if errs[worst] <= thr or n_outliers >= max_reject or len(pairs) - 1 < cfg.min_views:
+            break
+        p = pairs.pop(worst)
+        reason = (f"reprojection RMS {errs[worst]:.2f} px is above the outlier limit "
+                  f"{thr:.2f} px (median {med:.2f} px + {cfg.mad_k:g} x robust spread "
+                  f"{mad:.2f} px, at least {cfg.min_ratio:g} x median and "
+                  f"{cfg.min_reject_px:g} px); a blurred image, a "
+                  f"misdetected corner or a bent board")
+        log.info("rejecting %s / %s: %s", p.left, p.right, reason)
+        rejected.append(RejectedView(left=p.left, right=p.right, reason=reason))
+        n_outliers += 1
+        try:
+            fit = _fit(pairs, size, flags)
+        except cv2.error as err:
+            return f"OpenCV calibration failed: {err.msg}"
+    return fit
+
+
+def _holdout_errors(fit: _Fit, pairs: list[_Pair], size: tuple[int, int], flags: int,
+                    cfg: StereoCalibConfig) -> tuple[FloatArray, float]:
+    """Leave-one-pair-out reprojection errors.
+
+    Returns ``((P,) per-pair holdout RMS px, NaN where not computed; overall holdout RMS px)``.
+    """
+    holdout = np.full(len(pairs), np.nan)
+    holdout_sq: list[FloatArray] = []
+    if cfg.holdout and len(pairs) > cfg.min_views - 1 and len(pairs) >= 4:
+        for k in range(len(pairs)):
+            rest = pairs[:k] + pairs[k + 1:]
+            try:
+                fold = _fit(rest, size, flags, init=fit, skip=k, ftol=1e-8, max_iter=4)
+                rv, tv = _holdout_pose(fold, pairs[k])
+                rl, rr = _view_residuals(fold, pairs[k], rv, tv)
+            except cv2.error as err:
+                log.warning("holdout fold without %s failed: %s", pairs[k].left, err.msg)
+                continue
+            both = np.concatenate([rl, rr])
+            holdout[k] = _rms(both)
+            holdout_sq.append(np.sum(both**2, axis=1))
+    holdout_px = float(np.sqrt(np.mean(np.concatenate(holdout_sq)))) if holdout_sq else math.nan
+    return holdout, holdout_px
+
+
+def _views_and_cameras(
+    fit: _Fit, pairs: list[_Pair], holdout: FloatArray, size: tuple[int, int],
+    cfg: StereoCalibConfig,
+) -> tuple[list[ViewStats], CameraCalibration, CameraCalibration, float]:
+    """Each used pair's figures, both cameras' intrinsics with coverage, and the overall RMS px."""
+    views = []
+    all_l, all_r, used_l, used_r = [], [], [], []
+    for k, p in enumerate(pairs):
+        rl, rr = _view_residuals(fit, p, fit.rvecs[k], fit.tvecs[k])
+        all_l.append(rl)
+        all_r.append(rr)
+        used_l.append(p.uv_l.reshape(-1, 2).astype(np.float64))
+        used_r.append(p.uv_r.reshape(-1, 2).astype(np.float64))
+        dist_m, tilt = _pose_stats(fit.rvecs[k], fit.tvecs[k], p.obj.astype(np.float64))
+        views.append(ViewStats(left=p.left, right=p.right, rms_left_px=_rms(rl),
+                               rms_right_px=_rms(rr), holdout_px=float(holdout[k]),
+                               distance_m=dist_m, tilt_deg=tilt,
+                               corners_left_px=used_l[-1], corners_right_px=used_r[-1],
+                               residuals_left_px=rl, residuals_right_px=rr))
+    cov_l, counts_l = _coverage(used_l, size, cfg.coverage_cells)
+    cov_r, counts_r = _coverage(used_r, size, cfg.coverage_cells)
+    res_l, res_r = np.concatenate(all_l), np.concatenate(all_r)
+    cam_l = CameraCalibration(K=fit.K1, dist=fit.d1, image_size=size, rms_px=_rms(res_l),
+                              coverage=cov_l, coverage_counts=counts_l)
+    cam_r = CameraCalibration(K=fit.K2, dist=fit.d2, image_size=size, rms_px=_rms(res_r),
+                              coverage=cov_r, coverage_counts=counts_r)
+    rms = _rms(np.concatenate([res_l, res_r]))
+    return views, cam_l, cam_r, rms
+
+
 def calibrate_stereo(left: Sequence[Detection], right: Sequence[Detection],
                      config: StereoCalibConfig | None = None) -> StereoCalibration:
     """Calibrate a stereo pair from board detections.
@@ -686,16 +795,7 @@ def calibrate_stereo(left: Sequence[Detection], right: Sequence[Detection],
             both images (the message names the files and what was found in them).
     """
     cfg = config or StereoCalibConfig()
-    if len(left) != len(right):
-        raise CalibrationError(
-            f"got {len(left)} left and {len(right)} right images; calibration needs pairs "
-            f"(left[i] with right[i])")
-    size_l = _check_sizes(left, "left")
-    size_r = _check_sizes(right, "right")
-    if size_l != size_r:
-        raise CalibrationError(f"left images are {size_l[0]}x{size_l[1]} but right images are "
-                               f"{size_r[0]}x{size_r[1]}")
-    size = size_l
+    size = _pair_image_size(left, right)
     dets = tuple((d.name or f"{side}[{i}]", str(d.status), d.message)
                  for side, ds in (("left", left), ("right", right)) for i, d in enumerate(ds))
     pairs, rejected = _pairs_from_detections(left, right, cfg)
@@ -725,35 +825,11 @@ def calibrate_stereo(left: Sequence[Detection], right: Sequence[Detection],
                                  views_rejected=tuple(rejected), detections=dets, config=cfg,
                                  guidance=(swapped,), timings_s=timings)
     t0 = time.perf_counter()
-    n_usable = len(pairs)
-    max_reject = math.floor(cfg.max_rejected_fraction * n_usable)
-    n_outliers = 0
-    while cfg.reject_outliers:
-        per_view = []
-        for k, p in enumerate(pairs):
-            rl, rr = _view_residuals(fit, p, fit.rvecs[k], fit.tvecs[k])
-            per_view.append(math.sqrt(0.5 * (_rms(rl) ** 2 + _rms(rr) ** 2)))
-        errs = np.asarray(per_view)
-        thr, med, mad = _robust_threshold(errs, cfg)
-        worst = int(np.argmax(errs))
-        if errs[worst] <= thr or n_outliers >= max_reject or len(pairs) - 1 < cfg.min_views:
-            break
-        p = pairs.pop(worst)
-        reason = (f"reprojection RMS {errs[worst]:.2f} px is above the outlier limit "
-                  f"{thr:.2f} px (median {med:.2f} px + {cfg.mad_k:g} x robust spread "
-                  f"{mad:.2f} px, at least {cfg.min_ratio:g} x median and "
-                  f"{cfg.min_reject_px:g} px); a blurred image, a "
-                  f"misdetected corner or a bent board")
-        log.info("rejecting %s / %s: %s", p.left, p.right, reason)
-        rejected.append(RejectedView(left=p.left, right=p.right, reason=reason))
-        n_outliers += 1
-        try:
-            fit = _fit(pairs, size, flags)
-        except cv2.error as err:
-            return StereoCalibration(status=CalibrationStatus.FAILED,
-                                     message=f"OpenCV calibration failed: {err.msg}",
-                                     views_rejected=tuple(rejected), detections=dets,
-                                     config=cfg)
+    refit = _reject_outliers(fit, pairs, rejected, size, flags, cfg)
+    if isinstance(refit, str):
+        return StereoCalibration(status=CalibrationStatus.FAILED, message=refit,
+                                 views_rejected=tuple(rejected), detections=dets, config=cfg)
+    fit = refit
     timings["rejection"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     if cfg.opencv_start:
@@ -771,50 +847,13 @@ def calibrate_stereo(left: Sequence[Detection], right: Sequence[Detection],
 
     timings["opencv_start"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    holdout = np.full(len(pairs), np.nan)
-    holdout_sq: list[FloatArray] = []
-    if cfg.holdout and len(pairs) > cfg.min_views - 1 and len(pairs) >= 4:
-        for k in range(len(pairs)):
-            rest = pairs[:k] + pairs[k + 1:]
-            try:
-                fold = _fit(rest, size, flags, init=fit, skip=k, ftol=1e-8, max_iter=4)
-                rv, tv = _holdout_pose(fold, pairs[k])
-                rl, rr = _view_residuals(fold, pairs[k], rv, tv)
-            except cv2.error as err:
-                log.warning("holdout fold without %s failed: %s", pairs[k].left, err.msg)
-                continue
-            both = np.concatenate([rl, rr])
-            holdout[k] = _rms(both)
-            holdout_sq.append(np.sum(both**2, axis=1))
-    holdout_px = float(np.sqrt(np.mean(np.concatenate(holdout_sq)))) if holdout_sq else math.nan
-
+    holdout, holdout_px = _holdout_errors(fit, pairs, size, flags, cfg)
     timings["holdout"] = time.perf_counter() - t0
-    views = []
-    all_l, all_r, used_l, used_r = [], [], [], []
-    for k, p in enumerate(pairs):
-        rl, rr = _view_residuals(fit, p, fit.rvecs[k], fit.tvecs[k])
-        all_l.append(rl)
-        all_r.append(rr)
-        used_l.append(p.uv_l.reshape(-1, 2).astype(np.float64))
-        used_r.append(p.uv_r.reshape(-1, 2).astype(np.float64))
-        dist_m, tilt = _pose_stats(fit.rvecs[k], fit.tvecs[k], p.obj.astype(np.float64))
-        views.append(ViewStats(left=p.left, right=p.right, rms_left_px=_rms(rl),
-                               rms_right_px=_rms(rr), holdout_px=float(holdout[k]),
-                               distance_m=dist_m, tilt_deg=tilt,
-                               corners_left_px=used_l[-1], corners_right_px=used_r[-1],
-                               residuals_left_px=rl, residuals_right_px=rr))
-    cov_l, counts_l = _coverage(used_l, size, cfg.coverage_cells)
-    cov_r, counts_r = _coverage(used_r, size, cfg.coverage_cells)
-    res_l, res_r = np.concatenate(all_l), np.concatenate(all_r)
-    cam_l = CameraCalibration(K=fit.K1, dist=fit.d1, image_size=size, rms_px=_rms(res_l),
-                              coverage=cov_l, coverage_counts=counts_l)
-    cam_r = CameraCalibration(K=fit.K2, dist=fit.d2, image_size=size, rms_px=_rms(res_r),
-                              coverage=cov_r, coverage_counts=counts_r)
+    views, cam_l, cam_r, rms = _views_and_cameras(fit, pairs, holdout, size, cfg)
     T_right_left = np.eye(4)
     T_right_left[:3, :3] = fit.R
     T_right_left[:3, 3] = fit.T
     T_left_right: FloatArray = np.asarray(np.linalg.inv(T_right_left), dtype=np.float64)
-    rms = _rms(np.concatenate([res_l, res_r]))
     result = StereoCalibration(
         status=CalibrationStatus.OK,
         message=f"calibrated from {plural(len(pairs), 'pair')} of {len(left)}",

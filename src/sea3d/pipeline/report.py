@@ -285,22 +285,10 @@ def _colour_html(colours: Any, pictures: Any) -> str:
             f"<tr><th>t (ns)</th><th>colour status</th></tr>{cells}</table></details>")
 
 
-def write_process_report(path: Path, result: Any, *, title: str | None = None,
-                         intro_html: str = "", sections_html: str = "",
-                         colour_pictures: Any = None) -> Path:
-    """Write ``report.html`` of a ``sea3d process`` run and return its path.
-
-    The page holds: the run's figures, the path seen from above (against the ground truth
-    when the session has one), a shaded picture of the mesh (CPU ray casting), the status
-    timeline, and the timings (one-off kernel compilation shown apart). ``title``,
-    ``intro_html`` and ``sections_html`` (inserted before the trajectory) let the demo put its
-    own parts on the same page; ``colour_pictures`` (one frame's rectified left before and
-    after ``--restore-colours``) go into the colour section with each frame's status.
-    """
+def _ground_truth_of(s: dict[str, Any]) -> tuple[Any, NDArray[np.float64]]:
+    """The ground-truth path beside the session and ``T_ref_est``, or ``(None, I)``."""
     from sea3d.io.trajectory_files import read_trajectory
-    from sea3d.recon.render import render_mesh, view_from_above
 
-    s = result.summary
     gt = None
     T_ref_est = np.eye(4)
     tv = s.get("trajectory_vs_gt")
@@ -311,16 +299,22 @@ def write_process_report(path: Path, result: Any, *, title: str | None = None,
         if gt_path.is_file():
             gt = read_trajectory(gt_path)
             T_ref_est = np.asarray(tv["T_ref_est"], np.float64)
-    rows = _read_status_rows(result.files["status"])
-    traj_img = _trajectory_figure(result, gt, T_ref_est)
-    timeline_img = _timeline_figure(result, rows)
-    mesh = result.mesh
+    return gt, T_ref_est
+
+
+def _mesh_picture_html(mesh: Any, T_ref_est: NDArray[np.float64]) -> str:
+    """The mesh shaded from above (in the ground truth's frame), or a line saying it is empty."""
+    from sea3d.recon.render import render_mesh, view_from_above
+
     if not mesh.empty:
         mesh_w = mesh.transformed(T_ref_est)
         view = view_from_above(mesh_w.vertices, tilt_deg=30.0)
-        mesh_img = image_tag(render_mesh(mesh_w, view, size_px=(960, 540)), "mesh")
-    else:
-        mesh_img = "<p>(the mesh is empty: no frame was fused)</p>"
+        return image_tag(render_mesh(mesh_w, view, size_px=(960, 540)), "mesh")
+    return "<p>(the mesh is empty: no frame was fused)</p>"
+
+
+def _facts_rows_html(s: dict[str, Any]) -> str:
+    """The run's figures as table rows."""
     facts = [
         ("stereo frames", s["frames"]),
         ("keyframes", s["keyframes"]),
@@ -336,8 +330,12 @@ def write_process_report(path: Path, result: Any, *, title: str | None = None,
         ("cloud", f"{s['cloud']['points']} points ({s['cloud']['outliers_removed']} outliers "
                   "removed)"),
     ]
-    fact_rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(str(v))}</td></tr>"
-                        for k, v in facts)
+    return "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(str(v))}</td></tr>"
+                   for k, v in facts)
+
+
+def _trajectory_vs_gt_html(tv: Any) -> str:
+    """The trajectory against the ground truth (ATE, RPE), or why it was not evaluated."""
     gt_html = "<p class=\"note\">The session has no ground truth beside it.</p>"
     if isinstance(tv, dict) and "ate_m" in tv:
         ate = tv["ate_m"]
@@ -356,7 +354,11 @@ def write_process_report(path: Path, result: Any, *, title: str | None = None,
         )
     elif isinstance(tv, dict) and "error" in tv:
         gt_html = f"<p>Trajectory not evaluated: {html.escape(tv['error'])}</p>"
-    mv = s.get("mesh_vs_gt")
+    return gt_html
+
+
+def _mesh_vs_gt_html(mv: Any) -> str:
+    """The mesh against the scene (accuracy, completeness, F-scores), or nothing."""
     mesh_html = ""
     if isinstance(mv, dict) and "accuracy_m" in mv:
         acc, comp = mv["accuracy_m"], mv["completeness_m"]
@@ -376,6 +378,11 @@ def write_process_report(path: Path, result: Any, *, title: str | None = None,
             f"{thr}</table><p class=\"note\">Completeness reference: "
             f"{html.escape(str(mv.get('completeness_reference', '')))}.</p>"
         )
+    return mesh_html
+
+
+def _timing_rows_html(s: dict[str, Any]) -> tuple[str, str, float]:
+    """``(pipeline rows, per-frame worker rows, one-off warm-up s)`` of the timings section."""
     timings = s["timings_s"]
     trows = "".join(f"<tr><td>{html.escape(k)}</td><td>{v:.2f} s</td></tr>"
                     for k, v in timings.items())
@@ -390,6 +397,33 @@ def write_process_report(path: Path, result: Any, *, title: str | None = None,
             if n_cached >= int(s.get("frames", 0) or 0) else
             f"{n_cached} frames came from the cache (not matched again, not counted above)")
             + "</td></tr>")
+    return trows, wrows, warm
+
+
+def write_process_report(path: Path, result: Any, *, title: str | None = None,
+                         intro_html: str = "", sections_html: str = "",
+                         colour_pictures: Any = None) -> Path:
+    """Write ``report.html`` of a ``sea3d process`` run and return its path.
+
+    The page holds: the run's figures, the path seen from above (against the ground truth
+    when the session has one), a shaded picture of the mesh (CPU ray casting), the status
+    timeline, and the timings (one-off kernel compilation shown apart). ``title``,
+    ``intro_html`` and ``sections_html`` (inserted before the trajectory) let the demo put its
+    own parts on the same page; ``colour_pictures`` (one frame's rectified left before and
+    after ``--restore-colours``) go into the colour section with each frame's status.
+    """
+    s = result.summary
+    gt, T_ref_est = _ground_truth_of(s)
+    tv = s.get("trajectory_vs_gt")
+    rows = _read_status_rows(result.files["status"])
+    traj_img = _trajectory_figure(result, gt, T_ref_est)
+    timeline_img = _timeline_figure(result, rows)
+    mesh_img = _mesh_picture_html(result.mesh, T_ref_est)
+    fact_rows = _facts_rows_html(s)
+    gt_html = _trajectory_vs_gt_html(tv)
+    mesh_html = _mesh_vs_gt_html(s.get("mesh_vs_gt"))
+    timings = s["timings_s"]
+    trows, wrows, warm = _timing_rows_html(s)
     page_title = html.escape(title or "sea3d process report")
     page = f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{page_title}</title>

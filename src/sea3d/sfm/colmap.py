@@ -354,29 +354,9 @@ def _sensors(frames: Sequence[SfmFrame], config: SfmConfig, rig: StereoRig | Non
             for n in wanted]
 
 
-def _run(
-    frames: Sequence[SfmFrame],
-    config: SfmConfig,
-    rig: StereoRig | None,
-    priors: PosePriors | None,
-    wd: Path,
-    db_path: Path,
-    threads: int,
-    timings: dict[str, float],
-    t_start: float,
-    progress: Progress | None,
-    image_sink: Callable[[str, np.ndarray], None] | None,
-    pycolmap: Any,
-) -> SfmResult:
-    t0 = time.perf_counter()
-    first_src = frames[0].source or frames[0].name
-    first_img = _load(frames[0].right if config.camera == "right" else frames[0].left, first_src)
-    sensors = _sensors(frames, config, rig, first_img)
-    timings["prepare_s"] = time.perf_counter() - t0
-
-    # ---------------------------------------------------------------- database + images
-    t0 = time.perf_counter()
-    db = pycolmap.Database.open(str(db_path))
+def _write_rig(db: Any, sensors: list[_Sensor], rig: StereoRig | None,
+               pycolmap: Any) -> dict[str, Any]:
+    """Write the cameras and the one COLMAP rig; return each sensor's ``sensor_t`` by name."""
     for s in sensors:
         db.write_camera(s.colmap_camera(), use_camera_id=True)
     cam_sensor = {s.name: pycolmap.sensor_t(type=pycolmap.SensorType.CAMERA, id=s.camera_id)
@@ -389,9 +369,30 @@ def _run(
         T = invert_T(sensors[1].T_cam_virtual) @ rig.T_right_left @ sensors[0].T_cam_virtual
         prig.add_sensor(cam_sensor["right"], _rigid(T))
     db.write_rig(prig, use_rig_id=True)
+    return cam_sensor
 
+
+def _write_images(
+    db: Any,
+    frames: Sequence[SfmFrame],
+    sensors: list[_Sensor],
+    first_img: np.ndarray,
+    first_src: str,
+    image_dir: Path,
+    progress: Progress | None,
+    image_sink: Callable[[str, np.ndarray], None] | None,
+    pycolmap: Any,
+) -> tuple[list[list[int]], list[str]]:
+    """Prepare every frame's images, write them as scratch PNGs and into the database.
+
+    Returns ``(image_ids, names)``: each frame's image ids (one per sensor) and every image's
+    name relative to ``image_dir``.
+
+    Raises:
+        SfmError: an image of another size than the first (or the rig's), or a PNG that cannot
+            be written.
+    """
     n_images = len(frames) * len(sensors)
-    image_dir = wd / "images"
     image_ids: list[list[int]] = []
     names: list[str] = []
     iid = 0
@@ -424,47 +425,50 @@ def _run(
             if progress is not None:
                 progress("prepare", iid, n_images)
         image_ids.append(ids_k)
-    for k, ids_k in enumerate(image_ids):
-        f = pycolmap.Frame(frame_id=k + 1, rig_id=1)
-        for s, i in zip(sensors, ids_k, strict=True):
-            f.add_data_id(pycolmap.data_t(sensor_id=cam_sensor[s.name], id=i))
-        db.write_frame(f, use_frame_id=True)
-    n_priors = 0
-    if priors is not None:
-        t_s = np.array([f.t_s for f in frames], dtype=np.float64)
-        T_prior = _prior_poses(priors, t_s, config.prior_max_gap_s)
-        ref = sensors[0]
-        # The prior is on the reference (virtual) camera's centre.
-        T_left_vref = ref.T_cam_virtual if ref.name == "left" or rig is None else (
-            rig.T_left_right @ ref.T_cam_virtual)
-        for k, ids_k in enumerate(image_ids):
-            if not np.all(np.isfinite(T_prior[k])):
-                continue
-            c = (T_prior[k] @ T_left_vref)[:3, 3]
-            pp = pycolmap.PosePrior(
-                corr_data_id=pycolmap.data_t(sensor_id=cam_sensor[ref.name], id=ids_k[0]),
-                position=np.asarray(c, dtype=np.float64).reshape(3, 1),
-                position_covariance=np.eye(3) * config.prior_position_std_m**2,
-                coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN,
-            )
-            db.write_pose_prior(pp)
-            n_priors += 1
-        if n_priors < 3:
-            log.warning("%s: only %d frames have a pose prior within %.2f s; priors ignored",
-                        priors.source, n_priors, config.prior_max_gap_s)
-    db.close()
-    timings["prepare_s"] += time.perf_counter() - t0
-    # COLMAP's own extractor: its reader and SIFT threads run outside the GIL.
-    t0, c0 = time.perf_counter(), _cpu_s()
-    _watched(lambda: pycolmap.extract_features(
-        str(db_path), str(image_dir), image_names=names,
-        extraction_options=_extraction_options(config, threads), device=pycolmap.Device.cpu),
-        db_path, "SELECT COUNT(*) FROM keypoints", "extract", len(names), progress)
-    timings["extract_s"] = time.perf_counter() - t0
-    timings["extract_cpu_s"] = _cpu_s() - c0
+    return image_ids, names
 
-    # ---------------------------------------------------------------- matching
-    t0, c0 = time.perf_counter(), _cpu_s()
+
+def _write_priors(
+    db: Any,
+    frames: Sequence[SfmFrame],
+    priors: PosePriors,
+    config: SfmConfig,
+    sensors: list[_Sensor],
+    rig: StereoRig | None,
+    image_ids: list[list[int]],
+    cam_sensor: dict[str, Any],
+    pycolmap: Any,
+) -> int:
+    """Write a position prior for every frame that has one; return how many were written
+    (fewer than 3 is logged as a warning: the mapper then ignores them)."""
+    n_priors = 0
+    t_s = np.array([f.t_s for f in frames], dtype=np.float64)
+    T_prior = _prior_poses(priors, t_s, config.prior_max_gap_s)
+    ref = sensors[0]
+    # The prior is on the reference (virtual) camera's centre.
+    T_left_vref = ref.T_cam_virtual if ref.name == "left" or rig is None else (
+        rig.T_left_right @ ref.T_cam_virtual)
+    for k, ids_k in enumerate(image_ids):
+        if not np.all(np.isfinite(T_prior[k])):
+            continue
+        c = (T_prior[k] @ T_left_vref)[:3, 3]
+        pp = pycolmap.PosePrior(
+            corr_data_id=pycolmap.data_t(sensor_id=cam_sensor[ref.name], id=ids_k[0]),
+            position=np.asarray(c, dtype=np.float64).reshape(3, 1),
+            position_covariance=np.eye(3) * config.prior_position_std_m**2,
+            coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN,
+        )
+        db.write_pose_prior(pp)
+        n_priors += 1
+    if n_priors < 3:
+        log.warning("%s: only %d frames have a pose prior within %.2f s; priors ignored",
+                    priors.source, n_priors, config.prior_max_gap_s)
+    return n_priors
+
+
+def _match(config: SfmConfig, db_path: Path, names: list[str], threads: int,
+           progress: Progress | None, pycolmap: Any) -> None:
+    """COLMAP's sequential or exhaustive matcher over the database's images."""
     mo = pycolmap.FeatureMatchingOptions()
     mo.num_threads = threads
     if config.matcher == "sequential":
@@ -481,17 +485,18 @@ def _run(
         _watched(lambda: pycolmap.match_exhaustive(
             str(db_path), matching_options=mo, device=pycolmap.Device.cpu),
             db_path, _PAIRS_DONE, "match", n * (n - 1) // 2, progress)
-    timings["match_s"] = time.perf_counter() - t0
-    timings["match_cpu_s"] = _cpu_s() - c0
 
-    # ---------------------------------------------------------------- mapping
-    t0, c0 = time.perf_counter(), _cpu_s()
+
+def _mapping_options(config: SfmConfig, n_frames: int, rig: StereoRig | None, threads: int,
+                     use_priors: bool, pycolmap: Any) -> Any:
+    """The incremental mapper's options: seeded, the rig's intrinsics and extrinsics held
+    fixed when there is a rig, position priors used when there are enough."""
     opts = pycolmap.IncrementalPipelineOptions()
     opts.extract_colors = False
     opts.num_threads = threads
     opts.random_seed = int(config.seed)
     opts.mapper.random_seed = int(config.seed)
-    opts.min_model_size = min(10, max(2, len(frames) // 3))
+    opts.min_model_size = min(10, max(2, n_frames // 3))
     opts.ba_global_frames_ratio = float(config.ba_global_ratio)
     opts.ba_global_points_ratio = float(config.ba_global_ratio)
     if rig is not None:
@@ -501,9 +506,68 @@ def _run(
         opts.mapper.abs_pose_refine_focal_length = False
         opts.mapper.abs_pose_refine_extra_params = False
         opts.ba_refine_sensor_from_rig = False
-    use_priors = n_priors >= 3
     if use_priors:
         opts.use_prior_position = True
+    return opts
+
+
+def _run(
+    frames: Sequence[SfmFrame],
+    config: SfmConfig,
+    rig: StereoRig | None,
+    priors: PosePriors | None,
+    wd: Path,
+    db_path: Path,
+    threads: int,
+    timings: dict[str, float],
+    t_start: float,
+    progress: Progress | None,
+    image_sink: Callable[[str, np.ndarray], None] | None,
+    pycolmap: Any,
+) -> SfmResult:
+    t0 = time.perf_counter()
+    first_src = frames[0].source or frames[0].name
+    first_img = _load(frames[0].right if config.camera == "right" else frames[0].left, first_src)
+    sensors = _sensors(frames, config, rig, first_img)
+    timings["prepare_s"] = time.perf_counter() - t0
+
+    # ---------------------------------------------------------------- database + images
+    t0 = time.perf_counter()
+    db = pycolmap.Database.open(str(db_path))
+    cam_sensor = _write_rig(db, sensors, rig, pycolmap)
+    image_dir = wd / "images"
+    image_ids, names = _write_images(db, frames, sensors, first_img, first_src, image_dir,
+                                     progress, image_sink, pycolmap)
+    for k, ids_k in enumerate(image_ids):
+        f = pycolmap.Frame(frame_id=k + 1, rig_id=1)
+        for s, i in zip(sensors, ids_k, strict=True):
+            f.add_data_id(pycolmap.data_t(sensor_id=cam_sensor[s.name], id=i))
+        db.write_frame(f, use_frame_id=True)
+    n_priors = 0
+    if priors is not None:
+        n_priors = _write_priors(db, frames, priors, config, sensors, rig, image_ids,
+                                 cam_sensor, pycolmap)
+    db.close()
+    timings["prepare_s"] += time.perf_counter() - t0
+    # COLMAP's own extractor: its reader and SIFT threads run outside the GIL.
+    t0, c0 = time.perf_counter(), _cpu_s()
+    _watched(lambda: pycolmap.extract_features(
+        str(db_path), str(image_dir), image_names=names,
+        extraction_options=_extraction_options(config, threads), device=pycolmap.Device.cpu),
+        db_path, "SELECT COUNT(*) FROM keypoints", "extract", len(names), progress)
+    timings["extract_s"] = time.perf_counter() - t0
+    timings["extract_cpu_s"] = _cpu_s() - c0
+
+    # ---------------------------------------------------------------- matching
+    t0, c0 = time.perf_counter(), _cpu_s()
+    _match(config, db_path, names, threads, progress, pycolmap)
+    timings["match_s"] = time.perf_counter() - t0
+    timings["match_cpu_s"] = _cpu_s() - c0
+
+    # ---------------------------------------------------------------- mapping
+    t0, c0 = time.perf_counter(), _cpu_s()
+    use_priors = n_priors >= 3
+    opts = _mapping_options(config, len(frames), rig, threads, use_priors, pycolmap)
     models_dir = wd / "models"
     models_dir.mkdir(exist_ok=True)
     registered = 0

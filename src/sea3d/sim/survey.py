@@ -51,6 +51,7 @@ from sea3d.sim.motion import (
     GRAVITY_WORLD,
     HandHeld,
     ImuNoise,
+    ImuSamples,
     Lawnmower,
     Mount,
     Orbit,
@@ -641,6 +642,84 @@ def with_survey_sensors(
     return dataclasses.replace(rig, imu=imu, sonar=sonar)
 
 
+def _sonar_ranges(
+    renderer: Renderer, traj: Trajectory, mount: Mount, config: SurveyConfig, end_ns: int
+) -> tuple[NDArray[np.int64], FloatArray]:
+    """The echosounder's stamps up to ``end_ns`` and its noisy ranges (m, NaN = no hit)."""
+    sonar_t = sample_times_ns(end_ns * 1e-9, config.sonar_rate_hz)
+    T_wb_sonar = poses(traj, sonar_t.astype(np.float64) * 1e-9) @ mount.T_body_sonar
+    hits = renderer.cast(T_wb_sonar[:, :3, 3], -T_wb_sonar[:, :3, 2])
+    srng = np.random.default_rng(config.seed + 2)
+    sonar_range = hits.t_m * (
+        1.0 + config.sonar_noise_fraction * srng.standard_normal(hits.t_m.shape)
+    )
+    return sonar_t, sonar_range
+
+
+def _write_ground_truth(
+    gt: GroundTruth,
+    gt_dir: Path,
+    scene: Scene,
+    config: SurveyConfig,
+    mount: Mount,
+    imaging: Imaging,
+    frame_t: NDArray[np.int64],
+    T_wl: FloatArray,
+    T_wb: FloatArray,
+    imu: ImuSamples,
+    n_imu: int,
+) -> None:
+    """Write the survey-wide ground truth: poses, scene mesh, IMU biases and ``sim.json``.
+
+    Raises:
+        SimulationError: ``gt_dir`` cannot be written.
+    """
+    try:
+        gt.depth_folder.mkdir(parents=True, exist_ok=True)
+        gt.object_id_folder.mkdir(parents=True, exist_ok=True)
+        write_tum(gt.poses_left_path, frame_t.tolist(), T_wl)
+        write_tum(gt.poses_body_path, frame_t.tolist(), T_wb)
+        o3d.io.write_triangle_mesh(str(gt.scene_mesh_path), scene.combined_mesh())  # type: ignore[arg-type]
+        np.savetxt(
+            gt.imu_bias_path,
+            np.column_stack(
+                [imu.t_ns[:n_imu], imu.accel_bias_mps2[:n_imu], imu.gyro_bias_radps[:n_imu]]
+            ),
+            delimiter=",",
+            header="t_ns,ba_x,ba_y,ba_z,bg_x,bg_y,bg_z",
+            comments="",
+            fmt=["%d"] + ["%.9e"] * 6,
+        )
+        meta = {
+            "scene": scene.name,
+            "water": config.water,
+            "seed": config.seed,
+            "frames": config.frames,
+            "fps": config.fps,
+            "imu_rate_hz": config.imu_rate_hz,
+            "sonar_rate_hz": config.sonar_rate_hz,
+            "trajectory": config.trajectory,
+            "T_body_left": mount.T_body_left.tolist(),
+            "T_body_sonar": mount.T_body_sonar.tolist(),
+            "imu_noise": config.imu_noise,
+            "depth": "depth/<t_ns>.tiff float32 m along the left camera z axis, NaN = no "
+            "hit (TIFF, deflate, floating-point predictor: lossless)",
+            "object_id": "object_id/<t_ns>.png uint16, object index + 1, 0 = no hit",
+            "objects": [o.name for o in scene.objects],
+            "water_model": water_model_dict(imaging),
+        }
+        if config.clean_reference:
+            gt.clean_folder("left").mkdir(parents=True, exist_ok=True)
+            gt.clean_folder("right").mkdir(parents=True, exist_ok=True)
+            meta["clean_reference"] = (
+                "clean/{left,right}/<t_ns>.png: the same views without water, same sensor "
+                "noise, exposure clean_reference_exposure"
+            )
+        gt.sim_meta_path.write_text(json.dumps(meta, indent=1))
+    except OSError as err:
+        raise SimulationError(f"cannot write ground truth to {gt_dir}: {err}") from err
+
+
 def simulate_survey(
     scene: Scene,
     rig: StereoRig,
@@ -692,61 +771,14 @@ def simulate_survey(
     )
     n_imu = int(np.searchsorted(imu_t, end_ns, side="right"))
     imu_t = imu_t[:n_imu]
-    sonar_t = sample_times_ns(end_ns * 1e-9, config.sonar_rate_hz)
-    T_wb_sonar = poses(traj, sonar_t.astype(np.float64) * 1e-9) @ mount.T_body_sonar
-    hits = renderer.cast(T_wb_sonar[:, :3, 3], -T_wb_sonar[:, :3, 2])
-    srng = np.random.default_rng(config.seed + 2)
-    sonar_range = hits.t_m * (
-        1.0 + config.sonar_noise_fraction * srng.standard_normal(hits.t_m.shape)
-    )
+    sonar_t, sonar_range = _sonar_ranges(renderer, traj, mount, config, end_ns)
     T_wb = poses(traj, frame_t.astype(np.float64) * 1e-9)
     T_wl = T_wb @ mount.T_body_left
-    gt = GroundTruth(Path(gt_dir)) if gt_dir is not None else None
-    if gt is not None:
-        try:
-            gt.depth_folder.mkdir(parents=True, exist_ok=True)
-            gt.object_id_folder.mkdir(parents=True, exist_ok=True)
-            write_tum(gt.poses_left_path, frame_t.tolist(), T_wl)
-            write_tum(gt.poses_body_path, frame_t.tolist(), T_wb)
-            o3d.io.write_triangle_mesh(str(gt.scene_mesh_path), scene.combined_mesh())  # type: ignore[arg-type]
-            np.savetxt(
-                gt.imu_bias_path,
-                np.column_stack(
-                    [imu.t_ns[:n_imu], imu.accel_bias_mps2[:n_imu], imu.gyro_bias_radps[:n_imu]]
-                ),
-                delimiter=",",
-                header="t_ns,ba_x,ba_y,ba_z,bg_x,bg_y,bg_z",
-                comments="",
-                fmt=["%d"] + ["%.9e"] * 6,
-            )
-            meta = {
-                "scene": scene.name,
-                "water": config.water,
-                "seed": config.seed,
-                "frames": config.frames,
-                "fps": config.fps,
-                "imu_rate_hz": config.imu_rate_hz,
-                "sonar_rate_hz": config.sonar_rate_hz,
-                "trajectory": config.trajectory,
-                "T_body_left": mount.T_body_left.tolist(),
-                "T_body_sonar": mount.T_body_sonar.tolist(),
-                "imu_noise": config.imu_noise,
-                "depth": "depth/<t_ns>.tiff float32 m along the left camera z axis, NaN = no "
-                "hit (TIFF, deflate, floating-point predictor: lossless)",
-                "object_id": "object_id/<t_ns>.png uint16, object index + 1, 0 = no hit",
-                "objects": [o.name for o in scene.objects],
-                "water_model": water_model_dict(imaging),
-            }
-            if config.clean_reference:
-                gt.clean_folder("left").mkdir(parents=True, exist_ok=True)
-                gt.clean_folder("right").mkdir(parents=True, exist_ok=True)
-                meta["clean_reference"] = (
-                    "clean/{left,right}/<t_ns>.png: the same views without water, same sensor "
-                    "noise, exposure clean_reference_exposure"
-                )
-            gt.sim_meta_path.write_text(json.dumps(meta, indent=1))
-        except OSError as err:
-            raise SimulationError(f"cannot write ground truth to {gt_dir}: {err}") from err
+    gt = None
+    if gt_dir is not None:
+        gt = GroundTruth(Path(gt_dir))
+        _write_ground_truth(gt, gt_dir, scene, config, mount, imaging, frame_t, T_wl, T_wb, imu,
+                            n_imu)
     i_imu = 0
     i_sonar = 0
     ref_exposure: float | None = None
