@@ -4,6 +4,7 @@ session it writes reads back exactly."""
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -232,3 +233,44 @@ def test_a_full_disk_mid_recording_stops_with_a_summary_and_a_readable_session(
         assert 0 < n == summary.frames["left"]  # the summary counts what is readable
         for k in range(n):
             np.testing.assert_array_equal(s.image("left", k), imgs[k % 3])
+
+
+def test_samples_within_the_camera_span_are_kept_when_the_cameras_end_first(tmp_path):
+    # A loaded machine: the cameras end while the IMU thread still holds the samples stamped
+    # up to the last frame (this lost the last IMU sample of a Foxglove recording test once:
+    # 190 of 191). The recorder waits (bounded) for them before it stops.
+    rng = np.random.default_rng(0)
+    n_frames = 4
+    last_frame_ns = (n_frames - 1) * FRAME_NS
+    n_imu = last_frame_ns // 5_000_000 + 1  # the last sample at or before the last frame
+    cameras_done = threading.Event()
+    it = iter(range(n_imu))
+
+    def produce():
+        k = next(it, None)
+        if k is None:
+            return None
+        if k == n_imu - 2:  # held back until the cameras have ended and the recorder has
+            cameras_done.wait(5.0)  # looked at its sources again (it polls every 0.1 s)
+            time.sleep(0.3)
+        return ImuSample(k * 5_000_000, np.array([k, 0.0, 9.81]), np.zeros(3))
+
+    class _Camera(ArraySource):
+        def read(self):
+            rec = super().read()
+            if rec is None:
+                cameras_done.set()
+            return rec
+
+    imgs = _imgs(rng, n_frames)
+    config = RecorderConfig(out_path=tmp_path / "r.mcap", block_when_full=True,
+                            min_free_bytes=NO_RESERVE, rig_yaml=RIG_YAML)
+    summary = Recorder(config, {
+        "left": _Camera(imgs, count=n_frames, speed=0),
+        "right": ArraySource(imgs, count=n_frames, speed=0),
+        "imu": CallableSource(produce, kind="imu"),
+    }).run()
+    assert summary.stop_reason == "the camera sources ended"
+    assert summary.frames["left"] == n_frames and summary.frames["imu"] == n_imu
+    with open_session(tmp_path / "r.mcap") as s:
+        assert s.imu().accel_mps2[:, 0].tolist() == list(range(n_imu))

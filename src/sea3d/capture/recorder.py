@@ -41,6 +41,9 @@ __all__ = ["RecordSummary", "Recorder", "RecorderConfig", "disk_free_bytes"]
 _log = logging.getLogger(__name__)
 
 _STREAMS = ("left", "right", "imu", "sonar")
+_SAMPLE_DRAIN_S = 2.0
+"""Wall seconds the IMU and echosounder may take, once the cameras have ended, to deliver the
+samples stamped within the last frame's time."""
 
 
 def disk_free_bytes(path: str | os.PathLike[str]) -> int:
@@ -317,6 +320,19 @@ class Recorder:
             q.put((stream, rec, fut))
         self._ended.add(stream)
 
+    def _samples_caught_up(self, image_streams: list[str]) -> bool:
+        """True when every sample stream has ended or delivered a sample at or after the
+        last camera frame's stamp."""
+        last = [getattr(self._latest.get(s), "t_ns", None) for s in image_streams]
+        t_last = max((t for t in last if t is not None), default=None)
+        for stream in self.sources:
+            if stream in image_streams or stream in self._ended:
+                continue
+            t = getattr(self._latest.get(stream), "t_ns", None)
+            if t_last is not None and (t is None or t < t_last):
+                return False
+        return True
+
     def _capture_samples(self, stream: str, src: Source) -> None:
         writer = self._writer
         assert writer is not None
@@ -443,6 +459,7 @@ class Recorder:
         for t in threads:
             t.start()
         _log.info("recording to %s (%s)", cfg.out_path, writer.format)
+        drain_until: float | None = None
         try:
             while not self._stop.is_set():
                 self._stop.wait(min(cfg.disk_check_interval_s, 0.1))
@@ -450,7 +467,13 @@ class Recorder:
                 if cfg.duration_s is not None and now - self._t_start >= cfg.duration_s:
                     self.request_stop(f"duration of {cfg.duration_s:g} s reached")
                 elif image_streams and all(s in self._ended for s in image_streams):
-                    self.request_stop("the camera sources ended")
+                    # The IMU and echosounder threads may still hold samples stamped within
+                    # the last frame's time (a loaded machine): give them a bounded moment
+                    # to deliver those before stopping, so none of the camera span is lost.
+                    if drain_until is None:
+                        drain_until = now + _SAMPLE_DRAIN_S
+                    if now >= drain_until or self._samples_caught_up(image_streams):
+                        self.request_stop("the camera sources ended")
                 elif not image_streams and all(s in self._ended for s in self.sources):
                     self.request_stop("the sources ended")
                 if now - getattr(self, "_last_disk_check", 0.0) >= cfg.disk_check_interval_s:
