@@ -31,6 +31,8 @@ are written by :mod:`sea3d.io.process_outputs`; the comparison with ground truth
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import logging
 import os
 import resource
@@ -47,7 +49,7 @@ from sea3d._typing import F64
 from sea3d.errors import ConfigError, SessionError
 from sea3d.odometry.types import Odometry, TrackingStatus
 from sea3d.pipeline.depth_scheduler import StageTimer
-from sea3d.pipeline.frame_stage import FrameStageConfig, install_geometry, stage_depth
+from sea3d.pipeline.frame_stage import FrameStageConfig, install_geometry, rectify_pair, stage_depth
 from sea3d.pipeline.lock import locks_out_dir
 from sea3d.pipeline.ordered import TRUSTED, OrderedStages
 from sea3d.recon.submaps import FusionConfig
@@ -147,6 +149,11 @@ class ProcessConfig:
     """Passed to ``create_odometry``."""
     max_frames: int | None = None
     """Process only the first N stereo pairs."""
+    depth_rate: str | int = "all"
+    """Which frames get stereo depth of their own (:mod:`sea3d.pipeline.depth_rate`):
+    ``all``; ``auto`` (when the predicted motion since the last depth frame needs it); or
+    every N-th frame. The odometry sees every frame (a frame without depth takes the latest
+    depth map as its stereo seeds); fusion integrates the depth frames."""
 
     def frame_stage(self, rig: Any) -> FrameStageConfig:
         """The per-frame stage's configuration for ``rig`` (at the recorded size; threads per
@@ -180,6 +187,9 @@ class ProcessConfig:
             raise ConfigError(f"in_flight must be >= 1, got {self.in_flight}")
         if self.max_frames is not None and self.max_frames < 1:
             raise ConfigError(f"--max-frames must be >= 1, got {self.max_frames}")
+        from sea3d.pipeline.depth_rate import parse_depth_rate
+
+        object.__setattr__(self, "depth_rate", parse_depth_rate(self.depth_rate))
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -275,6 +285,17 @@ def _odometry(config: ProcessConfig, stereo: Any, session_path: Path, has_imu: b
     return odo, name, use_imu and poses is None
 
 
+def _depth_rate(config: ProcessConfig, stereo: Any) -> Any:
+    """The :class:`~sea3d.pipeline.depth_rate.DepthRate` of ``config`` (None: every frame)."""
+    from sea3d.pipeline.depth_rate import DepthRate
+
+    if config.depth_rate in ("all", 1):
+        return None
+    maps = stereo.maps
+    return DepthRate(config.depth_rate, K=np.asarray(maps.P_left[:3, :3], np.float64),
+                     width_px=int(maps.width), trusted=TRUSTED)
+
+
 @locks_out_dir  # two runs into one folder: the second is refused (OutputInUseError)
 def run_process(
     session_path: str | os.PathLike[str],
@@ -338,15 +359,28 @@ def run_process(
                                    use_imu=config.use_imu and len(source.imu) > 0, timer=timer)
             window = config.in_flight or 2 * max(1, executor.workers) + 2
             bars = [bar(name, len(source)) for name in ("depth", "odometry", "fusion")]
+            rate = _depth_rate(config, stereo)
             depth = DepthScheduler(source, executor, stage_cfg, executor.share(stereo), cache,
-                                   window=window, timer=timer, on_depth=bars[0].update)
+                                   window=window, timer=timer, on_depth=bars[0].update,
+                                   depth_rate=rate,
+                                   rectify=functools.partial(rectify_pair, stereo))
             t_loop, t_prev = time.perf_counter(), None
             try:
                 for _pair, res in depth.results():
                     if res is None:
                         continue
-                    if stages.step(res, imu_between(source.imu, t_prev, res.t_ns)) is None:
+                    if res.seeded and rate is not None:  # seeds moved to where it looks
+                        seed = rate.seed(res.depth_m)
+                        res = dataclasses.replace(res, depth_m=seed, valid_fraction=float(
+                            np.isfinite(seed).mean()))
+                    est = stages.step(res, imu_between(source.imu, t_prev, res.t_ns),
+                                      fuse=not res.seeded)
+                    if est is None:
                         continue
+                    if rate is not None:
+                        rate.observe(res.t_ns, est.status,
+                                     np.asarray(est.T_world_left) @ stages.T_left_rect,
+                                     own_depth=not res.seeded)
                     t_prev = res.t_ns
                     bars[1].update(1)
                     bars[2].update(1)
@@ -387,6 +421,7 @@ def _finish(session_path: Path, out: Path, config: ProcessConfig, stages: Ordere
     summary = run_summary(
         stages, rec, session=str(session_path), pairs_in_session=source.pairs_in_session,
         frames_unreadable=depth.unreadable, frames_from_cache=depth.from_cache,
+        depth_rate=config.depth_rate, frames_with_depth=len(stages.estimates) - depth.seeded,
         odometry=odometry_name, imu_used=imu_used,
         executor={"kind": executor.name, "workers": executor.workers, "in_flight": window},
         image_size_px=[int(maps.width), int(maps.height)], refractive=bool(maps.refractive),
