@@ -21,10 +21,12 @@ early), which frames get depth:
 
 A frame without depth gets the latest depth map moved into its predicted pose
 (:meth:`DepthRate.seed`: constant velocity from the two previous frames, one frame ahead, and
-a forward splat with :func:`warp_depth`), so its seeds point at the surface it sees, not the
-one the depth frame saw at the same pixel: the odometry accepts a seed only within
-``stereo_depth_agreement_px`` (1.5 px) of the disparity it finds, and on the simulated survey
-an unmoved seed one frame old is off by about 1.2 px (75th percentile).
+a forward splat with :func:`warp_depth`; the unmoved map where nothing lands), so its seeds
+point at the surface it sees, not the one the depth frame saw at the same pixel. The
+odometry accepts a seed within ``stereo_depth_agreement_px`` (1.5 px) of the disparity it
+finds. On the simulated 640x360 survey (true poses, against each frame's own depth) an
+unmoved seed is off by 0.14 px (75th percentile) after one frame and 0.88 px after five; a
+moved one by 0.10 px after five.
 """
 
 from __future__ import annotations
@@ -203,10 +205,17 @@ class DepthRate:
 
     def seed(self, depth_m: NDArray[np.float32]) -> NDArray[np.float32]:
         """The latest depth map moved to the current frame's predicted pose (constant
-        velocity from the last two trusted frames); unmoved without a prediction."""
+        velocity from the last two trusted frames), the unmoved map where nothing lands;
+        unmoved without a prediction."""
         vel = self._velocity()
         if vel is None or self._seed_pose is None:
             return depth_m
         T_pred = self._poses[-1][1] @ vel[0]
         self.warped += 1
-        return warp_depth(depth_m, self.K, np.linalg.inv(T_pred) @ self._seed_pose)
+        moved = warp_depth(depth_m, self.K, np.linalg.inv(T_pred) @ self._seed_pose)
+        # Where nothing lands (newly seen ground, splat gaps), the unmoved map: a seed a few
+        # frames old is still within the odometry's tolerance there, and new features at a
+        # keyframe are found mostly in the newly seen part of the image.
+        hole = ~np.isfinite(moved)
+        moved[hole] = depth_m[hole]
+        return moved
