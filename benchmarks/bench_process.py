@@ -8,6 +8,9 @@ the per-frame stage
 - ``procs1``, ``procs2``: one or two local worker processes (``--workers N``);
 - ``dask2``: a ``distributed.LocalCluster`` of two single-threaded worker processes on
   loopback TCP (``--scheduler``), as a user would run it across machines;
+- ``procs2-auto``, ``procs2-3``...: two local workers with ``--depth-rate auto`` or every 3rd
+  frame (any run name followed by ``-RATE``); a run name given twice runs twice, and the
+  medians per run name close the table;
 - ``paper``: the paper's chain from the reference libraries, on the same dive and the same
   rectification: OpenCV ``StereoSGBM`` (``MODE_SGBM_3WAY``) depth ``z = f B / d``, Open3D
   frame-to-frame RGB-D odometry (``rgbd_odometry_multi_scale``, Hybrid), Open3D
@@ -176,6 +179,7 @@ def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
 
     if kind == "paper":
         return paper_run(session, None)
+    kind, _, depth_rate = kind.partition("-")
     use_gt = odometry == "gt"
     poses = session / "gt" / "poses_left.tum" if use_gt else None
     # The depth range of the paper's chain below, so both fuse the same slab of the scene.
@@ -197,7 +201,7 @@ def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
     config = ProcessConfig(out_dir=out, poses=PoseConfig(poses_path=poses), fresh=fresh,
                            map=MapConfig(integrate=integrate), report=False,
                            depth=DepthConfig(min_depth_m=0.5, max_depth_m=4.0),
-                           executor=ExecutorConfig(**ex))
+                           executor=ExecutorConfig(**ex), depth_rate=depth_rate or "all")
     t0 = time.perf_counter()
     try:
         res = run_process(session, config)
@@ -212,8 +216,9 @@ def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
                                      res.mesh.triangles)
     mv, tv = s.get("mesh_vs_gt", {}), s.get("trajectory_vs_gt", {})
     return {
-        "kind": kind,
+        "kind": kind + (f"-{depth_rate}" if depth_rate else ""),
         "frames": s["frames"],
+        "frames_with_depth": s.get("frames_with_depth", s["frames"]),
         "wall_s": wall,
         "fps": s["frames_per_second"],
         "frame_loop_s": s["timings_s"]["frame_loop_wall_s"],
@@ -305,6 +310,19 @@ def main() -> None:
                 print(f"  {x['kind']} integrate={x['integrate']}: {x['frames_fused']} frames "
                       f"fused in {x['fusion_s']:.1f} s, active submap peak "
                       f"{x['active_submap_peak_mb']:.0f} MB")
+    print("medians per run: frames with depth, fps, CPU-s per frame, ATE mm, mesh 1st mm")
+    for kind in dict.fromkeys(x["kind"] for x in results):
+        rs = [x for x in results if x["kind"] == kind]
+        cpu = [(x["cpu_client_s"] + x["cpu_workers_s"]) / x["frames"] for x in rs]
+        ate = [x["ate_rmse_mm"] for x in rs if x["ate_rmse_mm"] is not None]
+        m1 = np.array([x["mesh_first_pose_mm"] for x in rs])
+        nd = int(np.median([x.get("frames_with_depth", x["frames"]) for x in rs]))
+        print(f"  {kind:14} n={len(rs)} depth {nd}/{rs[0]['frames']} "
+              f"fps {np.median([x['fps'] for x in rs]):.2f} CPU {np.median(cpu):.3f} "
+              f"ATE {np.median(ate) if ate else float('nan'):.2f} (range "
+              f"{min(ate) if ate else float('nan'):.2f}-{max(ate) if ate else float('nan'):.2f}) "
+              f"mesh {np.median(m1[:, 0]):.1f} / {np.median(m1[:, 1]):.1f} (medians range "
+              f"{m1[:, 0].min():.1f}-{m1[:, 0].max():.1f})")
     paper = [x for x in results if x["kind"] == "paper"]
     ours = [x for x in results if x["kind"] != "paper"]
     if paper and ours:

@@ -50,6 +50,7 @@ def _cmd_process(args: argparse.Namespace) -> int:
         fresh=args.fresh,
         report=not args.no_report,
         max_frames=args.max_frames,
+        depth_rate=args.depth_rate,
     )
     from sea3d.cli._progress import stage_bars
 
@@ -370,6 +371,10 @@ def register(sub: Any) -> None:
                   "water-model (one water model fitted to the dive's first 8 frames, every "
                   "frame inverted with it); --restore-colours is a deprecated alias, kept "
                   "for one release")
+    p.add_argument("--depth-rate", default="all", metavar="all|auto|N",
+                   help="which frames get stereo depth: all (default), auto (when the motion "
+                        "since the last depth frame needs it), or every N-th; odometry sees "
+                        "every frame, fusion the depth frames")
     p.add_argument("--max-frames", type=int, metavar="N", help="only the first N pairs")
     p.add_argument("--no-report", action="store_true", help="skip report.html")
     p.add_argument("--json", action="store_true", help="print summary.json (no progress bars)")

@@ -15,6 +15,8 @@ import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
+import numpy as np
+
 from sea3d.errors import SessionError
 from sea3d.pipeline.frame_source import FramePair, SessionFrames
 from sea3d.pipeline.frame_stage import FrameResult, FrameStageConfig, process_frame
@@ -46,11 +48,26 @@ class DepthScheduler:
         window: frames in flight at most.
         timer: where read and cache times are added.
         on_depth: called once per frame as its depth is ready (a progress bar's update).
+        depth_rate: which frames get depth of their own
+            (:class:`~sea3d.pipeline.depth_rate.DepthRate`, asked in time order as frames
+            are submitted); None: every frame.
+        rectify: ``rectify(left, right) -> (rect_left, rect_right)`` for the frames that get
+            no depth (run here, in the client: milliseconds); needed with ``depth_rate``.
+
+    A frame without depth of its own is handed on with ``seeded=True`` and the latest depth
+    map before it (in time order) as ``depth_m``, unmoved (the caller moves it to the frame's
+    pose: :meth:`~sea3d.pipeline.depth_rate.DepthRate.seed`). It is not cached.
     """
 
     def __init__(self, source: SessionFrames, executor: Any, stage: FrameStageConfig,
                  stereo: Any, cache: Any, *, window: int, timer: StageTimer,
-                 on_depth: Callable[[int], Any] = lambda n: None) -> None:
+                 on_depth: Callable[[int], Any] = lambda n: None,
+                 depth_rate: Any = None,
+                 rectify: Callable[[Any, Any], tuple[Any, Any]] | None = None) -> None:
+        if depth_rate is not None and rectify is None:
+            raise ValueError("a depth rate needs rectify for the frames without depth")
+        self.depth_rate, self.rectify = depth_rate, rectify
+        self.seeded = 0
         self.source, self.executor, self.stage = source, executor, stage
         self.stereo, self.cache, self.window = stereo, cache, window
         self.timer, self.on_depth = timer, on_depth
@@ -75,6 +92,7 @@ class DepthScheduler:
 
     def _submit(self, pair: FramePair, ready: dict[int, FrameResult | None]) -> None:
         t = pair.t_ns
+        own_depth = self.depth_rate is None or self.depth_rate.wants_depth(t)
         if t in self._cached:
             res = self._cached_result(t)
             if res is not None:
@@ -93,6 +111,16 @@ class DepthScheduler:
             return
         finally:
             self.timer.add("read_s", time.perf_counter() - tr)
+        if not own_depth:
+            assert self.rectify is not None
+            tr = time.perf_counter()
+            rl, rr = self.rectify(left, right)
+            self.timer.add("rectify_client_s", time.perf_counter() - tr)
+            ready[t] = FrameResult(t_ns=t, status="ok", rect_left=rl, rect_right=rr,
+                                   seeded=True)
+            self.seeded += 1
+            self.on_depth(1)
+            return
         self._pending[t] = self.executor.submit(process_frame, self.stage, t, left, right,
                                                 self.stereo)
 
@@ -111,6 +139,7 @@ class DepthScheduler:
         pairs = self.source.pairs
         ready: dict[int, FrameResult | None] = {}
         submit_i = 0
+        seed: Any = None
         try:
             for pair in pairs:
                 while True:  # keep the window full, then wait for this pair if need be
@@ -121,7 +150,17 @@ class DepthScheduler:
                     if pair.t_ns in ready:
                         break
                     self._collect(ready)
-                yield pair, ready.pop(pair.t_ns)
+                res = ready.pop(pair.t_ns)
+                if res is not None and res.seeded:
+                    d = seed if seed is not None else np.full(res.rect_left.shape[:2],
+                                                              np.nan, np.float32)
+                    res = dataclasses.replace(res, depth_m=d,
+                                              valid_fraction=float(np.isfinite(d).mean()))
+                elif res is not None and res.status == "ok":
+                    seed = res.depth_m
+                    if self.depth_rate is not None:
+                        self.depth_rate.observe_depth(res.depth_m)
+                yield pair, res
         finally:
             self.cancel()
 

@@ -124,6 +124,9 @@ class FrameResult:
         timings_s: seconds per step (``enhance_s``, ``rectify_s``, ``match_s``, ``depth_s``,
             ``rectify_right_s``, ``resample_s``, and ``warmup_s`` on a worker's first frame:
             kernel compilation).
+        seeded: the frame got no depth of its own (:mod:`sea3d.pipeline.depth_rate`, or a
+            live frame dropped to keep up): ``depth_m`` is an earlier frame's, the odometry's
+            stereo seeds only; it is not fused and not cached.
     """
 
     t_ns: int
@@ -138,6 +141,7 @@ class FrameResult:
     timings_s: dict[str, float] = field(default_factory=dict)
     color_left: NDArray[np.uint8] = field(default_factory=lambda: np.zeros((0, 0), np.uint8))
     colour_status: str = ""
+    seeded: bool = False
 
     def colors(self) -> NDArray[np.uint8]:
         """(H, W, 3) uint8 colours for mesh and cloud: the restored ones when there are, else

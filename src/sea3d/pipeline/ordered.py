@@ -83,7 +83,7 @@ class OrderedStages:
             self.failed += 1
             log.warning("frame t_ns=%d: %s", res.t_ns, res.message)
             return None
-        self.frame_status.append(res.status)
+        self.frame_status.append("seeded" if res.seeded else res.status)
         self.valid_fraction.append(res.valid_fraction)
         to = time.perf_counter()
         obs = FrameObservation(

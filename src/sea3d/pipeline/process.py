@@ -33,6 +33,8 @@ are written by :mod:`sea3d.io.process_outputs`; the comparison with ground truth
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import logging
 import os
 import resource
@@ -51,7 +53,7 @@ from sea3d.odometry.types import Odometry, TrackingStatus
 from sea3d.pipeline.colour_stage import DiveColours
 from sea3d.pipeline.config import ColourConfig, ExecutorConfig, MapConfig, PoseConfig
 from sea3d.pipeline.depth_scheduler import StageTimer
-from sea3d.pipeline.frame_stage import FrameStageConfig, install_geometry, stage_depth
+from sea3d.pipeline.frame_stage import FrameStageConfig, install_geometry, rectify_pair, stage_depth
 from sea3d.pipeline.lock import locks_out_dir
 from sea3d.pipeline.ordered import TRUSTED, OrderedStages
 from sea3d.pipeline.progress import ProgressFactory, no_progress
@@ -106,6 +108,11 @@ class ProcessConfig:
     """Write report.html."""
     max_frames: int | None = None
     """Process only the first N stereo pairs."""
+    depth_rate: str | int = "all"
+    """Which frames get stereo depth of their own (:mod:`sea3d.pipeline.depth_rate`):
+    ``all``; ``auto`` (when the predicted motion since the last depth frame needs it); or
+    every N-th frame. The odometry sees every frame (a frame without depth takes the latest
+    depth map as its stereo seeds); fusion integrates the depth frames."""
 
     def frame_stage(self, rig: Any) -> FrameStageConfig:
         """The per-frame stage's configuration for ``rig`` (at the recorded size; threads per
@@ -134,6 +141,12 @@ class ProcessConfig:
                                   f"{type(getattr(self, name)).__name__}")
         if self.max_frames is not None and self.max_frames < 1:
             raise ConfigError(f"max_frames must be >= 1, got {self.max_frames}")
+        from sea3d.pipeline.depth_rate import parse_depth_rate
+
+        object.__setattr__(self, "depth_rate", parse_depth_rate(self.depth_rate))
+        if self.colours.restore_colours == "water-model" and self.depth_rate not in ("all", 1):
+            raise ConfigError("restore_colours water-model needs depth of every frame's own "
+                              f"(depth_rate all), got depth_rate {self.depth_rate!r}")
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -260,6 +273,17 @@ def _odometry(config: ProcessConfig, stereo: Any, source: Any,
     return odo, name, use_imu and poses is None and disabled is None, note or disabled
 
 
+def _depth_rate(config: ProcessConfig, stereo: Any) -> Any:
+    """The :class:`~sea3d.pipeline.depth_rate.DepthRate` of ``config`` (None: every frame)."""
+    from sea3d.pipeline.depth_rate import DepthRate
+
+    if config.depth_rate in ("all", 1):
+        return None
+    maps = stereo.maps
+    return DepthRate(config.depth_rate, K=np.asarray(maps.P_left[:3, :3], np.float64),
+                     width_px=int(maps.width), trusted=TRUSTED)
+
+
 @locks_out_dir  # two runs into one folder: the second is refused (OutputInUseError)
 def run_process(
     session_path: str | os.PathLike[str],
@@ -323,16 +347,29 @@ def run_process(
                                    use_imu=imu_used, timer=timer)
             window = config.executor.in_flight or 2 * max(1, executor.workers) + 2
             bars = [bar(name, len(source)) for name in ("depth", "odometry", "fusion")]
+            rate = _depth_rate(config, stereo)
             depth = DepthScheduler(source, executor, stage_cfg, executor.share(stereo), cache,
-                                   window=window, timer=timer, on_depth=bars[0].update)
+                                   window=window, timer=timer, on_depth=bars[0].update,
+                                   depth_rate=rate,
+                                   rectify=functools.partial(rectify_pair, stereo))
             colours = (DiveColours(stereo.maps, config.colours.dive_colours)
                        if config.colours.restore_colours == "water-model" else None)
             t_loop, t_prev = time.perf_counter(), None
 
             def step(res: Any) -> None:
                 nonlocal t_prev
-                if stages.step(res, imu_between(source.imu, t_prev, res.t_ns)) is None:
+                if res.seeded and rate is not None:  # seeds moved to where it looks
+                    seed = rate.seed(res.depth_m)
+                    res = dataclasses.replace(res, depth_m=seed, valid_fraction=float(
+                        np.isfinite(seed).mean()))
+                est = stages.step(res, imu_between(source.imu, t_prev, res.t_ns),
+                                  fuse=not res.seeded)
+                if est is None:
                     return
+                if rate is not None:
+                    rate.observe(res.t_ns, est.status,
+                                 np.asarray(est.T_world_left) @ stages.T_left_rect,
+                                 own_depth=not res.seeded)
                 t_prev = res.t_ns
                 bars[1].update(1)
                 bars[2].update(1)
@@ -385,6 +422,7 @@ def _finish(session_path: Path, out: Path, config: ProcessConfig, stages: Ordere
     summary = run_summary(
         stages, rec, session=str(session_path), pairs_in_session=source.pairs_in_session,
         frames_unreadable=depth.unreadable, frames_from_cache=depth.from_cache,
+        depth_rate=config.depth_rate, frames_with_depth=len(stages.estimates) - depth.seeded,
         odometry=odometry_name, imu_used=imu[0], imu_note=imu[1],
         executor={"kind": executor.name, "workers": executor.workers, "in_flight": window},
         image_size_px=[int(maps.width), int(maps.height)], refractive=bool(maps.refractive),

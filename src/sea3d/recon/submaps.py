@@ -285,40 +285,68 @@ def _voxel_samples(blocks: VoxelBlocks) -> tuple[NDArray[np.int64], F64, F64, F6
             blocks.color.reshape(len(blocks), -1, 3)[b, loc].astype(np.float64))
 
 
-class _Accumulator:
-    """Weighted sums per voxel of a box of a world grid, voxels keyed by a linear index."""
+_COMPACT_AT = 4_000_000
+"""Entries an :class:`_Accumulator` holds before it sums them (48 bytes each)."""
 
-    def __init__(self, lo: NDArray[np.int64], hi: NDArray[np.int64]) -> None:
+
+class _Accumulator:
+    """Weighted sums per voxel of a box of a world grid, voxels keyed by a linear index.
+
+    Parts are summed into one (unique keys) once they hold ``compact_at`` entries, so memory
+    stays at about the box's observed voxels plus one batch, however many submaps overlap it
+    and however many splats a moved submap adds (8 per voxel).
+    """
+
+    def __init__(self, lo: NDArray[np.int64], hi: NDArray[np.int64], *,
+                 compact_at: int | None = None) -> None:
         self.lo = np.asarray(lo, np.int64)
         self.dims = np.asarray(hi, np.int64) - self.lo
         self.parts: list[tuple[NDArray[np.int64], F64, F64, F64]] = []
+        self.compact_at = int(_COMPACT_AT if compact_at is None else compact_at)
+        self._entries = 0
+        self._compacted = 0
 
     def add(self, coords: NDArray[np.int64], tsdf: F64, weight: F64, color: F64) -> None:
         if len(coords):
             c = coords - self.lo
             key = (c[:, 0] * self.dims[1] + c[:, 1]) * self.dims[2] + c[:, 2]
             self.parts.append((key, weight, weight * tsdf, weight[:, None] * color))
+            self._entries += len(key)
+            if self._entries - self._compacted > self.compact_at:
+                self.parts = [self._sums()]
+                self._entries = self._compacted = len(self.parts[0][0])
 
-    def reduce(self) -> tuple[NDArray[np.int64], F64, F64, F64]:
-        """Unique voxel coordinates with summed weight, tsdf mean and colour mean."""
-        if not self.parts:
-            return np.zeros((0, 3), np.int64), np.zeros(0), np.zeros(0), np.zeros((0, 3))
+    def _sums(self) -> tuple[NDArray[np.int64], F64, F64, F64]:
+        """Unique keys with the summed weight, weight x tsdf and weight x colour."""
         key = np.concatenate([p[0] for p in self.parts])
         w = np.concatenate([p[1] for p in self.parts])
         wt = np.concatenate([p[2] for p in self.parts])
         wc = np.concatenate([p[3] for p in self.parts])
         self.parts = []
         uniq, inv = np.unique(key, return_inverse=True)
+        del key
         n = len(uniq)
         sw = np.asarray(np.bincount(inv, weights=w, minlength=n), np.float64)
-        st = np.bincount(inv, weights=wt, minlength=n)
+        st = np.asarray(np.bincount(inv, weights=wt, minlength=n), np.float64)
         sc = np.stack([np.bincount(inv, weights=wc[:, k], minlength=n) for k in range(3)],
-                      axis=1)
+                      axis=1).astype(np.float64)
+        return np.asarray(uniq, np.int64), sw, st, sc
+
+    def reduce(self) -> tuple[NDArray[np.int64], F64, F64, F64]:
+        """Unique voxel coordinates with summed weight, tsdf mean and colour mean."""
+        if not self.parts:
+            return np.zeros((0, 3), np.int64), np.zeros(0), np.zeros(0), np.zeros((0, 3))
+        uniq, sw, st, sc = self._sums()
+        self._entries = self._compacted = 0
         z = uniq % self.dims[2]
         y = (uniq // self.dims[2]) % self.dims[1]
         x = uniq // (self.dims[2] * self.dims[1])
         coords = np.asarray(np.stack([x, y, z], axis=1) + self.lo, np.int64)
         return coords, sw, st / sw, sc / sw[:, None]
+
+
+_SPLAT_CHUNK = 250_000
+"""Voxels of a moved submap splatted at once (8 targets each: about 100 MB of temporaries)."""
 
 
 def _splat(coords: NDArray[np.int64], T: F64, voxel_m: float
@@ -469,13 +497,15 @@ def merge_submaps(
                 continue
             coords, tsdf, weight, color = _voxel_samples(store.get(sid).blocks)
             if moved:
-                tc, tw = _splat(coords, T_wg, v)
-                k = len(coords)
-                rep = np.tile(np.arange(k), 8)
-                sel = np.all((tc >= m_lo) & (tc < m_hi), axis=1) & (tw > 1e-6)
-                acc.add(tc[sel], tsdf[rep[sel]].astype(np.float64),
-                        (weight[rep[sel]] * tw[sel]).astype(np.float64),
-                        color[rep[sel]].astype(np.float64))
+                for a in range(0, len(coords), _SPLAT_CHUNK):
+                    b = min(a + _SPLAT_CHUNK, len(coords))
+                    tc, tw = _splat(coords[a:b], T_wg, v)
+                    rep = np.tile(np.arange(a, b), 8)
+                    sel = np.all((tc >= m_lo) & (tc < m_hi), axis=1) & (tw > 1e-6)
+                    acc.add(tc[sel], tsdf[rep[sel]].astype(np.float64),
+                            (weight[rep[sel]] * tw[sel]).astype(np.float64),
+                            color[rep[sel]].astype(np.float64))
+                    del tc, tw, rep, sel
             else:
                 sel = np.all((coords >= m_lo) & (coords < m_hi), axis=1)
                 acc.add(coords[sel], tsdf[sel].astype(np.float64),
