@@ -213,7 +213,7 @@ class ResultsMcapWriter:
             self._writer.close()
         except (OSError, RuntimeError) as err:
             raise SessionError(f"cannot finish {self.path}: {err}") from err
-        _log.info("wrote %s: %s", self.path, self.counts)
+        _log.debug("wrote %s: %s", self.path, self.counts)
 
     def __enter__(self) -> ResultsMcapWriter:
         return self

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +29,8 @@ from sea3d.io._atomic import atomic_open, atomic_write
 
 __all__ = ["FrameRow", "process_files", "write_process_outputs", "write_status_csv",
            "write_summary_json"]
+
+_log = logging.getLogger(__name__)
 
 _FILES = ("trajectory.tum", "mesh.ply", "cloud.ply", "status.csv", "summary.json",
           "results.mcap")
@@ -92,12 +95,13 @@ def _write_results_mcap(path: Path, t_ns: NDArray[np.int64], T: NDArray[np.float
 
     tmp = path.with_name(path.name + ".partial")
     tmp.unlink(missing_ok=True)
-    write_results_mcap(
+    counts = write_results_mcap(
         tmp, trajectory=(t_ns, T), status=list(statuses),
         cloud=(cloud.points, cloud.colors),
         mesh=(mesh.vertices, mesh.triangles, mesh.colors_rgb), rig=rig,
     )
     tmp.replace(path)
+    _log.info("wrote %s: %s", path, counts)  # under its own name, not the temporary one
 
 
 def write_process_outputs(out_dir: Path, *, t_ns: NDArray[np.int64], T_world_left: NDArray[
