@@ -121,6 +121,24 @@ def _nn_distance(points: F64, cloud: F64) -> F64:
     return np.asarray(d, dtype=np.float64)
 
 
+def _draw_samples(v: F64, f: NDArray[np.integer] | None, samples: int,
+                  rng: np.random.Generator) -> F64:
+    """(samples, 3) points of a surface: drawn on its triangles ``f``, or ``samples`` of its
+    points ``v`` (all of them when fewer).
+
+    Raises:
+        ReconError: ``v`` is not a non-empty (N, 3) array.
+    """
+    v = np.asarray(v, dtype=np.float64)
+    if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
+        raise ReconError(f"a surface needs (N, 3) points, got {v.shape}")
+    if f is not None and len(f):
+        return sample_surface(v, f, samples, rng)
+    if len(v) > samples:
+        return v[rng.choice(len(v), size=samples, replace=False)]
+    return v
+
+
 def surface_metrics(
     est_vertices: F64,
     est_triangles: NDArray[np.integer] | None,
@@ -155,14 +173,7 @@ def surface_metrics(
     rng = np.random.default_rng(seed)
 
     def draw(v: F64, f: NDArray[np.integer] | None) -> F64:
-        v = np.asarray(v, dtype=np.float64)
-        if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
-            raise ReconError(f"a surface needs (N, 3) points, got {v.shape}")
-        if f is not None and len(f):
-            return sample_surface(v, f, samples, rng)
-        if len(v) > samples:
-            return v[rng.choice(len(v), size=samples, replace=False)]
-        return v
+        return _draw_samples(v, f, samples, rng)
 
     est_s = draw(est_vertices, est_triangles)
     ref_s = draw(ref_vertices, ref_triangles) if reference_points is None else draw(
@@ -340,12 +351,7 @@ def align_by_icp(
     rng = np.random.default_rng(seed)
 
     def draw(v: F64, f: NDArray[np.integer] | None) -> F64:
-        v = np.asarray(v, dtype=np.float64)
-        if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
-            raise ReconError(f"a surface needs (N, 3) points, got {v.shape}")
-        if f is not None and len(f):
-            return sample_surface(v, f, samples, rng)
-        return v[rng.choice(len(v), size=samples, replace=False)] if len(v) > samples else v
+        return _draw_samples(v, f, samples, rng)
 
     src = init.apply(draw(est_vertices, est_triangles))
     dst = draw(ref_vertices, ref_triangles)
