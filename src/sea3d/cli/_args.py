@@ -11,7 +11,8 @@ from typing import Any
 from sea3d._text import plural
 
 __all__ = ["add_depth_range", "add_output", "config_option", "deprecated", "depth_config",
-           "field_help", "image_size", "plural", "positive_depth"]
+           "field_help", "image_size", "plural", "positive_depth",
+           "positive_float"]
 
 
 def image_size(text: str) -> tuple[int, int]:
@@ -27,15 +28,24 @@ def image_size(text: str) -> tuple[int, int]:
 
 
 
-def positive_depth(text: str) -> float:
-    """argparse type: a finite depth > 0 metres."""
+def _finite_positive(text: str, expected: str, must: str) -> float:
     try:
         value = float(text)
     except ValueError as err:
-        raise argparse.ArgumentTypeError(f"expected a depth in metres, got {text!r}") from err
+        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from err
     if not (value > 0 and value < float("inf")):
-        raise argparse.ArgumentTypeError(f"must be a depth > 0 m, got {text}")
+        raise argparse.ArgumentTypeError(f"must be {must}, got {text}")
     return value
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    return _finite_positive(text, "a positive number", "a positive number")
+
+
+def positive_depth(text: str) -> float:
+    """argparse type: a finite depth > 0 metres."""
+    return _finite_positive(text, "a depth in metres", "a depth > 0 m")
 
 
 def add_depth_range(parser: Any, *, near: str = "nearest depth to resolve (sets the disparity "

@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import add_depth_range, config_option, depth_config, plural
+from sea3d.cli._args import add_depth_range, config_option, depth_config, plural, positive_float
 
 __all__ = ["register"]
 
@@ -28,17 +28,6 @@ def _positive_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from err
     if value <= 0:
         raise argparse.ArgumentTypeError(f"must be a positive integer, got {value}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError as err:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from err
-    if not (value > 0 and value < float("inf")):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
     return value
 
 
@@ -460,13 +449,13 @@ def register_eval(esub: Any) -> None:
     ed.add_argument("ground_truth", metavar="GT", help="ground-truth disparity")
     ed.add_argument(
         "--scale",
-        type=_positive_float,
+        type=positive_float,
         default=None,
         help="GT integer images store d * scale (Middlebury: 16, 8 or 4)",
     )
     ed.add_argument(
         "--est-scale",
-        type=_positive_float,
+        type=positive_float,
         default=None,
         help="the same for an integer estimate image",
     )
