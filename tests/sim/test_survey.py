@@ -223,3 +223,36 @@ def test_cli_refuses_a_run_the_disk_cannot_hold_and_cleans_up_a_failed_start(
     monkeypatch.setattr(survey, "simulate_survey", broken)
     assert sea3d_main(["sim", "--frames", "2", "--size", "64x36", "--out", str(out)]) == 2
     assert not out.exists() and not (tmp_path / "big_gt").exists()
+
+
+def test_cost_estimate_counts_the_start_up_and_a_first_compilation(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A short run is dominated by its fixed costs: the estimate once said "about 1 s" for 30
+    # frames at 320x180 that took 5-6 CPU-s with the kernels cached and 41 s on a first run.
+    import sea3d.sim.survey as survey
+    from sea3d.sim import SurveyConfig
+
+    config = SurveyConfig(frames=30, water="coastal")
+    monkeypatch.setattr(survey, "renderer_is_compiled", lambda: True)
+    warm = survey.estimate_survey_cost(320, 180, config)
+    assert not warm.compiles and 3.0 <= warm.total_seconds <= 10.0
+    assert warm.total_seconds == pytest.approx(warm.seconds + warm.startup_seconds)
+    monkeypatch.setattr(survey, "renderer_is_compiled", lambda: False)
+    cold = survey.estimate_survey_cost(320, 180, config)
+    assert cold.compiles and cold.total_seconds >= warm.total_seconds + 30.0
+    assert cold.seconds == warm.seconds  # the per-frame part does not change
+
+
+def test_renderer_cache_is_found_where_numba_writes_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from sea3d.sim import _kernels
+    from sea3d.sim.survey import renderer_is_compiled
+
+    beside = Path(_kernels.__file__).resolve().parent / "__pycache__"
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    if not any(beside.glob("_kernels.*.nbi")):
+        assert not renderer_is_compiled()
+    (tmp_path / "_kernels.shade-1.py311.nbi").write_bytes(b"")
+    assert renderer_is_compiled()

@@ -270,8 +270,11 @@ def _run_survey(args: argparse.Namespace) -> int:
     print(
         f"simulating {args.frames} stereo {pairs} of {scene.name} ({args.water} water) at "
         f"{rig.width}x{rig.height}: about {_size_text(cost.image_bytes)} of images and "
-        f"{_size_text(cost.gt_bytes)} of ground truth, about {_duration_text(cost.seconds)} on "
-        f"two idle cores",
+        f"{_size_text(cost.gt_bytes)} of ground truth, about {_duration_text(cost.total_seconds)} "
+        f"on two idle cores"
+        + (" (most of it the one-off compilation of the renderer)"
+           if cost.compiles and cost.startup_seconds > cost.seconds else
+           " (with the one-off compilation of the renderer)" if cost.compiles else ""),
         flush=True,
     )
     _say_if_the_survey_folds(scene, config)

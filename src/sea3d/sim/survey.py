@@ -509,12 +509,22 @@ class SurveyCost:
     Attributes:
         image_bytes: the stereo images as lossless PNG (the session writer's default).
         gt_bytes: the ground truth (depth TIFFs and object-id PNGs).
-        seconds: wall time on two idle cores (more when other work shares them).
+        seconds: wall time of the rendering on two idle cores (more when other work shares
+            them).
+        startup_seconds: the fixed cost before the first frame (imports, the scene), plus the
+            one-off compilation of the renderer when its compiled kernels are not cached yet.
+        compiles: whether ``startup_seconds`` includes that compilation.
     """
 
     image_bytes: float
     gt_bytes: float
     seconds: float
+    startup_seconds: float = 0.0
+    compiles: bool = False
+
+    @property
+    def total_seconds(self) -> float:
+        return self.seconds + self.startup_seconds
 
     @property
     def total_bytes(self) -> float:
@@ -533,16 +543,39 @@ _SECONDS_PER_PAIR_PX = {
     "coastal": 1.5 / 2.07e6,
     "turbid": 1.5 / 2.07e6,
 }
+# Fixed costs, measured with `sea3d sim --frames 1 --size 320x180` (CPU seconds, this 2-core VM):
+# about 4-5 s with the renderer's numba kernels cached, 41 s on a first run that compiles them.
+_STARTUP_S = 4.0
+_COMPILE_S = 40.0
+
+
+def renderer_is_compiled() -> bool:
+    """Whether numba's on-disk cache holds the renderer's kernels (``sim/_kernels.py``), so a
+    run starts without compiling them: index files beside the module or under
+    ``NUMBA_CACHE_DIR``."""
+    import os
+
+    from sea3d.sim import _kernels
+
+    module = Path(_kernels.__file__).resolve()
+    places = [module.parent / "__pycache__"]
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        root = Path(os.environ["NUMBA_CACHE_DIR"])
+        places.append(root / module.parent.relative_to(module.anchor))
+        places.append(root)
+    return any(any(place.glob(f"{module.stem}.*.nbi")) for place in places if place.is_dir())
 
 
 def estimate_survey_cost(
     width: int, height: int, config: SurveyConfig, *, ground_truth: bool = True
 ) -> SurveyCost:
     """Disk and time a survey of ``config.frames`` stereo frames of ``width x height`` will
-    take (an estimate from the measured rates above; the scene changes it by tens of percent).
+    take (an estimate from the measured rates above; the scene changes it by tens of percent),
+    with the fixed start-up and, when the renderer is not compiled yet, its compilation.
     """
     px = float(width * height)
     water = config.water if config.water in _PNG_BYTES_PER_PX else "coastal"
+    compiled = renderer_is_compiled()
     return SurveyCost(
         image_bytes=2 * px * _PNG_BYTES_PER_PX[water] * config.frames,
         gt_bytes=px * _GT_BYTES_PER_PX * config.frames if ground_truth else 0.0,
@@ -550,6 +583,8 @@ def estimate_survey_cost(
         * _SECONDS_PER_PAIR_PX[water]
         * config.frames
         * max(1.0, config.supersample / 2.0) ** 0.5,
+        startup_seconds=_STARTUP_S + (0.0 if compiled else _COMPILE_S),
+        compiles=not compiled,
     )
 
 
