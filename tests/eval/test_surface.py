@@ -36,6 +36,7 @@ def test_identical_surfaces_score_zero_and_full_fscore():
     s = surface_metrics(m.vertices, m.triangles, m.vertices, m.triangles, samples=5000)
     assert s.accuracy_m.max < OFFSET_TOL_M and s.completeness_m.max < OFFSET_TOL_M
     assert s.fscore == (1.0, 1.0, 1.0)
+    assert s.reference_outside == 0.0
 
 
 def test_a_lifted_surface_is_off_by_its_lift():
@@ -53,6 +54,7 @@ def test_half_a_surface_is_accurate_but_incomplete():
     assert s.accuracy_m.p90 < OFFSET_TOL_M
     # Half the reference is farther than 5 cm from the estimate; its median is on the edge.
     assert s.recall[2] == pytest.approx(0.55, abs=0.03)
+    assert s.reference_outside == pytest.approx(0.5, abs=0.03)  # x > 0.5 of the reference
     cropped = surface_metrics(est.vertices, est.triangles, ref.vertices, ref.triangles,
                               samples=8000, crop_margin_m=0.0)
     assert cropped.recall[0] > 0.99
@@ -86,3 +88,21 @@ def test_cli_eval_surface_on_mesh_files(tmp_path, capsys):
     assert d["accuracy_m"]["median"] < 0.008
     assert main(["eval", "surface", str(tmp_path / "nope.ply"), str(tmp_path / "ref.ply")]) == 2
     assert "nope.ply does not exist" in capsys.readouterr().err
+
+
+def test_cli_says_when_completeness_mostly_measures_unseen_reference(tmp_path, capsys):
+    ref, est = _grid(), _grid(x_max=0.5)
+    write_mesh(tmp_path / "ref.ply", ref)
+    write_mesh(tmp_path / "est.ply", est)
+    argv = ["eval", "surface", str(tmp_path / "est.ply"), str(tmp_path / "ref.ply"),
+            "--samples", "4000", "--align", "none"]
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    assert "of the reference surface lies outside the mesh's bounding box" in err
+    assert "--crop-margin-m" in err
+    assert main(argv + ["--crop-margin-m", "0"]) == 0
+    assert "outside the mesh's bounding box" not in capsys.readouterr().err
+    write_mesh(tmp_path / "same.ply", ref)
+    assert main(["eval", "surface", str(tmp_path / "same.ply"), str(tmp_path / "ref.ply"),
+                 "--samples", "4000", "--align", "none"]) == 0
+    assert "outside the mesh's bounding box" not in capsys.readouterr().err

@@ -289,6 +289,11 @@ def _surface_alignment(args: argparse.Namespace, est: Any, ref: Any) -> Any:
     return align, how
 
 
+# Above this share of the reference outside the mesh's box, completeness says little about the
+# mesh (a quarter: a survey that saw most of its reference stays well below it).
+OUTSIDE_NOTE_FRACTION = 0.25
+
+
 def _cmd_eval_surface(args: argparse.Namespace) -> int:
     from sea3d.eval.surface import surface_metrics
     from sea3d.io.mesh_files import read_mesh
@@ -311,6 +316,10 @@ def _cmd_eval_surface(args: argparse.Namespace) -> int:
           f"{1000 * a.mean:.1f} mm, 90th percentile {1000 * a.p90:.1f} mm")
     print(f"completeness (reference to estimate): median {1000 * c.median:.1f} mm, mean "
           f"{1000 * c.mean:.1f} mm, 90th percentile {1000 * c.p90:.1f} mm")
+    if m.reference_outside > OUTSIDE_NOTE_FRACTION:
+        print(f"note: {100 * m.reference_outside:.0f} % of the reference surface lies outside the "
+              "mesh's bounding box, so completeness mostly measures what the survey never saw; "
+              "--crop-margin-m M keeps only the reference within M of that box", file=sys.stderr)
     for t, p, r, f in zip(m.thresholds_m, m.precision, m.recall, m.fscore, strict=True):
         print(f"within {1000 * t:g} mm: precision {100 * p:.1f} %, recall {100 * r:.1f} %, "
               f"F-score {100 * f:.1f} %")

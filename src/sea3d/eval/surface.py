@@ -52,7 +52,12 @@ DEFAULT_THRESHOLDS_M = (0.01, 0.02, 0.05)
 
 @dataclass(frozen=True, kw_only=True)
 class SurfaceMetrics:
-    """Accuracy and completeness, metres; precision, recall and F-score per threshold."""
+    """Accuracy and completeness, metres; precision, recall and F-score per threshold.
+
+    ``reference_outside`` is the fraction of the reference samples used for completeness that
+    lie outside the estimate's bounding box: when it is large, completeness mostly measures
+    surface the estimate never saw (crop it with ``crop_margin_m``).
+    """
 
     accuracy_m: ErrorStats
     completeness_m: ErrorStats
@@ -62,6 +67,7 @@ class SurfaceMetrics:
     fscore: tuple[float, ...]
     estimate_samples: int
     reference_samples: int
+    reference_outside: float = 0.0
 
     def as_dict(self) -> dict[str, object]:
         """Plain values for JSON."""
@@ -184,6 +190,8 @@ def surface_metrics(
         ref_s = ref_s[np.all((ref_s >= lo) & (ref_s <= hi), axis=1)]
         if len(ref_s) == 0:
             raise ReconError("no reference surface lies inside the estimate's bounding box")
+    est_v = np.asarray(est_vertices, dtype=np.float64)
+    outside = ~np.all((ref_s >= est_v.min(axis=0)) & (ref_s <= est_v.max(axis=0)), axis=1)
     ref_has_mesh = ref_triangles is not None and len(ref_triangles) > 0
     est_has_mesh = est_triangles is not None and len(est_triangles) > 0
     acc = (point_to_mesh_distance(est_s, ref_vertices, ref_triangles)  # type: ignore[arg-type]
@@ -202,6 +210,7 @@ def surface_metrics(
         fscore=fs,
         estimate_samples=len(est_s),
         reference_samples=len(ref_s),
+        reference_outside=float(np.mean(outside)),
     )
 
 
