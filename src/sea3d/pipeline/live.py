@@ -459,6 +459,23 @@ class _Run:
                                     self.stereo.maps, use_imu=self.imu_used, timer=self.timer)
         self.executor = ProcessExecutor(1, setup=(install_geometry, (self.stage, self.stereo)))
 
+    def warm(self) -> float:
+        """Start the depth worker and run its first (kernel-compiling) frame on a blank pair
+        before the source starts, so the first frames are not held behind the worker's start;
+        returns the seconds it took."""
+        t0 = time.monotonic()
+        rig = self.stage.rig
+        blank = np.zeros((rig.height, rig.width), np.uint8)
+        try:
+            self.executor.submit(process_frame, self.stage, 0, blank, blank,
+                                 self.executor.share(self.stereo)).result()
+        except BaseException:
+            self.executor.close()
+            if self.feed is not None:
+                self.feed.close()
+            raise
+        return time.monotonic() - t0
+
     def run(self, frames: Iterable[LiveFrame], live: LiveConfig | None) -> LiveStats:
         hook = self.feed.on_update if self.feed is not None else None
         try:
@@ -527,9 +544,11 @@ def run_live_replay(session_path: Any, config: Any, live: LiveConfig | None = No
                                max_frames=config.max_frames)
         run = _Run(config, source.native_rig, Path(config.out_dir), use_imu=False, feed=feed,
                    choose_odometry=lambda stereo: _odometry(config, stereo, source, None))
+        warm_s = run.warm()
         stats = run.run(ReplayFrames(source, rate=rate), live)
     summary = run.finish(stats, live, session=str(path),
-                         pairs_in_session=source.pairs_in_session, live_extra={"rate": rate})
+                         pairs_in_session=source.pairs_in_session,
+                         live_extra={"rate": rate, "warmup_s": warm_s})
     return summary, stats
 
 
@@ -574,6 +593,7 @@ def run_live_cameras(recorder: Any, config: Any, live: LiveConfig | None = None,
     rig = resolve_rig(config.rig_path, _RigText(rc.out_path, rc.rig_yaml))
     use_imu = bool(config.poses.use_imu and "imu" in recorder.sources)
     run = _Run(config, rig, Path(config.out_dir), use_imu=use_imu, feed=feed)
+    warm_s = run.warm()  # before the cameras start
     frames = RecorderFrames(recorder, pair_tolerance_ns=pair_tolerance_ns)
     result: dict[str, Any] = {}
 
@@ -600,5 +620,6 @@ def run_live_cameras(recorder: Any, config: Any, live: LiveConfig | None = None,
     if "error" in result:
         raise result["error"]
     summary = run.finish(stats, live, session=str(rc.out_path), pairs_in_session=frames.pairs_made,
-                         live_extra={"unpaired_frames": frames.unpaired, "source": "cameras"})
+                         live_extra={"unpaired_frames": frames.unpaired, "source": "cameras",
+                                     "warmup_s": warm_s})
     return summary, stats, result["summary"]

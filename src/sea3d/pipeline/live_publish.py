@@ -306,7 +306,7 @@ class LiveFeed:
         if snap.meshes:
             self.mesh_updates += 1
             done = time.monotonic()
-            if self._stats is not None and not snap.final:
+            if self._stats is not None:
                 self._stats.mesh_latency_s.extend(done - a for a in snap.arrivals)
         status = {**snap.status, "mesh_vertices": verts, "mesh_triangles": tris}
         if pub is not None:
