@@ -202,7 +202,8 @@ def test_a_camera_that_stops_keeps_the_mesh_so_far_and_says_why(sim_session, cam
 
 
 class _FakeRecorder:
-    sources = {"left": None, "right": None}
+    def __init__(self):
+        self.sources = {"left": None, "right": None}
 
     def add_listener(self, fn):
         self.fn = fn

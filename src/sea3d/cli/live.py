@@ -25,9 +25,14 @@ def _recorder(args: argparse.Namespace) -> Any:
     sources = {role: open_source(spec, role, replay_speed=args.replay_speed)
                for role, spec in (("left", args.left), ("right", args.right),
                                   ("imu", args.imu)) if spec}
+    rig_yaml = read_rig_text(args.rig) if args.rig else None
+    if rig_yaml is None and hasattr(sources["left"], "stream"):  # a session replay: its rig
+        from sea3d.io.session import open_session
+
+        with open_session(sources["left"].path) as replayed:  # type: ignore[attr-defined]
+            rig_yaml = replayed.rig_yaml
     return Recorder(RecorderConfig(out_path=args.record, duration_s=args.duration,
-                                   rig_yaml=read_rig_text(args.rig) if args.rig else None),
-                    sources)
+                                   rig_yaml=rig_yaml), sources)
 
 
 def _cmd_live(args: argparse.Namespace) -> int:

@@ -460,14 +460,16 @@ class _Run:
         self.executor = ProcessExecutor(1, setup=(install_geometry, (self.stage, self.stereo)))
 
     def warm(self) -> float:
-        """Start the depth worker and run its first (kernel-compiling) frame on a blank pair
-        before the source starts, so the first frames are not held behind the worker's start;
-        returns the seconds it took."""
+        """Start the depth worker and run its first (kernel-compiling) frame on a textured
+        pair before the source starts, so the first frames are not held behind the worker's
+        start; returns the seconds it took."""
         t0 = time.monotonic()
         rig = self.stage.rig
-        blank = np.zeros((rig.height, rig.width), np.uint8)
+        noise = np.random.default_rng(0).integers(0, 256, (rig.height, rig.width + 8),
+                                                  dtype=np.uint8)
+        left, right = noise[:, 8:].copy(), noise[:, :-8].copy()  # 8 px of disparity
         try:
-            self.executor.submit(process_frame, self.stage, 0, blank, blank,
+            self.executor.submit(process_frame, self.stage, 0, left, right,
                                  self.executor.share(self.stereo)).result()
         except BaseException:
             self.executor.close()
