@@ -110,6 +110,8 @@ def test_live_from_cameras_records_the_same_bytes_and_publishes_while_it_runs(
             poller.join(timeout=10)
             with urllib.request.urlopen(mon.url + "live/mesh.ply", timeout=5) as r:
                 ply = r.read()
+            with urllib.request.urlopen(mon.url + "live.json", timeout=5) as r:
+                after = json.loads(r.read())
             status = client.wait_for(LIVE_STATUS_TOPIC)
             deadline = time.monotonic() + 10
             while time.monotonic() < deadline and status[-1][1]["stop_reason"] is None:
@@ -164,8 +166,11 @@ def test_live_from_cameras_records_the_same_bytes_and_publishes_while_it_runs(
     assert all(m >= f for m, f in zip(stats.mesh_latency_s, stats.latency_s, strict=True))
 
     # the monitor page: status, trajectory and the mesh as PLY
-    assert polls and polls[-1]["trajectory_poses"] == len(polls[-1]["trajectory_xyz"])
-    assert max(p["trajectory_poses"] for p in polls) == FRAMES
+    seen = [p["trajectory_poses"] for p in polls]
+    assert seen and seen == sorted(seen) and any(p["running"] for p in polls)
+    assert all(p["trajectory_poses"] == len(p["trajectory_xyz"]) for p in polls)
+    assert after["trajectory_poses"] == len(after["trajectory_xyz"]) == FRAMES
+    assert after["stop_reason"] == stats.stop_reason and after["running"] is False
     head = ply[:ply.index(b"end_header")].decode()
     assert f"element vertex {summary['mesh']['vertices']}" in head
 
