@@ -17,7 +17,8 @@ The source is a session replayed at its recorded rate (:class:`ReplayFrames`, ``
 exactly as it would without live: ``sea3d live --record``). When the source stops, what was
 fused so far is kept and written, and the stop reason is reported.
 
-Latency is measured per fused frame, from its arrival to the end of its fusion step (when the
+Latency is measured per fused frame, from its arrival (the recorder's delivery, the replay's
+due time: the time it waits for the odometry counts) to the end of its fusion step (when the
 TSDF holds it), and, while a :class:`~sea3d.pipeline.live_publish.LiveFeed` publishes, to the
 published mesh update that holds it.
 """
@@ -68,6 +69,10 @@ class LiveFrame:
     left: NDArray[Any]
     right: NDArray[Any]
     imu: ImuChunk | None = None
+    arrival_s: float | None = None
+    """When the pair reached sea3d (``time.monotonic``): the recorder's delivery of its later
+    image, the replay's due time; None: when the live loop takes it. Latency counts from it,
+    so the time a frame waits for the odometry is in it."""
 
 
 @dataclass(kw_only=True)
@@ -154,7 +159,8 @@ class ReplayFrames:
                 self.stop_reason = f"camera stopped: {err}"
                 return
             yield LiveFrame(t_ns=pair.t_ns, left=left, right=right,
-                            imu=imu_between(self.source.imu, t_prev, pair.t_ns))
+                            imu=imu_between(self.source.imu, t_prev, pair.t_ns),
+                            arrival_s=min(due, self.clock()))
             t_prev = pair.t_ns
         self.stop_reason = "replay ended"
 
@@ -202,7 +208,8 @@ class RecorderFrames:
         self._imu: deque[Any] = deque()
         self._imu_last_t: int | None = None
         self._left_stamps: deque[int] = deque(maxlen=31)
-        self._pairs: deque[tuple[Any, Any]] = deque()
+        self._pairs: deque[tuple[Any, Any, float]] = deque()
+        self._arrival: dict[int, float] = {}  # id(record): when the recorder handed it on
         self._ended = False
         self._end_reason = ""
         self.unpaired = 0
@@ -214,7 +221,10 @@ class RecorderFrames:
     # -- the recorder's side (capture threads) ---------------------------------------------
     def on_record(self, stream: str, record: Any) -> None:
         """The listener: queue the record and return."""
+        now = time.monotonic()
         with self._cv:
+            if stream in ("left", "right"):
+                self._arrival[id(record)] = now
             if stream == "left":
                 self._left.append(record)
                 self._left_stamps.append(int(record.t_ns))
@@ -263,7 +273,7 @@ class RecorderFrames:
                 if not final and not waited and (newest_right is None or newest_right <= t + tol):
                     return  # a closer right frame may still come
             while self._right and int(self._right[0].t_ns) < t - (tol or 0):
-                self._right.popleft()
+                self._arrival.pop(id(self._right.popleft()), None)
                 self.unpaired += 1
             best = exact
             if best is None and self._right:
@@ -272,19 +282,22 @@ class RecorderFrames:
                     best = cand
             self._left.popleft()
             if best is None:
+                self._arrival.pop(id(left), None)
                 self.unpaired += 1
                 continue
             nxt = self._left[0] if self._left else None
             if exact is None and nxt is not None and (
                     abs(int(nxt.t_ns) - int(best.t_ns)) < abs(t - int(best.t_ns))):
+                self._arrival.pop(id(left), None)
                 self.unpaired += 1  # the right frame is the next left frame's partner
                 continue
             while self._right and self._right[0] is not best:
-                self._right.popleft()
+                self._arrival.pop(id(self._right.popleft()), None)
                 self.unpaired += 1
             if self._right:
                 self._right.popleft()
-            self._pairs.append((left, best))
+            arrival = max(self._arrival.pop(id(left), 0.0), self._arrival.pop(id(best), 0.0))
+            self._pairs.append((left, best, arrival))
             self.pairs_made += 1
 
     def _imu_until(self, t_ns: int) -> ImuChunk | None:
@@ -305,7 +318,7 @@ class RecorderFrames:
                     self._cv.wait(0.5)
                 if not self._pairs:
                     break
-                left, right = self._pairs.popleft()
+                left, right, arrival = self._pairs.popleft()
                 t = int(left.t_ns)
                 if self.has_imu and not self._ended:
                     end = time.monotonic() + self.imu_wait_s
@@ -315,7 +328,7 @@ class RecorderFrames:
                 imu = self._imu_until(t)
                 self.backlog = len(self._pairs) + 1
             yield LiveFrame(t_ns=t, left=_read_only(left.image), right=_read_only(right.image),
-                            imu=imu)
+                            imu=imu, arrival_s=arrival)
         self.stop_reason = self._end_reason or "the recorder stopped"
 
 
@@ -402,7 +415,7 @@ def run_live(frames: Iterable[LiveFrame], stage: FrameStageConfig, stereo: Any,
                     hook.clear()
 
     for frame in frames:
-        arrival = time.monotonic()
+        arrival = time.monotonic() if frame.arrival_s is None else frame.arrival_s
         stats.frames += 1
         stats.backlog_max = max(stats.backlog_max, int(getattr(frames, "backlog", 0) or 0))
         busy = sum(1 for p in queue if p.future is not None and not p.future.done())
