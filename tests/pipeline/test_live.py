@@ -45,8 +45,12 @@ def test_replay_tracks_every_frame_and_fuses_what_it_keeps_up_with(sim_session, 
     assert stats.fused + stats.depth_dropped <= FRAMES and stats.fused >= 1
     assert len(stats.latency_s) == stats.fused and min(stats.latency_s) > 0
     assert live["stop_reason"] == "replay ended"
+    # a frame without depth says so, and its seeds are the last depth map moved to its
+    # predicted pose (from the second tracked frame on: constant velocity needs two)
+    assert sum(r["depth"] == "seeded" for r in rows) == stats.depth_dropped
     if rate > 10:  # 500 fps asked of one depth worker: it must drop
         assert stats.depth_dropped > 0
+        assert stats.depth_dropped - 2 <= stats.seeds_moved <= stats.depth_dropped
     assert summary["mesh"]["triangles"] > 1000
     traj = np.loadtxt(tmp_path / "live" / "trajectory.tum")
     assert len(traj) == FRAMES
@@ -77,3 +81,6 @@ def test_cli_live_replay(sim_session, tmp_path, capsys):
     assert s["frames"] == 6 and s["live"]["frames"] == 6
     assert main(["live", "-o", str(tmp_path / "x")]) == 2  # no source
     assert "give --replay SESSION" in capsys.readouterr().err
+    assert main(["live", "-o", str(tmp_path / "x"), "--record", str(tmp_path / "r.mcap"),
+                 "--left", "0"]) == 2
+    assert "--record needs --left and --right" in capsys.readouterr().err

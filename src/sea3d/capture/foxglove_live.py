@@ -34,11 +34,48 @@ import numpy as np
 from sea3d.errors import CaptureError, ConfigError
 from sea3d.io import foxglove_msgs as fm
 
-__all__ = ["FoxgloveBridge", "FoxgloveConfig", "FoxglovePublisher"]
+__all__ = [
+    "LIVE_STATUS_SCHEMA",
+    "LIVE_STATUS_TOPIC",
+    "FoxgloveBridge",
+    "FoxgloveConfig",
+    "FoxglovePublisher",
+]
 
 _log = logging.getLogger(__name__)
 
 SONAR_FOV_RAD = 0.5236  # the Ping echosounder's 30 degree beam (Blue Robotics datasheet)
+
+LIVE_STATUS_TOPIC = "/live/status"
+"""Topic of the live reconstruction's status (``sea3d live``)."""
+
+_NUM = {"type": ["number", "null"]}
+_INT = {"type": ["integer", "null"]}
+LIVE_STATUS_SCHEMA: dict[str, Any] = {
+    "title": "sea3d.LiveStatus",
+    "type": "object",
+    "properties": {
+        "timestamp": {"type": "object", "properties": {"sec": {"type": "integer"},
+                                                       "nsec": {"type": "integer"}}},
+        "running": {"type": "boolean"},
+        "frames": _INT,
+        "tracked": _INT,
+        "fused": _INT,
+        "depth_dropped": _INT,
+        "backlog": _INT,
+        "odometry_status": {"type": ["string", "null"]},
+        "latency_p50_s": _NUM,
+        "mesh_latency_p50_s": _NUM,
+        "trajectory_poses": _INT,
+        "mesh_vertices": _INT,
+        "mesh_triangles": _INT,
+        "stop_reason": {"type": ["string", "null"]},
+    },
+}
+"""JSON schema of ``/live/status``: frames seen, tracked (trusted pose), fused, depth frames
+dropped to keep up, frames waiting, the last frame's odometry status, latency medians
+(frame to fusion, frame to published mesh), poses in ``/odometry/trajectory``, the mesh
+published so far, and why the run stopped (null while it runs)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -203,6 +240,8 @@ class FoxglovePublisher:
         self.trajectory = PosesInFrameChannel(fm.TOPICS["trajectory"], context=ctx)
         self.cloud = PointCloudChannel(fm.TOPICS["cloud"], context=ctx)
         self.mesh = SceneUpdateChannel(fm.TOPICS["mesh"], context=ctx)
+        self.live_status = foxglove.Channel(LIVE_STATUS_TOPIC, schema=LIVE_STATUS_SCHEMA,
+                                            context=ctx)
         self.counts: collections.Counter[str] = collections.Counter()
         self._count_lock = threading.Lock()
         self._last_image_t: dict[str, float] = {}
@@ -329,12 +368,27 @@ class FoxglovePublisher:
         triangles: np.ndarray,
         vertex_colors_rgb: np.ndarray | None = None,
         frame_id: str = "world",
+        *,
+        entity_id: str = "mesh",
     ) -> None:
-        """A mesh as a scene update (see :func:`sea3d.io.foxglove_msgs.mesh_scene`)."""
+        """A mesh as a scene update (see :func:`sea3d.io.foxglove_msgs.mesh_scene`); a later
+        mesh of the same ``entity_id`` replaces it in the client (live: one entity per
+        submap)."""
         if self.subscribed(self.mesh):
-            msg = fm.mesh_scene(t_ns, frame_id, vertices, triangles, vertex_colors_rgb)
+            msg = fm.mesh_scene(t_ns, frame_id, vertices, triangles, vertex_colors_rgb,
+                                entity_id=entity_id)
             self.mesh.log(msg, log_time=int(t_ns))
             self._count(fm.TOPICS["mesh"])
+
+    def publish_live_status(self, t_ns: int, status: dict[str, Any]) -> None:
+        """The live reconstruction's status (:data:`LIVE_STATUS_SCHEMA`) on ``/live/status``."""
+        if self.subscribed(self.live_status):
+            t = int(t_ns)
+            msg = {"timestamp": {"sec": t // 1_000_000_000, "nsec": t % 1_000_000_000},
+                   **{k: status.get(k) for k in LIVE_STATUS_SCHEMA["properties"]
+                      if k != "timestamp"}}
+            self.live_status.log(msg, log_time=t)
+            self._count(LIVE_STATUS_TOPIC)
 
     def stop(self) -> None:
         """Stop the server (clients are disconnected). Safe to call twice."""

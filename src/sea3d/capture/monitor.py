@@ -12,6 +12,9 @@ Endpoints (all GET):
 ``/frame/disparity.jpg``   low-resolution disparity preview of the latest pair (OpenCV SGBM
                            on the raw, unrectified images: a focus/overlap check, not depth)
 ``/stream/left.mjpg``      MJPEG stream (``multipart/x-mixed-replace``), also right
+``/live.json``             with a live reconstruction (``sea3d live``): its status, mesh size
+                           and trajectory positions (404 without one)
+``/live/mesh.ply``         the live mesh published so far, binary PLY (503 before the first)
 =========================  ====================================================================
 
 The server listens on loopback (127.0.0.1) unless another address is given explicitly; it
@@ -142,6 +145,18 @@ _PAGE = """<!doctype html>
  <tr><td>range m (confidence)</td><td id="stat-range">-</td></tr>
  <tr><td>stop reason</td><td id="stat-stop">-</td></tr>
 </table>
+<div id="live" style="display:none">
+<h4>live reconstruction <a href="/live/mesh.ply">mesh.ply</a></h4>
+<div class="row"><canvas id="live-path" width="320" height="320"
+ style="background:#123"></canvas>
+<table>
+ <tr><td>frames / tracked / fused</td><td id="live-frames">-</td></tr>
+ <tr><td>depth frames dropped</td><td id="live-dropped">-</td></tr>
+ <tr><td>odometry</td><td id="live-odometry">-</td></tr>
+ <tr><td>latency to fusion / mesh (p50)</td><td id="live-latency">-</td></tr>
+ <tr><td>mesh vertices / triangles</td><td id="live-mesh">-</td></tr>
+ <tr><td>stop reason</td><td id="live-stop">-</td></tr>
+</table></div></div>
 <script>
 "use strict";
 const mjpeg = new URLSearchParams(location.search).get("mode") === "mjpeg";
@@ -180,7 +195,7 @@ async function pollStats() {
     const s = await (await fetch("/stats.json", {cache: "no-store"})).json();
     const set = (id, v) => { document.getElementById(id).textContent = v; };
     set("state", s.running ? (s.mode === "replay" ? "(replaying " + (s.source || "") + ")"
-        : "(recording)") : "(stopped)");
+        : s.mode === "live" ? "(live reconstruction)" : "(recording)") : "(stopped)");
     set("stat-elapsed", fmt(s.elapsed_s, 1) + " s");
     for (const side of ["left", "right"]) {
       set("stat-frames-" + side, s.frames[side] ?? 0);
@@ -198,7 +213,37 @@ async function pollStats() {
   } catch (e) { /* server gone: keep the last figures */ }
   setTimeout(pollStats, 250);
 }
-pollImage("left"); pollImage("right"); pollDisparity(); pollStats();
+function drawPath(xyz) {
+  const c = document.getElementById("live-path"), g = c.getContext("2d");
+  g.clearRect(0, 0, c.width, c.height);
+  if (xyz.length < 2) { return; }
+  const xs = xyz.map(p => p[0]), zs = xyz.map(p => p[2]);
+  const x0 = Math.min(...xs), z0 = Math.min(...zs);
+  const span = Math.max(Math.max(...xs) - x0, Math.max(...zs) - z0, 1e-3);
+  const k = (c.width - 20) / span;
+  g.strokeStyle = "#7fd"; g.beginPath();
+  xyz.forEach((p, i) => { const u = 10 + (p[0] - x0) * k, v = c.height - 10 - (p[2] - z0) * k;
+    if (i) { g.lineTo(u, v); } else { g.moveTo(u, v); } });
+  g.stroke();
+}
+async function pollLive() {
+  try {
+    const r = await fetch("/live.json", {cache: "no-store"});
+    if (r.status === 404) { return; }
+    const s = await r.json();
+    const set = (id, v) => { document.getElementById(id).textContent = v; };
+    document.getElementById("live").style.display = "";
+    set("live-frames", s.frames + " / " + s.tracked + " / " + s.fused);
+    set("live-dropped", s.depth_dropped ?? "-");
+    set("live-odometry", s.odometry_status || "-");
+    set("live-latency", fmt(s.latency_p50_s, 2) + " s / " + fmt(s.mesh_latency_p50_s, 2) + " s");
+    set("live-mesh", s.mesh_vertices + " / " + s.mesh_triangles);
+    set("live-stop", s.stop_reason || (s.running ? "running" : "-"));
+    drawPath(s.trajectory_xyz || []);
+  } catch (e) { /* server gone */ }
+  setTimeout(pollLive, 500);
+}
+pollImage("left"); pollImage("right"); pollDisparity(); pollStats(); pollLive();
 </script></body></html>
 """
 
@@ -330,6 +375,9 @@ class MonitorServer:
         port: TCP port (0 picks a free one; see :attr:`url`).
         preview_width: width of the JPEG previews in pixels.
         disparity_width: width of the disparity preview in pixels.
+        live: a live reconstruction's feed (:class:`~sea3d.pipeline.live_publish.LiveFeed`:
+            ``live_state() -> dict`` and ``mesh_ply() -> bytes | None``) for ``/live.json``
+            and ``/live/mesh.ply``, or None.
 
     Raises:
         ConfigError: if the address cannot be bound.
@@ -343,8 +391,10 @@ class MonitorServer:
         *,
         preview_width: int = 640,
         disparity_width: int = 320,
+        live: Any = None,
     ) -> None:
         self.provider = provider
+        self.live = live
         self.cache = _FrameCache(provider, preview_width, disparity_width)
         self._stopping = threading.Event()
         handler = self._make_handler()
@@ -451,6 +501,18 @@ class MonitorServer:
                             self._send(503, b"no frame yet", "text/plain")
                         else:
                             self._send(200, frame[1], "image/jpeg", {"X-Frame-Seq": str(frame[0])})
+                    elif path == "/live.json":
+                        if server.live is None:
+                            self._send(404, b"no live reconstruction", "text/plain")
+                        else:
+                            body = json.dumps(json_safe(server.live.live_state())).encode()
+                            self._send(200, body, "application/json")
+                    elif path == "/live/mesh.ply":
+                        ply = server.live.mesh_ply() if server.live is not None else None
+                        if ply is None:
+                            self._send(503, b"no live mesh yet", "text/plain")
+                        else:
+                            self._send(200, ply, "application/octet-stream")
                     elif path == "/frame/disparity.jpg":
                         disp = server.cache.disparity()
                         if disp is None:

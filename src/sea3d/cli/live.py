@@ -1,56 +1,129 @@
 """``sea3d live``: live reconstruction (odometry on every frame, depth and fusion as it keeps
-up), here from a recorded session replayed at its rate (``--replay``)."""
+up), from cameras while they are recorded (``--record SESSION --left SRC --right SRC``; the
+session is written as ``sea3d record`` writes it) or from a recorded session replayed at its
+rate (``--replay``); the growing mesh, trajectory and status go to Foxglove (``--foxglove``)
+and the monitor page (``--monitor``) while it runs."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
+from typing import Any
 
 from sea3d.cli._args import image_size
 
 __all__ = ["register"]
 
 
+def _recorder(args: argparse.Namespace) -> Any:
+    from sea3d.capture.recorder import Recorder, RecorderConfig
+    from sea3d.capture.spec import open_source
+    from sea3d.io.rig_file import read_rig_text
+
+    sources = {role: open_source(spec, role, replay_speed=args.replay_speed)
+               for role, spec in (("left", args.left), ("right", args.right),
+                                  ("imu", args.imu)) if spec}
+    rig_yaml = read_rig_text(args.rig) if args.rig else None
+    if rig_yaml is None and hasattr(sources["left"], "stream"):  # a session replay: its rig
+        from sea3d.io.session import open_session
+
+        with open_session(sources["left"].path) as replayed:  # type: ignore[attr-defined]
+            rig_yaml = replayed.rig_yaml
+    return Recorder(RecorderConfig(out_path=args.record, duration_s=args.duration,
+                                   rig_yaml=rig_yaml), sources)
+
+
 def _cmd_live(args: argparse.Namespace) -> int:
     from sea3d.errors import ConfigError
-    from sea3d.pipeline.live import LiveConfig, run_live_replay
+    from sea3d.pipeline.live import LiveConfig, run_live_cameras, run_live_replay
+    from sea3d.pipeline.live_publish import LiveFeed
     from sea3d.pipeline.process import PoseConfig, ProcessConfig
 
-    if args.replay is None:
-        raise ConfigError("give --replay SESSION (live cameras: sea3d record's listener hook "
-                          "is not wired to live yet)")
+    if (args.replay is None) == (args.record is None):
+        raise ConfigError("give --replay SESSION, or --record SESSION with --left and --right "
+                          "cameras")
+    if args.record is not None and not (args.left and args.right):
+        raise ConfigError("--record needs --left and --right camera sources")
     config = ProcessConfig(out_dir=args.output, rig_path=args.rig, size_px=args.size,
                            poses=PoseConfig(poses_path=args.poses, use_imu=not args.no_imu),
                            max_frames=args.max_frames, report=False)
-    summary, stats = run_live_replay(args.replay, config,
-                                     LiveConfig(depth_in_flight=args.depth_in_flight),
-                                     rate=args.rate)
+    live = LiveConfig(depth_in_flight=args.depth_in_flight)
+    recorder = _recorder(args) if args.record is not None else None
+    servers: list[Any] = []
+    rig_yaml = recorder.config.rig_yaml if recorder is not None else None
+    feed = None
+    try:
+        if args.foxglove or args.monitor:
+            feed = LiveFeed()
+            provider = recorder if recorder is not None else feed
+            if args.foxglove:
+                from sea3d.cli._foxglove import start_foxglove
+
+                fox = start_foxglove(args.foxglove, provider, rig_yaml=rig_yaml)
+                assert fox is not None
+                feed.publisher = fox[0]
+                servers += [fox[1], fox[0]]
+            if args.monitor:
+                from sea3d.capture.monitor import MonitorServer, parse_address
+
+                host, port = parse_address(args.monitor)
+                mon = MonitorServer(provider, host, port, live=feed).start()
+                print(f"monitor at {mon.url}", file=sys.stderr, flush=True)
+                servers.insert(0, mon)
+        if recorder is not None:
+            from sea3d.cli.record import _StopOnSignals
+
+            with _StopOnSignals(recorder.request_stop):
+                summary, stats, _rec = run_live_cameras(recorder, config, live, feed=feed)
+        else:
+            summary, stats = run_live_replay(args.replay, config, live, rate=args.rate,
+                                             feed=feed)
+    finally:
+        if feed is not None:
+            feed.close()
+        for s in servers:
+            s.stop()
     if args.json:
         print(json.dumps(summary, indent=2, default=str))
         return 0
-    live = summary["live"]
-    lat = live["latency_s"]
-    print(f"{stats.frames} frames: {live['fraction_tracked']:.0%} tracked, "
-          f"{live['fraction_fused']:.0%} fused ({stats.depth_dropped} depth frames dropped to "
+    info = summary["live"]
+    lat = info["latency_s"]
+    print(f"{stats.frames} frames: {info['fraction_tracked']:.0%} tracked, "
+          f"{info['fraction_fused']:.0%} fused ({stats.depth_dropped} depth frames dropped to "
           f"keep up); latency p50 {lat['p50'] or 0:.2f} s, p99 {lat['p99'] or 0:.2f} s; "
-          f"{live['stop_reason']}; outputs in {args.output}")
+          f"{info['stop_reason']}; outputs in {args.output}")
     return 0
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("live", help="live reconstruction (from a replayed session)",
-                       description=__doc__)
+    p = sub.add_parser("live", help="live reconstruction (cameras being recorded, or a "
+                       "replayed session)", description=__doc__)
     p.add_argument("--replay", type=Path, help="a recorded session, replayed at its rate")
+    p.add_argument("--record", type=Path, help="record the cameras into this new session "
+                   "and reconstruct them live")
+    p.add_argument("--left", help="left camera source (as sea3d record's --left)")
+    p.add_argument("--right", help="right camera source")
+    p.add_argument("--imu", help="IMU source (as sea3d record's --imu)")
+    p.add_argument("--duration", type=float, help="seconds to record (default: until the "
+                   "cameras stop or Ctrl-C)")
+    p.add_argument("--replay-speed", type=float, default=1.0,
+                   help="pace of replay sources given to --left/--right (1: real time)")
     p.add_argument("-o", "--output", type=Path, required=True, help="output folder")
     p.add_argument("--rate", type=float, default=1.0, help="replay speed (default 1: as "
                    "recorded)")
-    p.add_argument("--rig", type=Path, help="rig file (default: the session's)")
+    p.add_argument("--rig", type=Path, help="rig file (default: the session's); stored with "
+                   "a --record session")
     p.add_argument("--size", type=image_size, help="process at WxH")
     p.add_argument("--poses", type=Path, help="known T_world_left poses instead of odometry")
     p.add_argument("--no-imu", action="store_true", help="visual odometry only")
     p.add_argument("--max-frames", type=int, help="only the first N pairs")
     p.add_argument("--depth-in-flight", type=int, default=1,
                    help="depth frames computed at once (default 1)")
+    p.add_argument("--foxglove", metavar="HOST:PORT", help="publish the images, mesh, "
+                   "trajectory and status on a Foxglove WebSocket server")
+    p.add_argument("--monitor", metavar="HOST:PORT", help="serve the monitor page (with the "
+                   "live status, trajectory and mesh)")
     p.add_argument("--json", action="store_true", help="print summary.json")
     p.set_defaults(handler=_cmd_live)

@@ -6,22 +6,32 @@ stage, on a worker) runs on as many frames as it keeps up with: a frame that arr
 rectified, the odometry takes the latest depth map as its stereo seeds (the row search
 refines them), and fusion skips it (``no-depth`` in status.csv). The drops are counted.
 
-The source is a session replayed at its recorded rate (:class:`ReplayFrames`, ``sea3d live
---replay``); the recorder's cameras feed the same loop through any iterable of
-:class:`LiveFrame`. When the source stops, what was fused so far is kept and the stop reason
-is reported.
+A frame without depth of its own gets the latest depth map moved to its predicted pose
+(:meth:`~sea3d.pipeline.depth_rate.DepthRate.seed`: constant velocity from the two previous
+tracked frames), so its seeds point at the surface it sees; the unmoved map where nothing
+lands, and before two tracked frames.
 
-Latency is measured per fused frame, from its arrival to the end of its fusion step (when the
-mesh holds it).
+The source is a session replayed at its recorded rate (:class:`ReplayFrames`, ``sea3d live
+--replay``) or the cameras of a running :class:`~sea3d.capture.recorder.Recorder`
+(:class:`RecorderFrames`, fed by its listener hook while the recorder writes its session
+exactly as it would without live: ``sea3d live --record``). When the source stops, what was
+fused so far is kept and written, and the stop reason is reported.
+
+Latency is measured per fused frame, from its arrival (the recorder's delivery, the replay's
+due time: the time it waits for the odometry counts) to the end of its fusion step (when the
+TSDF holds it), and, while a :class:`~sea3d.pipeline.live_publish.LiveFeed` publishes, to the
+published mesh update that holds it.
 """
 
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -33,7 +43,8 @@ from sea3d.pipeline.frame_source import SessionFrames, imu_between
 from sea3d.pipeline.frame_stage import FrameResult, FrameStageConfig, process_frame, rectify_pair
 from sea3d.pipeline.ordered import TRUSTED, OrderedStages
 
-__all__ = ["LiveConfig", "LiveFrame", "LiveStats", "ReplayFrames", "run_live"]
+__all__ = ["LiveConfig", "LiveFrame", "LiveStats", "LiveUpdate", "RecorderFrames",
+           "ReplayFrames", "run_live", "run_live_cameras", "run_live_replay"]
 
 log = logging.getLogger(__name__)
 
@@ -58,6 +69,10 @@ class LiveFrame:
     left: NDArray[Any]
     right: NDArray[Any]
     imu: ImuChunk | None = None
+    arrival_s: float | None = None
+    """When the pair reached sea3d (``time.monotonic``): the recorder's delivery of its later
+    image, the replay's due time; None: when the live loop takes it. Latency counts from it,
+    so the time a frame waits for the odometry is in it."""
 
 
 @dataclass(kw_only=True)
@@ -68,20 +83,46 @@ class LiveStats:
     tracked: int = 0
     fused: int = 0
     depth_dropped: int = 0
+    seeds_moved: int = 0
+    """Frames without depth whose seeds were moved to their predicted pose."""
     latency_s: list[float] = field(default_factory=list)
+    """Per fused frame: arrival to the end of its fusion step."""
+    mesh_latency_s: list[float] = field(default_factory=list)
+    """Per fused frame: arrival to the published mesh update that holds it (with a feed)."""
+    backlog_max: int = 0
+    """Most frames waiting for the odometry at once (none is dropped: they wait)."""
     stop_reason: str = ""
     cpu_s: float = 0.0
 
     def as_dict(self) -> dict[str, Any]:
-        lat = np.asarray(self.latency_s, np.float64)
+        def pct(values: list[float]) -> dict[str, float | None]:
+            a = np.asarray(values, np.float64)
+            return {"p50": float(np.percentile(a, 50)) if a.size else None,
+                    "p99": float(np.percentile(a, 99)) if a.size else None}
+
         return {"frames": self.frames, "tracked": self.tracked, "fused": self.fused,
-                "depth_dropped": self.depth_dropped,
+                "depth_dropped": self.depth_dropped, "seeds_moved": self.seeds_moved,
                 "fraction_tracked": self.tracked / self.frames if self.frames else 0.0,
                 "fraction_fused": self.fused / self.frames if self.frames else 0.0,
-                "latency_s": {"p50": float(np.percentile(lat, 50)) if lat.size else None,
-                              "p99": float(np.percentile(lat, 99)) if lat.size else None},
+                "latency_s": pct(self.latency_s), "mesh_latency_s": pct(self.mesh_latency_s),
+                "backlog_max": self.backlog_max,
                 "cpu_s_per_frame": self.cpu_s / self.frames if self.frames else 0.0,
                 "stop_reason": self.stop_reason}
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class LiveUpdate:
+    """What :func:`run_live` hands its ``on_update`` hook after each frame (in the loop's
+    thread: the TSDF may be read, not changed)."""
+
+    estimate: OdometryEstimate
+    fused: bool
+    """The frame was integrated into the TSDF."""
+    arrival_s: float
+    """When it arrived (``time.monotonic``)."""
+    frame: LiveFrame
+    stats: LiveStats
+    stages: OrderedStages
 
 
 class ReplayFrames:
@@ -98,6 +139,7 @@ class ReplayFrames:
             raise ConfigError(f"rate must be > 0, got {rate}")
         self.source, self.rate, self.clock, self.sleep = source, rate, clock, sleep
         self.stop_reason = ""
+        self.backlog = 0
 
     def __iter__(self) -> Iterator[LiveFrame]:
         pairs = self.source.pairs
@@ -108,15 +150,186 @@ class ReplayFrames:
             wait = due - self.clock()
             if wait > 0:
                 self.sleep(wait)
+            # frames already due and not yet handed on: what a camera's queue would hold
+            now_stamp = t0 + (self.clock() - t0_wall) * self.rate * 1e9
+            self.backlog = sum(1 for p in pairs[pair.index:] if p.t_ns <= now_stamp)
             try:
                 left, right = self.source.read(pair)
             except SessionError as err:
                 self.stop_reason = f"camera stopped: {err}"
                 return
             yield LiveFrame(t_ns=pair.t_ns, left=left, right=right,
-                            imu=imu_between(self.source.imu, t_prev, pair.t_ns))
+                            imu=imu_between(self.source.imu, t_prev, pair.t_ns),
+                            arrival_s=min(due, self.clock()))
             t_prev = pair.t_ns
         self.stop_reason = "replay ended"
+
+
+def _read_only(image: NDArray[Any]) -> NDArray[Any]:
+    """A view of a recorder's image that live code cannot write into (the recorder encodes
+    the same array)."""
+    view = image.view()
+    view.flags.writeable = False
+    return view
+
+
+class RecorderFrames:
+    """Stereo pairs of a running :class:`~sea3d.capture.recorder.Recorder`, as a live source.
+
+    Registered as the recorder's listener (``recorder.add_listener``): the capture threads
+    hand every record on and return at once (a lock and a deque append), so the recording
+    is exactly what it would be without live. Left and right frames are paired by
+    mutual-nearest stamp within ``pair_tolerance_ns`` (default: half the median left frame
+    interval seen so far, as :meth:`~sea3d.io.session.SessionReader.match_pairs` does; equal
+    stamps pair at once); a frame without a partner is counted in ``unpaired``. The IMU
+    samples in ``(previous pair, this pair]`` go with each pair; a pair waits at most
+    ``imu_wait_s`` for the IMU to reach its stamp.
+
+    No pair is dropped to keep up: those the consumer has not taken yet wait
+    (``backlog``). Call :meth:`end` when the recorder has stopped (:func:`run_live_cameras`
+    does): the pairs still waiting are handed on, then iteration ends with ``stop_reason``.
+
+    Args:
+        recorder: the recorder (it must not be running yet, or records before are missed).
+        pair_tolerance_ns: largest stamp difference of a pair (None: from the data).
+        imu_wait_s: wall seconds a pair waits for IMU samples up to its stamp.
+    """
+
+    def __init__(self, recorder: Any, *, pair_tolerance_ns: int | None = None,
+                 imu_wait_s: float = 0.2) -> None:
+        if pair_tolerance_ns is not None and pair_tolerance_ns < 0:
+            raise ConfigError(f"pair_tolerance_ns must be >= 0, got {pair_tolerance_ns}")
+        self.pair_tolerance_ns = pair_tolerance_ns
+        self.imu_wait_s = float(imu_wait_s)
+        self.has_imu = "imu" in getattr(recorder, "sources", {})
+        self._cv = threading.Condition()
+        self._left: deque[Any] = deque()
+        self._right: deque[Any] = deque()
+        self._imu: deque[Any] = deque()
+        self._imu_last_t: int | None = None
+        self._left_stamps: deque[int] = deque(maxlen=31)
+        self._pairs: deque[tuple[Any, Any, float]] = deque()
+        self._arrival: dict[int, float] = {}  # id(record): when the recorder handed it on
+        self._ended = False
+        self._end_reason = ""
+        self.unpaired = 0
+        self.pairs_made = 0
+        self.backlog = 0
+        self.stop_reason = ""
+        recorder.add_listener(self.on_record)
+
+    # -- the recorder's side (capture threads) ---------------------------------------------
+    def on_record(self, stream: str, record: Any) -> None:
+        """The listener: queue the record and return."""
+        now = time.monotonic()
+        with self._cv:
+            if stream in ("left", "right"):
+                self._arrival[id(record)] = now
+            if stream == "left":
+                self._left.append(record)
+                self._left_stamps.append(int(record.t_ns))
+            elif stream == "right":
+                self._right.append(record)
+            elif stream == "imu":
+                self._imu.append(record)
+                self._imu_last_t = int(record.t_ns)
+            else:
+                return
+            if stream in ("left", "right"):
+                self._match(final=False)
+            self._cv.notify_all()
+
+    def end(self, reason: str) -> None:
+        """The recorder stopped (``reason``: its stop reason): pair what is left, then end."""
+        with self._cv:
+            self._ended = True
+            self._end_reason = reason
+            self._match(final=True)
+            self._cv.notify_all()
+
+    # -- pairing (under the lock) ------------------------------------------------------------
+    def _tolerance(self) -> int | None:
+        if self.pair_tolerance_ns is not None:
+            return self.pair_tolerance_ns
+        if len(self._left_stamps) < 2:
+            return None
+        dt = np.diff(np.asarray(self._left_stamps, np.int64))
+        dt = dt[dt > 0]
+        return int(np.median(dt) // 2) if dt.size else None
+
+    def _match(self, *, final: bool) -> None:
+        tol = self._tolerance()
+        while self._left:
+            left = self._left[0]
+            t = int(left.t_ns)
+            exact = next((r for r in self._right if int(r.t_ns) == t), None)
+            if exact is None:
+                if tol is None:
+                    if not final:
+                        return
+                    tol = 0
+                newest_right = int(self._right[-1].t_ns) if self._right else None
+                waited = len(self._left) > 1 and int(self._left[-1].t_ns) - t > 20 * max(tol, 1)
+                if not final and not waited and (newest_right is None or newest_right <= t + tol):
+                    return  # a closer right frame may still come
+            while self._right and int(self._right[0].t_ns) < t - (tol or 0):
+                self._arrival.pop(id(self._right.popleft()), None)
+                self.unpaired += 1
+            best = exact
+            if best is None and self._right:
+                cand = min(self._right, key=lambda r: abs(int(r.t_ns) - t))
+                if abs(int(cand.t_ns) - t) <= (tol or 0):
+                    best = cand
+            self._left.popleft()
+            if best is None:
+                self._arrival.pop(id(left), None)
+                self.unpaired += 1
+                continue
+            nxt = self._left[0] if self._left else None
+            if exact is None and nxt is not None and (
+                    abs(int(nxt.t_ns) - int(best.t_ns)) < abs(t - int(best.t_ns))):
+                self._arrival.pop(id(left), None)
+                self.unpaired += 1  # the right frame is the next left frame's partner
+                continue
+            while self._right and self._right[0] is not best:
+                self._arrival.pop(id(self._right.popleft()), None)
+                self.unpaired += 1
+            if self._right:
+                self._right.popleft()
+            arrival = max(self._arrival.pop(id(left), 0.0), self._arrival.pop(id(best), 0.0))
+            self._pairs.append((left, best, arrival))
+            self.pairs_made += 1
+
+    def _imu_until(self, t_ns: int) -> ImuChunk | None:
+        take = []
+        while self._imu and int(self._imu[0].t_ns) <= t_ns:
+            take.append(self._imu.popleft())
+        if not take:
+            return None
+        return ImuChunk(t_ns=np.array([s.t_ns for s in take], np.int64),
+                        accel_mps2=np.array([s.accel_mps2 for s in take], np.float64),
+                        gyro_radps=np.array([s.gyro_radps for s in take], np.float64))
+
+    # -- the live loop's side ------------------------------------------------------------------
+    def __iter__(self) -> Iterator[LiveFrame]:
+        while True:
+            with self._cv:
+                while not self._pairs and not self._ended:
+                    self._cv.wait(0.5)
+                if not self._pairs:
+                    break
+                left, right, arrival = self._pairs.popleft()
+                t = int(left.t_ns)
+                if self.has_imu and not self._ended:
+                    end = time.monotonic() + self.imu_wait_s
+                    while ((self._imu_last_t is None or self._imu_last_t < t)
+                           and not self._ended and time.monotonic() < end):
+                        self._cv.wait(0.02)
+                imu = self._imu_until(t)
+                self.backlog = len(self._pairs) + 1
+            yield LiveFrame(t_ns=t, left=_read_only(left.image), right=_read_only(right.image),
+                            imu=imu, arrival_s=arrival)
+        self.stop_reason = self._end_reason or "the recorder stopped"
 
 
 @dataclass(eq=False)
@@ -129,28 +342,35 @@ class _Pending:
 
 def run_live(frames: Iterable[LiveFrame], stage: FrameStageConfig, stereo: Any,
              stages: OrderedStages, executor: Any, config: LiveConfig | None = None, *,
-             on_update: Callable[[OdometryEstimate, bool], Any] | None = None) -> LiveStats:
+             on_update: Callable[[LiveUpdate], Any] | None = None) -> LiveStats:
     """Odometry on every frame, depth and fusion on those the depth worker keeps up with.
 
     Args:
-        frames: the source (:class:`ReplayFrames`, or cameras); its ``stop_reason`` (if it
-            has one) is copied into the stats at the end.
+        frames: the source (:class:`ReplayFrames`, :class:`RecorderFrames`); its
+            ``stop_reason`` (if it has one) is copied into the stats at the end, its
+            ``backlog`` (frames waiting) read after each frame.
         stage: the per-frame stage's configuration. stereo: its ``StereoDepth``.
         stages: the ordered stages (fed in time order).
         executor: where depth runs (a process pool: the loop must not wait for it).
         config: :class:`LiveConfig`.
-        on_update: called after each frame with its estimate and whether it was fused (the
-            hook for a live viewer).
+        on_update: called after each frame with a :class:`LiveUpdate` (the hook of
+            :class:`~sea3d.pipeline.live_publish.LiveFeed`); what it raises is logged once
+            and the loop goes on without it.
 
     Returns:
         :class:`LiveStats`.
     """
+    from sea3d.pipeline.depth_rate import DepthRate
+
     cfg = config or LiveConfig()
     stats = LiveStats()
     queue: deque[_Pending] = deque()
     last_depth: list[NDArray[np.float32]] = []
     c0 = time.process_time()
     shared = executor.share(stereo)
+    # seeds of a frame without depth: the last depth map moved to its predicted pose
+    seeder = DepthRate("all", K=stages.K, width_px=int(stereo.maps.width), trusted=TRUSTED)
+    hook: list[Callable[[LiveUpdate], Any]] = [on_update] if on_update is not None else []
 
     def drain(block: bool) -> None:
         while queue:
@@ -158,31 +378,46 @@ def run_live(frames: Iterable[LiveFrame], stage: FrameStageConfig, stereo: Any,
             if head.future is not None and not head.future.done() and not block:
                 return
             queue.popleft()
-            fused = head.future is not None
-            if fused:
+            own = head.future is not None
+            if own:
                 res: FrameResult = head.future.result()
                 if res.status == "ok":
                     last_depth[:] = [res.depth_m]
             else:
                 assert head.rect is not None
-                seed = last_depth[0] if last_depth else np.full(head.rect[0].shape[:2],
-                                                                 np.nan, np.float32)
+                if last_depth:
+                    before = seeder.warped
+                    seed = seeder.seed(last_depth[0])
+                    stats.seeds_moved += seeder.warped - before
+                else:
+                    seed = np.full(head.rect[0].shape[:2], np.nan, np.float32)
                 res = FrameResult(t_ns=head.frame.t_ns, status="ok", rect_left=head.rect[0],
-                                  rect_right=head.rect[1], depth_m=seed,
+                                  rect_right=head.rect[1], depth_m=seed, seeded=True,
                                   valid_fraction=float(np.isfinite(seed).mean()))
-            est = stages.step(res, head.frame.imu, fuse=fused)
+            est = stages.step(res, head.frame.imu, fuse=own)
             if est is None:
                 continue
+            seeder.observe(res.t_ns, est.status,
+                           np.asarray(est.T_world_left) @ stages.T_left_rect,
+                           own_depth=own and res.status == "ok")
             stats.tracked += int(est.status in TRUSTED)
-            if fused and stages.fuse_status[-1] == "integrated":
+            fused = own and stages.fuse_status[-1] == "integrated"
+            if fused:
                 stats.fused += 1
                 stats.latency_s.append(time.monotonic() - head.arrival)
-            if on_update is not None:
-                on_update(est, fused)
+            if hook:
+                try:
+                    hook[0](LiveUpdate(estimate=est, fused=fused, arrival_s=head.arrival,
+                                       frame=head.frame, stats=stats, stages=stages))
+                except Exception as err:  # a viewer never stops the reconstruction
+                    log.warning("live update hook failed, going on without it: %s: %s",
+                                type(err).__name__, err)
+                    hook.clear()
 
     for frame in frames:
-        arrival = time.monotonic()
+        arrival = time.monotonic() if frame.arrival_s is None else frame.arrival_s
         stats.frames += 1
+        stats.backlog_max = max(stats.backlog_max, int(getattr(frames, "backlog", 0) or 0))
         busy = sum(1 for p in queue if p.future is not None and not p.future.done())
         entry = _Pending(frame=frame, arrival=arrival)
         if busy < cfg.depth_in_flight:
@@ -199,8 +434,106 @@ def run_live(frames: Iterable[LiveFrame], stage: FrameStageConfig, stereo: Any,
     return stats
 
 
+class _Run:
+    """The stages of one live run over a rig (shared by replay and cameras)."""
+
+    def __init__(self, config: Any, native_rig: Any, out: Path, *, use_imu: bool,
+                 choose_odometry: Callable[[Any], tuple[Any, str, bool, str | None]] | None
+                 = None, feed: Any = None) -> None:
+        from sea3d.io.trajectory_files import read_trajectory
+        from sea3d.pipeline.depth_scheduler import StageTimer
+        from sea3d.pipeline.executors import ProcessExecutor
+        from sea3d.pipeline.frame_stage import install_geometry, stage_depth
+        from sea3d.pipeline.process import make_odometry
+        from sea3d.pipeline.submap_store import DiskSubmapStore
+        from sea3d.recon.submaps import SubmapFusion
+
+        self.config, self.out, self.feed = config, out, feed
+        out.mkdir(parents=True, exist_ok=True)
+        self.timer = StageTimer()
+        self.stage = config.frame_stage(native_rig)
+        self.stereo = stage_depth(self.stage)
+        if choose_odometry is not None:
+            odometry = choose_odometry(self.stereo)
+        else:
+            poses = (read_trajectory(config.poses.poses_path) if config.poses.poses_path
+                     else None)
+            odo, name = make_odometry(self.stereo.rig, self.stereo.maps, use_imu=use_imu,
+                                      poses=poses, config=config.poses.odometry_config)
+            disabled = getattr(odo, "imu_disabled_reason", None)
+            odometry = (odo, name, use_imu and poses is None and disabled is None, disabled)
+        self.odo, self.odometry_name, self.imu_used, self.imu_note = odometry
+        self.store: Any = DiskSubmapStore(out / "submaps")
+        self.store.clear()
+        self.fusion_cfg = config.fusion(self.stereo.depth_range_m)
+        if feed is not None:  # finished submaps are meshed once for the live view
+            self.store = feed.wrap_store(self.store, self.fusion_cfg.tsdf)
+        self.stages = OrderedStages(self.odo, SubmapFusion(self.fusion_cfg), self.store,
+                                    self.stereo.maps, use_imu=self.imu_used, timer=self.timer)
+        self.executor = ProcessExecutor(1, setup=(install_geometry, (self.stage, self.stereo)))
+
+    def warm(self) -> float:
+        """Start the depth worker and run its first (kernel-compiling) frame on a textured
+        pair before the source starts, so the first frames are not held behind the worker's
+        start; returns the seconds it took."""
+        t0 = time.monotonic()
+        rig = self.stage.rig
+        noise = np.random.default_rng(0).integers(0, 256, (rig.height, rig.width + 8),
+                                                  dtype=np.uint8)
+        left, right = noise[:, 8:].copy(), noise[:, :-8].copy()  # 8 px of disparity
+        try:
+            self.executor.submit(process_frame, self.stage, 0, left, right,
+                                 self.executor.share(self.stereo)).result()
+        except BaseException:
+            self.executor.close()
+            if self.feed is not None:
+                self.feed.close()
+            raise
+        return time.monotonic() - t0
+
+    def run(self, frames: Iterable[LiveFrame], live: LiveConfig | None) -> LiveStats:
+        hook = self.feed.on_update if self.feed is not None else None
+        try:
+            return run_live(frames, self.stage, self.stereo, self.stages, self.executor, live,
+                            on_update=hook)
+        except BaseException:
+            if self.feed is not None:
+                self.feed.close()
+            raise
+        finally:
+            self.executor.close()
+
+    def finish(self, stats: LiveStats, live: LiveConfig | None, live_extra: dict[str, Any],
+               **extra: Any) -> dict[str, Any]:
+        """Merge, write the outputs of ``process`` and summary.json with a ``live`` block;
+        the feed publishes the merged mesh and the final status."""
+        from sea3d.io.process_outputs import write_process_outputs, write_summary_json
+        from sea3d.pipeline.finish import finish_reconstruction, frame_rows, run_summary
+        from sea3d.pipeline.process import _no_progress
+
+        config, stages = self.config, self.stages
+        stages.finish_fusion()
+        rec = finish_reconstruction(
+            stages, self.store, self.fusion_cfg.tsdf, tile_m=config.map.merge_tile_m,
+            cloud_voxel_m=config.map.cloud_voxel_m or config.map.voxel_m / 2,
+            progress=_no_progress, timer=self.timer)
+        files = write_process_outputs(self.out, t_ns=rec.t_ns, T_world_left=rec.T_world_left,
+                                      rows=frame_rows(stages), mesh=rec.mesh, cloud=rec.cloud,
+                                      rig=self.stereo.rig)
+        summary = run_summary(stages, rec, odometry=self.odometry_name,
+                              imu_used=self.imu_used, imu_note=self.imu_note,
+                              voxel_m=config.map.voxel_m, **extra)
+        if self.feed is not None:
+            self.feed.finish(stats, rec)
+        summary["live"] = {**stats.as_dict(), **live_extra,
+                           "depth_in_flight": (live or LiveConfig()).depth_in_flight}
+        summary["timings_s"] = dict(self.timer.s)
+        write_summary_json(files["summary"], summary)
+        return summary
+
+
 def run_live_replay(session_path: Any, config: Any, live: LiveConfig | None = None, *,
-                    rate: float = 1.0) -> tuple[dict[str, Any], LiveStats]:
+                    rate: float = 1.0, feed: Any = None) -> tuple[dict[str, Any], LiveStats]:
     """``sea3d live --replay``: a recorded session replayed at its rate through the live loop,
     depth on one worker process, then the finish step and the outputs of ``sea3d process``
     (trajectory, mesh, cloud, status.csv, results.mcap, summary.json with a ``live`` block).
@@ -209,6 +542,7 @@ def run_live_replay(session_path: Any, config: Any, live: LiveConfig | None = No
         session_path: an MCAP file or session folder.
         config: a :class:`~sea3d.pipeline.process.ProcessConfig` (depth, fusion, output).
         live: :class:`LiveConfig`. rate: replay speed (1: the recorded rate).
+        feed: a :class:`~sea3d.pipeline.live_publish.LiveFeed` publishing while it runs.
 
     Returns:
         ``(summary, stats)``.
@@ -216,50 +550,91 @@ def run_live_replay(session_path: Any, config: Any, live: LiveConfig | None = No
     Raises:
         SessionError, ConfigError: as :func:`~sea3d.pipeline.process.run_process`.
     """
-    from pathlib import Path
-
-    from sea3d.io.process_outputs import write_process_outputs, write_summary_json
     from sea3d.io.session import open_session
-    from sea3d.pipeline.depth_scheduler import StageTimer
-    from sea3d.pipeline.executors import ProcessExecutor
-    from sea3d.pipeline.finish import finish_reconstruction, frame_rows, run_summary
-    from sea3d.pipeline.frame_stage import install_geometry, stage_depth
-    from sea3d.pipeline.process import _no_progress, _odometry, _rig
-    from sea3d.pipeline.submap_store import DiskSubmapStore
-    from sea3d.recon.submaps import SubmapFusion
+    from sea3d.pipeline.process import _odometry, _rig
 
-    path, out = Path(session_path), Path(config.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    timer = StageTimer()
+    path = Path(session_path)
     with open_session(path) as session:
         source = SessionFrames(session, path, _rig(session, config),
                                max_frames=config.max_frames)
-        stage = config.frame_stage(source.native_rig)
-        stereo = stage_depth(stage)
-        odo, odometry_name, imu_used, imu_note = _odometry(config, stereo, source, None)
-        store = DiskSubmapStore(out / "submaps")
-        store.clear()
-        fusion_cfg = config.fusion(stereo.depth_range_m)
-        stages = OrderedStages(odo, SubmapFusion(fusion_cfg), store, stereo.maps,
-                               use_imu=imu_used, timer=timer)
-        executor = ProcessExecutor(1, setup=(install_geometry, (stage, stereo)))
-        try:
-            stats = run_live(ReplayFrames(source, rate=rate), stage, stereo, stages, executor,
-                             live)
-        finally:
-            executor.close()
-    stages.finish_fusion()
-    rec = finish_reconstruction(stages, store, fusion_cfg.tsdf, tile_m=config.map.merge_tile_m,
-                                cloud_voxel_m=config.map.cloud_voxel_m or config.map.voxel_m / 2,
-                                progress=_no_progress, timer=timer)
-    files = write_process_outputs(out, t_ns=rec.t_ns, T_world_left=rec.T_world_left,
-                                  rows=frame_rows(stages), mesh=rec.mesh, cloud=rec.cloud,
-                                  rig=stereo.rig)
-    summary = run_summary(stages, rec, session=str(path),
-                          pairs_in_session=source.pairs_in_session, odometry=odometry_name,
-                          imu_used=imu_used, imu_note=imu_note, voxel_m=config.map.voxel_m)
-    summary["live"] = {**stats.as_dict(), "rate": rate,
-                       "depth_in_flight": (live or LiveConfig()).depth_in_flight}
-    summary["timings_s"] = dict(timer.s)
-    write_summary_json(files["summary"], summary)
+        run = _Run(config, source.native_rig, Path(config.out_dir), use_imu=False, feed=feed,
+                   choose_odometry=lambda stereo: _odometry(config, stereo, source, None))
+        warm_s = run.warm()
+        stats = run.run(ReplayFrames(source, rate=rate), live)
+    summary = run.finish(stats, live, session=str(path),
+                         pairs_in_session=source.pairs_in_session,
+                         live_extra={"rate": rate, "warmup_s": warm_s})
     return summary, stats
+
+
+class _RigText:
+    """What :func:`~sea3d.io.rig_file.resolve_rig` reads of a session: its stored rig."""
+
+    def __init__(self, path: Any, rig_yaml: str | None) -> None:
+        self.path, self.rig_yaml = path, rig_yaml
+
+
+def run_live_cameras(recorder: Any, config: Any, live: LiveConfig | None = None, *,
+                     feed: Any = None, pair_tolerance_ns: int | None = None,
+                     ) -> tuple[dict[str, Any], LiveStats, Any]:
+    """``sea3d live --record``: record the cameras (the recorder writes its session as it
+    would alone) and reconstruct them live through the recorder's listener hook; when the
+    recording stops (a camera that stops, the duration, Ctrl-C, a full disk), the frames
+    already received are finished, the mesh so far is merged and written with the outputs of
+    ``sea3d process``, and ``live.stop_reason`` says why it stopped.
+
+    Args:
+        recorder: a :class:`~sea3d.capture.recorder.Recorder`, not started (this runs it, in
+            a thread of its own, and returns when both have finished).
+        config: a :class:`~sea3d.pipeline.process.ProcessConfig`; its rig file, else the
+            rig stored with the recording (``RecorderConfig.rig_yaml``).
+        live: :class:`LiveConfig`. feed: a :class:`~sea3d.pipeline.live_publish.LiveFeed`.
+        pair_tolerance_ns: see :class:`RecorderFrames`.
+
+    Returns:
+        ``(summary, stats, record_summary)``.
+
+    Raises:
+        ConfigError: no rig; RigFileError: a bad one; CaptureError: the recorder could not
+            start (nothing was recorded). An error of the live loop stops the recording
+            cleanly (what was written stays readable) and is raised.
+    """
+    from sea3d.io.rig_file import resolve_rig
+
+    rc = recorder.config
+    if config.rig_path is None and not rc.rig_yaml:
+        raise ConfigError("live reconstruction from cameras needs the rig: give a rig file "
+                          "(rig_path), stored with the recording as well")
+    rig = resolve_rig(config.rig_path, _RigText(rc.out_path, rc.rig_yaml))
+    use_imu = bool(config.poses.use_imu and "imu" in recorder.sources)
+    run = _Run(config, rig, Path(config.out_dir), use_imu=use_imu, feed=feed)
+    warm_s = run.warm()  # before the cameras start
+    frames = RecorderFrames(recorder, pair_tolerance_ns=pair_tolerance_ns)
+    result: dict[str, Any] = {}
+
+    def record() -> None:
+        try:
+            result["summary"] = recorder.run()
+        except BaseException as err:  # handed to the caller below
+            result["error"] = err
+        finally:
+            reason = (result["summary"].stop_reason if "summary" in result
+                      else f"the recorder failed: {result.get('error')}")
+            errors = result["summary"].errors if "summary" in result else ["failed"]
+            frames.end(f"camera stopped: {reason}" if errors else f"recording ended: {reason}")
+
+    thread = threading.Thread(target=record, name="sea3d-live-recorder", daemon=True)
+    thread.start()
+    try:
+        stats = run.run(frames, live)
+    except BaseException:
+        recorder.request_stop("live reconstruction failed")
+        thread.join()
+        raise
+    thread.join()
+    if "error" in result:
+        raise result["error"]
+    summary = run.finish(stats, live, session=str(rc.out_path), pairs_in_session=frames.pairs_made,
+                         live_extra={"unpaired_frames": frames.unpaired, "source": "cameras",
+                                     "warmup_s": warm_s})
+    return summary, stats, result["summary"]

@@ -268,6 +268,19 @@ class SubmapFusion:
         """Finish the active submap (after the last frame) and return it, or None."""
         return self._finish()
 
+    def active_mesh(self, keyframe_poses: dict[int, F64]) -> tuple[int, Mesh] | None:
+        """The active submap's mesh in the world, placed at its anchor's pose in
+        ``keyframe_poses`` (what a live view shows of it): ``(submap_id, mesh)``, or None
+        without an active submap or without its anchor's pose."""
+        if self._active is None:
+            return None
+        T_anchor = keyframe_poses.get(self._anchor_id)
+        if T_anchor is None:
+            return None
+        mesh = self._active.extract_mesh()
+        return self._active_id, mesh.transformed(np.asarray(T_anchor, np.float64)
+                                                 @ self._T_anchor_grid)
+
 
 # ------------------------------------------------------------------------------------ merging
 

@@ -1,0 +1,238 @@
+"""``sea3d live`` from cameras: the recorder's listener hook feeds the live loop while the
+recording holds exactly the records the recorder writes alone; the growing mesh, the
+trajectory and the status reach a real Foxglove WebSocket client and the monitor page while
+it runs; a camera that stops keeps the mesh so far and says why.
+
+The cameras are :class:`~sea3d.capture.sources.SessionReplaySource` streams of the first
+``FRAMES`` frames of the simulated lake (320x180, 10 fps, with its IMU); poses are the ground
+truth's, so every frame is tracked and the figures do not depend on the odometry."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import threading
+import time
+import urllib.request
+
+import numpy as np
+import pytest
+
+from foxglove_client import FoxgloveClient
+from sea3d.capture.foxglove_live import LIVE_STATUS_TOPIC, FoxgloveConfig, FoxglovePublisher
+from sea3d.capture.monitor import MonitorServer
+from sea3d.capture.recorder import Recorder, RecorderConfig
+from sea3d.capture.sources import CallableSource, ImageFrame, SessionReplaySource
+from sea3d.errors import CaptureError
+from sea3d.io.session import ImuSample, SessionWriter, open_session
+from sea3d.pipeline.live import LiveConfig, RecorderFrames, run_live_cameras
+from sea3d.pipeline.live_publish import FeedConfig, LiveFeed
+from sea3d.pipeline.process import MapConfig, PoseConfig, ProcessConfig
+
+FRAMES = 12
+SPEED = 1.0  # the cameras at their recorded 10 fps
+
+
+@pytest.fixture(scope="module")
+def cameras(sim_session, tmp_path_factory):
+    """The first FRAMES frames (and their IMU) of the simulated session, as a session."""
+    out = tmp_path_factory.mktemp("cams") / "first.mcap"
+    with open_session(sim_session) as s:
+        t = s.stamps("left")[:FRAMES]
+        imu = s.imu()
+        with SessionWriter(out, rig_yaml=s.rig_yaml, image_encoding="png") as w:
+            for k in np.nonzero(imu.t_ns <= t[-1])[0]:
+                w.write_imu(int(imu.t_ns[k]), imu.accel_mps2[k], imu.gyro_radps[k])
+            for i in range(FRAMES):
+                w.write_stereo(int(t[i]), s.image("left", i, by="index"),
+                               s.image("right", i, by="index"))
+    return out
+
+
+def _gt(sim_session):
+    return sim_session.with_name(sim_session.stem + "_gt") / "poses_left.tum"
+
+
+def _recorder(cameras, path, rig_yaml, *, left=None):
+    sources = {"left": left or SessionReplaySource(cameras, "left", speed=SPEED),
+               "right": SessionReplaySource(cameras, "right", speed=SPEED),
+               "imu": SessionReplaySource(cameras, "imu", speed=SPEED)}
+    cfg = RecorderConfig(out_path=path, image_encoding="png", block_when_full=True,
+                         min_free_bytes=0, rig_yaml=rig_yaml)
+    return Recorder(cfg, sources)
+
+
+def _config(sim_session, out):
+    return ProcessConfig(out_dir=out, poses=PoseConfig(poses_path=_gt(sim_session)),
+                         map=MapConfig(keyframes_per_submap=2), report=False)
+
+
+def _records(path):
+    """Every record of a session: (stream, t_ns, sha256 of the image or the sample)."""
+    with open_session(path) as s:
+        out = [(st, int(t), hashlib.sha256(s.image(st, i, by="index").tobytes()).hexdigest())
+               for st in ("left", "right") for i, t in enumerate(s.stamps(st))]
+        imu = s.imu()
+        out += [("imu", int(t), hashlib.sha256(np.r_[a, g].tobytes()).hexdigest())
+                for t, a, g in zip(imu.t_ns, imu.accel_mps2, imu.gyro_radps, strict=True)]
+    return out
+
+
+def test_live_from_cameras_records_the_same_bytes_and_publishes_while_it_runs(
+        sim_session, cameras, tmp_path):
+    with open_session(cameras) as s:
+        rig_yaml = s.rig_yaml
+    alone = tmp_path / "alone.mcap"
+    _recorder(cameras, alone, rig_yaml).run()
+
+    pub = FoxglovePublisher(FoxgloveConfig(port=0))
+    feed = LiveFeed(pub, FeedConfig(mesh_interval_s=0.2, status_interval_s=0.05))
+    client = FoxgloveClient(pub.url)
+    client.subscribe(["/mesh", "/odometry/trajectory", LIVE_STATUS_TOPIC])
+    polls: list[dict] = []
+    done = threading.Event()
+    with_live = tmp_path / "live.mcap"
+    recorder = _recorder(cameras, with_live, rig_yaml)
+    try:
+        with MonitorServer(recorder, port=0, live=feed) as mon:
+            def poll():
+                while not done.is_set():
+                    with urllib.request.urlopen(mon.url + "live.json", timeout=5) as r:
+                        polls.append(json.loads(r.read()))
+                    time.sleep(0.1)
+
+            poller = threading.Thread(target=poll, daemon=True)
+            poller.start()
+            summary, stats, rec = run_live_cameras(recorder, _config(sim_session,
+                                                                     tmp_path / "out"),
+                                                   LiveConfig(), feed=feed)
+            done.set()
+            poller.join(timeout=10)
+            with urllib.request.urlopen(mon.url + "live/mesh.ply", timeout=5) as r:
+                ply = r.read()
+            with urllib.request.urlopen(mon.url + "live.json", timeout=5) as r:
+                after = json.loads(r.read())
+            status = client.wait_for(LIVE_STATUS_TOPIC)
+            deadline = time.monotonic() + 10
+            while time.monotonic() < deadline and status[-1][1]["stop_reason"] is None:
+                time.sleep(0.05)
+                status = client.wait_for(LIVE_STATUS_TOPIC)
+            meshes = client.wait_for("/mesh")
+            trajs = client.wait_for("/odometry/trajectory")
+    finally:
+        client.close()
+        pub.stop()
+
+    # the recording: every record (stream, stamp, checksum of its decoded content) what the
+    # recorder writes alone. (Not the file's bytes: two recordings without live already
+    # differ there, as the IMU thread's and the image writer's messages interleave by timing.)
+    n_imu = rec.frames["imu"]
+    assert rec.frames == {"left": FRAMES, "right": FRAMES, "imu": n_imu} and n_imu > 0
+    assert rec.dropped == {"left": 0, "right": 0, "imu": 0}
+    assert _records(with_live) == _records(alone)
+
+    # the live run: every recorded pair went through the odometry, none lost
+    assert stats.frames == FRAMES and summary["frames"] == FRAMES
+    assert stats.tracked == FRAMES and stats.fused >= 1
+    assert summary["live"]["unpaired_frames"] == 0
+    assert stats.stop_reason == "recording ended: the camera sources ended"
+    assert (tmp_path / "out" / "mesh.ply").is_file()
+
+    # Foxglove: the mesh grows while it runs, then the merged mesh replaces the submaps
+    total, live_totals, merged = {}, [], []
+    for _t, msg in meshes:
+        merged += [e for e in msg.entities if e.id == "mesh"]
+        if merged:
+            continue
+        for e in msg.entities:
+            assert e.id.startswith("submap-")
+            total[e.id] = len(e.triangles[0].points)
+        live_totals.append(sum(total.values()))
+    assert len(live_totals) >= 2 and live_totals[-1] > live_totals[0] > 0
+    assert live_totals == sorted(live_totals)
+    final = merged[-1]
+    assert final.id == "mesh" and len(final.triangles[0].points) == summary["mesh"]["vertices"]
+    assert len(final.triangles[0].indices) == 3 * summary["mesh"]["triangles"]
+    # the trajectory: one pose per tracked frame so far, all of them at the end
+    lengths = [len(m.poses) for _t, m in trajs]
+    assert lengths == sorted(lengths) and lengths[-1] == stats.tracked
+    last = status[-1][1]
+    assert last["frames"] == FRAMES and last["tracked"] == FRAMES
+    assert last["stop_reason"] == stats.stop_reason and last["running"] is False
+    assert last["mesh_vertices"] == summary["mesh"]["vertices"]
+    # latency from a frame to the published mesh update holding it, per fused frame
+    assert len(stats.mesh_latency_s) == stats.fused
+    assert min(stats.mesh_latency_s) > 0
+    assert all(m >= f for m, f in zip(stats.mesh_latency_s, stats.latency_s, strict=True))
+
+    # the monitor page: status, trajectory and the mesh as PLY
+    seen = [p["trajectory_poses"] for p in polls]
+    assert seen and seen == sorted(seen) and any(p["running"] for p in polls)
+    assert all(p["trajectory_poses"] == len(p["trajectory_xyz"]) for p in polls)
+    assert after["trajectory_poses"] == len(after["trajectory_xyz"]) == FRAMES
+    assert after["stop_reason"] == stats.stop_reason and after["running"] is False
+    head = ply[:ply.index(b"end_header")].decode()
+    assert f"element vertex {summary['mesh']['vertices']}" in head
+
+
+class _StopsAfter:
+    """A camera that delivers ``n`` frames, then fails as a lost camera does."""
+
+    def __init__(self, cameras, n):
+        self.src = SessionReplaySource(cameras, "left", speed=SPEED)
+        self.n = n
+
+    def __call__(self):
+        if self.n == 0:
+            raise CaptureError("camera 'left': 30 grabs failed in a row; camera lost")
+        self.n -= 1
+        return self.src.read()
+
+
+def test_a_camera_that_stops_keeps_the_mesh_so_far_and_says_why(sim_session, cameras,
+                                                                tmp_path):
+    with open_session(cameras) as s:
+        rig_yaml = s.rig_yaml
+    left = CallableSource(_StopsAfter(cameras, 5), name="left-cam")
+    recorder = _recorder(cameras, tmp_path / "rec.mcap", rig_yaml, left=left)
+    summary, stats, rec = run_live_cameras(recorder, _config(sim_session, tmp_path / "out"))
+    assert rec.frames["left"] == 5
+    assert stats.frames == 5 and summary["frames"] == 5
+    assert stats.stop_reason == ("camera stopped: left source left-cam: camera 'left': 30 "
+                                 "grabs failed in a row; camera lost")
+    assert summary["live"]["stop_reason"] == stats.stop_reason
+    assert summary["mesh"]["triangles"] > 0 and (tmp_path / "out" / "mesh.ply").is_file()
+    with open_session(tmp_path / "rec.mcap") as s:  # the recording so far stays readable
+        assert len(s.stamps("left")) == 5
+
+
+class _FakeRecorder:
+    def __init__(self):
+        self.sources = {"left": None, "right": None}
+
+    def add_listener(self, fn):
+        self.fn = fn
+
+
+def test_pairs_by_mutual_nearest_stamp_and_counts_frames_without_a_partner():
+    """Left every 100 ms; right 3 ms later, one missing, one extra 50 ms off: pairs as
+    SessionReader.match_pairs would, the partnerless frames counted, none of them held."""
+    rec = _FakeRecorder()
+    frames = RecorderFrames(rec)
+    img = np.zeros((4, 4), np.uint8)
+    ms = 1_000_000
+    for k in range(10):
+        rec.fn("left", ImageFrame(k * 100 * ms, img))
+        if k != 4:
+            rec.fn("right", ImageFrame(k * 100 * ms + 3 * ms, img))
+        if k == 6:
+            rec.fn("right", ImageFrame(k * 100 * ms + 53 * ms, img))
+        rec.fn("imu", ImuSample(k * 100 * ms, np.zeros(3), np.zeros(3)))
+    frames.end("recording ended: test")
+    got = list(frames)
+    assert [f.t_ns // ms for f in got] == [0, 100, 200, 300, 500, 600, 700, 800, 900]
+    assert frames.unpaired == 2  # left 400 (no right), right 653 (no left)
+    assert frames.stop_reason == "recording ended: test"
+    assert all(f.imu is not None and f.imu.t_ns[-1] == f.t_ns for f in got)
+    with pytest.raises(ValueError):  # the recorder's arrays are not writable through live
+        got[0].left[0, 0] = 1
