@@ -165,8 +165,8 @@ def _send(args: argparse.Namespace) -> int:
         pairs = live_pairs(left, right, stop=stop)
         what = " and ".join(str(s) for s in (left, right) if s is not None)
     sender = StreamSender(config)
-    print(f"streaming {what} to {config.url} (Ctrl-C to stop)", file=sys.stderr, flush=True)
     with _on_signals(sender.request_stop):
+        print(f"streaming {what} to {config.url} (Ctrl-C to stop)", file=sys.stderr, flush=True)
         try:
             summary = sender.run(pairs, duration_s=args.duration)
         except KeyboardInterrupt:
@@ -250,15 +250,18 @@ def _receive(args: argparse.Namespace) -> int:
         args.url, idle_timeout_s=args.idle_timeout, remux_path=remux, on_event=event
     )
     show = _Viewer(receiver, args.address) if args.show else None
-    print(f"receiving on {args.url} (Ctrl-C to stop)", file=sys.stderr, flush=True)
     t_end = None if args.duration is None else time.monotonic() + args.duration
     timer = None
-    if t_end is not None:
-        timer = threading.Timer(args.duration, receiver.request_stop, args=("duration reached",))
-        timer.daemon = True
-        timer.start()
     try:
         with _on_signals(receiver.request_stop):
+            # Said only once the signals are ours: a SIGTERM sent on seeing this line stops the
+            # receiver cleanly instead of killing it (it raced under load before).
+            print(f"receiving on {args.url} (Ctrl-C to stop)", file=sys.stderr, flush=True)
+            if t_end is not None:
+                timer = threading.Timer(args.duration, receiver.request_stop,
+                                        args=("duration reached",))
+                timer.daemon = True
+                timer.start()
             for frame in receiver.frames():
                 if session_out is not None:
                     session_out.write(frame)
