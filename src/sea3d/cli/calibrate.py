@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from sea3d.cli import error_line
 from sea3d.errors import CalibrationError, ConfigError
 
 log = logging.getLogger(__name__)
@@ -307,9 +308,9 @@ def _print_stereo(result: Any, args: argparse.Namespace) -> None:
           f"{result.left.coverage:.0%}, right {result.right.coverage:.0%}")
     for r in result.views_rejected:
         print(f"  rejected {r.left} / {r.right}: {r.reason}")
-    print(f"  verdict: {result.verdict}")
+    print(f"  verdict: {error_line(result.verdict)}")
     for g in result.guidance[1:]:
-        print(f"  - {g}")
+        print(f"  - {error_line(g)}")
     if args.report:
         print(f"  report: {args.report}")
 
@@ -384,8 +385,8 @@ def _print_port(result: Any, args: argparse.Namespace) -> None:
         print(f"  rejected {a} / {b}: {why}")
     if result.ok:
         verdict, guidance = assess_port(result)
-        print(f"  verdict: {verdict}")
+        print(f"  verdict: {error_line(verdict)}")
         for g in guidance[1:]:
-            print(f"  - {g}")
+            print(f"  - {error_line(g)}")
     if args.report:
         print(f"  report: {args.report}")

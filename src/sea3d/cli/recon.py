@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from sea3d.cli import error_line
 from sea3d.cli._args import add_depth_range, config_option, image_size, plural
 
 __all__ = ["register", "register_eval"]
@@ -178,7 +179,7 @@ def _cmd_eval_trajectory(args: argparse.Namespace) -> int:
                                    "reference": ref.duplicates_dropped}
         print(json.dumps(d, indent=2))
         for w in m.warnings:
-            print(f"sea3d: warning: {w}", file=sys.stderr)
+            print(f"sea3d: warning: {error_line(w)}", file=sys.stderr)
         return 0
     a = m.ate_m
     print(f"{m.matched} of {m.estimate_poses} poses paired by {'index' if by_index else 'time'}"
@@ -195,7 +196,7 @@ def _cmd_eval_trajectory(args: argparse.Namespace) -> int:
               + (" (meaningless: see the warning)"
                  if any(w.startswith(f"RPE over {r.delta_m:g} m") for w in m.warnings) else ""))
     for w in m.warnings:
-        print(f"sea3d: warning: {w}", file=sys.stderr)
+        print(f"sea3d: warning: {error_line(w)}", file=sys.stderr)
     return 0
 
 
