@@ -80,6 +80,7 @@ _PATTERNS = (
     (re.compile(r"^color matches (\d+) files but depth (\d+);"),
      r"--color matches \1 files but --depth \2;"),
     (re.compile(r"^intrinsics: "), "--intrinsics: "),
+    (re.compile(r"^the (left|right|imu|sonar) source needs "), r"--\1 needs "),
 )
 
 
