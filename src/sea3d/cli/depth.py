@@ -360,7 +360,9 @@ def register(sub: Any) -> None:
         help="largest disparity searched, pixels (range 0..N)",
     )
     p.add_argument("-o", "--output", required=True, help="output disparity: .pfm, .npy or .tiff")
-    p.add_argument("--engine", choices=_ENGINES, default="sea3d", help="matching engine")
+    from sea3d.stereo.recipe import DepthConfig
+
+    config_option(p, DepthConfig, "engine", choices=_ENGINES, help="matching engine")
     p.add_argument("--paths", type=int, choices=(8, 16), help="sea3d engine: aggregation paths")
     p.add_argument(
         "--filters", default="", help='post-filter chain, e.g. "median:size_px=3,speckle,wls"'
@@ -426,14 +428,9 @@ def register(sub: Any) -> None:
         "image width)",
     )
     add_depth_range(d, far="farthest depth kept (refractive rectification range too)")
-    d.add_argument(
-        "--min-confidence",
-        type=float,
-        default=1e-6,
-        metavar="C",
-        help="drop matches below this confidence (0..1) from depth and points (default: drop "
-        "only the filled, unmatched pixels)",
-    )
+    config_option(d, DepthConfig, "min_confidence", type=float, metavar="C",
+                  help="drop matches below this confidence (0..1) from depth and points "
+                  "(the default drops only the filled, unmatched pixels)")
     d.add_argument("--json", action="store_true", help="print timings and figures as JSON")
     d.set_defaults(handler=_cmd_depth)
 

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from sea3d.cli import error_line
-from sea3d.cli._args import add_depth_range, depth_config
+from sea3d.cli._args import add_depth_range, config_option, depth_config, param_option
 from sea3d.errors import ConfigError
 
 __all__ = ["register", "register_calibrate_imu"]
@@ -50,11 +50,10 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--status", type=Path, metavar="CSV", help="also write t_ns,status,segment per frame"
     )
-    p.add_argument(
-        "--engine",
-        default="sea3d",
-        help="stereo engine for the depth (sea3d, sea3d-gpu, opencv; default sea3d)",
-    )
+    from sea3d.stereo.recipe import DepthConfig
+
+    config_option(p, DepthConfig, "engine",
+                  help="stereo engine for the depth (sea3d, sea3d-gpu, opencv)")
     add_depth_range(p, near="nearest depth searched", far="farthest depth kept")
     p.add_argument("--max-frames", type=int, help="stop after this many frames")
     p.add_argument("--no-loop-closure", action="store_true", help="odometry only")
@@ -68,19 +67,13 @@ def register(sub: Any) -> None:
         metavar=("FX", "FY", "CX", "CY"),
         help="depth camera intrinsics, pixels",
     )
-    g.add_argument(
-        "--method",
-        choices=("dense", "features"),
-        default="dense",
-        help="dense: frame-to-keyframe dense alignment (default); features: sparse features, "
-        "keyframes and windowed BA through the stereo engine",
-    )
-    g.add_argument(
-        "--depth-scale",
-        type=float,
-        default=1000.0,
-        help="depth units per metre (default 1000: millimetres)",
-    )
+    from sea3d.pipeline.odometry_session import rgbd_odometry_to_files
+
+    param_option(g, rgbd_odometry_to_files, "method", choices=("dense", "features"),
+                 help="dense: frame-to-keyframe dense alignment; features: sparse features, "
+                 "keyframes and windowed BA through the stereo engine")
+    param_option(g, rgbd_odometry_to_files, "depth_scale", type=float, shown="1000: millimetres",
+                 help="depth units per metre")
     p.set_defaults(handler=_run)
 
 
@@ -216,8 +209,12 @@ def register_calibrate_imu(csub: Any) -> None:
         metavar="RIG",
         help="write the rig with the estimated IMU block",
     )
-    p.add_argument("--max-offset-s", type=float, default=0.5, help="offset searched (+-, s)")
-    p.add_argument("--engine", default="sea3d", help="stereo engine for the depth")
+    from sea3d.pipeline.odometry_session import calibrate_camera_imu
+    from sea3d.stereo.recipe import DepthConfig
+
+    param_option(p, calibrate_camera_imu, "max_offset_s", type=float,
+                 help="offset searched (+-, s)")
+    config_option(p, DepthConfig, "engine", help="stereo engine for the depth")
     p.add_argument("--max-frames", type=int, help="use only the first frames")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(handler=_calibrate_imu)

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from sea3d.cli import error_line
-from sea3d.cli._args import add_depth_range, config_option, image_size, plural
+from sea3d.cli._args import add_depth_range, config_option, image_size, param_option, plural
 
 __all__ = ["register", "register_eval"]
 
@@ -372,8 +372,10 @@ def register(sub: Any) -> None:
                   "water-model (one water model fitted to the dive's first 8 frames, every "
                   "frame inverted with it); --restore-colours is a deprecated alias, kept "
                   "for one release")
-    p.add_argument("--depth-rate", default="all", metavar="all|auto|N",
-                   help="which frames get stereo depth: all (default), auto (when the motion "
+    from sea3d.pipeline.process import ProcessConfig
+
+    config_option(p, ProcessConfig, "depth_rate", metavar="all|auto|N",
+                  help="which frames get stereo depth: all, auto (when the motion "
                         "since the last depth frame needs it), or every N-th; odometry sees "
                         "every frame, fusion the depth frames")
     p.add_argument("--max-frames", type=int, metavar="N", help="only the first N pairs")
@@ -395,15 +397,18 @@ def register(sub: Any) -> None:
                    "the counts agree, else by the nanosecond stamps in the file names")
     f.add_argument("--intrinsics", type=float, nargs=4, required=True,
                    metavar=("FX", "FY", "CX", "CY"), help="depth camera intrinsics, pixels")
-    f.add_argument("--depth-scale", type=float, default=1000.0, metavar="S",
-                   help="integer depth = metres x S (default 1000: millimetres)")
+    from sea3d.pipeline.fuse import fuse_rgbd
+    from sea3d.recon.tsdf import TsdfConfig
+
+    param_option(f, fuse_rgbd, "depth_scale", type=float, metavar="S",
+                 shown="1000: millimetres", help="integer depth = metres x S")
     f.add_argument("--voxel-m", type=float, required=True, metavar="V", help="voxel edge, metres")
-    f.add_argument("--trunc-voxels", type=float, default=4.0, metavar="N",
-                   help="truncation distance in voxels (default 4)")
-    f.add_argument("--min-depth", type=float, default=0.1, metavar="M",
-                   help="nearest depth used, metres (default 0.1)")
-    f.add_argument("--max-depth", type=float, default=5.0, metavar="M",
-                   help="farthest depth used, metres (default 5)")
+    config_option(f, TsdfConfig, "trunc_voxels", type=float, metavar="N",
+                  help="truncation distance in voxels")
+    config_option(f, TsdfConfig, "depth_min_m", "--min-depth", dest="min_depth", type=float,
+                  metavar="M", help="nearest depth used, metres")
+    config_option(f, TsdfConfig, "depth_max_m", "--max-depth", dest="max_depth", type=float,
+                  metavar="M", help="farthest depth used, metres")
     f.add_argument("-o", "--output", type=Path, required=True, metavar="MESH",
                    help="output mesh (.ply)")
     f.add_argument("--cloud", type=Path, metavar="CLOUD",
@@ -423,14 +428,17 @@ def register_eval(esub: Any) -> None:
     )
     t.add_argument("estimate", metavar="EST", help="estimated trajectory")
     t.add_argument("ground_truth", metavar="GT", help="reference trajectory")
-    t.add_argument("--align", choices=["se3", "sim3", "none"], default="se3",
-                   help="alignment of the estimate (default se3)")
-    t.add_argument("--max-diff-s", type=float, default=0.01, metavar="S",
-                   help="largest stamp difference of a pair, seconds (default 0.01)")
+    from sea3d.eval.surface import DEFAULT_THRESHOLDS_M, align_by_trajectories, surface_metrics
+    from sea3d.eval.trajectory import evaluate_trajectory
+
+    param_option(t, evaluate_trajectory, "align", choices=["se3", "sim3", "none"],
+                 help="alignment of the estimate")
+    param_option(t, evaluate_trajectory, "max_diff_s", type=float, metavar="S",
+                 help="largest stamp difference of a pair, seconds")
     t.add_argument("--rpe-delta-m", type=float, nargs="+", metavar="D",
                    help="RPE distances, metres (default 1, 10, 100 m where the path allows)")
-    t.add_argument("--rpe-along", choices=["estimate", "reference"], default="estimate",
-                   help="whose path picks the RPE pairs (default estimate, as evo)")
+    param_option(t, evaluate_trajectory, "rpe_along", choices=["estimate", "reference"],
+                 shown="estimate, as evo", help="whose path picks the RPE pairs")
     t.add_argument("--est-format", choices=["tum", "kitti", "euroc"], help="default: guessed")
     t.add_argument("--gt-format", choices=["tum", "kitti", "euroc"], help="default: guessed")
     t.add_argument("--est-times", type=Path, metavar="TIMES", help="KITTI times.txt of EST")
@@ -451,9 +459,11 @@ def register_eval(esub: Any) -> None:
     )
     s.add_argument("mesh", metavar="MESH", help="reconstructed mesh (or point cloud)")
     s.add_argument("reference", metavar="REF_MESH", help="reference mesh (or point cloud)")
-    s.add_argument("--samples", type=int, default=200_000, help="samples per surface")
-    s.add_argument("--thresholds-mm", type=float, nargs="+", default=[10.0, 20.0, 50.0],
-                   metavar="T", help="precision/recall thresholds, mm (default 10 20 50)")
+    param_option(s, surface_metrics, "samples", type=int, help="samples per surface")
+    mm = [round(t * 1e3, 6) for t in DEFAULT_THRESHOLDS_M]
+    shown = " ".join(f"{t:g}" for t in mm)
+    s.add_argument("--thresholds-mm", type=float, nargs="+", default=mm, metavar="T",
+                   help=f"precision/recall thresholds, mm (default {shown})")
     s.add_argument("--trajectories", type=Path, nargs=2, metavar=("EST", "GT"),
                    help="align by these trajectories: EST in the mesh's world, GT in the "
                    "reference's (TUM, KITTI or EuRoC CSV)")
@@ -461,8 +471,8 @@ def register_eval(esub: Any) -> None:
                    help="auto (default): SE(3) from the trajectories when known, else none with "
                    "a warning; sim3 also fits scale; icp refines after the trajectories (or "
                    "alone)")
-    s.add_argument("--max-diff-s", type=float, default=0.01, metavar="S",
-                   help="largest stamp difference of a pose pair, seconds (default 0.01)")
+    param_option(s, align_by_trajectories, "max_diff_s", type=float, metavar="S",
+                 help="largest stamp difference of a pose pair, seconds")
     s.add_argument("--icp-max-distance-m", type=float, metavar="D",
                    help="ICP's largest correspondence distance (default 2 %% of the "
                    "reference's bounding-box diagonal)")
