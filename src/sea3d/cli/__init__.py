@@ -73,6 +73,9 @@ _PHRASES = {
     "device cuda: onnxruntime offers": "--device cuda: onnxruntime offers",
     "or use device cpu": "or use --device cpu",
     " with depth_scale ": " with --depth-scale ",
+    "not aligned (align none)": "not aligned (--align none)",
+    "give trajectories EST GT, or align by ICP for":
+        "pass --trajectories EST GT, or --align icp for",
 }  # fmt: skip
 _PATTERNS = (
     (re.compile(r"no right image; camera (\S+) needs"), r"no right image; --camera \1 needs"),
@@ -81,6 +84,8 @@ _PATTERNS = (
      r"--color matches \1 files but --depth \2;"),
     (re.compile(r"^intrinsics: "), "--intrinsics: "),
     (re.compile(r"^the (left|right|imu|sonar) source needs "), r"--\1 needs "),
+    (re.compile(r"^align (se3|sim3) needs trajectories EST GT$"),
+     r"--align \1 needs --trajectories EST GT"),
 )
 
 

@@ -200,107 +200,16 @@ def _cmd_eval_trajectory(args: argparse.Namespace) -> int:
     return 0
 
 
-def _trusted_rows(folder: Path) -> Any:
-    """Stamps of the trusted frames in ``folder/status.csv`` (None when there is none)."""
-    import csv
-
-    import numpy as np
-
-    path = folder / "status.csv"
-    if not path.is_file():
-        return None
-    with open(path, newline="") as fh:
-        rows = [r for r in csv.DictReader(fh) if r.get("status") in ("tracking", "relocalised")]
-    return np.array([int(r["t_ns"]) for r in rows], np.int64)
-
-
-def _surface_alignment(args: argparse.Namespace, est: Any, ref: Any) -> Any:
-    """The alignment ``eval surface`` uses, and a line saying how it was found (or a warning)."""
-    import logging
-
-    import numpy as np
-
-    from sea3d.eval.surface import NO_ALIGNMENT, align_by_icp, align_by_trajectories
-    from sea3d.io.trajectory_files import read_trajectory
-
-    log = logging.getLogger("sea3d.cli.eval")
-    mesh = Path(args.mesh)
-    trajectories = args.trajectories
-    summary_path = mesh.parent / "summary.json"
-    summary: dict[str, Any] = {}
-    if summary_path.is_file():
-        try:
-            summary = json.loads(summary_path.read_text())
-        except (OSError, ValueError):
-            summary = {}
-    frames = summary.get("frame_of_file")
-    frame = frames.get(mesh.name, "") if isinstance(frames, dict) else ""
-    if trajectories is None and args.align != "none":
-        if "ground truth" in frame and args.align == "auto":
-            return NO_ALIGNMENT, f"{mesh.name} is in the ground truth's frame ({summary_path})"
-        gt_root = summary.get("ground_truth")
-        if (gt_root and (Path(gt_root) / "poses_left.tum").is_file()
-                and (mesh.parent / "trajectory.tum").is_file()):
-            trajectories = [mesh.parent / "trajectory.tum", Path(gt_root) / "poses_left.tum"]
-    if trajectories is None and args.align in ("se3", "sim3"):
-        from sea3d.errors import ReconError
-
-        raise ReconError(f"--align {args.align} needs --trajectories EST GT")
-    align = NO_ALIGNMENT
-    if trajectories is not None and args.align != "none":
-        te = read_trajectory(trajectories[0])
-        tr = read_trajectory(trajectories[1])
-        t_e, T_e = te.t_ns, te.T_world_x
-        trusted = _trusted_rows(Path(trajectories[0]).parent)
-        if trusted is not None and te.timed:
-            keep = np.isin(t_e, trusted)
-            if keep.sum() >= 3:
-                t_e, T_e = t_e[keep], T_e[keep]
-        by_index = not (te.timed and tr.timed)
-        if not by_index and len(te.t_ns) == len(tr.t_ns):
-            from sea3d.eval.trajectory import associate
-
-            # Same count but stamps that mostly do not meet (frame indices against a camera
-            # clock): frame order, as 'sea3d fuse' pairs poses with frames.
-            n_timed = len(associate(te.t_ns, tr.t_ns, round(args.max_diff_s * 1e9))[0])
-            if n_timed < max(3, len(te.t_ns) // 2):
-                by_index = True
-                t_e, T_e = te.t_ns, te.T_world_x
-                log.info("the trajectories' stamps do not pair up; paired in frame order")
-        align = align_by_trajectories(t_e, T_e, tr.t_ns, tr.T_world_x,
-                                      with_scale=args.align == "sim3", by_index=by_index,
-                                      max_diff_s=args.max_diff_s)
-    if args.align == "icp":
-        align = align_by_icp(est.vertices, est.triangles, ref.vertices, ref.triangles,
-                             init=align, max_distance_m=args.icp_max_distance_m)
-    if align.method == "none":
-        if args.align == "none":
-            return align, "not aligned (--align none)"
-        log.warning("nothing aligns %s with %s: the figures assume both are in one frame. A "
-                    "mesh of 'sea3d process' is in the odometry's world: pass --trajectories "
-                    "EST GT, or --align icp for surfaces that already roughly overlap", mesh,
-                    args.reference)
-        return align, "not aligned"
-    how = (f"aligned {align.method} from {trajectories[0]} and {trajectories[1]}"
-           if trajectories is not None else f"aligned {align.method}")
-    how += (f" ({align.pairs} pairs, residual {1000 * (align.residual_m or 0):.1f} mm: "
-            f"{align.residual_of}" + (f"; fitness {100 * align.fitness:.0f} %"
-                                      if align.fitness is not None else "")
-            + (f"; scale {align.scale:.4f}" if align.scale != 1.0 else "") + ")")
-    return align, how
-
-
 def _cmd_eval_surface(args: argparse.Namespace) -> int:
-    from sea3d.eval.surface import surface_metrics
-    from sea3d.io.mesh_files import read_mesh
+    from sea3d.pipeline.surface_eval import evaluate_surface
 
-    est = read_mesh(args.mesh)
-    ref = read_mesh(args.reference)
-    align, how = _surface_alignment(args, est, ref)
-    thresholds = tuple(t / 1000.0 for t in args.thresholds_mm)
-    m = surface_metrics(align.apply(est.vertices), est.triangles, ref.vertices, ref.triangles,
-                        samples=args.samples, thresholds_m=thresholds,
-                        crop_margin_m=args.crop_margin_m)
+    res = evaluate_surface(
+        args.mesh, args.reference, align=args.align,
+        trajectories=None if args.trajectories is None else tuple(args.trajectories),
+        max_diff_s=args.max_diff_s, icp_max_distance_m=args.icp_max_distance_m,
+        samples=args.samples, thresholds_m=tuple(t / 1000.0 for t in args.thresholds_mm),
+        crop_margin_m=args.crop_margin_m)
+    m, align, how = res.metrics, res.alignment, error_line(res.how)
     if args.json:
         d = m.as_dict()
         d["alignment"] = {**align.as_dict(), "how": how}

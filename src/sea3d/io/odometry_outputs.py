@@ -1,4 +1,5 @@
-"""The per-frame status file of an odometry run: ``t_ns,status,segment``, one line a frame.
+"""The per-frame status file of an odometry run: ``t_ns,status,segment``, one line a frame;
+and the trusted stamps of any such status file (``sea3d process`` writes one too).
 
 ``t_ns`` is the frame stamp (integer nanoseconds), ``status`` a
 :class:`~sea3d.odometry.types.TrackingStatus` value (``tracking``, ``imu_only``, ``lost``,
@@ -16,7 +17,7 @@ from typing import Any
 from sea3d.errors import OdometryError
 from sea3d.io._atomic import atomic_write
 
-__all__ = ["write_odometry_status"]
+__all__ = ["read_trusted_stamps", "write_odometry_status"]
 
 
 def write_odometry_status(path: str | os.PathLike[str], t_ns: Sequence[int],
@@ -42,3 +43,27 @@ def write_odometry_status(path: str | os.PathLike[str], t_ns: Sequence[int],
         atomic_write(Path(path), "\n".join(lines) + "\n")
     except OSError as err:
         raise OdometryError(f"cannot write status file {path}: {err}") from err
+
+
+def read_trusted_stamps(path: str | os.PathLike[str],
+                        trusted: Sequence[str] = ("tracking", "relocalised")) -> Any:
+    """The ``t_ns`` of the frames whose ``status`` is one of ``trusted`` in a status file
+    (this module's, or the ``status.csv`` of ``sea3d process``: any CSV with ``t_ns`` and
+    ``status`` columns), as an (N,) int64 array; None when there is no such file.
+
+    Raises:
+        OdometryError: a row without a whole-number ``t_ns``.
+    """
+    import csv
+
+    import numpy as np
+
+    p = Path(path)
+    if not p.is_file():
+        return None
+    with open(p, newline="") as fh:
+        rows = [r for r in csv.DictReader(fh) if r.get("status") in trusted]
+    try:
+        return np.array([int(r["t_ns"]) for r in rows], np.int64)
+    except (KeyError, TypeError, ValueError) as err:
+        raise OdometryError(f"{p}: a row has no whole-number t_ns ({err})") from err
