@@ -19,6 +19,10 @@ Rules (each failure names the file, the line and the rule):
   refraction, errors, ``_typing`` and ``_text`` (a stage it needs is given by its caller).
 - ``eval-runs-stage``: ``sea3d.eval`` computes metrics from given arrays and imports no stage
   at run time (a stage's types only under ``if TYPE_CHECKING:``).
+- ``names-cli-flag``: no string literal outside ``sea3d.cli`` (docstrings and attribute
+  docstrings aside: they may say which option sets a field) holds a command-line flag
+  (``--word``, or ``--`` before an f-string field); the library names the config field or
+  parameter and the CLI spells it as its option (``sea3d.cli.error_line``).
 
 Every rule is also run on a planted violation so that the test is seen to fail.
 """
@@ -509,3 +513,107 @@ def test_capture_and_eval_rules_trip_on_a_planted_violation(
 )
 def test_capture_and_eval_allowed_shapes_pass(rel_path: str, source: str) -> None:
     assert not check_capture_and_eval_imports(parse_module(source, rel_path))
+
+
+# ---------------------------------------------------------------------- names-cli-flag
+import re  # noqa: E402
+
+_FLAG_RE = re.compile(r"(?<![\w-])--[a-z][a-z0-9]*(?:-[a-z0-9]+)*")
+_FLAG_BEFORE_FIELD_RE = re.compile(r"(?:^|[^\w-])--$")
+
+# (path relative to src/, flag) of literals that may hold a flag, with why (an external tool's
+# own command line, say).
+_FLAG_LITERAL_ALLOWED: dict[tuple[str, str], str] = {
+    ("sea3d/capture/monitor.py", "--{...}"): "the boundary line of a multipart MJPEG stream "
+    "(RFC 2046 writes it '--' + boundary), not a command-line flag",
+}
+
+
+def _doc_strings(tree: ast.Module) -> set[int]:
+    """ids of the string constants that are documentation: bare string statements (module,
+    class and function docstrings, and the attribute docstrings after an assignment)."""
+    return {
+        id(node.value)
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant)
+        and isinstance(node.value.value, str)
+    }
+
+
+def _flag_before_field(parts: list[ast.expr], k: int) -> bool:
+    """Part ``k`` of an f-string ends in ``--`` that starts a word (``f"--{name}"``), and a
+    field follows."""
+    a, b = parts[k], parts[k + 1]
+    if not (isinstance(a, ast.Constant) and isinstance(a.value, str)
+            and isinstance(b, ast.FormattedValue)):
+        return False
+    text = a.value if k == 0 else "x" + a.value  # after a field, "--" does not start a word
+    return bool(_FLAG_BEFORE_FIELD_RE.search(text))
+
+
+def check_flag_literals(module: Module) -> list[str]:
+    """``names-cli-flag`` problems of one module (none for ``sea3d.cli``)."""
+    if module.subpackage == "cli":
+        return []
+    docs = _doc_strings(module.tree)
+    where = f"src/{module.rel_path}"
+    problems = []
+    for node in ast.walk(module.tree):
+        found: list[str] = []
+        if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docs:
+            found = _FLAG_RE.findall(node.value)
+        elif isinstance(node, ast.JoinedStr):
+            parts = node.values
+            found = ["--{...}" for k in range(len(parts) - 1) if _flag_before_field(parts, k)]
+        for flag in found:
+            if (module.rel_path, flag) not in _FLAG_LITERAL_ALLOWED:
+                problems.append(
+                    f"{where}:{node.lineno}: [names-cli-flag] a string names the CLI flag {flag}; "
+                    "name the config field or parameter and let sea3d.cli spell it as the flag"
+                )
+    return problems
+
+
+def test_library_strings_name_no_cli_flag(modules: list[Module]) -> None:
+    problems = [p for m in modules for p in check_flag_literals(m)]
+    assert not problems, "\n".join(problems)
+
+
+def test_flag_literal_allowances_are_still_needed(modules: list[Module]) -> None:
+    saved = dict(_FLAG_LITERAL_ALLOWED)
+    try:
+        _FLAG_LITERAL_ALLOWED.clear()
+        flagged = {(m.rel_path, p.split("CLI flag ")[1].split(";")[0])
+                   for m in modules for p in check_flag_literals(m)}
+    finally:
+        _FLAG_LITERAL_ALLOWED.update(saved)
+    assert set(saved) <= flagged, set(saved) - flagged
+
+
+@pytest.mark.parametrize(
+    "source",
+    [
+        'raise ValueError("--max-frames must be >= 1")\n',
+        'def f(n):\n    raise ValueError(f"bad {n}; set --min-depth/--max-depth")\n',
+        'import logging\nlogging.warning("%s: pass --rig", "x")\n',
+        'def f(what):\n    return f"--{what} matches no files"\n',
+        'NOTE = "record without --sync"\n',
+    ],
+)
+def test_flag_rule_trips_on_a_planted_violation(source: str) -> None:
+    problems = check_flag_literals(parse_module(source, "sea3d/pipeline/x.py"))
+    assert any("[names-cli-flag]" in p and "src/sea3d/pipeline/x.py:" in p for p in problems)
+
+
+@pytest.mark.parametrize(
+    ("rel_path", "source"),
+    [
+        ("sea3d/cli/x.py", 'raise SystemExit("--max-frames must be >= 1")\n'),
+        ("sea3d/pipeline/x.py", '"""Run by ``sea3d odometry --no-imu``."""\n'),
+        ("sea3d/pipeline/x.py", 'class C:\n    n: int = 1\n    """Set by ``--n``."""\n'),
+        ("sea3d/pipeline/x.py", 'raise ValueError("max_frames must be >= 1; a--b, -- x")\n'),
+        ("sea3d/pipeline/x.py", 'def f(a, b):\n    return f"{a}--{b} and {a} -- {b}"\n'),
+    ],
+)
+def test_flag_rule_allows_docs_fields_and_dashes(rel_path: str, source: str) -> None:
+    assert not check_flag_literals(parse_module(source, rel_path))

@@ -104,6 +104,6 @@ def test_too_few_and_no_match_say_what_to_do() -> None:
     t_cam, R, t_imu, _gyro, _ = _data(HandHeld(duration_s=20.0), 0.0, 3)
     noise = np.random.default_rng(9).normal(0, 0.2, (t_imu.size, 3))
     nm = estimate_camera_imu(t_cam, R, t_imu, noise)
-    assert nm.status is CameraImuStatus.NO_MATCH and "--max-offset-s" in nm.advice[0]
+    assert nm.status is CameraImuStatus.NO_MATCH and "max_offset_s" in nm.advice[0]
     few = estimate_camera_imu(t_cam[:5], R[:5], t_imu, noise)
     assert "record at least 10 s" in few.advice[0]

@@ -144,7 +144,7 @@ def test_open_source_picks_the_right_kind_and_rejects_nonsense(tmp_path):
     assert isinstance(open_source(f"session:{path}", "imu"), SessionReplaySource)
     assert isinstance(open_source("/dev/video3", "left"), OpenCVCameraSource)
     assert open_source("mti:loop://", "imu").kind == "imu"
-    with pytest.raises(CaptureError, match="--left needs image records"):
+    with pytest.raises(CaptureError, match="the left source needs image records"):
         open_source("mti:loop://", "left")
     with pytest.raises(CaptureError, match="cannot tell what source"):
         open_source("bogus-thing", "left")

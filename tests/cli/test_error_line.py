@@ -21,6 +21,16 @@ OUT = Path("unused-out")
      "x.mcap: bad chunk; refusing to convert a damaged session (--strict)"),
     ("s stores no rig; give a rig file", "s stores no rig; pass --rig rig.yaml"),
     ("size_px must be at least 32x24, got (8, 8)", "--size must be at least 32x24, got (8, 8)"),
+    ("depth_rate must be >= 1 frame, got 0", "--depth-rate must be >= 1 frame, got 0"),
+    ("color matches 8 files but depth 7; they must pair up",
+     "--color matches 8 files but --depth 7; they must pair up"),
+    ("depth 'd/*.png' matches no files", "--depth 'd/*.png' matches no files"),
+    ("the left source needs image records, but 'imu.csv' gives imu records",
+     "--left needs image records, but 'imu.csv' gives imu records"),
+    ("f.png: no right image; camera stereo needs a right camera",
+     "f.png: no right image; --camera stereo needs a right camera"),
+    ("the range may exclude the scene (set min_depth_m/max_depth_m)",
+     "the range may exclude the scene (set --min-depth/--max-depth)"),
 ])
 def test_error_line_names_the_option_of_the_field(message: str, line: str) -> None:
     assert error_line(message) == line
@@ -46,3 +56,16 @@ def test_cli_error_names_the_flag_and_value(tmp_path, capsys) -> None:
                  "--voxel-m", "0"]) == 2
     err = capsys.readouterr().err
     assert "--voxel-m must be > 0, got 0.0" in err and "Traceback" not in err
+
+
+def test_cli_log_filter_names_the_option() -> None:
+    import logging
+
+    from sea3d.cli import FlagNames
+
+    record = logging.LogRecord("sea3d.io.rig_file", logging.WARNING, __file__, 1,
+                               "%s holds no image size; assuming %dx%d (pass image_size to set it)",
+                               ("rig.yml", 64, 48), None)
+    assert FlagNames().filter(record)
+    assert record.getMessage() == ("rig.yml holds no image size; assuming 64x48 (pass --size to "
+                                   "set it)")

@@ -156,7 +156,7 @@ def test_named_enhancements_resolve_to_image_functions(rng: np.random.Generator)
     assert process_enhance_hook("none") is None
     for name, entry in ENHANCEMENTS.items():
         if entry.needs_range:
-            with pytest.raises(EnhanceError, match="--restore-colours"):
+            with pytest.raises(EnhanceError, match="restore_colours"):
                 process_enhance_hook(name)
             continue
         path = entry.function

@@ -48,7 +48,7 @@ def test_depth_grid_sidecar_round_trips_and_checks_refuse_another_grid(tmp_path:
     got = check_depth_grid(p, read_depth(p).shape, kind="rectified-left", width_px=SIZE[0],
                            height_px=SIZE[1], rig_id="ab" * 8)
     assert got == _grid()
-    with pytest.raises(StereoError, match=r"lives on the rectified-left 160x90 .*--grid raw"):
+    with pytest.raises(StereoError, match=r"lives on the rectified-left 160x90 .*raw grid"):
         check_depth_grid(p, depth.shape, kind="raw-left", width_px=SIZE[0], height_px=SIZE[1])
     with pytest.raises(StereoError, match="another rig"):
         check_depth_grid(p, depth.shape, kind="rectified-left", width_px=SIZE[0],

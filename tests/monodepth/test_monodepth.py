@@ -62,7 +62,7 @@ def test_alignment_reports_failures() -> None:
     assert al.status == "failed" and "5 sparse" in al.message
     # a network that returns depth taken for inverse depth: no positive scale fits
     depth, al = align_depth(z, z, kind="inverse")
-    assert al.status == "failed" and "output-kind" in al.message and np.isnan(depth).all()
+    assert al.status == "failed" and "output_kind" in al.message and np.isnan(depth).all()
     with pytest.raises(MonoDepthError, match="same"):
         align_depth(z, z[:-1])
 

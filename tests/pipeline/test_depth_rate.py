@@ -34,9 +34,9 @@ def test_parse_depth_rate():
     assert parse_depth_rate("auto") == "auto" and parse_depth_rate("all") == "all"
     assert parse_depth_rate("3") == 3 and parse_depth_rate(4) == 4
     for bad in ("0", "-2", "fast", "1.5"):
-        with pytest.raises(ConfigError, match="--depth-rate"):
+        with pytest.raises(ConfigError, match="depth_rate"):
             parse_depth_rate(bad)
-    with pytest.raises(ConfigError, match="--depth-rate"):
+    with pytest.raises(ConfigError, match="depth_rate"):
         ProcessConfig(out_dir="x", depth_rate="sometimes")
 
 

@@ -170,7 +170,7 @@ def _advice(status: CameraImuStatus, *, duration_s: float, axis_rms: F64, direct
     if status is CameraImuStatus.NO_MATCH:
         return [f"the gyro and the camera's rotation do not agree at any offset within "
                 f"+-{max_offset_s:g} s (best correlation {correlation:.2f}): check the IMU "
-                "belongs to this rig, or widen --max-offset-s; if the clip barely turns, "
+                "belongs to this rig, or widen max_offset_s; if the clip barely turns, "
                 + turn]
     out = []
     # principal directions of the rate: a survey turns about one (its heading), whatever

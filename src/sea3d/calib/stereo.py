@@ -1030,7 +1030,7 @@ def assess(result: StereoCalibration) -> tuple[str, list[str]]:
         if ratio > 2.5 or result.holdout_px > 2.0:
             notes.append(f"The holdout error ({result.holdout_px:.2f} px) is {ratio:.1f} x the "
                          f"RMS: the model fits the views it saw much better than new ones, so "
-                         f"it is over-fitted. Add views or use --distortion simple.")
+                         f"it is over-fitted. Add views or use the simple distortion model.")
             severity = max(severity, 2)
         elif ratio > 1.6:
             notes.append(f"The holdout error ({result.holdout_px:.2f} px) is {ratio:.1f} x the "

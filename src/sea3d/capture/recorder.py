@@ -404,7 +404,7 @@ class Recorder:
         if self._disk_free < cfg.min_free_bytes:
             raise CaptureError(
                 f"only {self._disk_free / 1e9:.2f} GB free for {out}; recording needs more than "
-                f"the {cfg.min_free_bytes / 1e9:.2f} GB reserve (lower it with --min-free-gb)"
+                f"the {cfg.min_free_bytes / 1e9:.2f} GB reserve (lower min_free_bytes)"
             )
         opened: list[Source] = []
         try:

@@ -95,5 +95,7 @@ def open_source(spec: str, role: str, *, replay_speed: float = 1.0) -> Source:
             "video:FILE, session:PATH, sim:MODULE:FACTORY, mti:PORT or ping:PORT"
         )
     if src.kind != kind:
-        raise CaptureError(f"--{role} needs {kind} records, but {spec!r} gives {src.kind} records")
+        raise CaptureError(
+            f"the {role} source needs {kind} records, but {spec!r} gives {src.kind} records"
+        )
     return src

@@ -144,7 +144,7 @@ def configure_sync(
     if exe is None:
         raise CaptureError(
             f"{v4l2_ctl} not found on PATH; install v4l-utils (apt-get install v4l-utils) "
-            "or record without --sync (and configure the cameras yourself)"
+            "or record without hardware sync (and configure the cameras yourself)"
         )
     readback: dict[str, dict[str, int]] = {}
     for dev in (settings.left, settings.right):

@@ -20,7 +20,7 @@ from typing import Any
 from sea3d import __version__
 from sea3d.errors import Sea3dError
 
-__all__ = ["build_parser", "error_line", "main"]
+__all__ = ["FlagNames", "build_parser", "error_line", "main"]
 
 # Modules under sea3d.cli that add subcommands, in the order they appear in --help.
 _COMMAND_MODULES = (
@@ -36,28 +36,79 @@ _FLAG_OF_FIELD = {
     "voxel_m": "--voxel-m", "workers": "--workers", "scheduler": "--scheduler",
     "max_frames": "--max-frames", "rate": "--rate", "strict": "--strict",
     "fresh": "--fresh", "range_m": "--depth", "max_disparity_px": "--max-disparity",
-    "min_depth_m": "--min-depth", "max_depth_m": "--max-depth",
+    "min_depth_m": "--min-depth", "max_depth_m": "--max-depth", "depth_rate": "--depth-rate",
+    "depth_scale": "--depth-scale",
 }  # fmt: skip
 _FIELD_RE = re.compile(
     r"(?<![\w./-])(" + "|".join(_FLAG_OF_FIELD) + r")(?= must\b| or |\)|, not both| to discard)"
     r"|(?<=either )(" + "|".join(_FLAG_OF_FIELD) + r")\b"
 )
+# Library phrases that name a setting, and how this CLI says them (library code names no flag:
+# tests/test_layout.py). Each is specific enough to occur only in the message it comes from.
 _PHRASES = {
     "use another output folder, or": "use another -o, or",
+    "choose another output folder": "choose another -o/--output folder",
     "stores no rig; give a rig file": "stores no rig; pass --rig rig.yaml",
     "add the echosounder's mount to rig.yaml and pass that rig":
         "add the echosounder's mount to rig.yaml and pass --rig",
     "size_px must be at least 32x24": "--size must be at least 32x24",
     "a topic entry expects": "--topic expects", "in topic entry": "in --topic",
-}
+    "min_depth_m/max_depth_m": "--min-depth/--max-depth",
+    "use_imu off: visual-only": "--no-imu: visual-only",
+    "add it from a Kalibr camera-IMU calibration": "add it with 'sea3d rig create --kalibr'",
+    "; give the rig of this camera (size_px then sets the processing size)":
+        "; pass the rig of this camera with --rig (--size then sets the processing size)",
+    "widen max_offset_s": "widen --max-offset-s",
+    "Add views or use the simple distortion model.": "Add views or use --distortion simple.",
+    "(lower min_free_bytes)": "(lower it with --min-free-gb)",
+    "or record without hardware sync (and": "or record without --sync (and",
+    "; use restore_colours ": "; use --restore-colours ",
+    "check the time base or max_diff_s": "check the time base or --max-diff-s",
+    "use align 'none' for": "use --align none for",
+    "; write raw-view depth (the raw grid) with sea3d depth":
+        "; write raw-view depth with sea3d depth --grid raw",
+    "(e.g. scale 16 for tsukuba": "(e.g. --scale 16 for tsukuba",
+    "(pass image_size to set it)": "(pass --size to set it)",
+    "(is output_kind right?)": "(is --output-kind right?)",
+    "device cuda: onnxruntime offers": "--device cuda: onnxruntime offers",
+    "or use device cpu": "or use --device cpu",
+    " with depth_scale ": " with --depth-scale ",
+    "not aligned (align none)": "not aligned (--align none)",
+    "give trajectories EST GT, or align by ICP for":
+        "pass --trajectories EST GT, or --align icp for",
+}  # fmt: skip
+_PATTERNS = (
+    (re.compile(r"no right image; camera (\S+) needs"), r"no right image; --camera \1 needs"),
+    (re.compile(r"^(color|depth) ('.*' matches no files)$"), r"--\1 \2"),
+    (re.compile(r"^color matches (\d+) files but depth (\d+);"),
+     r"--color matches \1 files but --depth \2;"),
+    (re.compile(r"^intrinsics: "), "--intrinsics: "),
+    (re.compile(r"^the (left|right|imu|sonar) source needs "), r"--\1 needs "),
+    (re.compile(r"^align (se3|sim3) needs trajectories EST GT$"),
+     r"--align \1 needs --trajectories EST GT"),
+)
 
 
 def error_line(message: str) -> str:
-    """A library error's message with the config fields it names spelt as this CLI's options
-    (``voxel_m must be > 0`` -> ``--voxel-m must be > 0``)."""
+    """A library message (error, warning, note) with the config fields and settings it names
+    spelt as this CLI's options (``voxel_m must be > 0`` -> ``--voxel-m must be > 0``)."""
     for lib, cli in _PHRASES.items():
         message = message.replace(lib, cli)
+    for pattern, repl in _PATTERNS:
+        message = pattern.sub(repl, message)
     return _FIELD_RE.sub(lambda m: _FLAG_OF_FIELD[m.group(1) or m.group(2)], message)
+
+
+class FlagNames(logging.Filter):
+    """A log filter that rewrites a record's message with :func:`error_line`, so warnings from
+    library code name this CLI's options; installed on the CLI's log handler."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        text = record.getMessage()
+        new = error_line(text)
+        if new != text:
+            record.msg, record.args = new, None
+        return True
 
 
 class _Parser(argparse.ArgumentParser):
@@ -100,6 +151,9 @@ def _configure_logging(verbose: int, quiet: bool) -> None:
     logging.basicConfig(
         level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr
     )
+    for handler in logging.getLogger().handlers:
+        if not any(isinstance(f, FlagNames) for f in handler.filters):
+            handler.addFilter(FlagNames())
 
 
 def main(argv: Sequence[str] | None = None) -> int:

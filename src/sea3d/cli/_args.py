@@ -5,14 +5,15 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
+import inspect
 import re
 from typing import Any
 
 from sea3d._text import plural
 
-__all__ = ["add_depth_range", "add_output", "config_option", "deprecated", "depth_config",
-           "field_help", "image_size", "plural", "positive_depth",
-           "positive_float"]
+__all__ = ["add_depth_range", "add_output", "config_default", "config_option", "deprecated",
+           "depth_config", "field_help", "image_size", "param_default", "param_option", "plural",
+           "positive_depth", "positive_float"]
 
 
 def image_size(text: str) -> tuple[int, int]:
@@ -125,8 +126,39 @@ def field_help(cls: type, name: str) -> str:
     return str(f.metadata.get("help") or _attribute_docs(cls).get(name, ""))
 
 
+def _tagged_option(parser: Any, source: Any, name: str, default: Any, flags: tuple[str, ...],
+                   text: str, shown: str | None, kwargs: dict[str, Any]) -> Any:
+    if "default" in kwargs:
+        raise TypeError(f"{name}: the default comes from {source!r}; do not pass default=")
+    if shown is None:
+        shown = " ".join(str(v) for v in default) if isinstance(default, tuple) else str(default)
+    kwargs.setdefault("dest", name)
+    if default is not None:
+        text = f"{text} (default {shown})".strip()
+    action = parser.add_argument(*(flags or ("--" + name.replace("_", "-"),)), default=default,
+                                 help=text.replace("%", "%%"), **kwargs)
+    action.sea3d_default_from = (source, name)  # for the test that defaults cannot drift
+    return action
+
+
+def config_default(cls: type, name: str) -> Any:
+    """The default of the config dataclass ``cls``'s field ``name`` (None when it has none)."""
+    f = {x.name: x for x in dataclasses.fields(cls)}[name]
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return None
+
+
+def param_default(func: Any, name: str) -> Any:
+    """The default of parameter ``name`` of the library function ``func``."""
+    p = inspect.signature(func).parameters[name]
+    return None if p.default is inspect.Parameter.empty else p.default
+
+
 def config_option(parser: Any, cls: type, name: str, *flags: str, help: str | None = None,
-                  **kwargs: Any) -> None:
+                  shown: str | None = None, **kwargs: Any) -> Any:
     """An option whose default and help come from the config dataclass ``cls``'s field
     ``name``: the default is written once, in the dataclass; the help is its documentation
     with "(default X)" added. ``dest`` is the field name unless given.
@@ -137,15 +169,46 @@ def config_option(parser: Any, cls: type, name: str, *flags: str, help: str | No
         name: the field.
         flags: the option strings (default ``--name-with-dashes``).
         help: help text instead of the field's documentation.
-        kwargs: passed to ``add_argument`` (``type``, ``choices``, ``metavar``, ``nargs``...).
+        shown: how the default is written in the help (default ``str(default)``).
+        kwargs: passed to ``add_argument`` (``type``, ``choices``, ``metavar``, ``nargs``...;
+            not ``default``).
+
+    Returns:
+        the argparse action.
     """
-    f = {x.name: x for x in dataclasses.fields(cls)}[name]
-    default = f.default if f.default is not dataclasses.MISSING else (
-        f.default_factory() if f.default_factory is not dataclasses.MISSING else None)
     text = help if help is not None else field_help(cls, name)
-    shown = " ".join(str(v) for v in default) if isinstance(default, tuple) else default
-    kwargs.setdefault("dest", name)
-    if default is not None:
-        text = f"{text} (default {shown})".strip()
-    parser.add_argument(*(flags or ("--" + name.replace("_", "-"),)), default=default,
-                        help=text.replace("%", "%%"), **kwargs)
+    return _tagged_option(parser, cls, name, config_default(cls, name), flags, text, shown,
+                          kwargs)
+
+
+def param_option(parser: Any, func: Any, name: str, *flags: str, help: str,
+                 shown: str | None = None, **kwargs: Any) -> Any:
+    """An option whose value is passed to parameter ``name`` of the library function ``func``:
+    its default is the parameter's (written once, in the function), added to ``help``.
+
+    Returns:
+        the argparse action.
+    """
+    return _tagged_option(parser, func, name, param_default(func, name), flags, help, shown,
+                          kwargs)
+
+
+def add_port_options(parser: Any, *, flat_help: str) -> None:
+    """The port options of ``sea3d rig create`` and ``sea3d calibrate port``: ``--inner-radius-mm``
+    (default the paper's dome), ``--thickness-mm``, ``--n-glass``/``--n-water``/``--n-air`` (the
+    defaults of :class:`~sea3d.refraction.ports.DomePort`) and ``--flat-distance-mm`` (that of
+    :class:`~sea3d.refraction.ports.FlatPort`), each default written once, in the library."""
+    from sea3d.refraction.ports import DomePort, FlatPort
+    from sea3d.refraction.presets import PAPER_DOME_INNER_RADIUS_M
+
+    radius_mm = PAPER_DOME_INNER_RADIUS_M * 1e3
+    parser.add_argument("--inner-radius-mm", type=float, default=radius_mm,
+                        help=f"dome inner radius (default {radius_mm:g}, the paper's dome)")
+    parser.add_argument("--thickness-mm", type=float,
+                        help="glass thickness (dome 3.1, flat 10)")
+    config_option(parser, DomePort, "n_glass", type=float, help="glass index (acrylic)")
+    config_option(parser, DomePort, "n_water", type=float, help="water index")
+    config_option(parser, DomePort, "n_air", type=float, help="index inside the housing")
+    flat_mm = config_default(FlatPort, "distance_m") * 1e3
+    parser.add_argument("--flat-distance-mm", type=float, default=flat_mm,
+                        help=f"{flat_help} (default {flat_mm:g})")

@@ -13,6 +13,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from sea3d.cli import error_line
+from sea3d.cli._args import add_port_options, config_option, param_option
 from sea3d.errors import CalibrationError, ConfigError
 
 log = logging.getLogger(__name__)
@@ -27,8 +29,9 @@ def register(sub: Any) -> None:
     board.add_argument("board", metavar="BOARD",
                        help="e.g. checkerboard:9x6:95mm, charuco:5x7:40mm:30mm:DICT_6X6_250, "
                             "apriltag:7x5:91.4mm:114.3mm, or a board YAML file")
-    board.add_argument("--paper", default="A4", help="A0-A5, letter, legal, tabloid or WxHmm "
-                                                     "(default A4)")
+    from sea3d.calib.printable import board_pdf
+
+    param_option(board, board_pdf, "paper", help="A0-A5, letter, legal, tabloid or WxHmm")
     board.add_argument("--dpi", type=float, default=300.0, help="PNG output: dots per inch")
     board.add_argument("-o", "--output", required=True, metavar="FILE", help=".pdf or .png")
     board.set_defaults(handler=_board)
@@ -39,11 +42,13 @@ def register(sub: Any) -> None:
     stereo.add_argument("-o", "--output", required=True, metavar="RIG", help="rig file to write")
     stereo.add_argument("--json", action="store_true", help="print the result as JSON")
     stereo.add_argument("--report", metavar="HTML", help="write an HTML report")
-    stereo.add_argument("--distortion", choices=["standard", "simple", "rational"],
-                        default="standard",
-                        help="standard: k1 k2 p1 p2 k3; simple: k3 = 0; rational: 8 "
-                             "coefficients (wide lenses, in water)")
-    stereo.add_argument("--min-views", type=int, default=6, help="fewest usable pairs")
+    from sea3d.calib.stereo import StereoCalibConfig
+
+    config_option(stereo, StereoCalibConfig, "distortion",
+                  choices=["standard", "simple", "rational"],
+                  help="standard: k1 k2 p1 p2 k3; simple: k3 = 0; rational: 8 "
+                       "coefficients (wide lenses, in water)")
+    config_option(stereo, StereoCalibConfig, "min_views", type=int, help="fewest usable pairs")
     stereo.add_argument("--no-reject", action="store_true", help="keep every detected pair")
     stereo.add_argument("--no-holdout", action="store_true",
                         help="skip the leave-one-pair-out error (faster)")
@@ -61,13 +66,7 @@ def register(sub: Any) -> None:
     port.add_argument("--port", choices=["dome", "flat"], required=True,
                       help="the housings' ports: dome (fits each dome's centre) or flat (fits "
                            "each port's normal and distance)")
-    port.add_argument("--inner-radius-mm", type=float, default=31.25, help="dome inner radius")
-    port.add_argument("--thickness-mm", type=float, help="glass thickness (dome 3.1, flat 10)")
-    port.add_argument("--n-glass", type=float, default=1.492, help="glass index (acrylic)")
-    port.add_argument("--n-water", type=float, default=1.333, help="water index")
-    port.add_argument("--n-air", type=float, default=1.000292, help="index inside the housing")
-    port.add_argument("--flat-distance-mm", type=float, default=10.0,
-                      help="flat port: starting distance camera centre to inner glass")
+    add_port_options(port, flat_help="flat port: starting distance camera centre to inner glass")
     port.add_argument("--refine-focal", action="store_true",
                       help="also estimate the focal length (one scale on fx and fy)")
     _add_pair_inputs(port)
@@ -307,9 +306,9 @@ def _print_stereo(result: Any, args: argparse.Namespace) -> None:
           f"{result.left.coverage:.0%}, right {result.right.coverage:.0%}")
     for r in result.views_rejected:
         print(f"  rejected {r.left} / {r.right}: {r.reason}")
-    print(f"  verdict: {result.verdict}")
+    print(f"  verdict: {error_line(result.verdict)}")
     for g in result.guidance[1:]:
-        print(f"  - {g}")
+        print(f"  - {error_line(g)}")
     if args.report:
         print(f"  report: {args.report}")
 
@@ -384,8 +383,8 @@ def _print_port(result: Any, args: argparse.Namespace) -> None:
         print(f"  rejected {a} / {b}: {why}")
     if result.ok:
         verdict, guidance = assess_port(result)
-        print(f"  verdict: {verdict}")
+        print(f"  verdict: {error_line(verdict)}")
         for g in guidance[1:]:
-            print(f"  - {g}")
+            print(f"  - {error_line(g)}")
     if args.report:
         print(f"  report: {args.report}")

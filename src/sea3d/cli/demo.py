@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import add_output, image_size
+from sea3d.cli._args import add_output, config_default, config_option, image_size
 
 
 def register(sub: Any) -> None:
@@ -20,23 +20,27 @@ def register(sub: Any) -> None:
         "pair's refraction-corrected depth against ground truth, process the whole dive "
         "(depth, poses, TSDF fusion, mesh) and write OUT/report.html and OUT/summary.json.",
     )
-    add_output(p, type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
-    p.add_argument("--scene", default="lake", help="lake, tank, reef or a scene YAML")
-    p.add_argument("--water", default="coastal", choices=["none", "clear", "coastal", "turbid"],
-                   help="water type (default coastal)")
-    p.add_argument("--port", default="dome", choices=["dome", "flat", "none"],
-                   help="ports on the paper's rig (default dome)")
-    p.add_argument("--engine", default="sea3d", choices=["sea3d", "sea3d-gpu", "opencv"],
-                   help="stereo matching engine (default sea3d)")
-    p.add_argument("--size", type=image_size, default=(640, 360), metavar="WxH",
-                   help="image size of the simulated survey (default 640x360)")
-    p.add_argument("--frames", type=int, default=80, help="stereo frames, 10 per second "
-                   "(default 80)")
-    p.add_argument("--max-disparity", type=int, default=256,
-                   help="disparities of the one-pair check at 1920 px width (scaled)")
-    p.add_argument("--voxel-m", type=float, default=0.02, help="TSDF voxel, metres")
+    from sea3d.pipeline.demo import DemoConfig
+
+    out = config_default(DemoConfig, "out_dir")
+    add_output(p, type=Path, default=out, help=f"output folder (default {out})")
+    C = DemoConfig
+    config_option(p, C, "scene", help="lake, tank, reef or a scene YAML")
+    config_option(p, C, "water", choices=["none", "clear", "coastal", "turbid"],
+                  help="water type")
+    config_option(p, C, "port", choices=["dome", "flat", "none"],
+                  help="ports on the paper's rig")
+    config_option(p, C, "engine", choices=["sea3d", "sea3d-gpu", "opencv"],
+                  help="stereo matching engine")
+    config_option(p, C, "size_px", "--size", dest="size", type=image_size, metavar="WxH",
+                  shown="x".join(str(v) for v in C.size_px),
+                  help="image size of the simulated survey")
+    config_option(p, C, "frames", type=int, help="stereo frames, 10 per second")
+    config_option(p, C, "max_disparity_px", "--max-disparity", dest="max_disparity", type=int,
+                  help="disparities of the one-pair check at 1920 px width (scaled)")
+    config_option(p, C, "voxel_m", type=float, help="TSDF voxel, metres")
     p.add_argument("--workers", type=int, help="worker processes (default one per core)")
-    p.add_argument("--seed", type=int, default=0, help="sensor-noise seed")
+    config_option(p, C, "seed", type=int, help="sensor-noise seed")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(handler=_run)
 

@@ -164,39 +164,6 @@ def _cmd_eval_disparity(args: argparse.Namespace) -> int:
     return 0
 
 
-def _rectified_grid(maps: Any, rig: Any) -> Any:
-    """The :class:`~sea3d.io.depth_files.DepthGrid` of depth as matched (rectified left)."""
-    from sea3d.io.depth_files import DepthGrid, rig_identity
-    from sea3d.io.rig_file import rig_to_yaml
-
-    K = maps.P_left[:3, :3]
-    return DepthGrid(kind="rectified-left", width_px=int(maps.width),
-                     height_px=int(maps.height), K=tuple(tuple(float(x) for x in r) for r in K),
-                     rig_id=rig_identity(rig_to_yaml(rig)))
-
-
-def _write_depth_on_grid(path: Any, depth_rect_m: Any, maps: Any, rig: Any, grid: str) -> None:
-    """Write depth on the asked grid (``rectified``: as matched, or ``raw``: resampled onto the
-    raw left camera's pixels) with its grid sidecar (:class:`sea3d.io.depth_files.DepthGrid`)."""
-    import numpy as np
-
-    from sea3d.io.depth_files import DepthGrid, rig_identity, write_depth
-    from sea3d.io.rig_file import rig_to_yaml
-    from sea3d.rectify.depth_grid import rectified_depth_to_raw
-
-    rig_id = rig_identity(rig_to_yaml(rig))
-    K_rect = np.asarray(maps.P_left[:3, :3], dtype=np.float64)
-    if grid == "raw":
-        depth = rectified_depth_to_raw(depth_rect_m, K_rect, maps.R_rect_left_left, rig.left)
-        pin = rig.left.lens
-        K = np.array([[pin.fx, 0.0, pin.cx], [0.0, pin.fy, pin.cy], [0.0, 0.0, 1.0]])
-        g = DepthGrid(kind="raw-left", width_px=rig.width, height_px=rig.height,
-                      K=tuple(tuple(float(x) for x in r) for r in K), rig_id=rig_id)
-    else:
-        depth, g = depth_rect_m, _rectified_grid(maps, rig)
-    write_depth(path, depth, g)
-
-
 def _cmd_depth_session(args: argparse.Namespace) -> int:
     """Depth for every stereo pair of a session, with a progress bar."""
     from pathlib import Path
@@ -205,6 +172,7 @@ def _cmd_depth_session(args: argparse.Namespace) -> int:
     from sea3d.io.depth_files import write_depth_grid, write_depth_png_mm, write_ply
     from sea3d.io.rig_file import resolve_rig
     from sea3d.io.session import open_session
+    from sea3d.pipeline.depth_pair import rectified_grid
     from sea3d.pipeline.depth_session import depth_session
     from sea3d.stereo.recipe import StereoDepth
 
@@ -221,7 +189,7 @@ def _cmd_depth_session(args: argparse.Namespace) -> int:
             _check_range(args.max_disparity, rig.width, args.engine, "the rig's images")
         stereo = StereoDepth(rig, config)
         (out / "depth").mkdir(parents=True, exist_ok=True)
-        grid = _rectified_grid(stereo.maps, rig)
+        grid = rectified_grid(stereo.maps, rig)
         if args.points:
             (out / "cloud").mkdir(parents=True, exist_ok=True)
 
@@ -262,7 +230,6 @@ def _cmd_depth_session(args: argparse.Namespace) -> int:
 
 
 def _cmd_depth(args: argparse.Namespace) -> int:
-    import numpy as np
 
     if args.session is not None:
         if args.left or args.right:
@@ -279,10 +246,9 @@ def _cmd_depth(args: argparse.Namespace) -> int:
 
         raise StereoError("--points needs a file name (cloud.ply) for a single pair")
 
-    from sea3d.errors import StereoError
-    from sea3d.io.depth_files import write_ply
+    from sea3d.io.depth_files import write_depth, write_ply
     from sea3d.io.rig_file import load_rig
-    from sea3d.stereo.recipe import StereoDepth
+    from sea3d.pipeline.depth_pair import depth_pair
 
     _check_depth_range(args)
     config = depth_config(args)
@@ -291,44 +257,15 @@ def _cmd_depth(args: argparse.Namespace) -> int:
         _check_range(args.max_disparity, rig.width, args.engine, f"the rig {args.rig}")
     left = _read_image(args.left)
     right = _read_image(args.right)
-    for name, img, path in (("left", left, args.left), ("right", right, args.right)):
-        if img.shape[:2] != (rig.height, rig.width):
-            raise StereoError(
-                f"{name} image {path} is {img.shape[1]}x{img.shape[0]} but the rig "
-                f"{args.rig} is {rig.width}x{rig.height}"
-            )
-    t0 = time.perf_counter()
-    stereo = StereoDepth(rig, config)
-    rectify_maps_s = time.perf_counter() - t0
-    maps, max_d = stereo.maps, stereo.max_disparity_px
-    compile_s = stereo.warm_up()
-    res = stereo.compute(left, right)
-    _write_depth_on_grid(args.output, res.depth_m, maps, rig, args.grid)
+    pair = depth_pair(rig, left, right, config, grid=args.grid,
+                      names=(args.left, args.right, args.rig))
+    res = pair.result
+    write_depth(args.output, pair.depth_m, pair.grid)
     if args.points:
         write_ply(args.points, res.points_left, res.colors_rgb)
-    valid_fraction = float(np.isfinite(res.depth_m).mean())
-    summary = {
-        "output": str(args.output),
-        "points": str(args.points) if args.points else None,
-        "n_points": len(res.points_left),
-        "valid_fraction": valid_fraction,
-        "median_depth_m": float(np.nanmedian(res.depth_m)) if valid_fraction > 0 else None,
-        "refractive": maps.refractive,
-        "focal_px": maps.focal_px,
-        "baseline_m": maps.baseline_m,
-        "max_disparity_px": max_d,
-        "depth_range_m": list(stereo.depth_range_m),
-        "engine": args.engine,
-        "match_s": res.timings_s["match_s"],
-        "rectify_s": res.timings_s["rectify_s"],
-        "depth_s": res.timings_s["depth_s"],
-        "rectify_maps_s": rectify_maps_s,
-        "compile_s": compile_s,
-    }
-    for side, rep in (("left", maps.report_left), ("right", maps.report_right)):
-        if rep is not None:
-            summary[f"virtual_pinhole_{side}_rms_px"] = rep.rms_px
-            summary[f"virtual_pinhole_{side}_max_px"] = rep.max_px
+    summary = {"output": str(args.output), "points": str(args.points) if args.points else None,
+               **pair.summary, "engine": args.engine}
+    valid_fraction = summary["valid_fraction"]
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
@@ -337,7 +274,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
             f"{summary['median_depth_m'] or float('nan'):.3f} m"
             + (f", {plural(len(res.points_left), 'point')} -> {args.points}"
                if args.points else "")
-            + (" (refraction-corrected)" if maps.refractive else "")
+            + (" (refraction-corrected)" if summary["refractive"] else "")
         )
     return 0
 
@@ -360,7 +297,9 @@ def register(sub: Any) -> None:
         help="largest disparity searched, pixels (range 0..N)",
     )
     p.add_argument("-o", "--output", required=True, help="output disparity: .pfm, .npy or .tiff")
-    p.add_argument("--engine", choices=_ENGINES, default="sea3d", help="matching engine")
+    from sea3d.stereo.recipe import DepthConfig
+
+    config_option(p, DepthConfig, "engine", choices=_ENGINES, help="matching engine")
     p.add_argument("--paths", type=int, choices=(8, 16), help="sea3d engine: aggregation paths")
     p.add_argument(
         "--filters", default="", help='post-filter chain, e.g. "median:size_px=3,speckle,wls"'
@@ -426,14 +365,9 @@ def register(sub: Any) -> None:
         "image width)",
     )
     add_depth_range(d, far="farthest depth kept (refractive rectification range too)")
-    d.add_argument(
-        "--min-confidence",
-        type=float,
-        default=1e-6,
-        metavar="C",
-        help="drop matches below this confidence (0..1) from depth and points (default: drop "
-        "only the filled, unmatched pixels)",
-    )
+    config_option(d, DepthConfig, "min_confidence", type=float, metavar="C",
+                  help="drop matches below this confidence (0..1) from depth and points "
+                  "(the default drops only the filled, unmatched pixels)")
     d.add_argument("--json", action="store_true", help="print timings and figures as JSON")
     d.set_defaults(handler=_cmd_depth)
 

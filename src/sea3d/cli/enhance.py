@@ -14,7 +14,7 @@ import logging
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import add_depth_range, config_option
+from sea3d.cli._args import add_depth_range, config_option, param_option
 from sea3d.enhance.registry import METHODS
 
 __all__ = ["register", "register_eval"]
@@ -304,7 +304,9 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--no-white-balance", action="store_true", help="Sea-thru: skip the final grey world"
     )
-    p.add_argument("--clip-limit", type=float, default=2.0, help="CLAHE clip limit (default 2)")
+    from sea3d.enhance.contrast import clahe
+
+    param_option(p, clahe, "clip_limit", type=float, help="CLAHE clip limit")
     p.add_argument("--session", help="enhance every stereo pair of this session (MCAP or folder)")
     p.add_argument("--format", choices=("mcap", "folder"), help="output session layout")
     config_option(p, DepthConfig, "engine", choices=("sea3d", "opencv"),

@@ -98,40 +98,6 @@ def _stereo(rig: Any, args: argparse.Namespace) -> Any:
     return StereoDepth(rig, depth_config(args))
 
 
-def _sfm_sparse(model_dir: Path, image_name: str, width: int, height: int) -> Any:
-    """Sparse depth of a COLMAP model's points in one of its images (matched by name)."""
-    import numpy as np
-
-    from sea3d.errors import MonoDepthError
-    from sea3d.io.sfm_files import read_colmap_model
-    from sea3d.monodepth import sparse_depth_from_points
-
-    rec = read_colmap_model(model_dir)
-    names = {im.name: im for im in rec.images.values()}
-    stem = Path(image_name).stem
-    cands = [image_name, Path(image_name).name, f"left/{stem}.png", f"{stem}.png"]
-    im = next((names[c] for c in cands if c in names), None)
-    if im is None:
-        im = next((v for k, v in names.items() if Path(k).stem == stem), None)
-    if im is None or not im.has_pose:
-        raise MonoDepthError(f"{model_dir}: no registered image named like {image_name!r}")
-    cam = rec.cameras[im.camera_id]
-    if (cam.width, cam.height) != (width, height):
-        raise MonoDepthError(f"{model_dir}: image {im.name} is {cam.width}x{cam.height} in the "
-                             f"model but the input is {width}x{height}")
-    T = np.eye(4)
-    T[:3, :4] = np.asarray(im.cam_from_world().matrix())
-    pts = np.array([rec.points3D[p.point3D_id].xyz for p in im.points2D if p.has_point3D()])
-    if len(pts) == 0:
-        raise MonoDepthError(f"{model_dir}: image {im.name} sees no 3D points")
-    pc = pts @ T[:3, :3].T + T[:3, 3]
-    uv = np.asarray(cam.img_from_cam(pc), dtype=np.float64) - 0.5  # COLMAP -> our pixels
-    # nearest point per pixel, with the camera's own (possibly distorted) projection
-    K = np.eye(3)
-    pix = np.column_stack([uv, np.ones(len(uv))]) * pc[:, 2:3]
-    return sparse_depth_from_points(pix, K, width, height)
-
-
 def _write(path: Path, depth: Any, metric: bool) -> None:
     from sea3d.errors import MonoDepthError
     from sea3d.io.depth_files import write_depth
@@ -151,7 +117,7 @@ def _cmd_mono_depth(args: argparse.Namespace) -> int:
     from sea3d.io.rig_file import load_rig
     from sea3d.monodepth import MonoDepthConfig, OnnxDepthModel
     from sea3d.monodepth.metric import predict_metric
-    from sea3d.pipeline.monodepth_session import stereo_sparse_depth
+    from sea3d.pipeline.monodepth_session import sfm_sparse_depth, stereo_sparse_depth
 
     model = OnnxDepthModel(args.model, MonoDepthConfig(output_kind=args.output_kind,
                                                        normalize=args.normalize,
@@ -182,7 +148,7 @@ def _cmd_mono_depth(args: argparse.Namespace) -> int:
                                  f"{left.shape[0]}")
         fill = True
     elif args.align_sfm:
-        sparse = _sfm_sparse(Path(args.align_sfm), src.name, left.shape[1], left.shape[0])
+        sparse = sfm_sparse_depth(Path(args.align_sfm), src.name, left.shape[1], left.shape[0])
     got = predict_metric(model, view, sparse, kind=args.output_kind, fill=fill)
     depth, info = got.depth, got.info
     if info.get("alignment") and info["alignment"]["status"] != "ok":
@@ -208,7 +174,7 @@ def _session(args: argparse.Namespace, model: Any, src: Path, out: Path) -> int:
     from sea3d.io.rig_file import resolve_rig
     from sea3d.io.session import open_session
     from sea3d.io.sfm_files import write_summary
-    from sea3d.pipeline.monodepth_session import monodepth_session
+    from sea3d.pipeline.monodepth_session import monodepth_session, sfm_sparse_depth
 
     if args.align_depth or args.right:
         raise MonoDepthError(f"{src}: for a session give no --align-depth/--right: its right "
@@ -226,7 +192,7 @@ def _session(args: argparse.Namespace, model: Any, src: Path, out: Path) -> int:
         (out / "depth").mkdir(parents=True, exist_ok=True)
         result = monodepth_session(
             reader, model, kind=args.output_kind, stereo=stereo,
-            sfm_sparse=None if stereo is not None else partial(_sfm_sparse,
+            sfm_sparse=None if stereo is not None else partial(sfm_sparse_depth,
                                                                Path(args.align_sfm)),
             on_frame=lambda t_ns, depth: write_depth_png_mm(out / "depth" / f"{t_ns}.png",
                                                             depth),

@@ -16,7 +16,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import add_depth_range, depth_config
+from sea3d.cli import error_line
+from sea3d.cli._args import add_depth_range, config_option, depth_config, param_option
 from sea3d.errors import ConfigError
 
 __all__ = ["register", "register_calibrate_imu"]
@@ -49,11 +50,10 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--status", type=Path, metavar="CSV", help="also write t_ns,status,segment per frame"
     )
-    p.add_argument(
-        "--engine",
-        default="sea3d",
-        help="stereo engine for the depth (sea3d, sea3d-gpu, opencv; default sea3d)",
-    )
+    from sea3d.stereo.recipe import DepthConfig
+
+    config_option(p, DepthConfig, "engine",
+                  help="stereo engine for the depth (sea3d, sea3d-gpu, opencv)")
     add_depth_range(p, near="nearest depth searched", far="farthest depth kept")
     p.add_argument("--max-frames", type=int, help="stop after this many frames")
     p.add_argument("--no-loop-closure", action="store_true", help="odometry only")
@@ -67,19 +67,13 @@ def register(sub: Any) -> None:
         metavar=("FX", "FY", "CX", "CY"),
         help="depth camera intrinsics, pixels",
     )
-    g.add_argument(
-        "--method",
-        choices=("dense", "features"),
-        default="dense",
-        help="dense: frame-to-keyframe dense alignment (default); features: sparse features, "
-        "keyframes and windowed BA through the stereo engine",
-    )
-    g.add_argument(
-        "--depth-scale",
-        type=float,
-        default=1000.0,
-        help="depth units per metre (default 1000: millimetres)",
-    )
+    from sea3d.pipeline.odometry_session import rgbd_odometry_to_files
+
+    param_option(g, rgbd_odometry_to_files, "method", choices=("dense", "features"),
+                 help="dense: frame-to-keyframe dense alignment; features: sparse features, "
+                 "keyframes and windowed BA through the stereo engine")
+    param_option(g, rgbd_odometry_to_files, "depth_scale", type=float, shown="1000: millimetres",
+                 help="depth units per metre")
     p.set_defaults(handler=_run)
 
 
@@ -95,75 +89,14 @@ def _config(args: argparse.Namespace) -> Any:
     return OdometryConfig(loop_closure=not args.no_loop_closure)
 
 
-def _write_status(path: Path, run: Any) -> None:
-    lines = ["t_ns,status,segment"]
-    lines += [
-        f"{t},{s.value},{g}"
-        for t, s, g in zip(run.t_ns.tolist(), run.statuses, run.segments, strict=True)
-    ]
-    path.write_text("\n".join(lines) + "\n")
-
-
-def _check_output(args: argparse.Namespace) -> None:
-    for path in (args.output, args.status):
-        if path is not None and Path(path).is_dir():
-            raise ConfigError(f"{path} is a folder; give a file name for the trajectory")
-
-
-def _check_poses(run: Any) -> None:
-    """Refuse a run that has no pose to report (identity poses are not a trajectory)."""
-    import numpy as np
-
-    from sea3d.errors import OdometryError
-    from sea3d.odometry import TrackingStatus
-
-    n = len(run.statuses)
-    trusted = [s in (TrackingStatus.TRACKING, TrackingStatus.RELOCALISED,
-                     TrackingStatus.IMU_ONLY) for s in run.statuses]
-    no_depth = int(run.summary.get("frames_without_depth", 0))
-    rng = run.summary.get("depth_range_m")
-    within = f" {rng[0]:.3g}..{rng[1]:.3g} m" if rng else ""
-    if n and no_depth == n:
-        raise OdometryError(
-            f"no frame has valid depth in the depth range{within} ({n} frames): the range "
-            "excludes the whole scene, or the images have nothing to track; set "
-            "--min-depth/--max-depth; no trajectory written"
-        )
-    if n and not any(trusted[1:]):
-        raise OdometryError(
-            f"no frame could be tracked ({n} frames, none with a pose beyond the first): the "
-            "images have nothing to track (black, flat or featureless), or the depth range"
-            f"{within} holds too little of the scene (--min-depth/--max-depth); no trajectory "
-            "written"
-        )
-    T = np.asarray(run.T_world_left)
-    if n > 2 and np.allclose(T, np.eye(4), atol=1e-12):
-        raise OdometryError(
-            f"every one of the {n} poses is the identity: nothing was tracked; no trajectory "
-            "written"
-        )
-
-
-def _report(args: argparse.Namespace, run: Any) -> int:
-    from sea3d.io.trajectory_files import write_tum
-
-    _check_poses(run)
-    write_tum(
-        args.output,
-        run.t_ns,
-        run.T_world_left,
-        header="t tx ty tz qx qy qz qw (T_world_left; t in seconds)",
-    )
-    if args.status:
-        _write_status(args.status, run)
-    s = run.summary
-    s["trajectory"] = str(args.output)
+def _report(args: argparse.Namespace, out: Any) -> int:
+    s = out.summary
     if args.json:
         json.dump(s, sys.stdout, indent=2)
         sys.stdout.write("\n")
     else:
         for note in s.get("notes", []):
-            print(f"note: {note}")
+            print(f"note: {error_line(note)}")
         st = s["statuses"]
         print(
             f"wrote {s['frames']} poses to {args.output}: {s['keyframes']} keyframes, "
@@ -172,7 +105,7 @@ def _report(args: argparse.Namespace, run: Any) -> int:
             f"relocalised {st['relocalised']}, initialising {st['initialising']}; "
             f"{'with IMU' if s['imu'] else 'visual-only'}; {s['seconds']:.1f} s"
         )
-    bad = s["frames_lost"] + s["statuses"]["initialising"]
+    bad = out.untrusted_frames
     if bad:
         print(
             f"sea3d: warning: {bad} of {s['frames']} frames have no trustworthy pose (status "
@@ -182,8 +115,25 @@ def _report(args: argparse.Namespace, run: Any) -> int:
     return 0
 
 
+class _Bar:
+    """A progress bar opened once the pipeline knows the frame count."""
+
+    def __init__(self, desc: str, enabled: bool) -> None:
+        self.desc, self.enabled, self.bar = desc, enabled, None
+
+    def start(self, n: int) -> None:
+        self.bar = _progress(n, self.desc, self.enabled)
+
+    def update(self, k: int) -> None:
+        if self.bar is not None:
+            self.bar.update(k)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
 def _run(args: argparse.Namespace) -> int:
-    _check_output(args)
     if args.max_frames is not None and args.max_frames < 1:
         raise ConfigError(f"--max-frames must be >= 1, got {args.max_frames}")
     if args.session == "rgbd":
@@ -191,53 +141,51 @@ def _run(args: argparse.Namespace) -> int:
     for name in ("color", "depth", "intrinsics"):
         if getattr(args, name) is not None:
             raise ConfigError(f"--{name} belongs to 'sea3d odometry rgbd'")
-    from sea3d.pipeline.odometry import session_odometry
+    from sea3d.pipeline.odometry_session import stereo_odometry_to_files
 
-    bar: Any = None
-
-    def on_open(src: Any, imu_ok: bool, why: str | None) -> None:
-        nonlocal bar
-        n = src.t_ns.size if args.max_frames is None else min(src.t_ns.size, args.max_frames)
-        bar = _progress(n, "odometry", not args.json)
-
+    bar = _Bar("odometry", not args.json)
     try:
-        run = session_odometry(
+        out = stereo_odometry_to_files(
             args.session,
+            trajectory=args.output,
+            status_csv=args.status,
             rig_path=args.rig,
             use_imu=not args.no_imu,
-            observe=depth_config(args),
+            depth=depth_config(args),
             config=_config(args),
             max_frames=args.max_frames,
-            progress=lambda k: bar.update(k) if bar is not None else None,
-            on_open=on_open,
+            progress=bar.update,
+            on_start=bar.start,
         )
     finally:
-        if bar is not None:
-            bar.close()
-    return _report(args, run)
+        bar.close()
+    return _report(args, out)
 
 
 def _run_rgbd(args: argparse.Namespace) -> int:
-    from sea3d.pipeline.odometry import rgbd_observations, rgbd_odometry
+    from sea3d.pipeline.odometry_session import rgbd_odometry_to_files
 
     if args.color is None or args.depth is None or args.intrinsics is None:
         raise ConfigError(
             "sea3d odometry rgbd needs --color GLOB, --depth GLOB and --intrinsics FX FY CX CY"
         )
-    cp, _, _, _ = rgbd_observations(
-        args.color, args.depth, tuple(args.intrinsics), depth_scale=args.depth_scale
-    )
-    with _progress(len(cp), "rgbd odometry", not args.json) as bar:
-        run = rgbd_odometry(
+    bar = _Bar("rgbd odometry", not args.json)
+    try:
+        out = rgbd_odometry_to_files(
             args.color,
             args.depth,
             tuple(args.intrinsics),
+            trajectory=args.output,
+            status_csv=args.status,
             depth_scale=args.depth_scale,
+            method=args.method,
             config=_config(args),
             progress=bar.update,
-            method=args.method,
+            on_start=bar.start,
         )
-    return _report(args, run)
+    finally:
+        bar.close()
+    return _report(args, out)
 
 
 # ---------------------------------------------------------------------- calibrate imu
@@ -261,70 +209,43 @@ def register_calibrate_imu(csub: Any) -> None:
         metavar="RIG",
         help="write the rig with the estimated IMU block",
     )
-    p.add_argument("--max-offset-s", type=float, default=0.5, help="offset searched (+-, s)")
-    p.add_argument("--engine", default="sea3d", help="stereo engine for the depth")
+    from sea3d.pipeline.odometry_session import calibrate_camera_imu
+    from sea3d.stereo.recipe import DepthConfig
+
+    param_option(p, calibrate_camera_imu, "max_offset_s", type=float,
+                 help="offset searched (+-, s)")
+    config_option(p, DepthConfig, "engine", help="stereo engine for the depth")
     p.add_argument("--max-frames", type=int, help="use only the first frames")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(handler=_calibrate_imu)
 
 
 def _calibrate_imu(args: argparse.Namespace) -> int:
-    import dataclasses
-
     import numpy as np
 
-    from sea3d.calib.imu import CameraImuStatus, estimate_camera_imu
-    from sea3d.errors import CalibrationError
-    from sea3d.geometry.rig import ImuSpec
+    from sea3d.calib.imu import CameraImuStatus
     from sea3d.geometry.se3 import R_to_rotvec
-    from sea3d.odometry import TrackingStatus
-    from sea3d.pipeline.odometry import open_stereo_source, session_odometry
+    from sea3d.pipeline.odometry_session import calibrate_camera_imu
     from sea3d.stereo.recipe import DepthConfig
 
-    src = open_stereo_source(args.session, args.rig)
-    rig = src.rig
-    imu_t, gyro = src.imu_t_ns, src.gyro_radps
-    src.close()
-    if imu_t.size == 0:
-        raise CalibrationError(f"{args.session}: the session has no IMU samples")
-    n = src.t_ns.size if args.max_frames is None else min(src.t_ns.size, args.max_frames)
-    with _progress(n, "visual odometry", not args.json) as bar:
-        run = session_odometry(
+    bar = _Bar("visual odometry", not args.json)
+    try:
+        cal = calibrate_camera_imu(
             args.session,
             rig_path=args.rig,
-            use_imu=False,
-            observe=DepthConfig(engine=args.engine),
+            depth=DepthConfig(engine=args.engine),
+            max_offset_s=args.max_offset_s,
             max_frames=args.max_frames,
             progress=bar.update,
+            on_start=bar.start,
         )
-    good = np.array(
-        [s in (TrackingStatus.TRACKING, TrackingStatus.RELOCALISED) for s in run.statuses],
-        dtype=bool,
-    )
-    guess = rig.imu.T_left_imu[:3, :3] if rig.imu is not None else None
-    res = estimate_camera_imu(
-        run.t_ns,
-        run.T_world_left[:, :3, :3],
-        imu_t,
-        gyro,
-        max_offset_s=args.max_offset_s,
-        valid=good,
-    )
-    out: dict[str, Any] = res.as_dict()
-    if guess is not None:
-        d = R_to_rotvec(guess.T @ res.R_cam_imu)
-        out["change_from_rig_deg"] = float(np.degrees(np.linalg.norm(d)))
-    if args.output is not None and res.status is CameraImuStatus.OK:
+    finally:
+        bar.close()
+    res, out = cal.result, dict(cal.summary)
+    if args.output is not None and cal.rig is not None:
         from sea3d.io.rig_file import save_rig
 
-        T = np.eye(4)
-        T[:3, :3] = res.R_cam_imu
-        if rig.imu is not None:
-            T[:3, 3] = rig.imu.T_left_imu[:3, 3]
-            imu = dataclasses.replace(rig.imu, T_left_imu=T, time_offset_s=res.time_offset_s)
-        else:
-            imu = ImuSpec(T_left_imu=T, time_offset_s=res.time_offset_s)
-        save_rig(dataclasses.replace(rig, imu=imu), args.output)
+        save_rig(cal.rig, args.output)
         out["rig"] = str(args.output)
     if args.json:
         json.dump(out, sys.stdout, indent=2)
@@ -341,7 +262,7 @@ def _calibrate_imu(args: argparse.Namespace) -> int:
     if res.status is not CameraImuStatus.OK:
         if not args.json:
             for line in res.advice:
-                print(f"advice: {line}")
+                print(f"advice: {error_line(line)}")
         print(
             f"sea3d: warning: no usable estimate ({res.status.value}); the rig was not written"
             if args.output

@@ -14,7 +14,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import add_depth_range, config_option, image_size, plural
+from sea3d.cli import error_line
+from sea3d.cli._args import add_depth_range, config_option, image_size, param_option, plural
 
 __all__ = ["register", "register_eval"]
 
@@ -178,7 +179,7 @@ def _cmd_eval_trajectory(args: argparse.Namespace) -> int:
                                    "reference": ref.duplicates_dropped}
         print(json.dumps(d, indent=2))
         for w in m.warnings:
-            print(f"sea3d: warning: {w}", file=sys.stderr)
+            print(f"sea3d: warning: {error_line(w)}", file=sys.stderr)
         return 0
     a = m.ate_m
     print(f"{m.matched} of {m.estimate_poses} poses paired by {'index' if by_index else 'time'}"
@@ -195,98 +196,8 @@ def _cmd_eval_trajectory(args: argparse.Namespace) -> int:
               + (" (meaningless: see the warning)"
                  if any(w.startswith(f"RPE over {r.delta_m:g} m") for w in m.warnings) else ""))
     for w in m.warnings:
-        print(f"sea3d: warning: {w}", file=sys.stderr)
+        print(f"sea3d: warning: {error_line(w)}", file=sys.stderr)
     return 0
-
-
-def _trusted_rows(folder: Path) -> Any:
-    """Stamps of the trusted frames in ``folder/status.csv`` (None when there is none)."""
-    import csv
-
-    import numpy as np
-
-    path = folder / "status.csv"
-    if not path.is_file():
-        return None
-    with open(path, newline="") as fh:
-        rows = [r for r in csv.DictReader(fh) if r.get("status") in ("tracking", "relocalised")]
-    return np.array([int(r["t_ns"]) for r in rows], np.int64)
-
-
-def _surface_alignment(args: argparse.Namespace, est: Any, ref: Any) -> Any:
-    """The alignment ``eval surface`` uses, and a line saying how it was found (or a warning)."""
-    import logging
-
-    import numpy as np
-
-    from sea3d.eval.surface import NO_ALIGNMENT, align_by_icp, align_by_trajectories
-    from sea3d.io.trajectory_files import read_trajectory
-
-    log = logging.getLogger("sea3d.cli.eval")
-    mesh = Path(args.mesh)
-    trajectories = args.trajectories
-    summary_path = mesh.parent / "summary.json"
-    summary: dict[str, Any] = {}
-    if summary_path.is_file():
-        try:
-            summary = json.loads(summary_path.read_text())
-        except (OSError, ValueError):
-            summary = {}
-    frames = summary.get("frame_of_file")
-    frame = frames.get(mesh.name, "") if isinstance(frames, dict) else ""
-    if trajectories is None and args.align != "none":
-        if "ground truth" in frame and args.align == "auto":
-            return NO_ALIGNMENT, f"{mesh.name} is in the ground truth's frame ({summary_path})"
-        gt_root = summary.get("ground_truth")
-        if (gt_root and (Path(gt_root) / "poses_left.tum").is_file()
-                and (mesh.parent / "trajectory.tum").is_file()):
-            trajectories = [mesh.parent / "trajectory.tum", Path(gt_root) / "poses_left.tum"]
-    if trajectories is None and args.align in ("se3", "sim3"):
-        from sea3d.errors import ReconError
-
-        raise ReconError(f"--align {args.align} needs --trajectories EST GT")
-    align = NO_ALIGNMENT
-    if trajectories is not None and args.align != "none":
-        te = read_trajectory(trajectories[0])
-        tr = read_trajectory(trajectories[1])
-        t_e, T_e = te.t_ns, te.T_world_x
-        trusted = _trusted_rows(Path(trajectories[0]).parent)
-        if trusted is not None and te.timed:
-            keep = np.isin(t_e, trusted)
-            if keep.sum() >= 3:
-                t_e, T_e = t_e[keep], T_e[keep]
-        by_index = not (te.timed and tr.timed)
-        if not by_index and len(te.t_ns) == len(tr.t_ns):
-            from sea3d.eval.trajectory import associate
-
-            # Same count but stamps that mostly do not meet (frame indices against a camera
-            # clock): frame order, as 'sea3d fuse' pairs poses with frames.
-            n_timed = len(associate(te.t_ns, tr.t_ns, round(args.max_diff_s * 1e9))[0])
-            if n_timed < max(3, len(te.t_ns) // 2):
-                by_index = True
-                t_e, T_e = te.t_ns, te.T_world_x
-                log.info("the trajectories' stamps do not pair up; paired in frame order")
-        align = align_by_trajectories(t_e, T_e, tr.t_ns, tr.T_world_x,
-                                      with_scale=args.align == "sim3", by_index=by_index,
-                                      max_diff_s=args.max_diff_s)
-    if args.align == "icp":
-        align = align_by_icp(est.vertices, est.triangles, ref.vertices, ref.triangles,
-                             init=align, max_distance_m=args.icp_max_distance_m)
-    if align.method == "none":
-        if args.align == "none":
-            return align, "not aligned (--align none)"
-        log.warning("nothing aligns %s with %s: the figures assume both are in one frame. A "
-                    "mesh of 'sea3d process' is in the odometry's world: pass --trajectories "
-                    "EST GT, or --align icp for surfaces that already roughly overlap", mesh,
-                    args.reference)
-        return align, "not aligned"
-    how = (f"aligned {align.method} from {trajectories[0]} and {trajectories[1]}"
-           if trajectories is not None else f"aligned {align.method}")
-    how += (f" ({align.pairs} pairs, residual {1000 * (align.residual_m or 0):.1f} mm: "
-            f"{align.residual_of}" + (f"; fitness {100 * align.fitness:.0f} %"
-                                      if align.fitness is not None else "")
-            + (f"; scale {align.scale:.4f}" if align.scale != 1.0 else "") + ")")
-    return align, how
 
 
 # Above this share of the reference outside the mesh's box, completeness says little about the
@@ -295,16 +206,15 @@ OUTSIDE_NOTE_FRACTION = 0.25
 
 
 def _cmd_eval_surface(args: argparse.Namespace) -> int:
-    from sea3d.eval.surface import surface_metrics
-    from sea3d.io.mesh_files import read_mesh
+    from sea3d.pipeline.surface_eval import evaluate_surface
 
-    est = read_mesh(args.mesh)
-    ref = read_mesh(args.reference)
-    align, how = _surface_alignment(args, est, ref)
-    thresholds = tuple(t / 1000.0 for t in args.thresholds_mm)
-    m = surface_metrics(align.apply(est.vertices), est.triangles, ref.vertices, ref.triangles,
-                        samples=args.samples, thresholds_m=thresholds,
-                        crop_margin_m=args.crop_margin_m)
+    res = evaluate_surface(
+        args.mesh, args.reference, align=args.align,
+        trajectories=None if args.trajectories is None else tuple(args.trajectories),
+        max_diff_s=args.max_diff_s, icp_max_distance_m=args.icp_max_distance_m,
+        samples=args.samples, thresholds_m=tuple(t / 1000.0 for t in args.thresholds_mm),
+        crop_margin_m=args.crop_margin_m)
+    m, align, how = res.metrics, res.alignment, error_line(res.how)
     if args.json:
         d = m.as_dict()
         d["alignment"] = {**align.as_dict(), "how": how}
@@ -316,6 +226,10 @@ def _cmd_eval_surface(args: argparse.Namespace) -> int:
           f"{1000 * a.mean:.1f} mm, 90th percentile {1000 * a.p90:.1f} mm")
     print(f"completeness (reference to estimate): median {1000 * c.median:.1f} mm, mean "
           f"{1000 * c.mean:.1f} mm, 90th percentile {1000 * c.p90:.1f} mm")
+    if m.reference_outside > OUTSIDE_NOTE_FRACTION:
+        print(f"note: {100 * m.reference_outside:.0f} % of the reference surface lies outside the "
+              "mesh's bounding box, so completeness mostly measures what the survey never saw; "
+              "--crop-margin-m M keeps only the reference within M of that box", file=sys.stderr)
     if m.reference_outside > OUTSIDE_NOTE_FRACTION:
         print(f"note: {100 * m.reference_outside:.0f} % of the reference surface lies outside the "
               "mesh's bounding box, so completeness mostly measures what the survey never saw; "
@@ -380,8 +294,10 @@ def register(sub: Any) -> None:
                   "water-model (one water model fitted to the dive's first 8 frames, every "
                   "frame inverted with it); --restore-colours is a deprecated alias, kept "
                   "for one release")
-    p.add_argument("--depth-rate", default="all", metavar="all|auto|N",
-                   help="which frames get stereo depth: all (default), auto (when the motion "
+    from sea3d.pipeline.process import ProcessConfig
+
+    config_option(p, ProcessConfig, "depth_rate", metavar="all|auto|N",
+                  help="which frames get stereo depth: all, auto (when the motion "
                         "since the last depth frame needs it), or every N-th; odometry sees "
                         "every frame, fusion the depth frames")
     p.add_argument("--max-frames", type=int, metavar="N", help="only the first N pairs")
@@ -403,15 +319,18 @@ def register(sub: Any) -> None:
                    "the counts agree, else by the nanosecond stamps in the file names")
     f.add_argument("--intrinsics", type=float, nargs=4, required=True,
                    metavar=("FX", "FY", "CX", "CY"), help="depth camera intrinsics, pixels")
-    f.add_argument("--depth-scale", type=float, default=1000.0, metavar="S",
-                   help="integer depth = metres x S (default 1000: millimetres)")
+    from sea3d.pipeline.fuse import fuse_rgbd
+    from sea3d.recon.tsdf import TsdfConfig
+
+    param_option(f, fuse_rgbd, "depth_scale", type=float, metavar="S",
+                 shown="1000: millimetres", help="integer depth = metres x S")
     f.add_argument("--voxel-m", type=float, required=True, metavar="V", help="voxel edge, metres")
-    f.add_argument("--trunc-voxels", type=float, default=4.0, metavar="N",
-                   help="truncation distance in voxels (default 4)")
-    f.add_argument("--min-depth", type=float, default=0.1, metavar="M",
-                   help="nearest depth used, metres (default 0.1)")
-    f.add_argument("--max-depth", type=float, default=5.0, metavar="M",
-                   help="farthest depth used, metres (default 5)")
+    config_option(f, TsdfConfig, "trunc_voxels", type=float, metavar="N",
+                  help="truncation distance in voxels")
+    config_option(f, TsdfConfig, "depth_min_m", "--min-depth", dest="min_depth", type=float,
+                  metavar="M", help="nearest depth used, metres")
+    config_option(f, TsdfConfig, "depth_max_m", "--max-depth", dest="max_depth", type=float,
+                  metavar="M", help="farthest depth used, metres")
     f.add_argument("-o", "--output", type=Path, required=True, metavar="MESH",
                    help="output mesh (.ply)")
     f.add_argument("--cloud", type=Path, metavar="CLOUD",
@@ -431,14 +350,17 @@ def register_eval(esub: Any) -> None:
     )
     t.add_argument("estimate", metavar="EST", help="estimated trajectory")
     t.add_argument("ground_truth", metavar="GT", help="reference trajectory")
-    t.add_argument("--align", choices=["se3", "sim3", "none"], default="se3",
-                   help="alignment of the estimate (default se3)")
-    t.add_argument("--max-diff-s", type=float, default=0.01, metavar="S",
-                   help="largest stamp difference of a pair, seconds (default 0.01)")
+    from sea3d.eval.surface import DEFAULT_THRESHOLDS_M, align_by_trajectories, surface_metrics
+    from sea3d.eval.trajectory import evaluate_trajectory
+
+    param_option(t, evaluate_trajectory, "align", choices=["se3", "sim3", "none"],
+                 help="alignment of the estimate")
+    param_option(t, evaluate_trajectory, "max_diff_s", type=float, metavar="S",
+                 help="largest stamp difference of a pair, seconds")
     t.add_argument("--rpe-delta-m", type=float, nargs="+", metavar="D",
                    help="RPE distances, metres (default 1, 10, 100 m where the path allows)")
-    t.add_argument("--rpe-along", choices=["estimate", "reference"], default="estimate",
-                   help="whose path picks the RPE pairs (default estimate, as evo)")
+    param_option(t, evaluate_trajectory, "rpe_along", choices=["estimate", "reference"],
+                 shown="estimate, as evo", help="whose path picks the RPE pairs")
     t.add_argument("--est-format", choices=["tum", "kitti", "euroc"], help="default: guessed")
     t.add_argument("--gt-format", choices=["tum", "kitti", "euroc"], help="default: guessed")
     t.add_argument("--est-times", type=Path, metavar="TIMES", help="KITTI times.txt of EST")
@@ -459,9 +381,11 @@ def register_eval(esub: Any) -> None:
     )
     s.add_argument("mesh", metavar="MESH", help="reconstructed mesh (or point cloud)")
     s.add_argument("reference", metavar="REF_MESH", help="reference mesh (or point cloud)")
-    s.add_argument("--samples", type=int, default=200_000, help="samples per surface")
-    s.add_argument("--thresholds-mm", type=float, nargs="+", default=[10.0, 20.0, 50.0],
-                   metavar="T", help="precision/recall thresholds, mm (default 10 20 50)")
+    param_option(s, surface_metrics, "samples", type=int, help="samples per surface")
+    mm = [round(t * 1e3, 6) for t in DEFAULT_THRESHOLDS_M]
+    shown = " ".join(f"{t:g}" for t in mm)
+    s.add_argument("--thresholds-mm", type=float, nargs="+", default=mm, metavar="T",
+                   help=f"precision/recall thresholds, mm (default {shown})")
     s.add_argument("--trajectories", type=Path, nargs=2, metavar=("EST", "GT"),
                    help="align by these trajectories: EST in the mesh's world, GT in the "
                    "reference's (TUM, KITTI or EuRoC CSV)")
@@ -469,8 +393,8 @@ def register_eval(esub: Any) -> None:
                    help="auto (default): SE(3) from the trajectories when known, else none with "
                    "a warning; sim3 also fits scale; icp refines after the trajectories (or "
                    "alone)")
-    s.add_argument("--max-diff-s", type=float, default=0.01, metavar="S",
-                   help="largest stamp difference of a pose pair, seconds (default 0.01)")
+    param_option(s, align_by_trajectories, "max_diff_s", type=float, metavar="S",
+                 help="largest stamp difference of a pose pair, seconds")
     s.add_argument("--icp-max-distance-m", type=float, metavar="D",
                    help="ICP's largest correspondence distance (default 2 %% of the "
                    "reference's bounding-box diagonal)")

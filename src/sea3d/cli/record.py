@@ -11,7 +11,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import add_output
+from sea3d.cli._args import add_output, config_default, config_option, param_option
 from sea3d.cli._foxglove import FOXGLOVE_HELP as _FOXGLOVE_HELP
 
 __all__ = ["register"]
@@ -38,11 +38,14 @@ def register(sub: Any) -> None:
     rec.add_argument("--format", choices=("mcap", "folder"), help="default: from --output")
     rec.add_argument("--duration", type=float, help="seconds to record (default: until stopped)")
     rec.add_argument("--rig", help="rig.yaml stored with the session (and its capture settings)")
-    rec.add_argument(
-        "--image-encoding",
+    from sea3d.capture.monitor import SessionPlayer
+    from sea3d.capture.recorder import RecorderConfig
+    from sea3d.capture.spec import open_source
+
+    config_option(
+        rec, RecorderConfig, "image_encoding",
         choices=("jxl", "png", "jpeg", "raw"),
-        default="jxl",
-        help="jxl: JPEG XL lossless (default; 2 x 30 fps at 1080p on 2 cores, about 120 GB/h); "
+        help="jxl: JPEG XL lossless (2 x 30 fps at 1080p on 2 cores, about 120 GB/h); "
         "png: lossless, about 5x the CPU; jpeg: lossy; raw: sensor_msgs/Image in LZ4 chunks "
         "(MCAP only)",
     )
@@ -51,22 +54,21 @@ def register(sub: Any) -> None:
         choices=("lz4", "zstd", "none"),
         help="MCAP chunk compression (default: lz4 for raw images, none for encoded ones)",
     )
-    rec.add_argument("--png-compression", type=int, default=1, help="zlib level 0..9 (default 1)")
-    rec.add_argument("--jpeg-quality", type=int, default=95, help="0..100 (default 95)")
-    rec.add_argument("--queue", type=int, default=16, help="frames buffered before dropping")
-    rec.add_argument("--encoders", type=int, default=2, help="encoder threads")
+    config_option(rec, RecorderConfig, "png_compression", type=int, help="zlib level 0..9")
+    config_option(rec, RecorderConfig, "jpeg_quality", type=int, help="0..100")
+    config_option(rec, RecorderConfig, "queue_frames", "--queue", dest="queue", type=int,
+                  help="frames buffered before dropping")
+    config_option(rec, RecorderConfig, "encoder_threads", "--encoders", dest="encoders",
+                  type=int, help="encoder threads")
+    free_gb = config_default(RecorderConfig, "min_free_bytes") / 1e9  # the reserve, in GB
     rec.add_argument(
         "--min-free-gb",
         type=float,
-        default=2.0,
-        help="stop when free disk space falls below this (default 2 GB)",
+        default=free_gb,
+        help=f"stop when free disk space falls below this (default {free_gb:.2f} GB)",
     )
-    rec.add_argument(
-        "--replay-speed",
-        type=float,
-        default=1.0,
-        help="pacing of replay sources: 1 real time, 0 as fast as possible",
-    )
+    param_option(rec, open_source, "replay_speed", type=float,
+                 help="pacing of replay sources: 1 real time, 0 as fast as possible")
     rec.add_argument(
         "--block",
         action="store_true",
@@ -97,7 +99,7 @@ def register(sub: Any) -> None:
         default="127.0.0.1:8080",
         help="HOST:PORT to listen on (default 127.0.0.1:8080, loopback only)",
     )
-    mon.add_argument("--speed", type=float, default=1.0, help="replay speed (1 = real time)")
+    param_option(mon, SessionPlayer, "speed", type=float, help="replay speed (1 = real time)")
     mon.add_argument("--once", action="store_true", help="play once instead of looping")
     mon.add_argument("--duration", type=float, help="stop serving after this many seconds")
     mon.add_argument("--foxglove", metavar="HOST:PORT", help=_FOXGLOVE_HELP)

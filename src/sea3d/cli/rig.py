@@ -8,7 +8,7 @@ import json
 import sys
 from typing import Any
 
-from sea3d.cli._args import image_size
+from sea3d.cli._args import add_port_options, image_size
 from sea3d.errors import ConfigError
 
 
@@ -47,17 +47,7 @@ def register(sub: Any) -> None:
         choices=["dome", "flat", "none"],
         help="ports to put on both cameras (preset default: dome; --from default: keep)",
     )
-    create.add_argument("--inner-radius-mm", type=float, default=31.25, help="dome inner radius")
-    create.add_argument("--thickness-mm", type=float, help="glass thickness (dome 3.1, flat 10)")
-    create.add_argument("--n-glass", type=float, default=1.492, help="glass index (acrylic 1.492)")
-    create.add_argument("--n-water", type=float, default=1.333, help="water index")
-    create.add_argument("--n-air", type=float, default=1.000292, help="index inside the housing")
-    create.add_argument(
-        "--flat-distance-mm",
-        type=float,
-        default=10.0,
-        help="flat port: camera centre to inner glass surface",
-    )
+    add_port_options(create, flat_help="flat port: camera centre to inner glass surface")
     create.add_argument("--size", type=image_size, metavar="WxH", help="image size in pixels")
     create.add_argument("--fx", type=float, metavar="PX", help="focal length (fy keeps the ratio)")
     create.add_argument("--baseline-mm", type=float, metavar="MM", help="stereo baseline")

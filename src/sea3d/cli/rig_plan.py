@@ -10,7 +10,7 @@ import json
 import sys
 from typing import Any
 
-from sea3d.cli._args import image_size
+from sea3d.cli._args import config_option, image_size
 
 __all__ = ["register_plan"]
 
@@ -36,16 +36,12 @@ def register_plan(rsub: Any) -> None:
         help="put the paper's dome or a 10 mm flat port on both cameras (default: the rig's "
         "ports; none without RIG)",
     )
-    p.add_argument(
-        "--max-disparity", type=int, default=256, metavar="N", help="disparity range (256)"
-    )
-    p.add_argument(
-        "--disparity-noise-px",
-        type=float,
-        default=0.25,
-        metavar="S",
-        help="matching error, standard deviation in pixels (0.25)",
-    )
+    from sea3d.stereo.planning import PlanConfig
+
+    config_option(p, PlanConfig, "max_disparity_px", "--max-disparity", dest="max_disparity",
+                  type=int, metavar="N", help="disparity range")
+    config_option(p, PlanConfig, "disparity_noise_px", type=float, metavar="S",
+                  help="matching error, standard deviation in pixels")
     p.add_argument(
         "--range-m",
         type=float,
@@ -53,7 +49,7 @@ def register_plan(rsub: Any) -> None:
         metavar=("MIN", "MAX"),
         help="ranges of the table, metres (default: the nearest range to 10 m)",
     )
-    p.add_argument("--rows", type=int, default=8, help="table rows (at least 5; default 8)")
+    config_option(p, PlanConfig, "rows", type=int, help="table rows (at least 5)")
     p.add_argument("--json", action="store_true", help="print the plan as JSON")
     p.add_argument("--plot", metavar="OUT.png", help="also draw the plan into a PNG")
     p.set_defaults(handler=_plan)

@@ -7,7 +7,7 @@ import json
 import sys
 from typing import Any
 
-from sea3d.cli._args import plural
+from sea3d.cli._args import param_option, plural
 
 __all__ = ["register"]
 
@@ -32,12 +32,10 @@ def register(sub: Any) -> None:
         default=None,
         help="stereo pairing tolerance in ms (default: half the median left frame interval)",
     )
-    info.add_argument(
-        "--name-unit",
-        choices=("ns", "us"),
-        default="ns",
-        help="unit of the stamps in image file names of a folder (the paper used us)",
-    )
+    from sea3d.io.session import open_session, verify_session
+
+    param_option(info, open_session, "name_unit", choices=("ns", "us"),
+                 help="unit of the stamps in image file names of a folder (the paper used us)")
     info.set_defaults(handler=_info)
 
     ver = ssub.add_parser(
@@ -47,7 +45,8 @@ def register(sub: Any) -> None:
     )
     ver.add_argument("path", help="session: .mcap file or folder")
     ver.add_argument("--json", action="store_true", help="print JSON")
-    ver.add_argument("--name-unit", choices=("ns", "us"), default="ns")
+    param_option(ver, verify_session, "name_unit", choices=("ns", "us"),
+                 help="unit of the stamps in image file names of a folder")
     ver.set_defaults(handler=_verify)
 
     conv = ssub.add_parser(

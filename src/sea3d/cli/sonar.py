@@ -7,7 +7,7 @@ import json
 import sys
 from typing import Any
 
-from sea3d.cli._args import add_depth_range, depth_config
+from sea3d.cli._args import add_depth_range, depth_config, param_option
 
 __all__ = ["register_eval"]
 
@@ -44,20 +44,20 @@ def register_eval(esub: Any) -> None:
         help="depth maps DIR[/depth]/<t_ns>.png from 'sea3d depth --session' (default: "
         "computed here)",
     )
-    p.add_argument(
-        "--depth-frame",
+    from sea3d.pipeline.sonar_check import run_sonar_check
+
+    param_option(
+        p, run_sonar_check, "depth_frame",
         choices=("rect", "raw"),
-        default="rect",
         help="the depth maps are along the rectified left camera (rect, sea3d depth) or the "
         "raw left camera (raw, the simulator's gt/depth)",
     )
     p.add_argument(
         "--engine", default="opencv", help="matching engine when depth is computed (opencv)"
     )
-    p.add_argument("--every", type=int, default=1, help="use every N-th frame (1)")
-    p.add_argument(
-        "--window-s", type=float, default=5.0, help="frames within this time of a ping (5 s)"
-    )
+    param_option(p, run_sonar_check, "every", type=int, help="use every N-th frame")
+    param_option(p, run_sonar_check, "window_s", type=float,
+                 help="frames within this time of a ping, seconds")
     add_depth_range(p, near="nearest depth (as sea3d depth)", far="farthest depth kept")
     p.add_argument("--no-truth", action="store_true", help="ignore the simulator's ground truth")
     p.add_argument("--report", metavar="OUT.html", help="write an HTML report with a plot")

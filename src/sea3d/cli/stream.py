@@ -21,7 +21,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import image_size
+from sea3d.cli._args import config_option, image_size, param_option
 
 __all__ = ["register"]
 
@@ -47,23 +47,23 @@ def register(sub: Any) -> None:
     snd.add_argument("--to", metavar="udp://HOST:PORT", help="receiver address")
     snd.add_argument("--left", help="left camera (forms of 'sea3d record --left')")
     snd.add_argument("--right", help="right camera")
-    snd.add_argument(
-        "--bitrate-kbps", type=float, default=4000.0, metavar="N", help="total kbit/s (4000)"
-    )
+    from sea3d.capture.stream import StreamConfig, session_pairs
+
+    config_option(snd, StreamConfig, "bitrate_kbps", type=float, metavar="N",
+                  help="total kbit/s")
     snd.add_argument("--size", type=image_size, metavar="WxH", help="each camera's size sent")
     snd.add_argument("--fps", type=float, help="nominal frame rate (default: from the source)")
-    snd.add_argument(
-        "--cameras", choices=("both", "left", "right"), default="both", help="what to send"
-    )
-    snd.add_argument(
-        "--encoder",
-        default="auto",
+    config_option(snd, StreamConfig, "cameras", choices=("both", "left", "right"),
+                  help="what to send")
+    config_option(
+        snd, StreamConfig, "encoder",
         choices=("auto", "libx264", "h264_nvenc", "gst", "h264_v4l2m2m", "h264_qsv"),
         help="auto: a hardware encoder when one opens here, else libx264",
     )
-    snd.add_argument("--preset", default="ultrafast", help="libx264 preset (ultrafast)")
-    snd.add_argument("--keyframe-s", type=float, default=1.0, help="seconds between keyframes")
-    snd.add_argument("--speed", type=float, default=1.0, help="session replay speed (1)")
+    config_option(snd, StreamConfig, "preset", help="libx264 preset")
+    config_option(snd, StreamConfig, "keyframe_s", type=float,
+                  help="seconds between keyframes")
+    param_option(snd, session_pairs, "speed", type=float, help="session replay speed")
     snd.add_argument("--loop", action="store_true", help="replay the session in a loop")
     rcv = p.add_argument_group("receiving")
     rcv.add_argument(

@@ -115,6 +115,6 @@ def process_enhance_hook(name: str) -> str | None:
     entry = ENHANCEMENTS[name]
     if entry.needs_range:
         raise EnhanceError(
-            f"{name} needs the depth that matching produces; use --restore-colours {name}"
+            f"{name} needs the depth that matching produces; use restore_colours {name}"
         )
     return entry.function

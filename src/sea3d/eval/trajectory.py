@@ -307,7 +307,7 @@ def _meaning_warnings(Q: F64, ate: ErrorStats, rot: ErrorStats, rpes: list[RpeRe
                 f"the reference path spreads only {spread:.3g} m across its second axis (need "
                 f"{need:.3g} m: {_ROTATION_SPREAD_ATE:g} x the ATE): too short, still or "
                 f"straight for the {align} alignment's rotation to be determined, so the "
-                f"rotation error ({rot.rmse:.1f} deg) means nothing; use --align none for "
+                f"rotation error ({rot.rmse:.1f} deg) means nothing; use align 'none' for "
                 "estimates that share the reference's start"
             )
     ratio = _motion_ratio(pos)
@@ -390,7 +390,7 @@ def evaluate_trajectory(
     if len(ie) < need:
         raise OdometryError(
             f"only {len(ie)} of {len(Pe)} estimated poses have a reference pose within "
-            f"{max_diff_s} s (need {need}); check the time base or --max-diff-s"
+            f"{max_diff_s} s (need {need}); check the time base or max_diff_s"
         )
     P, Q = Pe[ie], Qr[ir]
     S = np.eye(4)

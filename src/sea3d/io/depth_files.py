@@ -158,7 +158,7 @@ def check_depth_grid(
     if grid.kind != kind or (grid.width_px, grid.height_px) != (width_px, height_px):
         raise StereoError(
             f"depth {path} lives on the {grid.describe()} grid but {consumer} needs {kind} "
-            f"{size}" + ("; write raw-view depth with sea3d depth --grid raw"
+            f"{size}" + ("; write raw-view depth (the raw grid) with sea3d depth"
                          if kind == "raw-left" else "")
         )
     if rig_id and grid.rig_id and grid.rig_id != rig_id:
@@ -270,7 +270,7 @@ def read_disparity(path: str | Path, scale: float | None = None) -> NDArray[np.f
             if scale is None:
                 raise StereoError(
                     f"{p} stores integers ({img.dtype}); give the disparity scale "
-                    "(e.g. --scale 16 for tsukuba, 8 venus, 4 cones/teddy)"
+                    "(e.g. scale 16 for tsukuba, 8 venus, 4 cones/teddy)"
                 )
             d = img.astype(np.float32)
             d[img == 0] = np.nan

@@ -896,7 +896,7 @@ def _load_opencv(
             image_size = _guess_size(K1[0, 2], K1[1, 2])
             log.warning(
                 "%s holds no image size; assuming %dx%d from the principal point (pass "
-                "image_size / --size to set it)",
+                "image_size to set it)",
                 path,
                 *image_size,
             )

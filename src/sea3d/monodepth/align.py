@@ -170,7 +170,7 @@ def align_depth(
     if best_in < need:
         return nan_map, Alignment(status="failed", message="no consistent positive scale "
                                   "between the network and the sparse depth (is "
-                                  "--output-kind right?)", kind=kind,
+                                  "output_kind right?)", kind=kind,
                                   scale=float("nan"), shift=float("nan"), samples=n, inliers=0,
                                   median_rel_error=float("nan"))
     s, t = best
@@ -191,7 +191,7 @@ def align_depth(
     if not s > 0:
         status, msg = "failed", (f"the fitted scale {s:.4g} is not positive: the output does not "
                                  f"grow with {'inverse ' if kind == 'inverse' else ''}depth "
-                                 "(is --output-kind right?)")
+                                 "(is output_kind right?)")
     log.info(msg)
     out = depth.astype(np.float32) if status == "ok" else nan_map
     return out, Alignment(status=status, message=msg, kind=kind, scale=float(s), shift=float(t),

@@ -81,8 +81,8 @@ def select_providers(device: str, available: list[str]) -> list[str]:
     if device == "cuda":
         if cuda not in available:
             raise MonoDepthError(
-                f"--device cuda: onnxruntime offers no CUDA provider (available: "
-                f"{', '.join(available)}); install onnxruntime-gpu or use --device cpu"
+                f"device cuda: onnxruntime offers no CUDA provider (available: "
+                f"{', '.join(available)}); install onnxruntime-gpu or use device cpu"
             )
         return [cuda, "CPUExecutionProvider"]
     if device == "auto" and cuda in available:

@@ -149,7 +149,7 @@ def run_demo(
 
         if not gt.sim_meta_path.is_file():
             raise ConfigError(f"{session} exists and is not a session the demo simulated; "
-                              "choose another -o/--output folder")
+                              "choose another output folder")
         shutil.rmtree(session)  # a fresh dive each run (results below are recomputed too)
     step(
         f"simulating a {config.frames}-frame lawnmower survey of '{config.scene}' at "

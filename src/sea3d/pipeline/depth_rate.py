@@ -59,10 +59,10 @@ def parse_depth_rate(text: str | int) -> str | int:
         try:
             value = int(str(text))
         except ValueError:
-            raise ConfigError(f"--depth-rate must be all, auto or a whole number of frames, "
+            raise ConfigError(f"depth_rate must be all, auto or a whole number of frames, "
                               f"got {text!r}") from None
     if int(value) < 1:
-        raise ConfigError(f"--depth-rate must be >= 1 frame, got {value}")
+        raise ConfigError(f"depth_rate must be >= 1 frame, got {value}")
     return 1 if value == 1 else int(value)
 
 

@@ -79,8 +79,8 @@ class SessionFrames:
         if first.shape[:2] != (native.height, native.width):
             raise SessionError(
                 f"{path}: images are {first.shape[1]}x{first.shape[0]} but the rig is "
-                f"{native.width}x{native.height}; pass the rig of this camera with --rig"
-                " (--size then sets the processing size)")
+                f"{native.width}x{native.height}; give the rig of this camera"
+                " (size_px then sets the processing size)")
         self.native_rig = native
         self.imu = session.imu()
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -17,7 +18,8 @@ from sea3d.monodepth.metric import predict_metric
 from sea3d.pipeline.progress import ProgressFactory, no_progress
 from sea3d.stereo.recipe import StereoDepth
 
-__all__ = ["MonoDepthSessionResult", "monodepth_session", "stereo_sparse_depth"]
+__all__ = ["MonoDepthSessionResult", "monodepth_session", "sfm_sparse_depth",
+           "stereo_sparse_depth"]
 
 SparseFn = Callable[[str, int, int], np.ndarray]
 """``sparse(image_name, width, height)``: ``(height, width)`` metric depth with NaN holes."""
@@ -38,6 +40,49 @@ def stereo_sparse_depth(stereo: StereoDepth, left: np.ndarray, right: np.ndarray
                                  f"but the rig is {rig.width}x{rig.height}")
     res = stereo.compute(left, right)
     return res.depth_m, res.rect_left
+
+
+def sfm_sparse_depth(model_dir: str | Path, image_name: str, width: int, height: int) -> F32:
+    """Sparse depth of a COLMAP model's points in one of its images (matched by name: the
+    exact name, its file name, ``left/<stem>.png``, ``<stem>.png``, else the first image of
+    that stem), through the model camera's own (possibly distorted) projection.
+
+    Returns:
+        (height, width) float32 metres, NaN where no point falls (nearest point per pixel).
+
+    Raises:
+        MonoDepthError: no registered image of that name, a model image of another size, or
+            an image that sees no 3D point.
+    """
+    from sea3d.io.sfm_files import read_colmap_model
+    from sea3d.monodepth import sparse_depth_from_points
+
+    model_dir = Path(model_dir)
+    rec = read_colmap_model(model_dir)
+    names = {im.name: im for im in rec.images.values()}
+    stem = Path(image_name).stem
+    cands = [image_name, Path(image_name).name, f"left/{stem}.png", f"{stem}.png"]
+    im = next((names[c] for c in cands if c in names), None)
+    if im is None:
+        im = next((v for k, v in names.items() if Path(k).stem == stem), None)
+    if im is None or not im.has_pose:
+        raise MonoDepthError(f"{model_dir}: no registered image named like {image_name!r}")
+    cam = rec.cameras[im.camera_id]
+    if (cam.width, cam.height) != (width, height):
+        raise MonoDepthError(f"{model_dir}: image {im.name} is {cam.width}x{cam.height} in the "
+                             f"model but the input is {width}x{height}")
+    T = np.eye(4)
+    T[:3, :4] = np.asarray(im.cam_from_world().matrix())
+    pts = np.array([rec.points3D[p.point3D_id].xyz for p in im.points2D if p.has_point3D()])
+    if len(pts) == 0:
+        raise MonoDepthError(f"{model_dir}: image {im.name} sees no 3D points")
+    pc = pts @ T[:3, :3].T + T[:3, 3]
+    uv = np.asarray(cam.img_from_cam(pc), dtype=np.float64) - 0.5  # COLMAP -> our pixels
+    # nearest point per pixel, with the camera's own (possibly distorted) projection
+    K = np.eye(3)
+    pix = np.column_stack([uv, np.ones(len(uv))]) * pc[:, 2:3]
+    out: F32 = sparse_depth_from_points(pix, K, width, height)
+    return out
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -212,13 +212,13 @@ def imu_decision(
     the reason is said (``imu_note``, ``imu_used`` false).
     """
     if not use_imu:
-        return False, "--no-imu: visual-only"
+        return False, "use_imu off: visual-only"
     if src.imu_t_ns.size == 0:
         return False, "the session has no IMU samples: visual-only"
     if src.rig.imu is None:
         return False, (
-            "the rig has no imu block (T_left_imu): visual-only; add it with 'sea3d rig create "
-            "--kalibr' or estimate it with 'sea3d calibrate imu'"
+            "the rig has no imu block (T_left_imu): visual-only; add it from a Kalibr "
+            "camera-IMU calibration or estimate it with 'sea3d calibrate imu'"
         )
     t = src.t_ns if n_frames is None else src.t_ns[: max(int(n_frames), 1)]
     why = imu_clock_check(
@@ -328,7 +328,7 @@ def session_odometry(
     from sea3d.stereo.recipe import StereoDepth
 
     if max_frames is not None and int(max_frames) < 1:
-        raise ConfigError(f"--max-frames must be >= 1, got {max_frames}")
+        raise ConfigError(f"max_frames must be >= 1, got {max_frames}")
     cfg = config or OdometryConfig()
     src = open_stereo_source(path, rig_path, imu=use_imu)
     try:
@@ -373,8 +373,8 @@ def session_odometry(
         if no_depth[0]:
             run.summary["notes"].append(
                 f"{no_depth[0]} of {n} frames have no valid depth in the depth range "
-                f"{lo:.3g}..{hi:.3g} m: the range may exclude the scene (set --min-depth/"
-                "--max-depth)"
+                f"{lo:.3g}..{hi:.3g} m: the range may exclude the scene (set "
+                "min_depth_m/max_depth_m)"
             )
         return run
     finally:
@@ -389,7 +389,7 @@ def _expand(pattern: str, what: str) -> list[Path]:
 
     paths = sorted((Path(p) for p in glob.glob(pattern)), key=natural_key)
     if not paths:
-        raise ConfigError(f"--{what} {pattern!r} matches no files")
+        raise ConfigError(f"{what} {pattern!r} matches no files")
     return paths
 
 
@@ -440,14 +440,14 @@ def rgbd_observations(
     from sea3d.io.rgbd_files import read_color, read_depth
 
     if not depth_scale > 0:
-        raise ConfigError(f"--depth-scale must be > 0, got {depth_scale}")
+        raise ConfigError(f"depth_scale must be > 0, got {depth_scale}")
     fx, fy, cx, cy = intrinsics
     if not (fx > 0 and fy > 0):
-        raise ConfigError(f"--intrinsics: focal lengths must be > 0, got {intrinsics}")
+        raise ConfigError(f"intrinsics: focal lengths must be > 0, got {intrinsics}")
     cp, dp = _expand(color, "color"), _expand(depth, "depth")
     if len(cp) != len(dp):
         raise ConfigError(
-            f"--color matches {len(cp)} files but --depth {len(dp)}; they must "
+            f"color matches {len(cp)} files but depth {len(dp)}; they must "
             "pair up one to one in sorted order"
         )
     c0 = read_color(cp[0])
@@ -460,7 +460,7 @@ def rgbd_observations(
         )
     if not (0 <= cx < w and 0 <= cy < h):
         raise ConfigError(
-            f"--intrinsics: the principal point ({cx:g}, {cy:g}) px lies outside the "
+            f"intrinsics: the principal point ({cx:g}, {cy:g}) px lies outside the "
             f"{w}x{h} image of {dp[0]}; give FX FY CX CY in pixels of this image"
         )
     valid = d0[np.isfinite(d0)]
@@ -470,7 +470,7 @@ def rgbd_observations(
     lo, hi = _RGBD_MEDIAN_DEPTH_RANGE_M
     if not lo <= med <= hi:
         raise ConfigError(
-            f"{dp[0]}: median depth {med:.4g} m with --depth-scale {depth_scale:g} is no "
+            f"{dp[0]}: median depth {med:.4g} m with depth_scale {depth_scale:g} is no "
             f"plausible depth ({lo:g}..{hi:g} m); give the depth units per metre "
             "(1000 for millimetres, 5000 for TUM) or float depth in metres"
         )

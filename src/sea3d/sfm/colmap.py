@@ -223,7 +223,7 @@ def _check_frames(frames: Sequence[SfmFrame], config: SfmConfig, rig: StereoRig 
         missing = [f for f in frames if f.right is None]
         if missing:
             raise SfmError(
-                f"{missing[0].source or missing[0].name}: no right image; --camera "
+                f"{missing[0].source or missing[0].name}: no right image; camera "
                 f"{config.camera} needs a right camera in every frame ({len(missing)} of "
                 f"{len(frames)} frames have none)"
             )
