@@ -230,10 +230,6 @@ def _cmd_eval_surface(args: argparse.Namespace) -> int:
         print(f"note: {100 * m.reference_outside:.0f} % of the reference surface lies outside the "
               "mesh's bounding box, so completeness mostly measures what the survey never saw; "
               "--crop-margin-m M keeps only the reference within M of that box", file=sys.stderr)
-    if m.reference_outside > OUTSIDE_NOTE_FRACTION:
-        print(f"note: {100 * m.reference_outside:.0f} % of the reference surface lies outside the "
-              "mesh's bounding box, so completeness mostly measures what the survey never saw; "
-              "--crop-margin-m M keeps only the reference within M of that box", file=sys.stderr)
     for t, p, r, f in zip(m.thresholds_m, m.precision, m.recall, m.fscore, strict=True):
         print(f"within {1000 * t:g} mm: precision {100 * p:.1f} %, recall {100 * r:.1f} %, "
               f"F-score {100 * f:.1f} %")
