@@ -280,6 +280,93 @@ def section_formation(args: argparse.Namespace) -> None:
     OUT["formation"] = rows
 
 
+SIM_REFERENCES = ("J", "clean")
+"""What the simulated dive's restorations are compared to: ``J`` (the view with the water on
+the line of sight removed, the lights still through water: what Sea-thru is defined to
+recover) and ``clean`` (no water at all: white light; also needs the light's colour removed,
+a colour-constancy step no water model holds)."""
+
+
+def _sim_dive(r: Renderer, rig: Any, water: str, max_d: int) -> list[dict[str, Any]]:
+    """One simulated dive: the DIVE_EYES views in one water, every effect on, with both
+    references, true and stereo range."""
+    frames = []
+    for k, eye in enumerate(DIVE_EYES):
+        p = simulate_pair_with_reference(rig, r.scene, look_at(eye, VIEW_TARGET), water,
+                                         renderer=r, seed=k + 1)
+        frames.append({"pair": p, "true": p.gt.range_m,
+                       "stereo": _stereo_range(p.left, p.right, rig, max_d)})
+    return frames
+
+
+def section_simdive(args: argparse.Namespace) -> None:
+    """The dive's water model on our own simulator, per water type: as ``formation`` with the
+    degradation and the references from :mod:`sea3d.sim.reference` (every underwater effect
+    on: sun through the water above, lamp, caustics, vignetting, blur, noise)."""
+    rig = paper_rig("none", size_px=args.size)
+    max_d = 63 if args.size[0] <= 700 else 127
+    rows: list[dict[str, Any]] = []
+    for scene in ("lake", "reef"):
+        r = Renderer(builtin_scene(scene), supersample=2)
+        for water in WATERS:
+            t0 = time.perf_counter()
+            frames = _sim_dive(r, rig, water, max_d)
+            render_s = time.perf_counter() - t0
+            wm = frames[0]["pair"].water
+            e = float(wm["exposure"])
+            oracle = WaterModel(B_inf_rgb=tuple(e * b for b in wm["B_inf_rgb"]),  # type: ignore
+                                beta_B_per_m=tuple(wm["beta_B_per_m"]),
+                                beta_D_per_m=tuple(wm["beta_D_per_m"]))
+            models = {f"water model, {rn}": fit_water_model([(f["pair"].left, f[key])
+                                                             for f in frames])
+                      for rn, key in (("stereo range", "stereo"), ("true range", "true"))}
+            pf = WaterFitConfig(white_balance="grey-world")
+            photofinished = fit_water_model([(f["pair"].left, f["stereo"]) for f in frames], pf)
+            per: dict[str, dict[str, list[float]]] = {ref: {} for ref in SIM_REFERENCES}
+            for k, f in enumerate(frames):
+                p = f["pair"]
+                mask = (p.gt.object_id >= 0) & np.isfinite(p.gt.range_m)
+                outs = {
+                    "input": p.left,
+                    "grey-world": enhance_image(p.left, "grey-world").images[0],
+                    "xphoto-grey (OpenCV)": _xphoto_grey(p.left),
+                    "sea-thru per image, stereo range": enhance_image(
+                        p.left, "seathru", range_m=f["stereo"]).images[0],
+                    "water model, stereo range": restore(
+                        p.left, f["stereo"], models["water model, stereo range"]).image,
+                    "water model, true range": restore(
+                        p.left, f["true"], models["water model, true range"]).image,
+                    "water model + grey world, stereo": restore(
+                        p.left, f["stereo"], photofinished, pf).image,
+                    "oracle (true parameters)": restore(p.left, f["true"], oracle).image,
+                }
+                for ref_name, ref in (("J", p.left_unattenuated), ("clean", p.left_clean)):
+                    for name, img in outs.items():
+                        per[ref_name].setdefault(name, []).append(
+                            ciede2000_after_gain(img, ref, mask)[0])
+                if args.pictures and k == 0 and scene == "lake" and water == "coastal":
+                    _picture(args.pictures / "enhance_simdive_lake_coastal.jpg",
+                             [p.left, outs["grey-world"], outs["water model, stereo range"],
+                              p.left_unattenuated, p.left_clean])
+            st = models["water model, stereo range"]
+            print(f"\n== simulated dive: {scene} in {water} ({len(frames)} frames, rendered in "
+                  f"{render_s:.0f} s; beta_D true {np.round(wm['beta_D_per_m'], 2).tolist()}, "
+                  f"fitted stereo {np.round(st.beta_D_per_m, 2).tolist()} [{st.status}])")
+            print(f"{'method':36s} {'vs J':>6s} {'below gw':>8s} {'vs clean':>8s} "
+                  f"{'below gw':>8s}")
+            gw = {ref: statistics.mean(per[ref]["grey-world"]) for ref in SIM_REFERENCES}
+            for name in per["J"]:
+                mj, mc = (statistics.mean(per[ref][name]) for ref in SIM_REFERENCES)
+                print(f"{name:36s} {_fmt(mj):>6s} {100 * (1 - mj / gw['J']):7.0f}% "
+                      f"{_fmt(mc):>8s} {100 * (1 - mc / gw['clean']):7.0f}%", flush=True)
+                rows.append({"scene": scene, "water": water, "method": name, "de00_gain_J": mj,
+                             "de00_gain_clean": mc})
+            s_j = statistics.mean(per["J"]["water model, stereo range"])
+            t_j = statistics.mean(per["J"]["water model, true range"])
+            print(f"stereo / true range (vs J): {s_j / t_j:.2f}x")
+    OUT["simdive"] = rows
+
+
 def section_stereo(args: argparse.Namespace) -> None:
     cases = _render_cases(args.size, ("lake",))
     max_d = 63 if args.size[0] <= 700 else 127
@@ -453,6 +540,127 @@ def section_real(args: argparse.Namespace) -> None:
                   enhance_image(img, "clahe").images[0]],
                  height=200)
     OUT["real"] = rows
+
+
+BOARD_SETS = ("stereopi_panama_sea", "stereopi_bermuda1_sea")
+BOARD_INNER = (9, 6)
+"""The StereoPi sets' chessboard: 9 x 6 inner corners (10 x 7 squares), square size not
+documented, so board range is in units of squares (the water model's ``beta_D z`` is
+unit-free when it is fitted and applied in the same units)."""
+
+
+def _board_frames(folder: Path) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Left halves (RGB) of the side-by-side frames and their detected inner corners."""
+    imgs, corners = [], []
+    for f in sorted(folder.glob("*.png")):
+        bgr = cv2.imread(str(f), cv2.IMREAD_COLOR)
+        left = bgr[:, : bgr.shape[1] // 2]
+        grey = cv2.cvtColor(left, cv2.COLOR_BGR2GRAY)
+        ok, c = cv2.findChessboardCorners(
+            grey, BOARD_INNER, cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
+        if ok:
+            c = cv2.cornerSubPix(grey, c, (5, 5), (-1, -1),
+                                 (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 1e-3))
+            imgs.append(cv2.cvtColor(left, cv2.COLOR_BGR2RGB))
+            corners.append(c)
+    return imgs, corners
+
+
+def _board_geometry(imgs: list[np.ndarray], corners: list[np.ndarray]
+                    ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per frame: range to the board (squares; NaN off the board) and the masks of its white
+    and black square interiors, from the left camera calibrated on these frames (OpenCV,
+    ``CALIB_FIX_K3``) and each frame's board pose (its PnP solution)."""
+    nx, ny = BOARD_INNER
+    obj = np.zeros((nx * ny, 3), np.float32)
+    obj[:, :2] = np.mgrid[0:nx, 0:ny].T.reshape(-1, 2)
+    h, w = imgs[0].shape[:2]
+    _rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(
+        [obj] * len(corners), corners, (w, h), None, None, flags=cv2.CALIB_FIX_K3)
+    uv = np.stack(np.meshgrid(np.arange(w), np.arange(h)), axis=-1).reshape(-1, 1, 2)
+    rays = cv2.undistortPoints(uv.astype(np.float64), K, dist).reshape(-1, 2)
+    rays = np.column_stack([rays, np.ones(len(rays))])
+    out = []
+    for img, rvec, tvec in zip(imgs, rvecs, tvecs, strict=True):
+        R, _ = cv2.Rodrigues(rvec)
+        t = tvec.ravel()
+        n = R[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lam = (n @ t) / (rays @ n)
+        P = rays * lam[:, None]
+        Q = (P - t) @ R  # board coordinates, squares
+        X, Y = Q[:, 0].reshape(h, w), Q[:, 1].reshape(h, w)
+        on = (lam.reshape(h, w) > 0) & (X > -1) & (X < nx) & (Y > -1) & (Y < ny)
+        rng_sq = np.where(on, lam.reshape(h, w) * np.linalg.norm(rays, axis=1).reshape(h, w),
+                          np.nan).astype(np.float32)
+        fx, fy = X - np.floor(X), Y - np.floor(Y)
+        inner = on & (fx > 0.25) & (fx < 0.75) & (fy > 0.25) & (fy < 0.75)
+        parity = ((np.floor(X) + np.floor(Y)) % 2 == 0)
+        lum = img.astype(np.float32).mean(axis=2)
+        a, b = inner & parity, inner & ~parity
+        white, black = (a, b) if lum[a].mean() > lum[b].mean() else (b, a)
+        out.append((rng_sq, white, black))
+    return out
+
+
+def _lab_of_mean(img: np.ndarray, mask: np.ndarray) -> tuple[float, float, float]:
+    """CIELAB L*, a*, b* of the mean linear colour of ``img`` over ``mask``."""
+    lin = srgb_to_linear(img.astype(np.float32) / np.float32(255.0))[mask].mean(axis=0)
+    enc = np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * np.power(lin, 1 / 2.4) - 0.055)
+    lab = cv2.cvtColor(np.clip(enc, 0, 1).astype(np.float32)[None, None], cv2.COLOR_RGB2Lab)
+    return float(lab[0, 0, 0]), float(lab[0, 0, 1]), float(lab[0, 0, 2])
+
+
+def section_board(args: argparse.Namespace) -> None:
+    """Real open-sea frames with a neutral target: the cast of the board's white squares
+    (and black) before and after each method, same run; the water model fitted over the
+    dive's frames with the board's range (PnP), per-image Sea-thru with the same range."""
+    rows = []
+    for name in BOARD_SETS:
+        folder = args.data / "underwater_stereo" / name / "sbs"
+        if not folder.is_dir():
+            print(f"\n== board: {folder} missing, skipped")
+            continue
+        imgs, corners = _board_frames(folder)
+        geo = _board_geometry(imgs, corners)
+        t0 = time.perf_counter()
+        model = fit_water_model([(im, g[0]) for im, g in zip(imgs, geo, strict=True)])
+        pf = WaterFitConfig(white_balance="grey-world")
+        model_pf = fit_water_model([(im, g[0]) for im, g in zip(imgs, geo, strict=True)], pf)
+        fit_s = time.perf_counter() - t0
+        span = [float(np.nanpercentile(g[0], q)) for g in geo for q in (5, 95)]
+        per: dict[str, list[tuple[float, float, float, float]]] = {}
+        for k, (img, (rng_sq, white, black)) in enumerate(zip(imgs, geo, strict=True)):
+            outs = {
+                "input": img,
+                "grey-world": enhance_image(img, "grey-world").images[0],
+                "xphoto-grey (OpenCV)": _xphoto_grey(img),
+                "sea-thru per image, board range": enhance_image(
+                    img, "seathru", range_m=rng_sq).images[0],
+                "water model, board range": restore(img, rng_sq, model).image,
+                "water model + grey world, board range": restore(img, rng_sq, model_pf,
+                                                                 pf).image,
+            }
+            for m, out in outs.items():
+                _L, a, b = _lab_of_mean(out, white)
+                _Lb, ab, bb = _lab_of_mean(out, black)
+                per.setdefault(m, []).append((a, b, float(np.hypot(a, b)),
+                                              float(np.hypot(ab, bb))))
+            if args.pictures and k == 0:
+                _picture(args.pictures / f"enhance_board_{name}.jpg",
+                         [outs["input"], outs["grey-world"], outs["xphoto-grey (OpenCV)"],
+                          outs["water model, board range"]], height=160)
+        print(f"\n== board: {name} ({len(imgs)} frames with the board; range "
+              f"{min(span):.1f}-{max(span):.1f} squares; water model [{model.status}] beta_D "
+              f"{np.round(model.beta_D_per_m, 3).tolist()} per square, fit {fit_s:.1f} s)")
+        print(f"{'method':40s} {'white a*':>8s} {'b*':>6s} {'C*':>6s} {'black C*':>8s}  "
+              "(means over the frames)")
+        for m, v in per.items():
+            a, b, c, cb = (statistics.mean(x[i] for x in v) for i in range(4))
+            print(f"{m:40s} {a:8.1f} {b:6.1f} {c:6.1f} {cb:8.1f}", flush=True)
+            rows.append({"set": name, "method": m, "white_a": a, "white_b": b, "white_C": c,
+                         "black_C": cb, "frames": len(imgs), "status": model.status})
+    OUT["board"] = rows
 
 
 def _time(fn: Any, repeats: int) -> tuple[float, float]:
@@ -640,8 +848,8 @@ def _picture(path: Path, panels: list[np.ndarray], height: int = 160) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--section", action="append",
-                    choices=("formation", "colour", "stereo", "features", "real", "speed",
-                             "process"))
+                    choices=("formation", "simdive", "board", "colour", "stereo", "features",
+                             "real", "speed", "process"))
     ap.add_argument("--size", default="480x270", help="simulated image size WxH")
     ap.add_argument("--data", type=Path, default=DATA, help="the shared data folder")
     ap.add_argument("--repeats", type=int, default=3, help="timed runs per method")
@@ -653,9 +861,10 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     w, h = (int(v) for v in args.size.split("x"))
     args.size = (w, h)
-    sections = args.section or ["formation", "colour", "stereo", "features", "real", "speed",
-                                "process"]
-    funcs = {"formation": section_formation, "colour": section_colour,
+    sections = args.section or ["formation", "simdive", "board", "colour", "stereo",
+                                "features", "real", "speed", "process"]
+    funcs = {"formation": section_formation, "simdive": section_simdive, "board": section_board,
+             "colour": section_colour,
              "stereo": section_stereo, "features": section_features, "real": section_real,
              "speed": section_speed, "process": section_process}
     for s in sections:
