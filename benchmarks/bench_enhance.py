@@ -299,6 +299,22 @@ def _sim_dive(r: Renderer, rig: Any, water: str, max_d: int) -> list[dict[str, A
     return frames
 
 
+def _pooled_grey_world(imgs: list[np.ndarray], masks: list[np.ndarray]) -> np.ndarray:
+    """Grey-world gains (linear) pooled over the masked pixels of several sRGB images."""
+    lin = np.concatenate([srgb_to_linear(im.astype(np.float32) / np.float32(255.0))[m]
+                          for im, m in zip(imgs, masks, strict=True)])
+    mean = lin.mean(axis=0)
+    return np.asarray(mean.mean() / np.maximum(mean, 1e-6))
+
+
+def _apply_gains(img: np.ndarray, gains: np.ndarray) -> np.ndarray:
+    lin = srgb_to_linear(img.astype(np.float32) / np.float32(255.0)) * gains.astype(np.float32)
+    lin = lin / max(float(np.percentile(lin.max(axis=2), 99.5)), 1e-6)
+    enc = np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * np.power(np.clip(lin, 0, 1), 1 / 2.4)
+                   - 0.055)
+    return np.asarray(np.clip(enc * 255 + 0.5, 0, 255), np.uint8)
+
+
 def section_simdive(args: argparse.Namespace) -> None:
     """The dive's water model on our own simulator, per water type: as ``formation`` with the
     degradation and the references from :mod:`sea3d.sim.reference` (every underwater effect
@@ -320,8 +336,10 @@ def section_simdive(args: argparse.Namespace) -> None:
             models = {f"water model, {rn}": fit_water_model([(f["pair"].left, f[key])
                                                              for f in frames])
                       for rn, key in (("stereo range", "stereo"), ("true range", "true"))}
-            pf = WaterFitConfig(white_balance="grey-world")
-            photofinished = fit_water_model([(f["pair"].left, f["stereo"]) for f in frames], pf)
+            keep_j = WaterFitConfig(white_balance="none")
+            j_model = fit_water_model([(f["pair"].left, f["stereo"]) for f in frames], keep_j)
+            oracle_j = [restore(f["pair"].left, f["true"], oracle).image for f in frames]
+            gains = _pooled_grey_world(oracle_j, [np.isfinite(f["true"]) for f in frames])
             per: dict[str, dict[str, list[float]]] = {ref: {} for ref in SIM_REFERENCES}
             for k, f in enumerate(frames):
                 p = f["pair"]
@@ -336,9 +354,10 @@ def section_simdive(args: argparse.Namespace) -> None:
                         p.left, f["stereo"], models["water model, stereo range"]).image,
                     "water model, true range": restore(
                         p.left, f["true"], models["water model, true range"]).image,
-                    "water model + grey world, stereo": restore(
-                        p.left, f["stereo"], photofinished, pf).image,
-                    "oracle (true parameters)": restore(p.left, f["true"], oracle).image,
+                    "water model, no balance (J), stereo": restore(
+                        p.left, f["stereo"], j_model, keep_j).image,
+                    "oracle (true parameters, J)": oracle_j[k],
+                    "oracle + pooled grey world": _apply_gains(oracle_j[k], gains),
                 }
                 for ref_name, ref in (("J", p.left_unattenuated), ("clean", p.left_clean)):
                     for name, img in outs.items():
@@ -361,9 +380,10 @@ def section_simdive(args: argparse.Namespace) -> None:
                       f"{_fmt(mc):>8s} {100 * (1 - mc / gw['clean']):7.0f}%", flush=True)
                 rows.append({"scene": scene, "water": water, "method": name, "de00_gain_J": mj,
                              "de00_gain_clean": mc})
-            s_j = statistics.mean(per["J"]["water model, stereo range"])
-            t_j = statistics.mean(per["J"]["water model, true range"])
-            print(f"stereo / true range (vs J): {s_j / t_j:.2f}x")
+            for ref in SIM_REFERENCES:
+                s_r = statistics.mean(per[ref]["water model, stereo range"])
+                t_r = statistics.mean(per[ref]["water model, true range"])
+                print(f"stereo / true range (vs {ref}): {s_r / t_r:.2f}x")
     OUT["simdive"] = rows
 
 
@@ -625,8 +645,12 @@ def section_board(args: argparse.Namespace) -> None:
         geo = _board_geometry(imgs, corners)
         t0 = time.perf_counter()
         model = fit_water_model([(im, g[0]) for im, g in zip(imgs, geo, strict=True)])
-        pf = WaterFitConfig(white_balance="grey-world")
-        model_pf = fit_water_model([(im, g[0]) for im, g in zip(imgs, geo, strict=True)], pf)
+        keep_j = WaterFitConfig(white_balance="none")
+        model_j = fit_water_model([(im, g[0]) for im, g in zip(imgs, geo, strict=True)],
+                                  keep_j)
+        locus = WaterFitConfig(white_balance="locus")
+        model_l = fit_water_model([(im, g[0]) for im, g in zip(imgs, geo, strict=True)],
+                                  locus)
         fit_s = time.perf_counter() - t0
         span = [float(np.nanpercentile(g[0], q)) for g in geo for q in (5, 95)]
         per: dict[str, list[tuple[float, float, float, float]]] = {}
@@ -638,8 +662,10 @@ def section_board(args: argparse.Namespace) -> None:
                 "sea-thru per image, board range": enhance_image(
                     img, "seathru", range_m=rng_sq).images[0],
                 "water model, board range": restore(img, rng_sq, model).image,
-                "water model + grey world, board range": restore(img, rng_sq, model_pf,
-                                                                 pf).image,
+                "water model, no balance (J), board range": restore(img, rng_sq, model_j,
+                                                                    keep_j).image,
+                "water model, locus balance, board range": restore(img, rng_sq, model_l,
+                                                                   locus).image,
             }
             for m, out in outs.items():
                 _L, a, b = _lab_of_mean(out, white)
