@@ -239,7 +239,7 @@ def _range_tables(
         b = np.asarray(model.B_inf_rgb) * (1.0 - np.exp(-np.asarray(model.beta_B_per_m) * z))
     g = np.ones((z.shape[0], 3))
     if model.has_attenuation:
-        g = np.minimum(np.exp(np.asarray(model.beta_D_per_m) * z), max_gain)
+        g = np.exp(np.minimum(np.asarray(model.beta_D_per_m) * z, np.log(max_gain)))
     sc = np.asarray(scale, np.float64)
     return (g * sc).astype(np.float32), (b * g * sc).astype(np.float32)
 
@@ -568,7 +568,7 @@ def _invert(lin: F32, z: F32, model: WaterModel, max_gain: float) -> F32:
         out = np.maximum(out - b_inf * (np.float32(1.0) - np.exp(-beta_b * zz)), np.float32(0))
     if model.has_attenuation:
         beta_d = np.asarray(model.beta_D_per_m, np.float32)
-        out = out * np.minimum(np.exp(beta_d * zz), np.float32(max_gain))
+        out = out * np.exp(np.minimum(beta_d * zz, np.float32(np.log(max_gain))))
     return np.asarray(out, dtype=np.float32)
 
 
