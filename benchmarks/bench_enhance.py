@@ -239,6 +239,8 @@ def section_formation(args: argparse.Namespace) -> None:
             t0 = time.perf_counter()
             model_true = fit_water_model([(f[0], f[1]) for f in frames])
             model_st = fit_water_model([(f[0], f[2]) for f in frames])
+            keep_j = WaterFitConfig(white_balance="none")  # this judge lights its scene white
+            model_j = fit_water_model([(f[0], f[2]) for f in frames], keep_j)
             fit_s = (time.perf_counter() - t0) / 2
             oracle = WaterModel(B_inf_rgb=water.B_inf_rgb, beta_B_per_m=water.beta_B_per_m,
                                 beta_D_per_m=water.beta_D_per_m)
@@ -255,6 +257,8 @@ def section_formation(args: argparse.Namespace) -> None:
                         seathru_config=SeathruConfig(attenuation="illuminant")).images[0],
                     "water model, stereo range": restore(left, st_r, model_st).image,
                     "water model, true range": restore(left, true_r, model_true).image,
+                    "water model, no balance (J), stereo range": restore(
+                        left, st_r, model_j, keep_j).image,
                     "oracle (true parameters)": restore(left, true_r, oracle).image,
                 }
                 for name, img in outs.items():
