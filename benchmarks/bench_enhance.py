@@ -693,6 +693,45 @@ def section_board(args: argparse.Namespace) -> None:
     OUT["board"] = rows
 
 
+def section_cast(args: argparse.Namespace) -> None:
+    """Real frames without a reference: the colour cast (CIELAB chroma of the mean colour)
+    before and after grey world, OpenCV xphoto's grey world and red compensation, same run,
+    on the Sea3D field dive's left frames and the RUIE UCCS folders (every
+    ``--ruie-stride``-th image). A grey world drives this cast to about zero by construction,
+    so it says how much cast there was, not which colours are right (the board says that)."""
+    uw = args.data / "underwater"
+    sets = [("sea3d_field_left", uw / "sea3d_field_left")]
+    sets += [(f"ruie {sub}", uw / "ruie_uccs" / sub) for sub in ("blue", "green", "blue-green")]
+    rows: dict[str, Any] = {}
+    print("\n== cast without a reference: mean CIELAB chroma of the mean colour (median), "
+          "images whose cast shrank")
+    for name, folder in sets:
+        if not folder.is_dir():
+            continue
+        paths = _images(folder)[:: max(1, args.ruie_stride)]
+        got: dict[str, list[float]] = {}
+        for pth in paths:
+            img = _read(pth)
+            if max(img.shape[:2]) > 1280:
+                s = 1280 / max(img.shape[:2])
+                img = cv2.resize(img, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
+            outs = {"input": img, "grey-world": enhance_image(img, "grey-world").images[0],
+                    "xphoto-grey (OpenCV)": _xphoto_grey(img),
+                    "red-comp": enhance_image(img, "red-comp").images[0]}
+            for m, out in outs.items():
+                got.setdefault(m, []).append(colour_cast(out))
+            if args.pictures and pth == paths[0] and name == "sea3d_field_left":
+                _picture(args.pictures / "enhance_cast_field.jpg", list(outs.values()))
+        line = f"{name:18s} ({len(paths)} images)"
+        for m, v in got.items():
+            shrank = sum(1 for a, b in zip(got["input"], v, strict=True) if b < a)
+            line += f" | {m} {statistics.mean(v):.1f} / {statistics.median(v):.1f}" + (
+                f" ({shrank}/{len(v)})" if m != "input" else "")
+        print(line, flush=True)
+        rows[name] = {m: statistics.mean(v) for m, v in got.items()}
+    OUT["cast"] = rows
+
+
 def _time(fn: Any, repeats: int) -> tuple[float, float]:
     walls, cpus = [], []
     fn()  # warm-up (imports, caches)
@@ -878,8 +917,8 @@ def _picture(path: Path, panels: list[np.ndarray], height: int = 160) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--section", action="append",
-                    choices=("formation", "simdive", "board", "colour", "stereo", "features",
-                             "real", "speed", "process"))
+                    choices=("formation", "simdive", "board", "cast", "colour", "stereo",
+                             "features", "real", "speed", "process"))
     ap.add_argument("--size", default="480x270", help="simulated image size WxH")
     ap.add_argument("--data", type=Path, default=DATA, help="the shared data folder")
     ap.add_argument("--repeats", type=int, default=3, help="timed runs per method")
@@ -891,9 +930,10 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     w, h = (int(v) for v in args.size.split("x"))
     args.size = (w, h)
-    sections = args.section or ["formation", "simdive", "board", "colour", "stereo",
+    sections = args.section or ["formation", "simdive", "board", "cast", "colour", "stereo",
                                 "features", "real", "speed", "process"]
     funcs = {"formation": section_formation, "simdive": section_simdive, "board": section_board,
+             "cast": section_cast,
              "colour": section_colour,
              "stereo": section_stereo, "features": section_features, "real": section_real,
              "speed": section_speed, "process": section_process}
