@@ -352,7 +352,7 @@ def section_simdive(args: argparse.Namespace) -> None:
                     "input": p.left,
                     "grey-world": enhance_image(p.left, "grey-world").images[0],
                     "xphoto-grey (OpenCV)": _xphoto_grey(p.left),
-                    "sea-thru per image, stereo range": enhance_image(
+                    "water model of each image alone, stereo": enhance_image(
                         p.left, "seathru", range_m=f["stereo"]).images[0],
                     "water model, stereo range": restore(
                         p.left, f["stereo"], models["water model, stereo range"]).image,
@@ -663,7 +663,7 @@ def section_board(args: argparse.Namespace) -> None:
                 "input": img,
                 "grey-world": enhance_image(img, "grey-world").images[0],
                 "xphoto-grey (OpenCV)": _xphoto_grey(img),
-                "sea-thru per image, board range": enhance_image(
+                "water model of each image alone, board range": enhance_image(
                     img, "seathru", range_m=rng_sq).images[0],
                 "water model, board range": restore(img, rng_sq, model).image,
                 "water model, no balance (J), board range": restore(img, rng_sq, model_j,
