@@ -230,3 +230,23 @@ def test_both_views_of_a_pair_get_one_balance_and_agree(rng: np.random.Generator
     left_at_right = rl.color_left[np.arange(H)[:, None], src]
     apart = float(np.max(np.abs(_chroma(right[seen][None]) - _chroma(left_at_right[seen][None]))))
     assert apart > 3 * PAIR_LOG_CHROMA_TOL
+
+
+def test_the_right_range_is_the_left_surface_seen_from_the_right_centre(
+    rng: np.random.Generator,
+) -> None:
+    res, _ = _frame(0, rng)
+    got = colour_stage.right_range_m(res, MAPS)
+    # the left points, moved into the right camera (centre B along x), by their range there
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    z = res.depth_m.astype(np.float64)
+    p = np.stack([(u - MAPS.cx_px) / MAPS.focal_px * z - MAPS.baseline_m,
+                  (v - MAPS.cy_px) / MAPS.focal_px * z, z], axis=-1)
+    ur = np.rint(u - MAPS.focal_px * MAPS.baseline_m / z).astype(int)
+    want = np.full((H, W), np.nan)
+    ok = (ur >= 0) & (ur < W)
+    want[v[ok].astype(int), ur[ok]] = np.linalg.norm(p[ok], axis=1)
+    have = np.isfinite(got) & np.isfinite(want)
+    assert have.mean() > 0.8
+    # the right pixel's own ray (its rounded column) against the exact point: < 0.5 px off
+    np.testing.assert_allclose(got[have], want[have], rtol=3e-3)
