@@ -239,6 +239,8 @@ def section_formation(args: argparse.Namespace) -> None:
             t0 = time.perf_counter()
             model_true = fit_water_model([(f[0], f[1]) for f in frames])
             model_st = fit_water_model([(f[0], f[2]) for f in frames])
+            keep_j = WaterFitConfig(white_balance="none")  # this judge lights its scene white
+            model_j = fit_water_model([(f[0], f[2]) for f in frames], keep_j)
             fit_s = (time.perf_counter() - t0) / 2
             oracle = WaterModel(B_inf_rgb=water.B_inf_rgb, beta_B_per_m=water.beta_B_per_m,
                                 beta_D_per_m=water.beta_D_per_m)
@@ -255,6 +257,8 @@ def section_formation(args: argparse.Namespace) -> None:
                         seathru_config=SeathruConfig(attenuation="illuminant")).images[0],
                     "water model, stereo range": restore(left, st_r, model_st).image,
                     "water model, true range": restore(left, true_r, model_true).image,
+                    "water model, no balance (J), stereo range": restore(
+                        left, st_r, model_j, keep_j).image,
                     "oracle (true parameters)": restore(left, true_r, oracle).image,
                 }
                 for name, img in outs.items():
@@ -278,6 +282,113 @@ def section_formation(args: argparse.Namespace) -> None:
             tr = statistics.mean(per["water model, true range"])
             print(f"stereo / true range: {st / tr:.2f}x")
     OUT["formation"] = rows
+
+
+SIM_REFERENCES = ("J", "clean")
+"""What the simulated dive's restorations are compared to: ``J`` (the view with the water on
+the line of sight removed, the lights still through water: what Sea-thru is defined to
+recover) and ``clean`` (no water at all: white light; also needs the light's colour removed,
+a colour-constancy step no water model holds)."""
+
+
+def _sim_dive(r: Renderer, rig: Any, water: str, max_d: int) -> list[dict[str, Any]]:
+    """One simulated dive: the DIVE_EYES views in one water, every effect on, with both
+    references, true and stereo range."""
+    frames = []
+    for k, eye in enumerate(DIVE_EYES):
+        p = simulate_pair_with_reference(rig, r.scene, look_at(eye, VIEW_TARGET), water,
+                                         renderer=r, seed=k + 1)
+        frames.append({"pair": p, "true": p.gt.range_m,
+                       "stereo": _stereo_range(p.left, p.right, rig, max_d)})
+    return frames
+
+
+def _pooled_grey_world(imgs: list[np.ndarray], masks: list[np.ndarray]) -> np.ndarray:
+    """Grey-world gains (linear) pooled over the masked pixels of several sRGB images."""
+    lin = np.concatenate([srgb_to_linear(im.astype(np.float32) / np.float32(255.0))[m]
+                          for im, m in zip(imgs, masks, strict=True)])
+    mean = lin.mean(axis=0)
+    return np.asarray(mean.mean() / np.maximum(mean, 1e-6))
+
+
+def _apply_gains(img: np.ndarray, gains: np.ndarray) -> np.ndarray:
+    lin = srgb_to_linear(img.astype(np.float32) / np.float32(255.0)) * gains.astype(np.float32)
+    lin = lin / max(float(np.percentile(lin.max(axis=2), 99.5)), 1e-6)
+    enc = np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * np.power(np.clip(lin, 0, 1), 1 / 2.4)
+                   - 0.055)
+    return np.asarray(np.clip(enc * 255 + 0.5, 0, 255), np.uint8)
+
+
+def section_simdive(args: argparse.Namespace) -> None:
+    """The dive's water model on our own simulator, per water type: as ``formation`` with the
+    degradation and the references from :mod:`sea3d.sim.reference` (every underwater effect
+    on: sun through the water above, lamp, caustics, vignetting, blur, noise)."""
+    rig = paper_rig("none", size_px=args.size)
+    max_d = 63 if args.size[0] <= 700 else 127
+    rows: list[dict[str, Any]] = []
+    for scene in ("lake", "reef"):
+        r = Renderer(builtin_scene(scene), supersample=2)
+        for water in WATERS:
+            t0 = time.perf_counter()
+            frames = _sim_dive(r, rig, water, max_d)
+            render_s = time.perf_counter() - t0
+            wm = frames[0]["pair"].water
+            e = float(wm["exposure"])
+            oracle = WaterModel(B_inf_rgb=tuple(e * b for b in wm["B_inf_rgb"]),  # type: ignore
+                                beta_B_per_m=tuple(wm["beta_B_per_m"]),
+                                beta_D_per_m=tuple(wm["beta_D_per_m"]))
+            models = {f"water model, {rn}": fit_water_model([(f["pair"].left, f[key])
+                                                             for f in frames])
+                      for rn, key in (("stereo range", "stereo"), ("true range", "true"))}
+            keep_j = WaterFitConfig(white_balance="none")
+            j_model = fit_water_model([(f["pair"].left, f["stereo"]) for f in frames], keep_j)
+            oracle_j = [restore(f["pair"].left, f["true"], oracle).image for f in frames]
+            gains = _pooled_grey_world(oracle_j, [np.isfinite(f["true"]) for f in frames])
+            per: dict[str, dict[str, list[float]]] = {ref: {} for ref in SIM_REFERENCES}
+            for k, f in enumerate(frames):
+                p = f["pair"]
+                mask = (p.gt.object_id >= 0) & np.isfinite(p.gt.range_m)
+                outs = {
+                    "input": p.left,
+                    "grey-world": enhance_image(p.left, "grey-world").images[0],
+                    "xphoto-grey (OpenCV)": _xphoto_grey(p.left),
+                    "water model of each image alone, stereo": enhance_image(
+                        p.left, "seathru", range_m=f["stereo"]).images[0],
+                    "water model, stereo range": restore(
+                        p.left, f["stereo"], models["water model, stereo range"]).image,
+                    "water model, true range": restore(
+                        p.left, f["true"], models["water model, true range"]).image,
+                    "water model, no balance (J), stereo": restore(
+                        p.left, f["stereo"], j_model, keep_j).image,
+                    "oracle (true parameters, J)": oracle_j[k],
+                    "oracle + pooled grey world": _apply_gains(oracle_j[k], gains),
+                }
+                for ref_name, ref in (("J", p.left_unattenuated), ("clean", p.left_clean)):
+                    for name, img in outs.items():
+                        per[ref_name].setdefault(name, []).append(
+                            ciede2000_after_gain(img, ref, mask)[0])
+                if args.pictures and k == 0 and scene == "lake" and water == "coastal":
+                    _picture(args.pictures / "enhance_simdive_lake_coastal.jpg",
+                             [p.left, outs["grey-world"], outs["water model, stereo range"],
+                              p.left_unattenuated, p.left_clean])
+            st = models["water model, stereo range"]
+            print(f"\n== simulated dive: {scene} in {water} ({len(frames)} frames, rendered in "
+                  f"{render_s:.0f} s; beta_D true {np.round(wm['beta_D_per_m'], 2).tolist()}, "
+                  f"fitted stereo {np.round(st.beta_D_per_m, 2).tolist()} [{st.status}])")
+            print(f"{'method':36s} {'vs J':>6s} {'below gw':>8s} {'vs clean':>8s} "
+                  f"{'below gw':>8s}")
+            gw = {ref: statistics.mean(per[ref]["grey-world"]) for ref in SIM_REFERENCES}
+            for name in per["J"]:
+                mj, mc = (statistics.mean(per[ref][name]) for ref in SIM_REFERENCES)
+                print(f"{name:36s} {_fmt(mj):>6s} {100 * (1 - mj / gw['J']):7.0f}% "
+                      f"{_fmt(mc):>8s} {100 * (1 - mc / gw['clean']):7.0f}%", flush=True)
+                rows.append({"scene": scene, "water": water, "method": name, "de00_gain_J": mj,
+                             "de00_gain_clean": mc})
+            for ref in SIM_REFERENCES:
+                s_r = statistics.mean(per[ref]["water model, stereo range"])
+                t_r = statistics.mean(per[ref]["water model, true range"])
+                print(f"stereo / true range (vs {ref}): {s_r / t_r:.2f}x")
+    OUT["simdive"] = rows
 
 
 def section_stereo(args: argparse.Namespace) -> None:
@@ -453,6 +564,172 @@ def section_real(args: argparse.Namespace) -> None:
                   enhance_image(img, "clahe").images[0]],
                  height=200)
     OUT["real"] = rows
+
+
+BOARD_SETS = ("stereopi_panama_sea", "stereopi_bermuda1_sea")
+BOARD_INNER = (9, 6)
+"""The StereoPi sets' chessboard: 9 x 6 inner corners (10 x 7 squares), square size not
+documented, so board range is in units of squares (the water model's ``beta_D z`` is
+unit-free when it is fitted and applied in the same units)."""
+
+
+def _board_frames(folder: Path) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Left halves (RGB) of the side-by-side frames and their detected inner corners."""
+    imgs, corners = [], []
+    for f in sorted(folder.glob("*.png")):
+        bgr = cv2.imread(str(f), cv2.IMREAD_COLOR)
+        left = bgr[:, : bgr.shape[1] // 2]
+        grey = cv2.cvtColor(left, cv2.COLOR_BGR2GRAY)
+        ok, c = cv2.findChessboardCorners(
+            grey, BOARD_INNER, cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
+        if ok:
+            c = cv2.cornerSubPix(grey, c, (5, 5), (-1, -1),
+                                 (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 1e-3))
+            imgs.append(cv2.cvtColor(left, cv2.COLOR_BGR2RGB))
+            corners.append(c)
+    return imgs, corners
+
+
+def _board_geometry(imgs: list[np.ndarray], corners: list[np.ndarray]
+                    ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per frame: range to the board (squares; NaN off the board) and the masks of its white
+    and black square interiors, from the left camera calibrated on these frames (OpenCV,
+    ``CALIB_FIX_K3``) and each frame's board pose (its PnP solution)."""
+    nx, ny = BOARD_INNER
+    obj = np.zeros((nx * ny, 3), np.float32)
+    obj[:, :2] = np.mgrid[0:nx, 0:ny].T.reshape(-1, 2)
+    h, w = imgs[0].shape[:2]
+    _rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(
+        [obj] * len(corners), corners, (w, h), None, None, flags=cv2.CALIB_FIX_K3)
+    uv = np.stack(np.meshgrid(np.arange(w), np.arange(h)), axis=-1).reshape(-1, 1, 2)
+    rays = cv2.undistortPoints(uv.astype(np.float64), K, dist).reshape(-1, 2)
+    rays = np.column_stack([rays, np.ones(len(rays))])
+    out = []
+    for img, rvec, tvec in zip(imgs, rvecs, tvecs, strict=True):
+        R, _ = cv2.Rodrigues(rvec)
+        t = tvec.ravel()
+        n = R[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lam = (n @ t) / (rays @ n)
+        P = rays * lam[:, None]
+        Q = (P - t) @ R  # board coordinates, squares
+        X, Y = Q[:, 0].reshape(h, w), Q[:, 1].reshape(h, w)
+        on = (lam.reshape(h, w) > 0) & (X > -1) & (X < nx) & (Y > -1) & (Y < ny)
+        rng_sq = np.where(on, lam.reshape(h, w) * np.linalg.norm(rays, axis=1).reshape(h, w),
+                          np.nan).astype(np.float32)
+        fx, fy = X - np.floor(X), Y - np.floor(Y)
+        inner = on & (fx > 0.25) & (fx < 0.75) & (fy > 0.25) & (fy < 0.75)
+        parity = ((np.floor(X) + np.floor(Y)) % 2 == 0)
+        lum = img.astype(np.float32).mean(axis=2)
+        a, b = inner & parity, inner & ~parity
+        white, black = (a, b) if lum[a].mean() > lum[b].mean() else (b, a)
+        out.append((rng_sq, white, black))
+    return out
+
+
+def _lab_of_mean(img: np.ndarray, mask: np.ndarray) -> tuple[float, float, float]:
+    """CIELAB L*, a*, b* of the mean linear colour of ``img`` over ``mask``."""
+    lin = srgb_to_linear(img.astype(np.float32) / np.float32(255.0))[mask].mean(axis=0)
+    enc = np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * np.power(lin, 1 / 2.4) - 0.055)
+    lab = cv2.cvtColor(np.clip(enc, 0, 1).astype(np.float32)[None, None], cv2.COLOR_RGB2Lab)
+    return float(lab[0, 0, 0]), float(lab[0, 0, 1]), float(lab[0, 0, 2])
+
+
+def section_board(args: argparse.Namespace) -> None:
+    """Real open-sea frames with a neutral target: the cast of the board's white squares
+    (and black) before and after each method, same run; the water model fitted over the
+    dive's frames with the board's range (PnP), per-image Sea-thru with the same range."""
+    rows = []
+    for name in BOARD_SETS:
+        folder = args.data / "underwater_stereo" / name / "sbs"
+        if not folder.is_dir():
+            print(f"\n== board: {folder} missing, skipped")
+            continue
+        imgs, corners = _board_frames(folder)
+        geo = _board_geometry(imgs, corners)
+        t0 = time.perf_counter()
+        model = fit_water_model([(im, g[0]) for im, g in zip(imgs, geo, strict=True)])
+        keep_j = WaterFitConfig(white_balance="none")
+        model_j = fit_water_model([(im, g[0]) for im, g in zip(imgs, geo, strict=True)],
+                                  keep_j)
+        locus = WaterFitConfig(white_balance="locus")
+        model_l = fit_water_model([(im, g[0]) for im, g in zip(imgs, geo, strict=True)],
+                                  locus)
+        fit_s = time.perf_counter() - t0
+        span = [float(np.nanpercentile(g[0], q)) for g in geo for q in (5, 95)]
+        per: dict[str, list[tuple[float, float, float, float]]] = {}
+        for k, (img, (rng_sq, white, black)) in enumerate(zip(imgs, geo, strict=True)):
+            outs = {
+                "input": img,
+                "grey-world": enhance_image(img, "grey-world").images[0],
+                "xphoto-grey (OpenCV)": _xphoto_grey(img),
+                "water model of each image alone, board range": enhance_image(
+                    img, "seathru", range_m=rng_sq).images[0],
+                "water model, board range": restore(img, rng_sq, model).image,
+                "water model, no balance (J), board range": restore(img, rng_sq, model_j,
+                                                                    keep_j).image,
+                "water model, locus balance, board range": restore(img, rng_sq, model_l,
+                                                                   locus).image,
+            }
+            for m, out in outs.items():
+                _L, a, b = _lab_of_mean(out, white)
+                _Lb, ab, bb = _lab_of_mean(out, black)
+                per.setdefault(m, []).append((a, b, float(np.hypot(a, b)),
+                                              float(np.hypot(ab, bb))))
+            if args.pictures and k == 0:
+                _picture(args.pictures / f"enhance_board_{name}.jpg",
+                         [outs["input"], outs["grey-world"], outs["xphoto-grey (OpenCV)"],
+                          outs["water model, board range"]], height=160)
+        print(f"\n== board: {name} ({len(imgs)} frames with the board; range "
+              f"{min(span):.1f}-{max(span):.1f} squares; water model [{model.status}] beta_D "
+              f"{np.round(model.beta_D_per_m, 3).tolist()} per square, fit {fit_s:.1f} s)")
+        print(f"{'method':40s} {'white a*':>8s} {'b*':>6s} {'C*':>6s} {'black C*':>8s}  "
+              "(means over the frames)")
+        for m, v in per.items():
+            a, b, c, cb = (statistics.mean(x[i] for x in v) for i in range(4))
+            print(f"{m:40s} {a:8.1f} {b:6.1f} {c:6.1f} {cb:8.1f}", flush=True)
+            rows.append({"set": name, "method": m, "white_a": a, "white_b": b, "white_C": c,
+                         "black_C": cb, "frames": len(imgs), "status": model.status})
+    OUT["board"] = rows
+
+
+def section_cast(args: argparse.Namespace) -> None:
+    """Real frames without a reference: the colour cast (CIELAB chroma of the mean colour)
+    before and after grey world, OpenCV xphoto's grey world and red compensation, same run,
+    on the Sea3D field dive's left frames and the RUIE UCCS folders (every
+    ``--ruie-stride``-th image). A grey world drives this cast to about zero by construction,
+    so it says how much cast there was, not which colours are right (the board says that)."""
+    uw = args.data / "underwater"
+    sets = [("sea3d_field_left", uw / "sea3d_field_left")]
+    sets += [(f"ruie {sub}", uw / "ruie_uccs" / sub) for sub in ("blue", "green", "blue-green")]
+    rows: dict[str, Any] = {}
+    print("\n== cast without a reference: mean CIELAB chroma of the mean colour (median), "
+          "images whose cast shrank")
+    for name, folder in sets:
+        if not folder.is_dir():
+            continue
+        paths = _images(folder)[:: max(1, args.ruie_stride)]
+        got: dict[str, list[float]] = {}
+        for pth in paths:
+            img = _read(pth)
+            if max(img.shape[:2]) > 1280:
+                s = 1280 / max(img.shape[:2])
+                img = cv2.resize(img, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
+            outs = {"input": img, "grey-world": enhance_image(img, "grey-world").images[0],
+                    "xphoto-grey (OpenCV)": _xphoto_grey(img),
+                    "red-comp": enhance_image(img, "red-comp").images[0]}
+            for m, out in outs.items():
+                got.setdefault(m, []).append(colour_cast(out))
+            if args.pictures and pth == paths[0] and name == "sea3d_field_left":
+                _picture(args.pictures / "enhance_cast_field.jpg", list(outs.values()))
+        line = f"{name:18s} ({len(paths)} images)"
+        for m, v in got.items():
+            shrank = sum(1 for a, b in zip(got["input"], v, strict=True) if b < a)
+            line += f" | {m} {statistics.mean(v):.1f} / {statistics.median(v):.1f}" + (
+                f" ({shrank}/{len(v)})" if m != "input" else "")
+        print(line, flush=True)
+        rows[name] = {m: statistics.mean(v) for m, v in got.items()}
+    OUT["cast"] = rows
 
 
 def _time(fn: Any, repeats: int) -> tuple[float, float]:
@@ -640,8 +917,8 @@ def _picture(path: Path, panels: list[np.ndarray], height: int = 160) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--section", action="append",
-                    choices=("formation", "colour", "stereo", "features", "real", "speed",
-                             "process"))
+                    choices=("formation", "simdive", "board", "cast", "colour", "stereo",
+                             "features", "real", "speed", "process"))
     ap.add_argument("--size", default="480x270", help="simulated image size WxH")
     ap.add_argument("--data", type=Path, default=DATA, help="the shared data folder")
     ap.add_argument("--repeats", type=int, default=3, help="timed runs per method")
@@ -653,9 +930,11 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     w, h = (int(v) for v in args.size.split("x"))
     args.size = (w, h)
-    sections = args.section or ["formation", "colour", "stereo", "features", "real", "speed",
-                                "process"]
-    funcs = {"formation": section_formation, "colour": section_colour,
+    sections = args.section or ["formation", "simdive", "board", "cast", "colour", "stereo",
+                                "features", "real", "speed", "process"]
+    funcs = {"formation": section_formation, "simdive": section_simdive, "board": section_board,
+             "cast": section_cast,
+             "colour": section_colour,
              "stereo": section_stereo, "features": section_features, "real": section_real,
              "speed": section_speed, "process": section_process}
     for s in sections:

@@ -216,7 +216,7 @@ def test_process_fits_one_water_model_per_run_and_the_cache_holds_no_colours(
     monkeypatch.setattr(colour_stage, "fit_water_model", counting_fit)
     out = dive["root"] / "water"
     res = _water_run(dive, out)
-    assert calls == [3]  # once per run, from 3 frames (every 2nd of the start), not per frame
+    assert calls == [6]  # once per run, from 3 pairs (every 2nd of the start, both views)
     colours = res.summary["colours"]  # type: ignore[attr-defined]
     info = colours["water_model"]
     assert info["fits"] == 1 and len(info["fit_frames_t_ns"]) == 3
@@ -238,7 +238,7 @@ def test_process_fits_one_water_model_per_run_and_the_cache_holds_no_colours(
     # A rerun from the cache fits the same model again and colours the cloud the same way.
     again = _water_run(dive, out)
     assert again.summary["frames_from_cache"] == 8  # type: ignore[attr-defined]
-    assert calls == [3, 3]
+    assert calls == [6, 6]
     assert again.summary["colours"]["water_model"]["water_model"] == model  # type: ignore[attr-defined]
     # (the cloud's points come out in another order: compare them sorted)
     def by_point(r: object) -> np.ndarray:

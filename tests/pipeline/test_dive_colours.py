@@ -12,13 +12,14 @@ import numpy as np
 import pytest
 
 from sea3d.enhance._image import srgb_to_linear
+from sea3d.enhance.water import WaterFitConfig
 from sea3d.errors import ConfigError
 from sea3d.pipeline import colour_stage
 from sea3d.pipeline.colour_stage import DiveColourConfig, DiveColours, frame_range_m
 from sea3d.pipeline.frame_stage import FrameResult
 
 H, W = 72, 96
-MAPS = SimpleNamespace(focal_px=80.0, cx_px=(W - 1) / 2, cy_px=(H - 1) / 2)
+MAPS = SimpleNamespace(focal_px=80.0, cx_px=(W - 1) / 2, cy_px=(H - 1) / 2, baseline_m=0.1)
 BETA_D = np.array([0.6, 0.15, 0.1])
 BETA_B = np.array([0.8, 0.8, 0.8])
 B_INF = np.array([0.04, 0.22, 0.28])
@@ -31,6 +32,9 @@ STABLE_LOG_CHROMA_SD = 0.01
 # The restored colour against the albedo's (the same log chromaticity, mean over the frames):
 # 0.044 (measured); the raw frames are several times farther.
 RESTORED_LOG_CHROMA_TOL = 0.1
+# These frames are lit white (no water above the scene), so the inversion's J is the albedo:
+# the colour tests keep J (no white balance after it); the default pools grey world.
+KEEP_J = WaterFitConfig(white_balance="none")
 
 
 def _encode(lin: np.ndarray) -> np.ndarray:
@@ -39,10 +43,13 @@ def _encode(lin: np.ndarray) -> np.ndarray:
     return (s * 255 + 0.5).astype(np.uint8)
 
 
-def _frame(k: int, rng: np.random.Generator, *, status: str = "ok") -> tuple[FrameResult,
-                                                                              np.ndarray]:
+def _frame(k: int, rng: np.random.Generator, *, status: str = "ok",
+           right_only: np.ndarray | None = None) -> tuple[FrameResult, np.ndarray]:
     """A frame of the same water: a textured albedo (drawn from one distribution) at ranges
-    1.0-3.0 m (plus 0.1 m per frame), and its albedo in linear RGB."""
+    1.0-3.0 m (plus 0.1 m per frame), and its albedo in linear RGB. The right view sees the
+    same surface shifted by the disparity ``f B / depth``, through its own range;
+    ``right_only`` (a linear colour) paints the right view's left quarter with an object
+    the left view does not see."""
     albedo = np.clip(rng.uniform(0.1, 0.7, (H, W, 1)) * np.array([0.8, 0.7, 0.55])
                      + rng.normal(0, 0.03, (H, W, 3)), 0.02, 1.0)
     z = (np.linspace(1.0, 3.0, H)[:, None] * np.ones((1, W)) + 0.1 * k).astype(np.float32)
@@ -50,11 +57,23 @@ def _frame(k: int, rng: np.random.Generator, *, status: str = "ok") -> tuple[Fra
     x = (np.arange(W) - MAPS.cx_px) / MAPS.focal_px
     y = (np.arange(H) - MAPS.cy_px) / MAPS.focal_px
     depth = (z / np.sqrt(1 + x[None, :] ** 2 + y[:, None] ** 2)).astype(np.float32)
+    # right pixel u_r sees the left pixel u = u_r + f B / depth (depth of pixel u_r: smooth)
+    src = np.clip(np.rint(np.arange(W)[None, :] + MAPS.focal_px * MAPS.baseline_m / depth),
+                  0, W - 1).astype(int)
+    rows = np.arange(H)[:, None]
+    alb_r = albedo[rows, src]
+    d_r = depth[rows, src].astype(np.float64)
+    x_r = (np.arange(W)[None, :] - MAPS.cx_px) / MAPS.focal_px
+    z_r = d_r * np.sqrt(1 + x_r ** 2 + y[:, None] ** 2)
+    if right_only is not None:
+        alb_r[:, : W // 4] = right_only
+    lin_r = alb_r * np.exp(-BETA_D * z_r[..., None]) + B_INF * (
+        1 - np.exp(-BETA_B * z_r[..., None]))
     if status != "ok":
         depth[:] = np.nan
     img = _encode(lin)
     res = FrameResult(t_ns=1000 * (k + 1), status=status, rect_left=img,  # type: ignore[arg-type]
-                      rect_right=img.copy(), depth_m=depth, fusion_depth_m=depth,
+                      rect_right=_encode(lin_r), depth_m=depth, fusion_depth_m=depth,
                       valid_fraction=float(np.isfinite(depth).mean()),
                       timings_s={"match_s": 0.01})
     return res, albedo
@@ -93,7 +112,7 @@ def test_the_dive_is_fitted_once_from_frames_spread_over_its_start_and_none_leav
         assert (got == []) == (k < 4), k
         out += got
     out += dive.flush()
-    assert calls == [3] and dive.fits == 1
+    assert calls == [6] and dive.fits == 1  # 3 pairs, both views of each
     assert dive.fit_stamps == [frames[0].t_ns, frames[2].t_ns, frames[4].t_ns]
     assert [r.t_ns for r in out] == [f.t_ns for f in frames]  # every frame, in time order
     assert dive.model is not None and dive.model.status == "ok"
@@ -120,7 +139,7 @@ def test_one_model_per_dive_keeps_the_colour_stable_from_frame_to_frame(
 ) -> None:
     frames = [_frame(k, rng) for k in range(10)]
     want = np.stack([_albedo_chroma(a) for _f, a in frames])
-    dive = DiveColours(MAPS, DiveColourConfig(fit_frames=4, fit_stride=2))
+    dive = DiveColours(MAPS, DiveColourConfig(fit_frames=4, fit_stride=2, water=KEEP_J))
     out = [r for f, _ in frames for r in dive.push(f)] + dive.flush()
     err = np.stack([_chroma(r.color_left) for r in out]) - want
     assert np.std(err, axis=0).max() < STABLE_LOG_CHROMA_SD
@@ -130,7 +149,7 @@ def test_one_model_per_dive_keeps_the_colour_stable_from_frame_to_frame(
     # The same frames, each with a model of its own: the colour moves from frame to frame.
     alone = []
     for f, _a in frames:
-        (r,) = DiveColours(MAPS, DiveColourConfig(fit_frames=1)).push(f)
+        (r,) = DiveColours(MAPS, DiveColourConfig(fit_frames=1, water=KEEP_J)).push(f)
         alone.append(_chroma(r.color_left))
     assert np.std(np.stack(alone) - want, axis=0).max() > 3 * STABLE_LOG_CHROMA_SD
 
@@ -156,7 +175,8 @@ def test_a_dive_whose_water_cannot_be_fitted_gets_grey_world_with_a_stated_statu
     assert got == [0, 0, 0, 4, 1, 1] and d1.fits == 1
     # Frames with depth but a saturated view: the fit raises, every frame says so.
     sat, _ = _frame(0, rng)
-    sat = dataclasses.replace(sat, rect_left=np.full_like(sat.rect_left, 255))
+    sat = dataclasses.replace(sat, rect_left=np.full_like(sat.rect_left, 255),
+                              rect_right=np.full_like(sat.rect_right, 255))
     d2 = DiveColours(MAPS, DiveColourConfig(fit_frames=1))
     (r,) = d2.push(sat)
     assert r.colour_status == "fallback-grey-world" and "cannot fit" in d2.summary()["fit_error"]
@@ -167,3 +187,66 @@ def test_dive_colour_config_is_checked() -> None:
         DiveColourConfig(fit_frames=0)
     with pytest.raises(ConfigError, match="fit_stride"):
         DiveColourConfig(fit_stride=0)
+
+
+# The pair's restored colours (log R/G, log B/G of the mean over the pixels both views see):
+# 0.0003 apart with the pair's one balance (measured); with a balance of each view's own
+# (the right view's fit sees an object the left does not) 0.051 apart (measured).
+PAIR_LOG_CHROMA_TOL = 0.01
+
+
+def test_both_views_of_a_pair_get_one_balance_and_agree(rng: np.random.Generator) -> None:
+    red = np.array([0.7, 0.08, 0.05])  # an object only the right view sees
+    frames = [_frame(k, rng, right_only=red)[0] for k in range(4)]
+    seen = np.zeros((H, W), bool)
+    seen[:, W // 4 + 2: W - 12] = True  # both views see these right pixels
+
+    def pair_gap(dive: DiveColours) -> float:
+        gaps = []
+        for f in frames:
+            (r,) = dive.push(f) if dive.fitted else [*dive.push(f), *dive.flush()][-1:]
+            left = r.color_left
+            right = dive.restore_right(f)
+            src = np.clip(np.rint(np.arange(W)[None, :] + MAPS.focal_px * MAPS.baseline_m
+                                  / f.depth_m), 0, W - 1).astype(int)
+            left_at_right = left[np.arange(H)[:, None], src]
+            gaps.append(np.abs(_chroma(right[seen][None]) - _chroma(left_at_right[seen][None])))
+        return float(np.max(gaps))
+
+    pooled = DiveColours(MAPS, DiveColourConfig(fit_frames=1))
+    got = pair_gap(pooled)
+    assert pooled.model is not None and pooled.model.status == "ok"
+    assert got < PAIR_LOG_CHROMA_TOL
+    # Each view balanced on its own statistics (the right's include the red object): apart.
+    right_alone = DiveColours(MAPS, DiveColourConfig(fit_frames=1, pool_pair=False))
+    right_alone.model = colour_stage.fit_water_model(
+        [(frames[0].rect_right, colour_stage.right_range_m(frames[0], MAPS))])
+    right_alone.fits = 1
+    left_alone = DiveColours(MAPS, DiveColourConfig(fit_frames=1, pool_pair=False))
+    (rl,) = [*left_alone.push(frames[0]), *left_alone.flush()][:1]
+    right = right_alone.restore_right(frames[0])
+    src = np.clip(np.rint(np.arange(W)[None, :] + MAPS.focal_px * MAPS.baseline_m
+                          / frames[0].depth_m), 0, W - 1).astype(int)
+    left_at_right = rl.color_left[np.arange(H)[:, None], src]
+    apart = float(np.max(np.abs(_chroma(right[seen][None]) - _chroma(left_at_right[seen][None]))))
+    assert apart > 3 * PAIR_LOG_CHROMA_TOL
+
+
+def test_the_right_range_is_the_left_surface_seen_from_the_right_centre(
+    rng: np.random.Generator,
+) -> None:
+    res, _ = _frame(0, rng)
+    got = colour_stage.right_range_m(res, MAPS)
+    # the left points, moved into the right camera (centre B along x), by their range there
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    z = res.depth_m.astype(np.float64)
+    p = np.stack([(u - MAPS.cx_px) / MAPS.focal_px * z - MAPS.baseline_m,
+                  (v - MAPS.cy_px) / MAPS.focal_px * z, z], axis=-1)
+    ur = np.rint(u - MAPS.focal_px * MAPS.baseline_m / z).astype(int)
+    want = np.full((H, W), np.nan)
+    ok = (ur >= 0) & (ur < W)
+    want[v[ok].astype(int), ur[ok]] = np.linalg.norm(p[ok], axis=1)
+    have = np.isfinite(got) & np.isfinite(want)
+    assert have.mean() > 0.8
+    # the right pixel's own ray (its rounded column) against the exact point: < 0.5 px off
+    np.testing.assert_allclose(got[have], want[have], rtol=3e-3)

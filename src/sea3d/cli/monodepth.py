@@ -75,17 +75,6 @@ def _read_rgb(path: Path) -> Any:
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB) if img.ndim == 3 else img
 
 
-def _read_metric(path: Path) -> Any:
-    from sea3d.errors import MonoDepthError
-    from sea3d.io.depth_files import read_depth_png_mm, read_disparity
-
-    if not path.is_file():
-        raise MonoDepthError(f"{path}: depth file not found")
-    if path.suffix.lower() == ".png":
-        return read_depth_png_mm(path)
-    return read_disparity(path)  # float metres: non-positive and non-finite are holes
-
-
 def _stereo(rig: Any, args: argparse.Namespace) -> Any:
     """The stereo depth of ``rig`` with the command's depth flags."""
     from sea3d.cli._args import depth_config
@@ -131,7 +120,7 @@ def _cmd_mono_depth(args: argparse.Namespace) -> int:
     left = _read_rgb(src)
     sparse, fill, frame = None, False, "left"
     view = left
-    if args.right or args.rig:
+    if args.right or (args.rig and not args.align_depth):
         if not (args.right and args.rig):
             raise MonoDepthError("stereo alignment needs both --rig and --right")
         if args.align_depth or args.align_sfm:
@@ -141,11 +130,11 @@ def _cmd_mono_depth(args: argparse.Namespace) -> int:
                                            _read_rgb(Path(args.right)), str(src))
         fill, frame = True, "rect_left"
     elif args.align_depth:
-        sparse = _read_metric(Path(args.align_depth))
-        if sparse.shape != left.shape[:2]:
-            raise MonoDepthError(f"{args.align_depth}: depth map is {sparse.shape[1]}x"
-                                 f"{sparse.shape[0]} but {src} is {left.shape[1]}x"
-                                 f"{left.shape[0]}")
+        from sea3d.monodepth.align import read_alignment_depth
+
+        # its grid sidecar decides: rectified depth is resampled with --rig or refused
+        sparse = read_alignment_depth(Path(args.align_depth), left.shape[1], left.shape[0],
+                                      rig=load_rig(args.rig) if args.rig else None)
         fill = True
     elif args.align_sfm:
         sparse = sfm_sparse_depth(Path(args.align_sfm), src.name, left.shape[1], left.shape[0])

@@ -19,9 +19,10 @@ at many ranges; one image rarely spans enough range to separate attenuation from
    ``log D_c`` falls on a line of slope ``-beta_D_c``: a robust (soft-L1) weighted line fit over
    the bins, one per channel.
 3. **White balance and exposure** over the restored samples of every frame (so the pair and
-   the dive keep one colour): none where ``beta_D`` is identified (the inversion gives the
-   scene's own colour; other choices in :attr:`WaterFitConfig.white_balance`), grey world
-   where it is not; then the ``white_point_percentile`` of the brightest channel to 1.
+   the dive keep one colour): grey world by default, as Sea-thru balances its ``J`` (the
+   inversion gives the scene under the light that reached it, which crossed the water above;
+   other choices in :attr:`WaterFitConfig.white_balance`); then the
+   ``white_point_percentile`` of the brightest channel to 1.
 
 Each fitted parameter is checked for physical plausibility (:data:`LIMITS`); a failed check is
 reported by name and the fit falls back in stated steps, each with its status:
@@ -116,15 +117,16 @@ class WaterFitConfig:
     """With ``holes="inpaint"``, pixels farther than this fraction of the longer image side
     from any pixel with range (open water, where there is no surface to give range) are not
     filled: they get the white balance and exposure only, never an invented range."""
-    white_balance: Literal["auto", "locus", "grey-world", "none"] = "auto"
-    """After the inversion (which gives the scene under the light that reached it): ``auto``
-    (default) keeps it where ``beta_D`` is identified and balances by grey world where it is
-    not; ``locus`` removes an ambient light that crossed ``d >= 0`` metres of the same water
-    (gains ``exp(beta_D d)``, the ``d`` that brings the scene closest to grey); ``grey-world``
-    three free gains (turns beige sand grey); ``none``. Measured (``docs/enhance.md``): under
-    an independent formation model with white light ``auto`` is best on every water and
-    scene; where the light is coloured by the water above the scene (our simulator's sun),
-    ``locus`` or ``grey-world`` remove that colour and ``auto`` keeps it."""
+    white_balance: Literal["auto", "locus", "grey-world", "none"] = "grey-world"
+    """After the inversion, which gives ``J``: the scene under the light that reached it
+    (sunlight that crossed the water above the scene is blue-green): ``grey-world`` (default)
+    three gains pooled over every fitted frame's restored pixels with range, as Sea-thru
+    white-balances its ``J`` (Akkaynak and Treibitz, CVPR 2019, Sec. 4), so the dive keeps
+    one balance; ``locus`` removes an ambient light that crossed ``d >= 0`` metres of the
+    same water (gains ``exp(beta_D d)``, the ``d`` that brings the scene closest to grey);
+    ``none`` keeps ``J``; ``auto`` keeps ``J`` where ``beta_D`` is identified and balances by
+    grey world where not (the default before the real board frames: it leaves the light's
+    cast on a real neutral target, ``docs/enhance.md``)."""
 
     def __post_init__(self) -> None:
         if self.range_bins < 3:
@@ -237,7 +239,7 @@ def _range_tables(
         b = np.asarray(model.B_inf_rgb) * (1.0 - np.exp(-np.asarray(model.beta_B_per_m) * z))
     g = np.ones((z.shape[0], 3))
     if model.has_attenuation:
-        g = np.minimum(np.exp(np.asarray(model.beta_D_per_m) * z), max_gain)
+        g = np.exp(np.minimum(np.asarray(model.beta_D_per_m) * z, np.log(max_gain)))
     sc = np.asarray(scale, np.float64)
     return (g * sc).astype(np.float32), (b * g * sc).astype(np.float32)
 
@@ -566,7 +568,7 @@ def _invert(lin: F32, z: F32, model: WaterModel, max_gain: float) -> F32:
         out = np.maximum(out - b_inf * (np.float32(1.0) - np.exp(-beta_b * zz)), np.float32(0))
     if model.has_attenuation:
         beta_d = np.asarray(model.beta_D_per_m, np.float32)
-        out = out * np.minimum(np.exp(beta_d * zz), np.float32(max_gain))
+        out = out * np.exp(np.minimum(beta_d * zz, np.float32(np.log(max_gain))))
     return np.asarray(out, dtype=np.float32)
 
 

@@ -11,15 +11,18 @@ lights, caustics, vignetting, noise or its water presets), so a restoration is n
 the model that rendered its input.
 
 ``beta_D`` per channel is the downwelling diffuse attenuation ``K_d`` of Jerlov's water types
-at about 600, 525 and 475 nm (R, G, B), after Jerlov's tables (Marine Optics, Elsevier 1976),
-which Solonenko and Mobley reproduce as the reference spectra ``K_d^0`` ("Inherent optical
-properties of Jerlov water types", Applied Optics 54(17), 5392, 2015), rounded to two digits.
-They were not re-read from the paper for this module (no copy at hand): treat them as
-approximate values of the right order for each type, not as quoted figures. ``beta_B`` and
-``B_inf`` are ours (the Jerlov tables give neither):
-``beta_B = K_d + 0.1`` 1/m (backscatter saturates faster than the direct signal decays,
-Akkaynak and Treibitz 2018, Sec. 3) and a veiling light of the water's own hue,
-``B_inf = 0.25 exp(-K_d * 5 m)`` (ambient light after 5 m of water).
+at 600, 525 and 475 nm (R, G, B), from Jerlov's Table XXVII ("downward irradiance attenuation
+coefficients", N. G. Jerlov, Marine Optics, 2nd ed., Elsevier 1976, p. 135; the reference
+spectra ``K_d^0`` that Solonenko and Mobley, "Inherent optical properties of Jerlov water
+types", Applied Optics 54(17), 5392, 2015, fit), in 1/m: II 0.26 / 0.076 / 0.062, 3C
+0.33 / 0.20 / 0.29, 9C 0.60 / 0.78 / 1.23. Checked against two independent transcriptions
+of that table in public code (a C reader of Table XXVII and a Python one, which agree at
+these entries); the values used before (II 0.26/0.06/0.04, 3C 0.34/0.14/0.20, 9C
+0.58/0.49/0.80, from memory) were wrong in green and blue. ``beta_B`` and ``B_inf`` are
+ours (the Jerlov tables give neither): ``beta_B = K_d + 0.1`` 1/m (backscatter saturates
+faster than the direct signal decays, Akkaynak and Treibitz 2018, Sec. 3) and a veiling
+light of the water's own hue, ``B_inf = 0.25 exp(-K_d * 5 m)`` (ambient light after 5 m of
+water).
 """
 
 from __future__ import annotations
@@ -64,9 +67,9 @@ def _jerlov(name: str, kd_600_525_475: tuple[float, float, float]) -> FormationW
 
 
 JERLOV_WATERS: dict[str, FormationWater] = {
-    "jerlov-II": _jerlov("jerlov-II", (0.26, 0.06, 0.04)),
-    "jerlov-3C": _jerlov("jerlov-3C", (0.34, 0.14, 0.20)),
-    "jerlov-9C": _jerlov("jerlov-9C", (0.58, 0.49, 0.80)),
+    "jerlov-II": _jerlov("jerlov-II", (0.26, 0.076, 0.062)),
+    "jerlov-3C": _jerlov("jerlov-3C", (0.33, 0.20, 0.29)),
+    "jerlov-9C": _jerlov("jerlov-9C", (0.60, 0.78, 1.23)),
 }
 """Open ocean (II), coastal (3C) and turbid coastal (9C) water."""
 

@@ -34,6 +34,7 @@ from sea3d.errors import StereoError
 __all__ = [
     "DepthGrid",
     "check_depth_grid",
+    "check_depth_pinhole",
     "read_depth",
     "read_depth_grid",
     "read_depth_png_mm",
@@ -168,6 +169,62 @@ def check_depth_grid(
         )
     if have != size:
         raise StereoError(f"depth {path} is {have} but its sidecar says {size}")
+    return grid
+
+
+def check_depth_pinhole(
+    path: str | Path,
+    depth_shape: tuple[int, ...],
+    K: np.ndarray,
+    *,
+    first: DepthGrid | None = None,
+    consumer: str = "this command",
+    rtol: float = 1e-3,
+) -> DepthGrid | None:
+    """Check that a depth file lives on the pinhole grid a consumer was given (``K``, the
+    depth's size), for consumers without a rig to resample with (``sea3d fuse``).
+
+    Args:
+        path: the depth file; its sidecar ``<path>.grid.json`` is read.
+        depth_shape: the shape the file was read as, ``(H, W)``.
+        K: ``3x3`` intrinsics the consumer projects the depth with, pixels.
+        first: the grid of the run's first depth file: every later file must be on the same
+            grid (same kind, size, ``K`` and rig).
+        consumer: named in the message.
+        rtol: relative tolerance on ``fx, fy, cx, cy`` (1e-3: 1 px in 1000).
+
+    Returns:
+        The file's :class:`DepthGrid`, None when it has no sidecar (then nothing is known
+        beyond its size).
+
+    Raises:
+        StereoError: one line naming the file, the grid it lives on and what was given.
+    """
+    grid = read_depth_grid(path)
+    if grid is None:
+        if first is not None:
+            raise StereoError(f"depth {path} has no grid sidecar but the first depth file "
+                              f"lives on the {first.describe()} grid")
+        return None
+    have = f"{depth_shape[1]}x{depth_shape[0]}" if len(depth_shape) >= 2 else str(depth_shape)
+    if have != f"{grid.width_px}x{grid.height_px}":
+        raise StereoError(f"depth {path} is {have} but its sidecar says "
+                          f"{grid.width_px}x{grid.height_px}")
+    if first is not None and grid != first:
+        raise StereoError(f"depth {path} lives on the {grid.describe()} grid but the first "
+                          f"depth file on the {first.describe()} grid")
+    k_file = np.asarray(grid.K, dtype=np.float64)
+    k = np.asarray(K, dtype=np.float64)
+    pick = [(0, 0), (1, 1), (0, 2), (1, 2)]
+    a = np.array([k_file[i] for i in pick])
+    b = np.array([k[i] for i in pick])
+    if not np.allclose(a, b, rtol=rtol, atol=rtol * float(max(grid.width_px, grid.height_px))):
+        raise StereoError(
+            f"depth {path} lives on the {grid.describe()} grid (fx fy cx cy "
+            f"{' '.join(f'{v:.2f}' for v in a)}) but {consumer} was given "
+            f"{' '.join(f'{v:.2f}' for v in b)}: give the grid's intrinsics, or write depth "
+            "on the grid the colour images live on (sea3d depth --grid)"
+        )
     return grid
 
 

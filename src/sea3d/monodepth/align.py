@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,7 +24,13 @@ from numpy.typing import NDArray
 from sea3d._typing import F32, F64
 from sea3d.errors import MonoDepthError
 
-__all__ = ["Alignment", "align_depth", "fill_holes", "sparse_depth_from_points"]
+__all__ = [
+    "Alignment",
+    "align_depth",
+    "fill_holes",
+    "read_alignment_depth",
+    "sparse_depth_from_points",
+]
 
 log = logging.getLogger(__name__)
 
@@ -240,3 +248,58 @@ def sparse_depth_from_points(points_cam: F64, K: F64, width: int, height: int) -
     np.minimum.at(out, v[ok] * width + u[ok], p[ok, 2])
     out[~np.isfinite(out)] = np.nan
     return out.reshape(height, width).astype(np.float32)
+
+
+def read_alignment_depth(path: str | Path, width: int, height: int, *, rig: Any = None) -> F32:
+    """Read metric depth to align a network's output of the raw image (``width x height``)
+    to, on that image's own pixel grid.
+
+    The file's grid sidecar (:func:`sea3d.io.depth_files.read_depth_grid`) decides: raw-left
+    depth (or a file that says nothing) must be the image's size; rectified-left depth is
+    resampled onto the raw left grid with ``rig`` (the rig it came from) and refused without
+    one.
+
+    Returns:
+        ``(height, width)`` float32 depth along the raw left optical axis, metres, NaN holes.
+
+    Raises:
+        MonoDepthError: one line naming the file: another size, rectified depth without its
+            rig, or depth from another rig.
+        StereoError: an unreadable depth file or sidecar.
+    """
+    from sea3d.io.depth_files import read_depth, read_depth_grid, rig_identity
+
+    depth = read_depth(path)
+    grid = read_depth_grid(path)
+    have = f"{depth.shape[1]}x{depth.shape[0]}"
+    if grid is not None and (grid.width_px, grid.height_px) != depth.shape[::-1]:
+        raise MonoDepthError(f"depth {path} is {have} but its sidecar says "
+                             f"{grid.width_px}x{grid.height_px}")
+    if grid is None or grid.kind == "raw-left":
+        if depth.shape != (height, width):
+            where = f"the {grid.describe()} grid" if grid is not None else have
+            raise MonoDepthError(f"depth {path} lives on {where} but the image is "
+                                 f"{width}x{height}")
+        return depth
+    if rig is None:
+        raise MonoDepthError(
+            f"depth {path} lives on the {grid.describe()} grid, not on the image's own "
+            "pixels: pass --rig to resample it, or write raw-view depth with sea3d depth "
+            "--grid raw"
+        )
+    from sea3d.io.rig_file import rig_to_yaml
+    from sea3d.rectify.depth_grid import rectified_depth_to_raw
+    from sea3d.stereo.recipe import StereoDepth
+
+    if grid.rig_id and grid.rig_id != rig_identity(rig_to_yaml(rig)):
+        raise MonoDepthError(f"depth {path} came from another rig (rig {grid.rig_id[:8]})")
+    if (rig.width, rig.height) != (width, height):
+        raise MonoDepthError(f"the rig is {rig.width}x{rig.height} but the image is "
+                             f"{width}x{height}")
+    maps = StereoDepth(rig).maps  # the rectification sea3d depth uses with this rig
+    K = np.asarray(grid.K, dtype=np.float64)
+    if not np.allclose(K, maps.P_left[:3, :3], rtol=1e-3, atol=1e-3 * max(width, height)):
+        raise MonoDepthError(f"depth {path} lives on a rectified grid (fx {K[0, 0]:.1f}) that "
+                             f"this rig's rectification (fx {maps.P_left[0, 0]:.1f}) does not "
+                             "give: write raw-view depth with sea3d depth --grid raw")
+    return rectified_depth_to_raw(depth, K, maps.R_rect_left_left, rig.left, quantity="depth")

@@ -40,7 +40,7 @@ from sea3d.enhance.water import WaterFitConfig, WaterModel, fit_water_model
 from sea3d.errors import ConfigError, EnhanceError
 from sea3d.pipeline.frame_stage import FrameResult
 
-__all__ = ["DiveColourConfig", "DiveColours", "frame_range_m"]
+__all__ = ["DiveColourConfig", "DiveColours", "frame_range_m", "right_range_m"]
 
 log = logging.getLogger(__name__)
 
@@ -58,6 +58,10 @@ class DiveColourConfig:
     until the model exists."""
     water: WaterFitConfig = field(default_factory=WaterFitConfig)
     """The fit's own settings."""
+    pool_pair: bool = True
+    """Fit (and so white-balance) over both views of each fit pair, not the left alone: the
+    pair gets one balance (:meth:`DiveColours.restore_right` restores the right view with
+    it)."""
 
     def __post_init__(self) -> None:
         if self.fit_frames < 1:
@@ -72,6 +76,25 @@ def frame_range_m(res: FrameResult, maps: Any) -> NDArray[np.float32]:
     a pinhole rig; through a port the ray starts a few millimetres off the pinhole centre)."""
     return depth_to_range(res.depth_m, float(maps.focal_px), float(maps.focal_px),
                           float(maps.cx_px), float(maps.cy_px))
+
+
+def right_range_m(res: FrameResult, maps: Any) -> NDArray[np.float32]:
+    """``(H, W)`` float32 range of the rectified **right** pixels, metres, NaN invalid: each
+    left pixel with depth ``z`` lands at ``u - f B / z`` on the same row of the rectified
+    right view (the nearest surface kept where several land), then the right virtual
+    pinhole's ray lengths (its centre is ``B`` along the rectified x axis; the same focal
+    length and principal point)."""
+    z = np.asarray(res.depth_m, dtype=np.float64)
+    h, w = z.shape
+    fb = float(maps.focal_px) * float(maps.baseline_m)
+    v, u = np.nonzero(np.isfinite(z) & (z > 0))
+    ur = np.rint(u - fb / z[v, u]).astype(np.int64)
+    ok = (ur >= 0) & (ur < w)
+    out = np.full(h * w, np.inf)
+    np.minimum.at(out, v[ok] * w + ur[ok], z[v, u][ok])
+    out[~np.isfinite(out)] = np.nan
+    return depth_to_range(out.reshape(h, w).astype(np.float32), float(maps.focal_px),
+                          float(maps.focal_px), float(maps.cx_px), float(maps.cy_px))
 
 
 class DiveColours:
@@ -112,11 +135,14 @@ class DiveColours:
         if res.status == "ok" and res.rect_left.ndim == 3:
             if self._seen_with_depth % self.config.fit_stride == 0:
                 self._samples.append((res.rect_left, frame_range_m(res, self.maps)))
+                if self.config.pool_pair and res.rect_right.shape == res.rect_left.shape:
+                    # Both views in the fit: the pair's white balance is pooled over both.
+                    self._samples.append((res.rect_right, right_range_m(res, self.maps)))
                 self.fit_stamps.append(int(res.t_ns))
             self._seen_with_depth += 1
         # Held frames are bounded: where depth is rare, fit with what came in twice the span.
         max_held = 2 * self.config.fit_frames * self.config.fit_stride
-        if len(self._samples) < self.config.fit_frames and len(self._held) < max_held:
+        if len(self.fit_stamps) < self.config.fit_frames and len(self._held) < max_held:
             return []
         return self._fit_and_release()
 
@@ -168,12 +194,29 @@ class DiveColours:
         return dataclasses.replace(res, color_left=np.ascontiguousarray(colors),
                                    colour_status=status, timings_s=timings)
 
+    def restore_right(self, res: FrameResult) -> NDArray[np.uint8]:
+        """The rectified right view restored with the dive's model (its own range,
+        :func:`right_range_m`), the same white balance as the left: ``(H, W, 3)`` uint8.
+
+        Raises:
+            EnhanceError: called before the model is fitted, or without a right colour view.
+        """
+        if self.model is None:
+            raise EnhanceError("the dive's water model is not fitted: no right view restored")
+        img = res.rect_right
+        if img.ndim != 3:
+            raise EnhanceError(f"frame {res.t_ns}: the right view has no colour to restore")
+        cfg = ColourConfig(enabled=True, method="water-model", water_model=self.model)
+        got = restore_colours_with_range(img, right_range_m(res, self.maps), cfg)
+        return np.ascontiguousarray(got.image, np.uint8)
+
     def summary(self) -> dict[str, Any]:
         """What summary.json and report.html say about the dive's water model."""
         out: dict[str, Any] = {
             "method": "water-model (one per dive)",
             "fit_frames_wanted": self.config.fit_frames, "fit_stride": self.config.fit_stride,
             "fit_frames_t_ns": self.fit_stamps, "fits": self.fits, "fit_s": self.fit_s,
+            "pooled_over_pair": self.config.pool_pair,
             "restore_s_median": float(np.median(self.restore_s)) if self.restore_s else None,
         }
         if self.model is not None:

@@ -95,7 +95,9 @@ def fuse_rgbd(
 
     Raises:
         ReconError: mismatched lists, unreadable files, frames of other sizes.
+        StereoError: a depth file whose grid sidecar says another grid than ``K``.
     """
+    from sea3d.io.depth_files import DepthGrid, check_depth_pinhole
     from sea3d.io.rgbd_files import read_color, read_depth
 
     if len(color_paths) != len(depth_paths):
@@ -108,6 +110,7 @@ def fuse_rgbd(
     read_s = 0.0
     skipped = 0
     shape: tuple[int, ...] | None = None
+    grid: DepthGrid | None = None
     for cp, dp, k in zip(color_paths, depth_paths, which, strict=True):
         if k is None:
             skipped += 1
@@ -118,6 +121,7 @@ def fuse_rgbd(
         depth = read_depth(dp, depth_scale)
         color = read_color(cp)
         read_s += time.perf_counter() - t0
+        grid = check_depth_pinhole(dp, depth.shape, K, first=grid, consumer="fuse")
         if color.shape[:2] != depth.shape:
             raise ReconError(f"{cp} is {color.shape[1]}x{color.shape[0]} but {dp} is "
                              f"{depth.shape[1]}x{depth.shape[0]}")
