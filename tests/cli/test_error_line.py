@@ -31,6 +31,12 @@ OUT = Path("unused-out")
      "f.png: no right image; --camera stereo needs a right camera"),
     ("the range may exclude the scene (set min_depth_m/max_depth_m)",
      "the range may exclude the scene (set --min-depth/--max-depth)"),
+    ("depth d.npy lives on the rectified-left grid, not on the image's own pixels: give the rig "
+     "to resample it; write raw-view depth (the raw grid) with sea3d depth",
+     "depth d.npy lives on the rectified-left grid, not on the image's own pixels: pass --rig "
+     "to resample it; write raw-view depth with sea3d depth --grid raw"),
+    ("write depth on the grid the colour images live on (the grid option of sea3d depth)",
+     "write depth on the grid the colour images live on (sea3d depth --grid)"),
 ])
 def test_error_line_names_the_option_of_the_field(message: str, line: str) -> None:
     assert error_line(message) == line

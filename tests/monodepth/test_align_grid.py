@@ -69,7 +69,7 @@ def test_rectified_depth_is_resampled_with_its_rig_or_refused(tmp_path: Path) ->
     write_depth(path, z_rect, _grid("rectified-left", K, rig))
     # the rectified map itself is not the plane's raw depth: taking it as is would be wrong
     assert np.nanmax(np.abs(z_rect - PLANE_Z_M)) > 0.005
-    with pytest.raises(MonoDepthError, match=r"rect\.npy.*rectified-left.*--rig"):
+    with pytest.raises(MonoDepthError, match=r"rect\.npy.*rectified-left.*give the rig"):
         read_alignment_depth(path, W, H)
     raw = read_alignment_depth(path, W, H, rig=rig)
     assert raw.shape == (H, W)

@@ -68,6 +68,8 @@ _PHRASES = {
     "; write raw-view depth (the raw grid) with sea3d depth":
         "; write raw-view depth with sea3d depth --grid raw",
     "(e.g. scale 16 for tsukuba": "(e.g. --scale 16 for tsukuba",
+    "pixels: give the rig to resample it;": "pixels: pass --rig to resample it;",
+    "(the grid option of sea3d depth)": "(sea3d depth --grid)",
     "(pass image_size to set it)": "(pass --size to set it)",
     "(is output_kind right?)": "(is --output-kind right?)",
     "device cuda: onnxruntime offers": "--device cuda: onnxruntime offers",

@@ -223,7 +223,7 @@ def check_depth_pinhole(
             f"depth {path} lives on the {grid.describe()} grid (fx fy cx cy "
             f"{' '.join(f'{v:.2f}' for v in a)}) but {consumer} was given "
             f"{' '.join(f'{v:.2f}' for v in b)}: give the grid's intrinsics, or write depth "
-            "on the grid the colour images live on (sea3d depth --grid)"
+            "on the grid the colour images live on (the grid option of sea3d depth)"
         )
     return grid
 

@@ -284,8 +284,8 @@ def read_alignment_depth(path: str | Path, width: int, height: int, *, rig: Any 
     if rig is None:
         raise MonoDepthError(
             f"depth {path} lives on the {grid.describe()} grid, not on the image's own "
-            "pixels: pass --rig to resample it, or write raw-view depth with sea3d depth "
-            "--grid raw"
+            "pixels: give the rig to resample it; write raw-view depth (the raw grid) with "
+            "sea3d depth"
         )
     from sea3d.io.rig_file import rig_to_yaml
     from sea3d.rectify.depth_grid import rectified_depth_to_raw
@@ -301,5 +301,5 @@ def read_alignment_depth(path: str | Path, width: int, height: int, *, rig: Any 
     if not np.allclose(K, maps.P_left[:3, :3], rtol=1e-3, atol=1e-3 * max(width, height)):
         raise MonoDepthError(f"depth {path} lives on a rectified grid (fx {K[0, 0]:.1f}) that "
                              f"this rig's rectification (fx {maps.P_left[0, 0]:.1f}) does not "
-                             "give: write raw-view depth with sea3d depth --grid raw")
+                             "give; write raw-view depth (the raw grid) with sea3d depth")
     return rectified_depth_to_raw(depth, K, maps.R_rect_left_left, rig.left, quantity="depth")
