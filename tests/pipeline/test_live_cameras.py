@@ -139,7 +139,10 @@ def test_live_from_cameras_records_the_same_bytes_and_publishes_while_it_runs(
     assert (tmp_path / "out" / "mesh.ply").is_file()
 
     # Foxglove: the mesh grows while it runs, then the merged mesh replaces the submaps
-    total, live_totals, merged = {}, [], []
+    # (The active submap's mesh is extracted again after each fused frame, and a refined TSDF
+    # can lose a few vertices there, -16 of 20,513 once under load; so the growth asserted is
+    # of the submaps published and of the total from first to last, not of every update.)
+    total, live_totals, merged, ids = {}, [], [], []
     for _t, msg in meshes:
         merged += [e for e in msg.entities if e.id == "mesh"]
         if merged:
@@ -148,8 +151,9 @@ def test_live_from_cameras_records_the_same_bytes_and_publishes_while_it_runs(
             assert e.id.startswith("submap-")
             total[e.id] = len(e.triangles[0].points)
         live_totals.append(sum(total.values()))
+        ids.append(len(total))
     assert len(live_totals) >= 2 and live_totals[-1] > live_totals[0] > 0
-    assert live_totals == sorted(live_totals)
+    assert ids == sorted(ids) and max(live_totals) == live_totals[-1]
     final = merged[-1]
     assert final.id == "mesh" and len(final.triangles[0].points) == summary["mesh"]["vertices"]
     assert len(final.triangles[0].indices) == 3 * summary["mesh"]["triangles"]
