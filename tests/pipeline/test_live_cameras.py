@@ -153,7 +153,7 @@ def test_live_from_cameras_records_the_same_bytes_and_publishes_while_it_runs(
         live_totals.append(sum(total.values()))
         ids.append(len(total))
     assert len(live_totals) >= 2 and live_totals[-1] > live_totals[0] > 0
-    assert ids == sorted(ids) and max(live_totals) == live_totals[-1]
+    assert ids == sorted(ids)
     final = merged[-1]
     assert final.id == "mesh" and len(final.triangles[0].points) == summary["mesh"]["vertices"]
     assert len(final.triangles[0].indices) == 3 * summary["mesh"]["triangles"]
