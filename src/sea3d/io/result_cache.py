@@ -6,7 +6,8 @@ They hold named numpy arrays plus a JSON header in one file per entry, in this c
 
 where the payload is an uncompressed ``.npz`` archive (``allow_pickle`` off) compressed with
 Zstandard (level 1: at 640x360 level 3 took 31 ms of CPU per frame against 7.5 ms for
-an entry 0.1 % smaller, and the client writes every frame). Before compression, lossless filters make the arrays compress better
+an entry 0.1 % smaller, and the client writes every frame). Before compression, lossless
+filters make the arrays compress better
 (listed in the archive's ``__codec__`` member, so entries written without them still read):
 float arrays are byte-shuffled (all first bytes, then all second bytes...: exponents and high
 mantissa bytes compress, noise bytes stay apart) and 2-D-or-more uint8 arrays (images) are

@@ -133,7 +133,7 @@ def _edge_cells(depth: F32, scale: float | NDArray[np.float64], threshold: float
     """
     if np.ndim(scale) == 0:
         out: NDArray[np.bool_] = _edge_cells_kernel(
-            np.ascontiguousarray(depth, np.float32), float(scale), float(threshold))  # type: ignore[arg-type]
+            np.ascontiguousarray(depth, np.float32), float(scale), float(threshold))
         return out
     h, w = depth.shape
     with np.errstate(divide="ignore", invalid="ignore"):
