@@ -323,7 +323,7 @@ def main() -> None:
     session = base / f"lake_{args.size}_{args.frames}"
     if args.one:
         policy = args.integrate if args.integrate != "both" else "trusted"
-        r = one_run(args.one, session, base / f"run_{args.one}", args.odometry,
+        r = one_run(args.one, session, base / f"run_{args.one}_{args.frames}", args.odometry,
                     policy, fresh=not args.no_fresh, rss_every=args.rss_every)
         print("RESULT " + json.dumps(r))
         return
