@@ -224,7 +224,7 @@ class RssRecorder:
 
 
 def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
-            fresh: bool, rss_every: int = 0) -> dict:
+            fresh: bool, rss_every: int = 0, min_observations: int = 2) -> dict:
     """Process once in this process and return the figures (run in a subprocess)."""
     from sea3d.pipeline.process import (
         ExecutorConfig,
@@ -257,7 +257,8 @@ def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
         client = distributed.Client(cluster)
         ex["scheduler"] = client
     config = ProcessConfig(out_dir=out, poses=PoseConfig(poses_path=poses), fresh=fresh,
-                           map=MapConfig(integrate=integrate), report=False,
+                           map=MapConfig(integrate=integrate, min_observations=min_observations),
+                           report=False,
                            depth=DepthConfig(min_depth_m=0.5, max_depth_m=4.0),
                            executor=ExecutorConfig(**ex), depth_rate=depth_rate or "all")
     rec = RssRecorder(rss_every, out) if rss_every > 0 else None
@@ -316,6 +317,11 @@ def main() -> None:
     ap.add_argument("--rss-every", type=int, default=0, metavar="N",
                     help="sample the client's and workers' memory and the output folder's "
                     "size every N frames (a table per run)")
+    ap.add_argument("--min-observations", type=int, default=2,
+                    help="MapConfig.min_observations of sea3d's runs (1 keeps voxels seen once)")
+    ap.add_argument("--cached", action="store_true",
+                    help="reuse each run's cached per-frame results (odometry, fusion and the "
+                    "merge only)")
     ap.add_argument("--one", help=argparse.SUPPRESS)
     ap.add_argument("--no-fresh", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -324,7 +330,8 @@ def main() -> None:
     if args.one:
         policy = args.integrate if args.integrate != "both" else "trusted"
         r = one_run(args.one, session, base / f"run_{args.one}_{args.frames}", args.odometry,
-                    policy, fresh=not args.no_fresh, rss_every=args.rss_every)
+                    policy, fresh=not args.no_fresh, rss_every=args.rss_every,
+                    min_observations=args.min_observations)
         print("RESULT " + json.dumps(r))
         return
     simulate(session, args.frames, args.size)
@@ -339,8 +346,9 @@ def main() -> None:
         for i, policy in enumerate(policies):
             cmd = [sys.executable, __file__, "--one", kind, "--frames", str(args.frames),
                    "--size", args.size, "--odometry", args.odometry, "--integrate", policy,
-                   "--rss-every", str(args.rss_every)]
-            if i > 0:
+                   "--rss-every", str(args.rss_every),
+                   "--min-observations", str(args.min_observations)]
+            if i > 0 or args.cached:
                 cmd.append("--no-fresh")
             proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
             line = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
