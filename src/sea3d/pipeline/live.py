@@ -239,7 +239,9 @@ def run_live_replay(session_path: Any, config: Any, live: LiveConfig | None = No
         odo, odometry_name, imu_used, imu_note = _odometry(config, stereo, source, None)
         store = DiskSubmapStore(out / "submaps")
         store.clear()
-        fusion_cfg = config.fusion(stereo.depth_range_m)
+        # every voxel seen: live fuses only the depth frames it keeps up with, so a surface
+        # may reach one of them (process keeps voxels seen twice, MapConfig.min_observations)
+        fusion_cfg = config.map.fusion(stereo.depth_range_m, min_observations=1)
         stages = OrderedStages(odo, SubmapFusion(fusion_cfg), store, stereo.maps,
                                use_imu=imu_used, timer=timer)
         executor = ProcessExecutor(1, setup=(install_geometry, (stage, stereo)))
