@@ -165,8 +165,66 @@ def paper_run(session: Path, frames: int | None, voxel_m: float = 0.02,
             "fusion_s": 0.0, "active_submap_peak_mb": 0.0}
 
 
+def _status_mb(pid: str, key: str) -> float:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith(key + ":"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return 0.0
+
+
+def _children() -> list[str]:
+    kids: list[str] = []
+    for task in Path("/proc/self/task").iterdir():
+        try:
+            kids += (task / "children").read_text().split()
+        except OSError:
+            continue
+    return kids
+
+
+def _du_mb(folder: Path) -> float:
+    return sum(f.stat().st_size for f in folder.rglob("*") if f.is_file()) / 2**20
+
+
+class RssRecorder:
+    """A progress factory for ``run_process`` that samples memory every ``every`` frames of
+    the odometry bar: the client's resident and peak memory, the local workers' resident
+    memory (summed), and the output folder's size on disk (MB)."""
+
+    def __init__(self, every: int, out: Path) -> None:
+        self.every, self.out, self.frames, self.rows = every, out, 0, []
+
+    def __call__(self, stage: str, total: int) -> RssRecorder._Bar:
+        return RssRecorder._Bar(self if stage == "odometry" else None)
+
+    def sample(self) -> None:
+        self.rows.append({
+            "frames": self.frames, "client_rss_mb": _status_mb("self", "VmRSS"),
+            "client_hwm_mb": _status_mb("self", "VmHWM"),
+            "workers_rss_mb": sum(_status_mb(k, "VmRSS") for k in _children()),
+            "out_mb": _du_mb(self.out) if self.out.is_dir() else 0.0})
+
+    class _Bar:
+        def __init__(self, rec: RssRecorder | None) -> None:
+            self.rec = rec
+
+        def update(self, n: int = 1) -> None:
+            if self.rec is None:
+                return
+            for _ in range(n):
+                self.rec.frames += 1
+                if self.rec.frames % self.rec.every == 0:
+                    self.rec.sample()
+
+        def close(self) -> None:
+            return None
+
+
 def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
-            fresh: bool) -> dict:
+            fresh: bool, rss_every: int = 0, min_observations: int = 2) -> dict:
     """Process once in this process and return the figures (run in a subprocess)."""
     from sea3d.pipeline.process import (
         ExecutorConfig,
@@ -199,12 +257,14 @@ def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
         client = distributed.Client(cluster)
         ex["scheduler"] = client
     config = ProcessConfig(out_dir=out, poses=PoseConfig(poses_path=poses), fresh=fresh,
-                           map=MapConfig(integrate=integrate), report=False,
+                           map=MapConfig(integrate=integrate, min_observations=min_observations),
+                           report=False,
                            depth=DepthConfig(min_depth_m=0.5, max_depth_m=4.0),
                            executor=ExecutorConfig(**ex), depth_rate=depth_rate or "all")
+    rec = RssRecorder(rss_every, out) if rss_every > 0 else None
     t0 = time.perf_counter()
     try:
-        res = run_process(session, config)
+        res = run_process(session, config, progress=rec)
     finally:
         if client is not None:
             client.close()
@@ -243,6 +303,7 @@ def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
         "ate_rmse_mm": 1000 * tv["ate_m"]["rmse"] if "ate_m" in tv else None,
         "path_length_m": s["path_length_m"],
         "worker_timings_s": s["worker_timings_s"],
+        "rss_rows": rec.rows if rec is not None else [],
     }
 
 
@@ -253,6 +314,14 @@ def main() -> None:
     ap.add_argument("--runs", default="inline,procs2,dask2,paper")
     ap.add_argument("--odometry", choices=["gt", "real"], default="real")
     ap.add_argument("--integrate", choices=["trusted", "keyframes", "both"], default="trusted")
+    ap.add_argument("--rss-every", type=int, default=0, metavar="N",
+                    help="sample the client's and workers' memory and the output folder's "
+                    "size every N frames (a table per run)")
+    ap.add_argument("--min-observations", type=int, default=2,
+                    help="MapConfig.min_observations of sea3d's runs (1 keeps voxels seen once)")
+    ap.add_argument("--cached", action="store_true",
+                    help="reuse each run's cached per-frame results (odometry, fusion and the "
+                    "merge only)")
     ap.add_argument("--one", help=argparse.SUPPRESS)
     ap.add_argument("--no-fresh", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -260,8 +329,9 @@ def main() -> None:
     session = base / f"lake_{args.size}_{args.frames}"
     if args.one:
         policy = args.integrate if args.integrate != "both" else "trusted"
-        r = one_run(args.one, session, base / f"run_{args.one}", args.odometry,
-                    policy, fresh=not args.no_fresh)
+        r = one_run(args.one, session, base / f"run_{args.one}_{args.frames}", args.odometry,
+                    policy, fresh=not args.no_fresh, rss_every=args.rss_every,
+                    min_observations=args.min_observations)
         print("RESULT " + json.dumps(r))
         return
     simulate(session, args.frames, args.size)
@@ -275,8 +345,10 @@ def main() -> None:
         policies = ["trusted", "keyframes"] if args.integrate == "both" else [args.integrate]
         for i, policy in enumerate(policies):
             cmd = [sys.executable, __file__, "--one", kind, "--frames", str(args.frames),
-                   "--size", args.size, "--odometry", args.odometry, "--integrate", policy]
-            if i > 0:
+                   "--size", args.size, "--odometry", args.odometry, "--integrate", policy,
+                   "--rss-every", str(args.rss_every),
+                   "--min-observations", str(args.min_observations)]
+            if i > 0 or args.cached:
                 cmd.append("--no-fresh")
             proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
             line = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
@@ -310,6 +382,14 @@ def main() -> None:
                 print(f"  {x['kind']} integrate={x['integrate']}: {x['frames_fused']} frames "
                       f"fused in {x['fusion_s']:.1f} s, active submap peak "
                       f"{x['active_submap_peak_mb']:.0f} MB")
+    for x in results:
+        if x.get("rss_rows"):
+            print(f"memory of {x['kind']} (MB) against frames: frames, client RSS, client peak, "
+                  "workers RSS (sum), output folder on disk")
+            for row in x["rss_rows"]:
+                print(f"  {row['frames']:6d} {row['client_rss_mb']:8.0f} "
+                      f"{row['client_hwm_mb']:8.0f} {row['workers_rss_mb']:8.0f} "
+                      f"{row['out_mb']:8.1f}")
     print("medians per run: frames with depth, fps, CPU-s per frame, ATE mm, mesh 1st mm")
     for kind in dict.fromkeys(x["kind"] for x in results):
         rs = [x for x in results if x["kind"] == kind]

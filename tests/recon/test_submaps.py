@@ -203,3 +203,53 @@ def test_disk_store_round_trip_and_damage(tmp_path):
         store.get(1)
     with pytest.raises(ReconError, match="anchor keyframe"):
         merge_submaps(store, {}, TSDF)
+
+
+def test_a_surface_seen_once_is_dropped_when_two_observations_are_required():
+    """A floater: one frame's depth holds a blob 40 cm in front of the floor. Merged with
+    voxels seen once kept, the mesh has vertices there; requiring two observations (the
+    process default, MapConfig.min_observations) drops them and keeps the box top, which
+    every frame sees."""
+    from sea3d.pipeline.config import MapConfig
+
+    cfg2 = MapConfig().fusion((0.1, 5.0)).tsdf
+    assert cfg2.weight_threshold == 1.5
+    cfg1 = TsdfConfig(voxel_m=VOXEL_M, depth_min_m=0.1, depth_max_m=5.0, weight_threshold=0.5)
+    store = MemorySubmapStore()
+    fusion = SubmapFusion(FusionConfig(tsdf=cfg2, keyframes_per_submap=2))
+    kf: dict = {}
+    for i, T in enumerate(_TRUE):
+        d, c = render(T)
+        if i == 5:  # the wrong depth: a 40 x 40 px patch 0.4 m nearer than what it sees
+            h = d.shape[0]
+            d = d.copy()
+            d[h // 2 - 20:h // 2 + 20, 10:50] -= 0.4
+        kid = _KEYFRAMES.get(i)
+        if kid is not None:
+            kf[kid] = T
+        st = fusion.step(t_ns=i, trusted=True, keyframe_id=kid, depth_m=d, color_rgb=c, K=K,
+                         T_world_cam=T, keyframe_poses=kf)
+        for sm in st.finished:
+            store.put(sm)
+    store.put(fusion.finish())
+    T5 = _TRUE[5]
+    h = d.shape[0]
+    # the blob's points in the world: where the wrong depth puts them
+    d5, _ = render(T5)
+    vv, uu = np.mgrid[h // 2 - 20:h // 2 + 20, 10:50]
+    z = d5[vv, uu] - 0.4
+    x = (uu - K[0, 2]) * z / K[0, 0]
+    y = (vv - K[1, 2]) * z / K[1, 1]
+    blob = np.stack([x.ravel(), y.ravel(), z.ravel()], 1) @ T5[:3, :3].T + T5[:3, 3]
+    centre = np.nanmean(blob, axis=0)
+
+    def near_blob(mesh):
+        return int(np.sum(np.linalg.norm(mesh.vertices - centre, axis=1) < 0.05))
+
+    once = merge_submaps(store, kf, cfg1, tile_m=None).mesh
+    twice = merge_submaps(store, kf, cfg2, tile_m=None).mesh
+    assert near_blob(once) > 20  # the floater is in the mesh that keeps voxels seen once
+    assert near_blob(twice) == 0
+    (_, n_once), (z_twice, n_twice) = _box_top(once), _box_top(twice)
+    assert n_twice > 0.9 * n_once
+    assert abs(z_twice[2] - BOX_HI[2]) < PLACE_TOL_M

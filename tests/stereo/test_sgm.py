@@ -207,3 +207,47 @@ def test_opencv_engine_names_select_their_modes(engine: str, cv_mode: int) -> No
                                     preFilterCap=63, uniquenessRatio=10, speckleWindowSize=100,
                                     speckleRange=2, mode=other).compute(left, right)
         assert not np.array_equal(raw, alt)
+
+
+def _stepped_pair(rng: np.random.Generator, h: int = 160, w: int = 320
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A plane at 20 px with vertical bars at 60 px every 16 columns: a depth step in every
+    coarse band window."""
+    tex = _texture(rng, h, w + 128)
+    d_true = np.full((h, w), 20.0, np.float32)
+    bars = (np.arange(w) // 8) % 2 == 1
+    d_true[:, bars] = 60.0
+    xs = np.arange(w)
+    left = np.empty((h, w), np.float32)
+    right = np.zeros((h, w), np.float32)
+    for x in xs:  # the left pixel x shows texture column x + d (so the right sees it at x)
+        left[:, x] = tex[:, x + int(d_true[0, x]) + 32]
+    # right view: background first, the bars painted over it (they occlude)
+    for d, sel in ((20, ~bars), (60, bars)):
+        for x in xs[sel]:
+            xr = x - d
+            if 0 <= xr < w:
+                right[:, xr] = tex[:, x + d + 32]
+    return left.astype(np.uint8), right.astype(np.uint8), d_true
+
+
+def test_coarse_trial_keeps_the_band_on_smooth_depth_and_searches_in_full_at_steps() -> None:
+    rng = np.random.default_rng(0)
+    left, right, d_true = _slanted_pair(rng, h=160, w=320, d0=40.0, slope=0.05)
+    cfg = SgmConfig(max_disparity_px=79)
+    assert choose_pyramid_levels(160, 320, 80, cfg) == 0  # inside the full-search budget
+    res = match(left, right, cfg)
+    full = match(left, right, SgmConfig(max_disparity_px=79, pyramid_levels=0))
+    assert res.timings_s["pyramid_levels"] == 1  # smooth: the trial's band is kept
+    assert res.timings_s["trial_step_fraction"] < cfg.trial_step_fraction
+    err, density = _errors(res.disparity_px, d_true, margin_px=64)
+    err_full, _ = _errors(full.disparity_px, d_true, margin_px=64)
+    assert density > MIN_DENSITY
+    assert np.median(err) < SUBPIXEL_MEDIAN_ERR_PX
+    assert 100 * np.mean(err > 1.0) <= 100 * np.mean(err_full > 1.0) + 0.5
+    stepped, stepped_r, _ = _stepped_pair(rng)
+    res = match(stepped, stepped_r, cfg)
+    assert res.timings_s["trial_step_fraction"] >= cfg.trial_step_fraction
+    assert res.timings_s["pyramid_levels"] == 0  # depth steps: searched in full after all
+    off = match(left, right, SgmConfig(max_disparity_px=79, trial_step_fraction=0.0))
+    assert off.timings_s["pyramid_levels"] == 0 and "trial_step_fraction" not in off.timings_s

@@ -33,18 +33,31 @@ class MapConfig:
     """Voxel of cloud.ply's downsampling; None: half ``voxel_m``."""
     merge_tile_m: float | None = 8.0
     """Edge of the tiles the final merge works through (bounds its memory)."""
+    min_observations: int = 2
+    """Mesh and cloud keep the voxels fused from at least this many depth frames (summed over
+    the submaps): a surface seen once, the floater one frame's wrong depth leaves, is dropped;
+    1 keeps every voxel seen."""
 
     def __post_init__(self) -> None:
         if not self.voxel_m > 0:
             raise ConfigError(f"voxel_m must be > 0, got {self.voxel_m}")
+        if self.min_observations < 1:
+            raise ConfigError(f"min_observations must be >= 1, got {self.min_observations}")
 
-    def fusion(self, depth_range_m: tuple[float, float]) -> FusionConfig:
-        """The fusion stage's configuration (its TSDF over the stereo depth's range)."""
+    def fusion(self, depth_range_m: tuple[float, float], *,
+               min_observations: int | None = None) -> FusionConfig:
+        """The fusion stage's configuration (its TSDF over the stereo depth's range);
+        ``min_observations`` overrides the field (``live`` keeps voxels seen once: it fuses
+        only the depth frames it keeps up with)."""
+        n_obs = self.min_observations if min_observations is None else min_observations
+        if n_obs < 1:
+            raise ConfigError(f"min_observations must be >= 1, got {n_obs}")
         from sea3d.recon.submaps import FusionConfig
         from sea3d.recon.tsdf import TsdfConfig
 
         return FusionConfig(tsdf=TsdfConfig(voxel_m=self.voxel_m, depth_min_m=depth_range_m[0],
-                                            depth_max_m=depth_range_m[1]),
+                                            depth_max_m=depth_range_m[1],
+                                            weight_threshold=n_obs - 0.5),
                             integrate=self.integrate,
                             keyframes_per_submap=self.keyframes_per_submap,
                             max_blocks=self.max_submap_blocks)

@@ -19,6 +19,7 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -109,6 +110,11 @@ def _init_worker(
     for var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
                 "MKL_NUM_THREADS"):
         os.environ.setdefault(var, str(threads))
+    if "numba" in sys.modules:
+        # numba was imported while the initargs were unpickled, before the variable above was
+        # set: re-read it now, before any thread pool starts, or the first kernel compiled in
+        # this worker (a cache miss) sees the change and refuses to run
+        sys.modules["numba"].config.reload_config()
     if setup is not None:
         fn, args = setup
         fn(*args)

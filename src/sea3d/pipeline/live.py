@@ -465,7 +465,9 @@ class _Run:
         self.odo, self.odometry_name, self.imu_used, self.imu_note = odometry
         self.store: Any = DiskSubmapStore(out / "submaps")
         self.store.clear()
-        self.fusion_cfg = config.fusion(self.stereo.depth_range_m)
+        # every voxel seen: live fuses only the depth frames it keeps up with, so a surface
+        # may reach one of them (process keeps voxels seen twice, MapConfig.min_observations)
+        self.fusion_cfg = config.map.fusion(self.stereo.depth_range_m, min_observations=1)
         if feed is not None:  # finished submaps are meshed once for the live view
             self.store = feed.wrap_store(self.store, self.fusion_cfg.tsdf)
         self.stages = OrderedStages(self.odo, SubmapFusion(self.fusion_cfg), self.store,

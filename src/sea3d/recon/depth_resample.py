@@ -31,6 +31,7 @@ from typing import Literal
 
 import cv2
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 from sea3d._typing import F32, F64
@@ -76,6 +77,48 @@ def pinhole_offsets(depth_m: F32, points_rect: F64, K: F64) -> tuple[F32, F32]:
     return du, dv
 
 
+@njit(cache=True)
+def _edge_cells_kernel(depth: F32, scale: float, threshold: float) -> NDArray[np.bool_]:
+    h, w = depth.shape
+    D = np.empty((h, w), np.float64)
+    for y in range(h):
+        for x in range(w):
+            z = depth[y, x]
+            D[y, x] = scale / np.float64(z) if np.isfinite(z) else np.nan
+    d2 = np.zeros((h + 1, w + 1))  # padded with 0 on the last row and column
+    for y in range(h):
+        for x in range(w):
+            a = 0.0
+            if 1 <= x <= w - 2:
+                t = abs(D[y, x - 1] - 2.0 * D[y, x] + D[y, x + 1])
+                if t == t:
+                    a = t
+            if 1 <= y <= h - 2:
+                t = abs(D[y - 1, x] - 2.0 * D[y, x] + D[y + 1, x])
+                if t == t and t > a:
+                    a = t
+            d2[y, x] = a
+    out = np.zeros((h, w), np.bool_)
+    for y in range(h):
+        for x in range(w):
+            rough = max(max(d2[y, x], d2[y, x + 1]), max(d2[y + 1, x], d2[y + 1, x + 1]))
+            if not rough > threshold:
+                continue
+            n = 0
+            lo = np.inf
+            hi = -np.inf
+            for yy in range(y, min(y + 2, h)):
+                for xx in range(x, min(x + 2, w)):
+                    v = D[yy, xx]
+                    if v == v:
+                        n += 1
+                        lo = min(lo, v)
+                        hi = max(hi, v)
+            if n >= 2 and hi - lo > threshold:
+                out[y, x] = True
+    return out
+
+
 def _edge_cells(depth: F32, scale: float | NDArray[np.float64], threshold: float
                 ) -> NDArray[np.bool_]:
     """Interpolation cells (``[v, v+1] x [u, u+1]``, indexed by their top-left pixel) that
@@ -88,6 +131,10 @@ def _edge_cells(depth: F32, scale: float | NDArray[np.float64], threshold: float
     u or v) above ``threshold``: noise roughens ``D`` too, but interpolating between nearly
     equal values cannot put a point between two surfaces.
     """
+    if np.ndim(scale) == 0:
+        out: NDArray[np.bool_] = _edge_cells_kernel(
+            np.ascontiguousarray(depth, np.float32), float(scale), float(threshold))
+        return out
     h, w = depth.shape
     with np.errstate(divide="ignore", invalid="ignore"):
         D = np.where(np.isfinite(depth), scale / depth.astype(np.float64), np.nan)

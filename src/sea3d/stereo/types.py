@@ -64,6 +64,14 @@ class SgmConfig:
     coarse_search_budget: int = 2_000_000
     """With ``pyramid_levels=None``: otherwise add levels until the coarsest full volume
     (H * W * D, each halved per level) stays below this."""
+    trial_step_fraction: float = 0.01
+    """With ``pyramid_levels=None`` and a full volume inside ``full_search_budget``: match one
+    level coarser first and keep searching only a band around its answer (with ``paths``) when
+    fewer than this fraction of the full-resolution pixels need a band wider than one chunk of
+    16 (the coarse map's depth steps, where a coarse level misplaces thin structures); else
+    search the full range. Measured: 0.000 on the simulated dive's sea floor and on venus,
+    0.027-0.030 on cones and teddy, whose full search is the more accurate. 0 always searches
+    the full range."""
     band_margin_px: int = 2
     """Coarse-to-fine: extra disparities searched on each side of the coarse estimate."""
     band_max_px: int = 48
@@ -138,6 +146,9 @@ class SgmConfig:
             raise ConfigError(f"fill_max_px must be None or >= 0, got {self.fill_max_px}")
         if self.refine_row_step < 1:
             raise ConfigError(f"refine_row_step must be >= 1, got {self.refine_row_step}")
+        if not 0 <= self.trial_step_fraction <= 1:
+            raise ConfigError(
+                f"trial_step_fraction must be in 0..1, got {self.trial_step_fraction}")
         if self.p2_edge_tau <= 0 or self.uniqueness < 0:
             raise ConfigError("p2_edge_tau must be > 0 and uniqueness >= 0")
 

@@ -1,0 +1,87 @@
+"""sea3d's SGM against OpenCV MODE_SGBM_3WAY on the two 1080p textures of issue 22.
+
+- ``noise``: 3x3-blurred uniform noise at a constant disparity of 64 (the input of
+  ``bench_stereo_gpu.py --cpu-only``);
+- ``multiscale``: the docs' synthetic scene (``bench_stereo.py``: fine blurred noise plus a
+  coarse pattern, a slanted plane at 40-90 px and a box at 200 px, brightness change).
+
+Both searched over 0..255, the engines interleaved in one process after a warm-up; prints
+medians of ``--repeats`` runs of wall and CPU time (process time, all threads), their ratios,
+bad-2 % against the known disparity (over pixels known in both maps, and sea3d's matched
+pixels only), and sea3d's stage timings.
+
+    PYTHONPATH=src python benchmarks/bench_sgm.py [--repeats 3] [--textures noise,multiscale]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+
+import cv2
+import numpy as np
+
+
+def noise_pair(width: int, height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(0)
+    base = cv2.GaussianBlur(rng.integers(0, 256, (height, width + 64)).astype(np.uint8),
+                            (3, 3), 0)
+    gt = np.full((height, width), 64.0, np.float32)
+    return base[:, :width].copy(), base[:, 64:].copy(), gt
+
+
+def multiscale_pair(width: int, height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    from bench_stereo import synthetic_pair
+
+    return synthetic_pair(width, height)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--width", type=int, default=1920)
+    ap.add_argument("--height", type=int, default=1080)
+    ap.add_argument("--textures", default="noise,multiscale")
+    args = ap.parse_args()
+
+    from sea3d.eval import disparity_metrics
+    from sea3d.stereo import make_config, match
+    from sea3d.stereo.sgm import warm_up
+
+    warm_up()
+    engines = {"sea3d": make_config("sea3d", 255), "opencv-3way": make_config("opencv-3way", 255)}
+    print(f"{args.width}x{args.height}, disparities 0..255, {os.cpu_count()} CPUs, medians of "
+          f"{args.repeats} interleaved runs; load before {os.getloadavg()[0]:.2f}")
+    for texture in args.textures.split(","):
+        left, right, gt = {"noise": noise_pair, "multiscale": multiscale_pair}[texture](
+            args.width, args.height)
+        wall: dict[str, list[float]] = {e: [] for e in engines}
+        cpu: dict[str, list[float]] = {e: [] for e in engines}
+        last = {}
+        for _ in range(args.repeats):
+            for name, cfg in engines.items():
+                c0, t0 = time.process_time(), time.perf_counter()
+                last[name] = match(left, right, cfg)  # type: ignore[arg-type]
+                wall[name].append(time.perf_counter() - t0)
+                cpu[name].append(time.process_time() - c0)
+        mw = {e: statistics.median(v) for e, v in wall.items()}
+        mc = {e: statistics.median(v) for e, v in cpu.items()}
+        print(f"\n{texture}:")
+        for name in engines:
+            m = disparity_metrics(last[name].disparity_px, gt)
+            print(f"  {name:12s} wall {mw[name]:6.3f} s  CPU {mc[name]:6.3f} s  bad-2 "
+                  f"{m.bad_2:6.3f} %  density {m.density:5.1f} %")
+        res = last["sea3d"]
+        mm = disparity_metrics(np.where(res.measured, res.disparity_px, np.nan), gt)
+        print(f"  sea3d matched pixels: bad-2 {mm.bad_2:.3f} % density {mm.density:.1f} %")
+        print(f"  sea3d / 3WAY: wall {mw['sea3d'] / mw['opencv-3way']:.2f}x, CPU "
+              f"{mc['sea3d'] / mc['opencv-3way']:.2f}x")
+        print("  sea3d stages (last run, s): " + ", ".join(
+            f"{k} {v:.3f}" for k, v in res.timings_s.items()))
+    print(f"\nload after {os.getloadavg()[0]:.2f}")
+
+
+if __name__ == "__main__":
+    main()
