@@ -163,8 +163,11 @@ def _cmd_eval_trajectory(args: argparse.Namespace) -> int:
     from sea3d.eval.trajectory import evaluate_trajectory
     from sea3d.io.trajectory_files import read_trajectory
 
-    est = read_trajectory(args.estimate, args.est_format, kitti_times=args.est_times)
-    ref = read_trajectory(args.ground_truth, args.gt_format, kitti_times=args.gt_times)
+    # repeated stamps are kept and paired as evo pairs them (evo's figure on such files)
+    est = read_trajectory(args.estimate, args.est_format, kitti_times=args.est_times,
+                          duplicates="keep")
+    ref = read_trajectory(args.ground_truth, args.gt_format, kitti_times=args.gt_times,
+                          duplicates="keep")
     for note in est.notes + ref.notes:
         print(f"sea3d: warning: {note}", file=sys.stderr)
     by_index = not (est.timed and ref.timed)
@@ -174,8 +177,8 @@ def _cmd_eval_trajectory(args: argparse.Namespace) -> int:
     if args.json:
         d = m.as_dict()
         d["paired_by"] = "index" if by_index else "time"
-        d["duplicates_dropped"] = {"estimate": est.duplicates_dropped,
-                                   "reference": ref.duplicates_dropped}
+        d["duplicates_kept"] = {"estimate": est.duplicates_kept,
+                                "reference": ref.duplicates_kept}
         print(json.dumps(d, indent=2))
         for w in m.warnings:
             print(f"sea3d: warning: {w}", file=sys.stderr)
