@@ -62,7 +62,8 @@ def _cmd_process(args: argparse.Namespace) -> int:
         return 0
     print(
         f"{plural(s['frames'], 'frame')}: {plural(s['keyframes'], 'keyframe')}, "
-        f"{s['frames_lost']} lost, {plural(s['loop_closures'], 'loop closure')}, path "
+        f"{s['frames_lost']} lost, {plural(s['loop_closures'], 'loop closure')}"
+        f" ({plural(s.get('relinks', 0), 're-link')} across lost frames apart), path "
         f"{s['path_length_m']:.2f} m; poses from {s['odometry']}"
     )
     fps = s.get("frames_per_second")

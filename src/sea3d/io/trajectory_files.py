@@ -186,8 +186,9 @@ def read_trajectory(
 
     Returns:
         :class:`TrajectoryFile`, sorted by stamp, one pose per stamp (with ``first``).
-        Stamps out of order are sorted (stably) and repeated stamps keep their first pose (as estimators such as open VIO
-        systems write them at a re-initialisation), each with a logged warning and a count in
+        Stamps out of order are sorted (stably) and repeated stamps keep their first pose
+        (as estimators such as open VIO systems write them at a re-initialisation; ``keep``
+        keeps them all), each with a logged warning and a count in
         the result (``unsorted``, ``duplicates_dropped`` or ``duplicates_kept``, ``notes``).
 
     Raises:
