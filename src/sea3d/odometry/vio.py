@@ -627,10 +627,10 @@ class StereoInertialOdometry:
         # own pixels, which the deeper pyramid carries over the motion
         seeds: list[F64 | None] = [None]
         if pred is not None:
-            guess = self._project(X, pred)
-            bad = ~np.isfinite(guess).all(axis=1)
-            guess[bad] = kf_uv[bad]
-            seeds.insert(0, guess)
+            projected = self._project(X, pred)
+            bad = ~np.isfinite(projected).all(axis=1)
+            projected[bad] = kf_uv[bad]
+            seeds.insert(0, projected)
         for guess in seeds:
             uv, ok = track_klt(seg.kf_grey, grey, kf_uv, guess, wide)
             if np.count_nonzero(ok) < c.min_inliers:
