@@ -172,8 +172,60 @@ def bench_fetched() -> None:
     if not found:
         print(f"fetched sequences: none under {REAL} (SEA3D_REAL_DATA), skipped")
         return
+    import tempfile
+
     for d in found:
-        _stereo_row(d.name, d)
+        if d.name.startswith("kitti_"):
+            with tempfile.TemporaryDirectory() as td:
+                _stereo_row(d.name, kitti_as_euroc(d, Path(td)))
+        else:
+            _stereo_row(d.name, d)
+
+
+def kitti_as_euroc(src: Path, dst: Path, rate_hz: float = 10.0) -> Path:
+    """Present a KITTI odometry excerpt (``image_0``/``image_1`` rectified grey pairs,
+    ``calib.txt`` with the ``P0``/``P1`` rows, ``poses.txt`` of ``T_world_left`` rows, optional
+    ``times.txt``) as an EuRoC folder under ``dst`` (images linked, not copied): the body frame
+    is the left camera, no IMU, no distortion, the right camera ``B = -P1[0, 3] / P1[0, 0]`` to
+    the right. Returns the folder for :func:`sea3d.io.euroc.read_euroc`."""
+    import cv2
+    from scipy.spatial.transform import Rotation
+
+    rows = []
+    for line in (src / "calib.txt").read_text().splitlines():
+        vals = line.split(":")[-1].split()
+        if len(vals) == 12:
+            rows.append(np.asarray(vals, dtype=np.float64).reshape(3, 4))
+    P0, P1 = rows[0], rows[1]
+    baseline = float(-P1[0, 3] / P1[0, 0])
+    left = sorted((src / "image_0").glob("*.png"))
+    right = sorted((src / "image_1").glob("*.png"))
+    poses = np.loadtxt(src / "poses.txt").reshape(-1, 3, 4)
+    n = min(len(left), len(right), len(poses))
+    times = (np.loadtxt(src / "times.txt")[:n] if (src / "times.txt").is_file()
+             else np.arange(n) / rate_hz)
+    t_ns = (1_000_000_000 + np.round(np.asarray(times) * 1e9)).astype(np.int64)
+    h, w = cv2.imread(str(left[0]), cv2.IMREAD_GRAYSCALE).shape
+    mav0 = dst / "mav0"
+    for cam, files, tx in (("cam0", left, 0.0), ("cam1", right, baseline)):
+        (mav0 / cam / "data").mkdir(parents=True)
+        for t, f in zip(t_ns, files[:n], strict=True):
+            os.symlink(f.resolve(), mav0 / cam / "data" / f"{t}.png")
+        (mav0 / cam / "data.csv").write_text(
+            "#timestamp [ns],filename\n" + "".join(f"{t},{t}.png\n" for t in t_ns))
+        T = [1, 0, 0, tx, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]
+        (mav0 / cam / "sensor.yaml").write_text(
+            f"T_BS:\n  rows: 4\n  cols: 4\n  data: {T}\nrate_hz: {rate_hz}\n"
+            f"resolution: [{w}, {h}]\ncamera_model: pinhole\n"
+            f"intrinsics: {[float(v) for v in (P0[0, 0], P0[1, 1], P0[0, 2], P0[1, 2])]}\n"
+            "distortion_model: radial-tangential\ndistortion_coefficients: [0, 0, 0, 0]\n")
+    gt = mav0 / "state_groundtruth_estimate0"
+    gt.mkdir()
+    q = Rotation.from_matrix(poses[:n, :, :3]).as_quat()  # x y z w
+    lines = [f"{t},{p[0, 3]},{p[1, 3]},{p[2, 3]},{qq[3]},{qq[0]},{qq[1]},{qq[2]}\n"
+             for t, p, qq in zip(t_ns, poses[:n], q, strict=True)]
+    (gt / "data.csv").write_text("#timestamp,px,py,pz,qw,qx,qy,qz\n" + "".join(lines))
+    return dst
 
 
 def _stereo_row(name: str, root: Path) -> None:

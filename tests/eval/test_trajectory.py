@@ -126,12 +126,19 @@ def test_umeyama_returns_a_proper_rotation_for_reflected_data(rng):
     assert np.linalg.det(R) == pytest.approx(1.0)
 
 
-def test_association_is_one_to_one_within_the_tolerance():
+def test_association_pairs_the_shorter_trajectory_as_evo_does():
     est = np.array([0, 100, 105, 300, 1000], np.int64)
     ref = np.array([1, 102, 290, 2000], np.int64)
     i, j = associate(est, ref, max_diff_ns=10)
-    # 100 and 105 both want 102: the nearer (100, 2 ns off) wins; 1000 finds nothing.
+    # the reference is shorter: each of its stamps takes its nearest estimated one (102 -> 100,
+    # 2 ns off); 2000 finds nothing within 10 ns.
     assert list(zip(i.tolist(), j.tolist(), strict=True)) == [(0, 0), (1, 1), (3, 2)]
+    # the estimate shorter: both 100 and 105 take 102; a repeated stamp is paired twice
+    i, j = associate(np.array([100, 105, 105]), np.array([1, 102, 290, 2000]), max_diff_ns=10)
+    assert list(zip(i.tolist(), j.tolist(), strict=True)) == [(0, 1), (1, 1), (2, 1)]
+    # a repeated stamp of the longer one: the first of the run; a tie: the earlier stamp
+    i, j = associate(np.array([10, 55]), np.array([0, 10, 10, 50, 60, 70]), max_diff_ns=10)
+    assert list(zip(i.tolist(), j.tolist(), strict=True)) == [(0, 1), (1, 3)]
 
 
 def test_too_few_matches_is_a_clear_error(rng):

@@ -75,6 +75,58 @@ def test_cli_repeated_stamps_are_counted_and_the_first_kept(tmp_path, rng, capsy
     assert main(argv) == 0
     cap = capsys.readouterr()
     d = json.loads(cap.out)
-    assert d["duplicates_dropped"] == {"estimate": 4, "reference": 0}
+    # the estimate is the longer trajectory: evo pairs each reference pose with the first
+    # estimated pose of its stamp, so the far-off repeats are never used
+    assert d["duplicates_kept"] == {"estimate": 4, "reference": 0}
     assert d["matched"] == n and d["ate_rmse_m"] == pytest.approx(0.0, abs=1e-8)
-    assert "4 pose(s) with a repeated stamp dropped" in cap.err
+    assert "4 pose(s) repeat an earlier stamp; kept" in cap.err
+
+
+def _kabsch_ate(P, Q):
+    """ATE RMSE after the least-squares rotation and translation of P onto Q, computed with
+    scipy's Kabsch (independent of sea3d's Umeyama)."""
+    from scipy.spatial.transform import Rotation
+
+    pc, qc = P.mean(axis=0), Q.mean(axis=0)
+    rot, _ = Rotation.align_vectors(Q - qc, P - pc)
+    err = rot.apply(P - pc) + qc - Q
+    return float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
+
+
+def test_repeated_stamps_in_the_shorter_estimate_give_evos_figure(tmp_path, rng, capsys):
+    """An estimate at 20 Hz against a 200 Hz reference with 4 stamps written twice (a VIO's
+    re-initialisation): evo pairs every estimated pose, the repeats included, with the nearest
+    reference pose; sea3d must give that figure, not the one with the repeats dropped."""
+    n_ref = 2000
+    t_ref = np.arange(n_ref, dtype=np.int64) * 5_000_000
+    s = np.linspace(0, 2 * np.pi, n_ref)
+    T_ref = np.tile(np.eye(4), (n_ref, 1, 1))
+    T_ref[:, :3, 3] = np.stack([3 * np.cos(s), 2 * np.sin(s), 0.3 * np.sin(3 * s)], 1)
+    T_ref[:, :3, :3] = rotvec_to_R(np.stack([0 * s, 0 * s, s], 1))
+    idx = np.arange(0, n_ref, 10)
+    rows = [(int(t_ref[i]), T_ref[i][:3, 3] + rng.normal(0, 0.05, 3)) for i in idx]
+    for k in (150, 90, 41, 40):  # the same stamp again, with a pose 0.3 m off
+        rows.insert(k + 1, (rows[k][0], rows[k][1] + [0.3, -0.2, 0.1]))
+    t_est = np.array([r[0] for r in rows], np.int64)
+    P = np.stack([r[1] for r in rows])
+    T_est = np.tile(np.eye(4), (len(rows), 1, 1))
+    T_est[:, :3, 3] = P
+    write_tum(tmp_path / "est.tum", t_est, T_est)
+    write_tum(tmp_path / "gt.tum", t_ref, T_ref)
+    Q = T_ref[t_est // 5_000_000, :3, 3]  # each estimated stamp falls on a reference stamp
+    want_all = _kabsch_ate(P, Q)
+    first = np.concatenate([[True], np.diff(t_est) != 0])
+    want_dropped = _kabsch_ate(P[first], Q[first])
+    assert abs(want_all - want_dropped) > 1e-3  # the two rules give different figures
+    argv = ["eval", "trajectory", str(tmp_path / "est.tum"), str(tmp_path / "gt.tum"), "--json"]
+    assert main(argv) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["matched"] == len(rows) == 204
+    assert d["duplicates_kept"] == {"estimate": 4, "reference": 0}
+    assert d["ate_rmse_m"] == pytest.approx(want_all, rel=1e-9)
+    # the library on files read with the first pose of each stamp gives the dropped figure
+    est1 = read_trajectory(tmp_path / "est.tum")
+    ref1 = read_trajectory(tmp_path / "gt.tum")
+    m1 = evaluate_trajectory(est1.t_ns, est1.T_world_x, ref1.t_ns, ref1.T_world_x)
+    assert est1.duplicates_dropped == 4
+    assert m1.ate_rmse_m == pytest.approx(want_dropped, rel=1e-9)

@@ -100,7 +100,8 @@ def _report(args: argparse.Namespace, out: Any) -> int:
         st = s["statuses"]
         print(
             f"wrote {s['frames']} poses to {args.output}: {s['keyframes']} keyframes, "
-            f"{s['loop_closures']} loop closures, path {s['path_length_m']:.2f} m; frames "
+            f"{s['loop_closures']} loop closures ({s.get('relinks', 0)} re-links across lost "
+            f"frames apart), path {s['path_length_m']:.2f} m; frames "
             f"tracking {st['tracking']}, imu_only {st['imu_only']}, lost {st['lost']}, "
             f"relocalised {st['relocalised']}, initialising {st['initialising']}; "
             f"{'with IMU' if s['imu'] else 'visual-only'}; {s['seconds']:.1f} s"

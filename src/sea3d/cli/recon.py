@@ -63,7 +63,8 @@ def _cmd_process(args: argparse.Namespace) -> int:
         return 0
     print(
         f"{plural(s['frames'], 'frame')}: {plural(s['keyframes'], 'keyframe')}, "
-        f"{s['frames_lost']} lost, {plural(s['loop_closures'], 'loop closure')}, path "
+        f"{s['frames_lost']} lost, {plural(s['loop_closures'], 'loop closure')}"
+        f" ({plural(s.get('relinks', 0), 're-link')} across lost frames apart), path "
         f"{s['path_length_m']:.2f} m; poses from {s['odometry']}"
     )
     fps = s.get("frames_per_second")
@@ -164,8 +165,11 @@ def _cmd_eval_trajectory(args: argparse.Namespace) -> int:
     from sea3d.eval.trajectory import evaluate_trajectory
     from sea3d.io.trajectory_files import read_trajectory
 
-    est = read_trajectory(args.estimate, args.est_format, kitti_times=args.est_times)
-    ref = read_trajectory(args.ground_truth, args.gt_format, kitti_times=args.gt_times)
+    # repeated stamps are kept and paired as evo pairs them (evo's figure on such files)
+    est = read_trajectory(args.estimate, args.est_format, kitti_times=args.est_times,
+                          duplicates="keep")
+    ref = read_trajectory(args.ground_truth, args.gt_format, kitti_times=args.gt_times,
+                          duplicates="keep")
     for note in est.notes + ref.notes:
         print(f"sea3d: warning: {note}", file=sys.stderr)
     by_index = not (est.timed and ref.timed)
@@ -175,8 +179,8 @@ def _cmd_eval_trajectory(args: argparse.Namespace) -> int:
     if args.json:
         d = m.as_dict()
         d["paired_by"] = "index" if by_index else "time"
-        d["duplicates_dropped"] = {"estimate": est.duplicates_dropped,
-                                   "reference": ref.duplicates_dropped}
+        d["duplicates_kept"] = {"estimate": est.duplicates_kept,
+                                "reference": ref.duplicates_kept}
         print(json.dumps(d, indent=2))
         for w in m.warnings:
             print(f"sea3d: warning: {error_line(w)}", file=sys.stderr)

@@ -3,9 +3,12 @@
 Definitions (the conventions of the TUM RGB-D benchmark and of evo, re-derived here; evo is
 GPL and is neither used nor copied, its stored results are golden values in the tests):
 
-- **Association**: every estimated stamp is paired with the nearest reference stamp within
-  ``max_diff``; pairs are taken greedily in order of increasing time difference, so each
-  stamp is used at most once. Unstamped (KITTI) trajectories are paired by index.
+- **Association** (evo's rule, so that files with repeated stamps give evo's figure): every
+  pose of the trajectory with fewer poses (the estimate when both have as many) is paired
+  with the pose of the other whose stamp is nearest, the first of equals, within
+  ``max_diff``; a pose of the longer one may serve several. A repeated stamp of the shorter
+  trajectory thus keeps all its poses (each paired), one of the longer keeps only its first.
+  Unstamped (KITTI) trajectories are paired by index.
 - **Alignment** of the estimate onto the reference (Umeyama 1991, closed form on the matched
   positions): ``se3`` (rotation and translation), ``sim3`` (and scale, for monocular or
   badly scaled estimates), or ``none``. The aligned estimate is ``S @ T_est`` with
@@ -149,41 +152,38 @@ class TrajectoryMetrics:
 
 def associate(t_est_ns: NDArray[np.integer], t_ref_ns: NDArray[np.integer],
               max_diff_ns: int) -> tuple[I64, I64]:
-    """Pair stamps one-to-one by nearest time within ``max_diff_ns`` (greedy by difference).
+    """Pair stamps by nearest time within ``max_diff_ns``, as evo's association does.
+
+    Every stamp of the shorter array (``t_est_ns`` when the lengths are equal) is paired with
+    the nearest stamp of the other, the first of equally near ones; the longer one's stamps
+    may be used more than once, and repeated stamps in the shorter one are each paired.
 
     Args:
-        t_est_ns, t_ref_ns: (N,) and (M,) integer nanoseconds, sorted.
+        t_est_ns, t_ref_ns: (N,) and (M,) integer nanoseconds, sorted (repeats allowed; the
+            first of a run of equal stamps is the one the longer array offers).
         max_diff_ns: largest accepted difference.
 
     Returns:
-        ``(i_est, i_ref)``, (K,) int64 each, sorted by ``i_est``.
+        ``(i_est, i_ref)``, (K,) int64 each, in the shorter array's order.
     """
     a = np.asarray(t_est_ns, dtype=np.int64)
     b = np.asarray(t_ref_ns, dtype=np.int64)
     if a.size == 0 or b.size == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    j = np.searchsorted(b, a)
-    cand_i = np.concatenate([np.arange(a.size), np.arange(a.size)])
-    cand_j = np.concatenate([j - 1, j])
-    ok = (cand_j >= 0) & (cand_j < b.size)
-    cand_i, cand_j = cand_i[ok], cand_j[ok]
-    diff = np.abs(a[cand_i] - b[cand_j])
-    keep = diff <= max_diff_ns
-    cand_i, cand_j, diff = cand_i[keep], cand_j[keep], diff[keep]
-    order = np.lexsort((cand_j, cand_i, diff))
-    used_a = np.zeros(a.size, bool)
-    used_b = np.zeros(b.size, bool)
-    out_i, out_j = [], []
-    for k in order.tolist():
-        ia, jb = int(cand_i[k]), int(cand_j[k])
-        if not used_a[ia] and not used_b[jb]:
-            used_a[ia] = used_b[jb] = True
-            out_i.append(ia)
-            out_j.append(jb)
-    ii = np.asarray(out_i, np.int64)
-    jj = np.asarray(out_j, np.int64)
-    s = np.argsort(ii)
-    return ii[s], jj[s]
+    swap = b.size < a.size
+    short, long_ = (b, a) if swap else (a, b)
+    j = np.searchsorted(long_, short, side="left")  # first stamp >= each short stamp
+    after = np.minimum(j, long_.size - 1)
+    before = np.maximum(j - 1, 0)
+    before = np.searchsorted(long_, long_[before], side="left")  # first of its run
+    d_before = np.where(j > 0, np.abs(short - long_[before]), np.iinfo(np.int64).max)
+    d_after = np.where(j < long_.size, np.abs(long_[after] - short), np.iinfo(np.int64).max)
+    pick = np.where(d_before <= d_after, before, after)  # the earlier one on a tie
+    diff = np.minimum(d_before, d_after)
+    ok = diff <= max_diff_ns
+    i_short = np.flatnonzero(ok).astype(np.int64)
+    i_long = pick[ok].astype(np.int64)
+    return (i_long, i_short) if swap else (i_short, i_long)
 
 
 def umeyama(src: F64, dst: F64, *, with_scale: bool) -> tuple[F64, F64, float]:

@@ -18,6 +18,7 @@ import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -54,6 +55,7 @@ class TrajectoryFile:
         path: where it was read from.
         duplicates_dropped: poses dropped because their stamp repeats an earlier one (the
             first pose of each stamp is kept).
+        duplicates_kept: poses whose stamp repeats an earlier one, kept (``duplicates="keep"``).
         unsorted: the file's stamps were not in order (they were sorted).
     """
 
@@ -63,6 +65,7 @@ class TrajectoryFile:
     timed: bool
     path: Path
     duplicates_dropped: int = 0
+    duplicates_kept: int = 0
     unsorted: bool = False
 
     @property
@@ -75,6 +78,12 @@ class TrajectoryFile:
             out.append(
                 f"{self.path}: {self.duplicates_dropped} pose(s) with a repeated stamp dropped "
                 "(the first pose of each stamp kept)"
+            )
+        if self.duplicates_kept:
+            out.append(
+                f"{self.path}: {self.duplicates_kept} pose(s) repeat an earlier stamp; kept and "
+                "paired as evo pairs them (each paired when this trajectory is the shorter, "
+                "the first otherwise)"
             )
         return out
 
@@ -161,6 +170,7 @@ def read_trajectory(
     format: str | None = None,
     *,
     kitti_times: str | os.PathLike[str] | None = None,
+    duplicates: Literal["first", "keep"] = "first",
 ) -> TrajectoryFile:
     """Read a TUM, KITTI or EuRoC CSV trajectory.
 
@@ -169,12 +179,17 @@ def read_trajectory(
         format: ``tum``, ``kitti``, ``euroc`` or None to tell from the extension (``.csv`` is
             EuRoC) and the number of values on the first line (8 TUM, 12 KITTI).
         kitti_times: for KITTI, a ``times.txt`` with one stamp per pose.
+        duplicates: ``first`` keeps the first pose of a repeated stamp (one pose per stamp,
+            for every use that needs a function of time); ``keep`` keeps them all in file
+            order, for :func:`sea3d.eval.trajectory.evaluate_trajectory`, which pairs them as
+            evo does (``eval trajectory`` then gives evo's figure on such files).
 
     Returns:
-        :class:`TrajectoryFile`, sorted by stamp, one pose per stamp. Stamps out of order are
-        sorted and repeated stamps keep their first pose (as estimators such as open VIO
-        systems write them at a re-initialisation), each with a logged warning and a count in
-        the result (``unsorted``, ``duplicates_dropped``, ``notes``).
+        :class:`TrajectoryFile`, sorted by stamp, one pose per stamp (with ``first``).
+        Stamps out of order are sorted (stably) and repeated stamps keep their first pose
+        (as estimators such as open VIO systems write them at a re-initialisation; ``keep``
+        keeps them all), each with a logged warning and a count in
+        the result (``unsorted``, ``duplicates_dropped`` or ``duplicates_kept``, ``notes``).
 
     Raises:
         OdometryError: missing file, unknown format, a malformed line (file and line named),
@@ -236,8 +251,19 @@ def read_trajectory(
         log.warning("%s: stamps are not in order; sorting them", p)
         order = np.argsort(t_ns, kind="stable")  # equal stamps keep their order in the file
         t_ns, T = t_ns[order], T[order]
+    if duplicates not in ("first", "keep"):
+        raise OdometryError(f"duplicates must be 'first' or 'keep', got {duplicates!r}")
     keep = np.concatenate([[True], np.diff(t_ns) != 0])
     dropped = int(keep.size - np.count_nonzero(keep))
+    if dropped and duplicates == "keep":
+        first = int(t_ns[np.flatnonzero(~keep)[0]])
+        log.warning(
+            "%s: %d pose(s) repeat an earlier stamp (the first at t = %s s); kept, each paired "
+            "as evo pairs them",
+            p, dropped, format_tum_stamp(first),
+        )
+        return TrajectoryFile(t_ns=t_ns, T_world_x=T, format=fmt, timed=timed, path=p,
+                              duplicates_kept=dropped, unsorted=unsorted)
     if dropped:
         first = int(t_ns[np.flatnonzero(~keep)[0]])
         log.warning(

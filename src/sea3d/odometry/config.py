@@ -49,15 +49,32 @@ class OdometryConfig:
     """RANSAC reprojection threshold of the per-frame pose, pixels."""
     min_inliers: int = 20
     """Fewest inlier features for a frame to count as tracked."""
+    rescue_search: bool = True
+    """Before a frame is given up (IMU-only or lost), search every landmark of the last
+    keyframe from its image, seeded by the predicted pose (IMU or constant velocity), with a
+    window and pyramid twice tracking's, and solve PnP RANSAC on them (large motion)."""
     # ---- keyframes
     keyframe_track_ratio: float = 0.75
-    """A keyframe is made when fewer than this fraction of the last keyframe's features track."""
+    """A keyframe is made when fewer than this fraction of the last keyframe's features track
+    (track overlap)."""
+    keyframe_parallax_rad: float = 0.1
+    """A keyframe is made when the median rotation-compensated motion of the features tracked
+    since the last keyframe (the parallax) passes their median stereo disparity (the motion
+    has become a longer baseline than the rig's: ``t / z > B / z``) and this angle, radians,
+    times the focal length (50 px at 500 px: a move of a tenth of the scene's depth, the order
+    of LSD-SLAM's keyframe distance). A still or only turning camera makes no keyframe by
+    parallax."""
     keyframe_max_interval_s: float = 0.5
-    """Longest time between keyframes with an IMU, seconds (bounds the preintegration)."""
-    keyframe_max_frames: int = 8
-    """Most frames between keyframes."""
+    """Longest time between keyframes with an IMU while the camera moves, seconds (bounds the
+    preintegration); a still camera (parallax under a quarter of the threshold) waits up to
+    half the smoother's window (``smoother_lag_s / 2``)."""
+    keyframe_max_frames: int = 30
+    """Most frames between keyframes (a bound for slow drifts of the view that neither
+    parallax nor overlap catch; 3 s at 10 Hz)."""
     keyframe_min_features: int = 120
-    """A keyframe is made when fewer features than this are tracked."""
+    """A keyframe is made when fewer features than this are tracked, where the last keyframe
+    had at least as many (an image with less texture makes keyframes by overlap and
+    parallax only)."""
     # ---- back end
     smoother_lag_s: float = 3.0
     """Fixed-lag smoother window, seconds: cost per keyframe stays bounded over hours."""

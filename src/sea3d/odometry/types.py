@@ -103,6 +103,9 @@ class OdometryEstimate:
             for a keyframe); fusion anchors submaps to it.
         loop_closure: True when this frame closed a loop (keyframe poses changed: call
             :meth:`Odometry.keyframe_poses`).
+        relink: True when that closure was a re-link: a keyframe joined to a neighbouring
+            keyframe (near in time) of another segment across a lost stretch, not a place
+            seen again. Keyframe poses changed all the same; counted apart from loops.
         tracked_features: number of inlier features used for this frame's pose.
         info: free-form per-frame figures (timings, inlier ratios) for reports.
     """
@@ -114,6 +117,7 @@ class OdometryEstimate:
     keyframe_id: int | None = None
     anchor_keyframe_id: int | None = None
     loop_closure: bool = False
+    relink: bool = False
     tracked_features: int = 0
     info: dict[str, float] = field(default_factory=dict)
 

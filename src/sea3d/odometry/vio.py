@@ -19,6 +19,7 @@ gives every frame after the last optimisation.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass, field
@@ -34,6 +35,7 @@ from sea3d.geometry.se3 import invert_T
 from sea3d.odometry.backend import KeyframeState, SmootherBackend, SmootherFailure
 from sea3d.odometry.config import OdometryConfig
 from sea3d.odometry.frontend import (
+    StereoPoints,
     detect_corners,
     sample_depth,
     solve_pnp,
@@ -90,6 +92,9 @@ class _Segment:
     last_kf: int = -1
     kf_t_ns: int = 0
     kf_tracks: int = 0
+    kf_ids: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
+    kf_uv: F64 = field(default_factory=lambda: np.zeros((0, 2)))  # at the keyframe, sorted ids
+    kf_grey: NDArray[np.uint8] | None = None  # the keyframe's left image
     state: KeyframeState | None = None
     pim: object | None = None
     imu_link_ok: bool = True
@@ -170,6 +175,8 @@ class StereoInertialOdometry:
         )
         self._clahe = cv2.createCLAHE(clipLimit=3.0, tileGridSize=(8, 8))
         self.loop_closures = 0
+        self.relinks = 0
+        self._last_relink = False
         self.frames_lost = 0
         self.seconds = 0.0
         self.imu_frames_without_samples = 0
@@ -357,6 +364,7 @@ class StereoInertialOdometry:
             keyframe_id=keyframe,
             anchor_keyframe_id=anchor if anchor >= 0 else None,
             loop_closure=loop,
+            relink=loop and self._last_relink,
             tracked_features=int(features),
             info=dict(info or {}),
         )
@@ -503,7 +511,7 @@ class StereoInertialOdometry:
         seg.frames_since_kf = 0
         seg.track_ids, seg.track_uv = ids, uv
         seg.track_X = np.array([seg.backend.landmark(int(j)) for j in ids]).reshape(-1, 3)
-        seg.kf_tracks = int(ids.size)
+        self._mark_keyframe_tracks(seg, grey)
         seg.prev_grey = grey
         seg.last_T_odom = T_odom
         seg.prev_T_odom = None
@@ -532,6 +540,169 @@ class StereoInertialOdometry:
             reason,
         )
         self._seg = None
+
+    def _solve(
+        self,
+        seg: _Segment,
+        t_ns: int,
+        grey: NDArray[np.uint8],
+        right: NDArray[np.uint8] | None,
+        depth: NDArray[np.float32],
+        ids: NDArray[np.int64],
+        X: F64,
+        uv: F64,
+        pred: F64 | None,
+    ) -> tuple[StereoPoints, F64 | None, NDArray[np.int64]]:
+        """Stereo points of the tracked pixels and the frame's pose by PnP RANSAC against
+        their landmarks ``X``: ``(stereo points, T_odomworld_rect or None, inlier indices)``;
+        None when PnP fails or the pose disagrees with the IMU's prediction."""
+        c = self.config
+        sp = stereo_points(grey, right, depth, uv, self.geometry, c)
+        # pixels consistent with the virtual pinhole: from the stereo point, else from the
+        # landmark's predicted depth
+        P_for_corr = sp.points_rect.copy()
+        if self.geometry.refractive and pred is not None:
+            miss = ~sp.ok
+            if miss.any():
+                T = invert_T(pred)
+                z = (X[miss] @ T[:3, :3].T + T[:3, 3])[:, 2]
+                Pm, okm = self.geometry.points_from_depth(uv[miss], z)
+                Pm[~okm] = np.nan
+                P_for_corr[miss] = Pm
+        uv_c = self._corrected_uv(uv, P_for_corr)
+        T_rw_guess = invert_T(pred) if pred is not None else None
+        T_rect_world, inl = solve_pnp(X, uv_c, self.geometry.K, T_rw_guess, c)
+        if T_rect_world is None:
+            return sp, None, inl
+        T_odom = invert_T(T_rect_world)
+        if (
+            pred is not None
+            and seg.backend.inertial
+            and seg.imu_link_ok
+            and inl.size < 3 * c.min_inliers  # a well-supported PnP pose is trusted as it is
+        ):
+            dtr = float(np.linalg.norm(T_odom[:3, 3] - pred[:3, 3]))
+            drot = _rotation_angle(T_odom[:3, :3].T @ pred[:3, :3])
+            gap_s = (t_ns - seg.kf_t_ns) * 1e-9
+            if dtr > 0.15 + 0.5 * gap_s or drot > np.deg2rad(3.0 + 5.0 * gap_s):
+                log.debug(
+                    "vision disagrees with the IMU at t=%.3f s (%.3f m, %.2f deg)",
+                    t_ns * 1e-9,
+                    dtr,
+                    np.degrees(drot),
+                )
+                return sp, None, inl
+        return sp, T_odom, inl
+
+    def _rescue(
+        self,
+        seg: _Segment,
+        t_ns: int,
+        grey: NDArray[np.uint8],
+        right: NDArray[np.uint8] | None,
+        depth: NDArray[np.float32],
+        pred: F64 | None,
+    ) -> tuple[NDArray[np.int64], F64, F64, StereoPoints, F64, NDArray[np.int64]] | None:
+        """Search every landmark the last keyframe saw (still in the smoother) from the
+        keyframe's image into this one, seeded by their projection at the predicted pose,
+        with a window and a pyramid twice as deep as tracking's; then PnP RANSAC.
+
+        Returns:
+            ``(ids, X, uv, stereo points, T_odomworld_rect, inliers)`` or None.
+        """
+        c = self.config
+        be = seg.backend
+        if seg.kf_grey is None or seg.kf_ids.size == 0:
+            return None
+        live = np.array([be.has_landmark(int(j)) for j in seg.kf_ids], dtype=bool)
+        if np.count_nonzero(live) < c.min_inliers:
+            return None
+        ids = seg.kf_ids[live]
+        kf_uv = seg.kf_uv[live]
+        X = np.array([be.landmark(int(j)) for j in ids]).reshape(-1, 3)
+        wide = dataclasses.replace(
+            c, klt_window_px=2 * c.klt_window_px - 1, klt_levels=c.klt_levels + 2
+        )
+        # seeded by the prediction, then (a prediction can be what failed) by the keyframe's
+        # own pixels, which the deeper pyramid carries over the motion
+        seeds: list[F64 | None] = [None]
+        if pred is not None:
+            projected = self._project(X, pred)
+            bad = ~np.isfinite(projected).all(axis=1)
+            projected[bad] = kf_uv[bad]
+            seeds.insert(0, projected)
+        for guess in seeds:
+            uv, ok = track_klt(seg.kf_grey, grey, kf_uv, guess, wide)
+            if np.count_nonzero(ok) < c.min_inliers:
+                continue
+            ids_ok = ids[ok]
+            X_ok = np.asarray(X[ok], dtype=np.float64).reshape(-1, 3)
+            sp, T_odom, inl = self._solve(seg, t_ns, grey, right, depth, ids_ok, X_ok, uv[ok],
+                                          pred if guess is not None else None)
+            if T_odom is not None:
+                log.debug("tracking re-found %d landmarks of the keyframe at t=%.3f s",
+                          inl.size, t_ns * 1e-9)
+                return ids_ok, X_ok, uv[ok], sp, T_odom, inl
+        return None
+
+    # ------------------------------------------------------------------ keyframes
+    def _mark_keyframe_tracks(self, seg: _Segment, grey: NDArray[np.uint8] | None) -> None:
+        """Remember the new keyframe's image, features and their pixels (for overlap,
+        parallax and the search before a frame is given up)."""
+        seg.kf_tracks = int(seg.track_ids.size)
+        seg.kf_grey = grey
+        order = np.argsort(seg.track_ids, kind="stable")
+        seg.kf_ids = seg.track_ids[order].copy()
+        seg.kf_uv = np.asarray(seg.track_uv, dtype=np.float64).reshape(-1, 2)[order].copy()
+
+    def _parallax_threshold_px(self, seg: _Segment, T_odom: F64) -> float:
+        """Parallax that makes a keyframe, pixels: the motion since the keyframe has become a
+        longer baseline than the rig's own (the motion parallax passes the median stereo
+        disparity of the tracked points: ``t / z > B / z``), and at least
+        ``keyframe_parallax_rad`` times the focal length."""
+        g = self.geometry
+        floor = self.config.keyframe_parallax_rad * g.fx
+        if seg.track_X.shape[0] == 0:
+            return floor
+        T = invert_T(T_odom)
+        z = (seg.track_X @ T[:3, :3].T + T[:3, 3])[:, 2]
+        z = z[np.isfinite(z) & (z > 0)]
+        if z.size == 0:
+            return floor
+        return max(floor, float(np.median(g.fx * g.baseline_m / z)))
+
+    def _imu_interval_s(self, parallax_px: float) -> float:
+        """Longest time to the next keyframe with an IMU: ``keyframe_max_interval_s`` while
+        the camera moves, up to half the smoother's window while it is still."""
+        c = self.config
+        still = parallax_px < 0.25 * c.keyframe_parallax_rad * self.geometry.fx
+        return max(c.keyframe_max_interval_s, 0.5 * c.smoother_lag_s) if still else (
+            c.keyframe_max_interval_s)
+
+    def _parallax_px(self, seg: _Segment, T_odom: F64) -> float:
+        """Median rotation-compensated motion, pixels, of the features tracked since the last
+        keyframe: each keyframe pixel is turned by the camera's rotation since the keyframe
+        (the infinite homography ``K R K^-1``), so only the motion that triangulates is left.
+        0 when none is shared."""
+        if seg.kf_ids.size == 0 or seg.track_ids.size == 0 or seg.last_kf not in self._keyframes:
+            return 0.0
+        pos = np.searchsorted(seg.kf_ids, seg.track_ids)
+        pos = np.minimum(pos, seg.kf_ids.size - 1)
+        shared = seg.kf_ids[pos] == seg.track_ids
+        if not shared.any():
+            return 0.0
+        g = self.geometry
+        R_kf = self._keyframes[seg.last_kf].T_odom[:3, :3]
+        R = T_odom[:3, :3].T @ R_kf  # keyframe camera -> current camera
+        uv0 = seg.kf_uv[pos[shared]]
+        rays = np.stack([(uv0[:, 0] - g.cx) / g.fx, (uv0[:, 1] - g.cy) / g.fy,
+                         np.ones(uv0.shape[0])], axis=1) @ R.T
+        with np.errstate(invalid="ignore", divide="ignore"):
+            turned = np.stack([g.fx * rays[:, 0] / rays[:, 2] + g.cx,
+                               g.fy * rays[:, 1] / rays[:, 2] + g.cy], axis=1)
+        d = np.linalg.norm(seg.track_uv[shared] - turned, axis=1)
+        d = d[np.isfinite(d)]
+        return float(np.median(d)) if d.size else 0.0
 
     # ------------------------------------------------------------------ tracking
     def _predict(self, seg: _Segment, t_ns: int) -> F64 | None:
@@ -595,43 +766,17 @@ class StereoInertialOdometry:
         info["tracked"] = float(ok.sum())
         ids, X = seg.track_ids[ok], seg.track_X[ok]
         uv = uv[ok]
-        sp = stereo_points(grey, right, depth, uv, self.geometry, c)
-        # pixels consistent with the virtual pinhole: from the stereo point, else from the
-        # landmark's predicted depth
-        P_for_corr = sp.points_rect.copy()
-        if self.geometry.refractive and pred is not None:
-            miss = ~sp.ok
-            if miss.any():
-                T = invert_T(pred)
-                z = (X[miss] @ T[:3, :3].T + T[:3, 3])[:, 2]
-                Pm, okm = self.geometry.points_from_depth(uv[miss], z)
-                Pm[~okm] = np.nan
-                P_for_corr[miss] = Pm
-        uv_c = self._corrected_uv(uv, P_for_corr)
-        T_rw_guess = invert_T(pred) if pred is not None else None
-        T_rect_world, inl = solve_pnp(X, uv_c, self.geometry.K, T_rw_guess, c)
-        vision_ok = T_rect_world is not None
-        T_odom: F64 | None = invert_T(T_rect_world) if T_rect_world is not None else None
-        if (
-            vision_ok
-            and T_odom is not None
-            and pred is not None
-            and seg.backend.inertial
-            and seg.imu_link_ok
-            and inl.size < 3 * c.min_inliers  # a well-supported PnP pose is trusted as it is
-        ):
-            dtr = float(np.linalg.norm(T_odom[:3, 3] - pred[:3, 3]))
-            drot = _rotation_angle(T_odom[:3, :3].T @ pred[:3, :3])
-            gap_s = (t_ns - seg.kf_t_ns) * 1e-9
-            if dtr > 0.15 + 0.5 * gap_s or drot > np.deg2rad(3.0 + 5.0 * gap_s):
-                log.debug(
-                    "vision disagrees with the IMU at t=%.3f s (%.3f m, %.2f deg)",
-                    t_ns * 1e-9,
-                    dtr,
-                    np.degrees(drot),
-                )
-                vision_ok = False
-        if not vision_ok or T_odom is None:
+        sp, T_odom, inl = self._solve(seg, t_ns, grey, right, depth, ids, X, uv, pred)
+        rescued = False
+        if T_odom is None and c.rescue_search:
+            # before the frame is given up: every landmark of the last keyframe, searched
+            # from the keyframe's image with a wider pyramid seeded by the prediction
+            found = self._rescue(seg, t_ns, grey, right, depth, pred)
+            if found is not None:
+                ids, X, uv, sp, T_odom, inl = found
+                rescued = True
+                info["rescued"] = float(inl.size)
+        if T_odom is None:
             return self._vision_failed(seg, t_ns, grey, right, depth, pred, info)
         info["inliers"] = float(inl.size)
         seg.track_ids, seg.track_uv, seg.track_X = ids[inl], uv[inl], X[inl]
@@ -642,14 +787,22 @@ class StereoInertialOdometry:
         seg.last_vision_t_ns = int(t_ns)
         n = int(inl.size)
         seg.frames_since_kf += 1
+        parallax_px = self._parallax_px(seg, T_odom)
+        info["parallax_px"] = parallax_px
         make_kf = (
-            n < c.keyframe_track_ratio * seg.kf_tracks
-            or n < c.keyframe_min_features
+            rescued  # the tracks were re-found from the keyframe: refresh them
+            # track overlap: the keyframe's features are thinning out
+            or n < c.keyframe_track_ratio * seg.kf_tracks
+            # too few features, where the keyframe had enough (an image that offers fewer
+            # features than this is no reason for a keyframe every frame)
+            or (n < c.keyframe_min_features <= seg.kf_tracks)
+            # parallax: the view has changed enough to triangulate anew
+            or parallax_px >= self._parallax_threshold_px(seg, T_odom)
             or seg.frames_since_kf >= c.keyframe_max_frames
             or (
                 seg.backend.inertial
                 and (
-                    (t_ns - seg.kf_t_ns) * 1e-9 >= c.keyframe_max_interval_s - 1e-6
+                    (t_ns - seg.kf_t_ns) * 1e-9 >= self._imu_interval_s(parallax_px) - 1e-6
                     or not seg.imu_link_ok
                 )
             )
@@ -776,7 +929,7 @@ class StereoInertialOdometry:
         live = np.array([be.has_landmark(int(j)) for j in ids], dtype=bool)
         seg.track_ids, seg.track_uv = ids[live], uv_all[live]
         seg.track_X = np.array([be.landmark(int(j)) for j in seg.track_ids]).reshape(-1, 3)
-        seg.kf_tracks = int(seg.track_ids.size)
+        self._mark_keyframe_tracks(seg, grey)
         seg.last_T_odom = T_new
         seg.prev_grey = grey
         seg.loops_since += 1
@@ -898,7 +1051,7 @@ class StereoInertialOdometry:
         live = np.array([be.has_landmark(int(j)) for j in ids], dtype=bool)
         seg.track_ids, seg.track_uv = ids[live], uv[live]
         seg.track_X = np.array([be.landmark(int(j)) for j in seg.track_ids]).reshape(-1, 3)
-        seg.kf_tracks = int(seg.track_ids.size)
+        self._mark_keyframe_tracks(seg, grey)
         seg.last_T_odom = T_new
         seg.last_vision_t_ns = int(t_ns)
         info["reacquired"] = float(ids.size)
@@ -994,7 +1147,16 @@ class StereoInertialOdometry:
         if found is None:
             return False, False
         joined = self._root(self._keyframes[found.candidate].segment) != root
-        self._close_loop(found, k)
+        # a keyframe of another segment that is near in time is a neighbour across a lost
+        # stretch, not a place seen again: a re-link, counted apart from the loop closures
+        cand = self._keyframes[found.candidate]
+        relink = (
+            joined
+            and abs(cand.t_ns - kf.t_ns) * 1e-9 < c.loop_min_gap_s
+            and found.candidate
+            in [q for q in self._kf_order if self._keyframes[q].segment == cand.segment][-5:]
+        )
+        self._close_loop(found, k, relink=relink)
         seg.loops_since = 0
         return True, joined
 
@@ -1030,7 +1192,7 @@ class StereoInertialOdometry:
             time.perf_counter() - t0,
         )
 
-    def _close_loop(self, loop: LoopCandidate, k: int) -> None:
+    def _close_loop(self, loop: LoopCandidate, k: int, *, relink: bool = False) -> None:
         self._graph.add_loop(loop.candidate, k, loop.T_cand_query)
         odometry = {q: kf.T_odom for q, kf in self._keyframes.items()}
         segments = {q: kf.segment for q, kf in self._keyframes.items()}
@@ -1051,5 +1213,9 @@ class StereoInertialOdometry:
         b = self._root(self._keyframes[k].segment)
         if a != b:
             self._parent[max(a, b)] = min(a, b)
-        self.loop_closures += 1
+        self._last_relink = relink
+        if relink:
+            self.relinks += 1
+        else:
+            self.loop_closures += 1
         log.info("loop closed: keyframe %d with %d (%d inliers)", k, loop.candidate, loop.inliers)

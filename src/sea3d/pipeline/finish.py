@@ -107,6 +107,7 @@ def run_summary(stages: OrderedStages, rec: Reconstruction, **extra: Any) -> dic
         "frames_fused": int(sum(1 for s in stages.fuse_status if s == "integrated")),
         "frames_from_cache": extra.pop("frames_from_cache", 0),
         "loop_closures": stages.loop_closures,
+        "relinks": stages.relinks,
         "segments": int(seg.max() + 1) if len(seg) else 0,
         "path_length_m": (_path_length(rec.T_world_left, trusted, seg)
                           if len(rec.T_world_left) > 1 else 0.0),

@@ -238,7 +238,8 @@ class OdometryRun:
         T_world_left: (N, 4, 4) final poses (after the last loop closure).
         statuses: per frame :class:`TrackingStatus`.
         segments: per frame segment id (as reported when the frame was processed).
-        summary: ``frames``, ``keyframes``, ``frames_lost``, ``loop_closures``,
+        summary: ``frames``, ``keyframes``, ``frames_lost``, ``loop_closures``, ``relinks``
+            (closures that only re-link neighbouring keyframes across a lost stretch),
             ``path_length_m``, ``seconds``, per-status counts, IMU use, notes.
     """
 
@@ -291,6 +292,7 @@ def run_odometry(
         "keyframes": int(getattr(odometry, "keyframe_count", 0)),
         "frames_lost": int(counts.get(TrackingStatus.LOST.value, 0)),
         "loop_closures": int(getattr(odometry, "loop_closures", 0)),
+        "relinks": int(getattr(odometry, "relinks", 0)),
         "path_length_m": path_length_m(T, statuses),
         "seconds": time.perf_counter() - t0,
         "seconds_odometry": seconds_odo,

@@ -66,6 +66,7 @@ class OrderedStages:
         self.worker_timings_s: dict[str, float] = {}
         self.failed = 0
         self.loop_closures = 0
+        self.relinks = 0  # closures that re-link neighbouring keyframes across a lost stretch
 
     def step(self, res: FrameResult, imu: ImuChunk | None, *, fuse: bool = True
              ) -> OdometryEstimate | None:
@@ -93,7 +94,10 @@ class OrderedStages:
         est = self.odometry.step(obs)
         self.estimates.append(est)
         if est.loop_closure:
-            self.loop_closures += 1
+            if est.relink:
+                self.relinks += 1
+            else:
+                self.loop_closures += 1
             self.kf_rect = {k: T @ self.T_left_rect
                             for k, T in self.odometry.keyframe_poses().items()}
         if est.keyframe_id is not None:

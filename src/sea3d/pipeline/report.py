@@ -322,6 +322,7 @@ def _facts_rows_html(s: dict[str, Any]) -> str:
         ("frames on the IMU only", s["frames_imu_only"]),
         ("frames fused into the TSDF", s["frames_fused"]),
         ("loop closures", s["loop_closures"]),
+        ("re-links across lost frames", s.get("relinks", 0)),
         ("segments", s["segments"]),
         ("path length", _fmt(s["path_length_m"], " m", digits=2)),
         ("frames per second (frame loop)", _fmt(s.get("frames_per_second"), "", digits=2)),
