@@ -62,14 +62,20 @@ class RgbdLoopConfig:
     """Candidates verified per keyframe, best score first."""
     min_inliers: int = 40
     """PnP-RANSAC inliers needed to accept a loop."""
-    cooldown_keyframes: int = 1
+    cooldown_keyframes: int = 0
     """Keyframes after an accepted loop before the next search."""
+    loop_translation_sigma_m: float = 0.002
+    """Standard deviation of a loop edge's translation, metres (a dense alignment of two
+    depth maps, tighter than the stereo engine's PnP loops)."""
+    loop_rotation_sigma_rad: float = 0.002
+    """Standard deviation of a loop edge's rotation, radians."""
 
     def __post_init__(self) -> None:
         if not (self.orb_features >= 50 and self.vocabulary_train_keyframes >= 1
                 and self.min_gap_keyframes >= 1 and self.min_path_ratio > 1
                 and self.candidates >= 1
-                and self.min_inliers >= 6 and self.cooldown_keyframes >= 0):
+                and self.min_inliers >= 6 and self.cooldown_keyframes >= 0
+                and self.loop_translation_sigma_m > 0 and self.loop_rotation_sigma_rad > 0):
             raise OdometryError("RGB-D loop config: thresholds out of range")
 
 
@@ -97,14 +103,17 @@ class RgbdLoopCloser:
     Args:
         K: (3, 3) intrinsics.
         config: :class:`RgbdLoopConfig`.
-        graph: the pose graph (its default sigmas unless given).
+        graph: the pose graph (default: :class:`~sea3d.odometry.posegraph.PoseGraph`'s
+            odometry sigmas with the loop sigmas of ``config``).
     """
 
     def __init__(self, K: F64, config: RgbdLoopConfig | None = None,
                  graph: PoseGraph | None = None) -> None:
         self.K = np.asarray(K, np.float64).reshape(3, 3)
         self.config = config or RgbdLoopConfig()
-        self.graph = graph or PoseGraph()
+        self.graph = graph or PoseGraph(
+            loop_rotation_sigma_rad=self.config.loop_rotation_sigma_rad,
+            loop_translation_sigma_m=self.config.loop_translation_sigma_m)
         self._kfs: dict[int, _Kf] = {}
         self._vocab: Vocabulary | None = None
         self._db: KeyframeDatabase | None = None

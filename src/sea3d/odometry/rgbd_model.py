@@ -69,7 +69,7 @@ class TsdfModel:
             attr_names=("tsdf", "weight", "color"), attr_dtypes=(f32, f32, f32),
             attr_channels=(o3d.core.SizeVector([1]), o3d.core.SizeVector([1]),
                            o3d.core.SizeVector([3])), voxel_size=self.voxel_m, block_resolution=8,
-            block_count=20000)
+            block_count=2000)
         self._blocks: Any = None  # the block coordinates of the last integrated frustum
         self.frames = 0
 
@@ -101,8 +101,16 @@ class TsdfModel:
         o3d = self._o3d
         if self._blocks is None:
             return None
+        # Open3D integrates voxel (i, j, k) at the corner (i, j, k) * voxel but the ray-cast
+        # reads the voxel a point falls in (rounding down): the rendered surface sits half a
+        # voxel along +x, +y, +z of the world. Rendering from a camera moved by the same half
+        # voxel cancels it (the depth gap to the integrated frame falls from 1.8 to 0.6 mm,
+        # median over six orientations, 4 mm voxels); uncorrected, tracking against the model
+        # and fusing at the result creeps by that offset frame after frame.
+        T = np.array(T_world_cam, np.float64)
+        T[:3, 3] += 0.5 * self.voxel_m
         r = self._grid.ray_cast(
-            self._blocks, self._K, self._extrinsic(T_world_cam), self.width, self.height,
+            self._blocks, self._K, self._extrinsic(T), self.width, self.height,
             ["depth", "color"], 1.0, self.min_depth_m, self.max_depth_m, 1.0,
             self.trunc_voxels)
         depth = np.ascontiguousarray(r["depth"].numpy()[..., 0], dtype=np.float32)
