@@ -175,3 +175,18 @@ def test_a_path_that_goes_on_closes_no_loop(chess) -> None:
     _feed(closer, frames, gt, list(range(0, 60, 6)), DRIFT_M_PER_KF)
     assert closer.loop_closures == 0 and closer.loops == []
     np.testing.assert_array_equal(closer.correction(3), np.eye(4))
+
+
+@pytest.mark.slow
+def test_there_and_back_closes_a_loop_and_ends_nearer_its_start(chess) -> None:
+    frames, _ = chess
+    idx = [*range(60), *range(58, -1, -1)]  # out and back to the first frame
+    end = {}
+    for loops in (False, True):
+        odo = DenseRgbdOdometry(K, DenseRgbdConfig(loop_closure=loops))
+        est = [odo.step(_obs(k, *frames[i])) for k, i in enumerate(idx)]
+        assert all(e.status is TrackingStatus.TRACKING for e in est)
+        T = odo.trajectory()[1]
+        end[loops] = float(np.linalg.norm((np.linalg.inv(T[0]) @ T[-1])[:3, 3]))  # truth: 0
+        assert (odo.loop_closures >= 1) if loops else (odo.loop_closures == 0)
+    assert end[True] < 0.8 * end[False], end

@@ -30,6 +30,8 @@ _USAGE = (
 
 def register(sub: Any) -> None:
     """Add ``sea3d odometry``."""
+    from sea3d.odometry.rgbd_dense import DenseRgbdConfig
+
     p = sub.add_parser(
         "odometry",
         usage=_USAGE,
@@ -73,6 +75,13 @@ def register(sub: Any) -> None:
         default="dense",
         help="dense: frame-to-keyframe dense alignment (default); features: sparse features, "
         "keyframes and windowed BA through the stereo engine",
+    )
+    g.add_argument(
+        "--tracking",
+        choices=("keyframe", "model"),
+        default=DenseRgbdConfig().tracking,
+        help="dense method: align each frame to the keyframe (default) or to the fused TSDF "
+        "model ray-cast at the previous pose",
     )
     g.add_argument(
         "--depth-scale",
@@ -218,6 +227,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _run_rgbd(args: argparse.Namespace) -> int:
+    from sea3d.odometry.rgbd_dense import DenseRgbdConfig
     from sea3d.pipeline.odometry import rgbd_observations, rgbd_odometry
 
     if args.color is None or args.depth is None or args.intrinsics is None:
@@ -236,6 +246,9 @@ def _run_rgbd(args: argparse.Namespace) -> int:
             config=_config(args),
             progress=bar.update,
             method=args.method,
+            dense_config=DenseRgbdConfig(
+                tracking=args.tracking, loop_closure=not args.no_loop_closure
+            ),
         )
     return _report(args, run)
 

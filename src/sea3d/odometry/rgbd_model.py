@@ -109,10 +109,13 @@ class TsdfModel:
         # and fusing at the result creeps by that offset frame after frame.
         T = np.array(T_world_cam, np.float64)
         T[:3, 3] += 0.5 * self.voxel_m
-        r = self._grid.ray_cast(
-            self._blocks, self._K, self._extrinsic(T), self.width, self.height,
-            ["depth", "color"], 1.0, self.min_depth_m, self.max_depth_m, 1.0,
-            self.trunc_voxels)
+        # Open3D prints a warning whenever the ray-cast's range map outgrows its buffer
+        # (it then grows it); library code does not print
+        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+            r = self._grid.ray_cast(
+                self._blocks, self._K, self._extrinsic(T), self.width, self.height,
+                ["depth", "color"], 1.0, self.min_depth_m, self.max_depth_m, 1.0,
+                self.trunc_voxels)
         depth = np.ascontiguousarray(r["depth"].numpy()[..., 0], dtype=np.float32)
         colour = np.ascontiguousarray(np.clip(r["color"].numpy(), 0.0, 1.0), dtype=np.float32)
         image = o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(colour),
