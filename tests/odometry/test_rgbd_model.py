@@ -190,3 +190,32 @@ def test_there_and_back_closes_a_loop_and_ends_nearer_its_start(chess) -> None:
         end[loops] = float(np.linalg.norm((np.linalg.inv(T[0]) @ T[-1])[:3, 3]))  # truth: 0
         assert (odo.loop_closures >= 1) if loops else (odo.loop_closures == 0)
     assert end[True] < 0.8 * end[False], end
+
+
+@pytest.mark.slow
+def test_cli_tracks_against_the_model_with_tracking_model(chess, data_dir, tmp_path,
+                                                          capsys) -> None:
+    import json
+    import shutil
+
+    from sea3d.cli import main as sea3d_main
+    from sea3d.io.trajectory_files import read_trajectory
+
+    frames, _ = chess
+    src = data_dir / "rgbd/7scenes_chess"
+    for i in range(4):
+        for kind, ext in (("color", "jpg"), ("depth", "png")):
+            name = f"frame-{i:06d}.{kind}.{ext}"
+            shutil.copy(src / name, tmp_path / name)
+    out = tmp_path / "t.tum"
+    argv = ["odometry", "rgbd", "--color", str(tmp_path / "*.color.jpg"), "--depth",
+            str(tmp_path / "*.depth.png"), "--intrinsics", "585", "585", "320", "240",
+            "--tracking", "model", "-o", str(out), "--json"]
+    assert sea3d_main(argv) == 0
+    assert json.loads(capsys.readouterr().out)["frames"] == 4
+    odo = DenseRgbdOdometry(K, DenseRgbdConfig(tracking="model", loop_closure=True))
+    for i in range(4):
+        odo.step(_obs(i, *frames[i]))
+    assert odo.model_frames == 3
+    got = read_trajectory(out)
+    np.testing.assert_allclose(got.T_world_x[:, :3, 3], odo.trajectory()[1][:, :3, 3], atol=1e-4)
