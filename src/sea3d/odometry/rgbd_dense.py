@@ -18,6 +18,14 @@ fitness below ``min_fitness``, or an implausible jump), the frame is retried aga
 previous frame; if that fails as well the frame is ``LOST``: its pose is bridged by constant
 velocity, and the next frame that tracks starts a new segment (and a keyframe) from there.
 
+With ``tracking="model"`` each frame is first aligned (from the same starts) against the fused
+TSDF model ray-cast at the previous pose (:mod:`sea3d.odometry.rgbd_model`), falling back to
+the keyframe when the ray-cast covers too little of the frame or the alignment fails; every
+tracked frame is fused into the model. With ``loop_closure`` every new keyframe is searched
+for a return to an earlier one (:mod:`sea3d.odometry.rgbd_loop`: the stereo engine's place
+recognition, verification and pose graph, the loop refined by the dense alignment of the two
+keyframes); the trajectory is re-expressed against the corrected keyframes.
+
 Poses are ``T_world_left`` with the world the first frame's camera.
 """
 
@@ -190,6 +198,7 @@ class DenseRgbdOdometry:
         self._anchor: list[int] = []  # per frame its keyframe (-1: none)
         self._loops: Any = None
         self._kf_images: dict[int, object] = {}  # keyframe images, kept for loop closure
+        self._image_hw = (0, 0)
         if c.loop_closure:
             from sea3d.odometry.rgbd_loop import RgbdLoopCloser
 
@@ -355,6 +364,7 @@ class DenseRgbdOdometry:
                                 f"{frame.rect_left.shape[:2]} differ in size")
         self._last_t = t
         c = self.config
+        self._image_hw = (int(frame.depth_m.shape[0]), int(frame.depth_m.shape[1]))
         image, valid_share = self._image(frame)
         grey = _grey(np.asarray(frame.rect_left))
         depth = np.asarray(frame.depth_m, np.float32)
@@ -482,5 +492,13 @@ class DenseRgbdOdometry:
         return np.asarray(self._t, np.int64), np.stack(T)
 
     def memory_bytes(self) -> int:
-        """Bytes of state held (the poses; one keyframe image and the previous frame)."""
-        return 16 * 8 * len(self._T)
+        """Bytes of state held: the poses, the keyframe images kept for loop closure (about
+        2 MB each at 640x480: colour and float depth) and the model's voxel blocks."""
+        n = 16 * 8 * len(self._T)
+        if self._kf_images:
+            h, w = self._image_hw
+            n += len(self._kf_images) * h * w * 7  # 3 colour bytes and 4 depth bytes a pixel
+        if self._model is not None:
+            vox = 8**3  # voxels a block
+            n += self._model.blocks() * vox * 5 * 4  # tsdf, weight, colour (3): float32
+        return n
