@@ -95,8 +95,10 @@ def test_the_model_renders_the_frame_it_integrated(chess, rotvec) -> None:
 def test_model_tracking_falls_back_to_the_keyframe_when_the_raycast_is_too_sparse(chess) -> None:
     frames, _ = chess
     # a ray-cast never covers every pixel with depth: min_model_share 1 always falls back
-    cfg = DenseRgbdConfig(tracking="model", min_model_share=1.0, voxel_px=4.0)
-    odo, ref = DenseRgbdOdometry(K, cfg), DenseRgbdOdometry(K, DenseRgbdConfig())
+    cfg = DenseRgbdConfig(tracking="model", min_model_share=1.0, voxel_px=4.0,
+                          loop_closure=False)
+    odo = DenseRgbdOdometry(K, cfg)
+    ref = DenseRgbdOdometry(K, DenseRgbdConfig(loop_closure=False))
     for i in range(0, 12, 4):
         e = odo.step(_obs(i, *frames[i]))
         ref.step(_obs(i, *frames[i]))
