@@ -20,6 +20,7 @@ ground truth's), centimetres; the loops found; wall and CPU seconds of each run 
 the machine is shared and loaded; accuracy does not depend on it). Run:
 
     python benchmarks/bench_rgbd.py [--only chess|return|tum] [--steps 1 2 5 10] [--loops]
+                                    [--voxel-px 1.25]
 """
 
 from __future__ import annotations
@@ -151,11 +152,12 @@ def _timed(fn, *args, **kw):
     return out, time.perf_counter() - w0, time.process_time() - c0
 
 
-def run_sequence(seq: Sequence, loops: bool) -> dict:
-    runs = {"keyframe": {}, "model": {"tracking": "model"}}
+def run_sequence(seq: Sequence, loops: bool, voxel_px: float | None = None) -> dict:
+    model = {"tracking": "model"} | ({"voxel_px": voxel_px} if voxel_px else {})
+    runs = {"keyframe": {"loop_closure": False}, "model": model | {"loop_closure": False}}
     if loops:
         runs["keyframe+loops"] = {"loop_closure": True}
-        runs["model+loops"] = {"tracking": "model", "loop_closure": True}
+        runs["model+loops"] = model | {"loop_closure": True}
     ref, w, c = _timed(open3d_frame_to_frame, seq)
     row = {"sequence": seq.name, "frames": len(seq.frames),
            "path_m": float(np.linalg.norm(np.diff(seq.gt[:, :3, 3], axis=0), axis=1).sum()),
@@ -184,6 +186,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--steps", nargs="+", type=int, default=[1, 2, 5, 10])
     p.add_argument("--loops", action="store_true", help="also run with loop closure")
     p.add_argument("--tum-frames", type=int, default=200, help="frames read per TUM excerpt")
+    p.add_argument("--voxel-px", type=float, help="model voxel in pixel footprints (default: "
+                   "DenseRgbdConfig's)")
     args = p.parse_args(argv)
     if args.only in (None, "chess"):
         for s in args.steps:
@@ -192,20 +196,20 @@ def main(argv: list[str] | None = None) -> int:
                 print("7-Scenes chess missing, skipped")
                 break
             seq.name = f"chess step {s}"
-            print_row(run_sequence(seq, args.loops))
+            print_row(run_sequence(seq, args.loops, args.voxel_px))
     if args.only in (None, "return"):
         seq = chess(there_and_back())
         if seq is None:
             print("7-Scenes chess missing, skipped")
         else:
             seq.name = "chess there and back"
-            print_row(run_sequence(seq, True))
+            print_row(run_sequence(seq, True, args.voxel_px))
     if args.only in (None, "tum"):
         folders = sorted(REAL.glob("tum_*")) if REAL.is_dir() else []
         if not folders:
             print(f"no TUM RGB-D excerpt under {REAL} (tum_<name>/), skipped")
         for f in folders:
-            print_row(run_sequence(tum(f, args.tum_frames), args.loops))
+            print_row(run_sequence(tum(f, args.tum_frames), args.loops, args.voxel_px))
     return 0
 
 
