@@ -31,6 +31,8 @@ _USAGE = (
 
 def register(sub: Any) -> None:
     """Add ``sea3d odometry``."""
+    from sea3d.odometry.rgbd_dense import DenseRgbdConfig
+
     p = sub.add_parser(
         "odometry",
         usage=_USAGE,
@@ -74,6 +76,9 @@ def register(sub: Any) -> None:
                  "keyframes and windowed BA through the stereo engine")
     param_option(g, rgbd_odometry_to_files, "depth_scale", type=float, shown="1000: millimetres",
                  help="depth units per metre")
+    config_option(g, DenseRgbdConfig, "tracking", choices=("keyframe", "model"),
+                  help="dense method: align each frame to the keyframe or to the fused TSDF "
+                  "model ray-cast at the previous pose")
     p.set_defaults(handler=_run)
 
 
@@ -164,6 +169,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _run_rgbd(args: argparse.Namespace) -> int:
+    from sea3d.odometry.rgbd_dense import DenseRgbdConfig
     from sea3d.pipeline.odometry_session import rgbd_odometry_to_files
 
     if args.color is None or args.depth is None or args.intrinsics is None:
@@ -183,6 +189,9 @@ def _run_rgbd(args: argparse.Namespace) -> int:
             config=_config(args),
             progress=bar.update,
             on_start=bar.start,
+            dense_config=DenseRgbdConfig(
+                tracking=args.tracking, loop_closure=not args.no_loop_closure
+            ),
         )
     finally:
         bar.close()

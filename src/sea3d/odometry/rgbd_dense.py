@@ -18,6 +18,14 @@ fitness below ``min_fitness``, or an implausible jump), the frame is retried aga
 previous frame; if that fails as well the frame is ``LOST``: its pose is bridged by constant
 velocity, and the next frame that tracks starts a new segment (and a keyframe) from there.
 
+With ``tracking="model"`` each frame is first aligned (from the same starts) against the fused
+TSDF model ray-cast at the previous pose (:mod:`sea3d.odometry.rgbd_model`), falling back to
+the keyframe when the ray-cast covers too little of the frame or the alignment fails; every
+tracked frame is fused into the model. With ``loop_closure`` every new keyframe is searched
+for a return to an earlier one (:mod:`sea3d.odometry.rgbd_loop`: the stereo engine's place
+recognition, verification and pose graph, the loop refined by the dense alignment of the two
+keyframes); the trajectory is re-expressed against the corrected keyframes.
+
 Poses are ``T_world_left`` with the world the first frame's camera.
 """
 
@@ -87,13 +95,36 @@ class DenseRgbdConfig:
     """Open3D's residual: ``hybrid`` (photometric + geometric), ``point_to_plane`` or
     ``intensity``. Point-to-plane beat Hybrid on 7-Scenes chess (its colour is not
     registered to its depth)."""
+    tracking: str = "keyframe"
+    """``keyframe``: align each frame to the current keyframe's depth; ``model``: align it to
+    the fused TSDF model ray-cast at the previous pose (:mod:`sea3d.odometry.rgbd_model`),
+    falling back to the keyframe when the ray-cast covers too little of the frame or the
+    alignment fails."""
+    voxel_px: float = 1.25
+    """Model voxel edge in pixel footprints at the first frame's median depth."""
+    trunc_voxels: float = 4.0
+    """Model truncation distance, voxels."""
+    min_model_share: float = 0.5
+    """The model is aligned against only when its ray-cast has depth on at least this share
+    of the pixels where the frame has depth."""
+    loop_closure: bool = True
+    """Detect loops between keyframes and re-optimise the keyframe pose graph
+    (:mod:`sea3d.odometry.rgbd_loop`); the tracking (and the model) stay in the odometry
+    frame, the trajectory is re-expressed against the corrected keyframes. On chess it found
+    no loop on the paths that go on (their results unchanged) and both returns on the path
+    there and back (end error 1.14 -> 0.69 cm, benchmarks/bench_rgbd.py)."""
 
     def __post_init__(self) -> None:
         if not (self.keyframe_m > 0 and self.keyframe_deg > 0 and self.keyframe_max_frames >= 1
                 and 0 <= self.min_fitness <= 1 and 0 < self.min_depth_m < self.max_depth_m
                 and self.depth_diff_m > 0 and len(self.iterations) >= 1
-                and all(i >= 1 for i in self.iterations)):
+                and all(i >= 1 for i in self.iterations)
+                and self.voxel_px > 0 and self.trunc_voxels > 0
+                and 0 <= self.min_model_share <= 1):
             raise OdometryError("dense RGB-D config: thresholds out of range")
+        if self.tracking not in ("keyframe", "model"):
+            raise OdometryError(f"dense RGB-D tracking must be 'keyframe' or 'model', "
+                                f"got {self.tracking!r}")
 
 
 def _angle_deg(T: F64) -> float:
@@ -163,6 +194,17 @@ class DenseRgbdOdometry:
         self._orb_detector: Any = None
         self.feature_inits = 0
         """Frames whose alignment started from the feature pose won."""
+        self.model_frames = 0
+        """Frames tracked against the TSDF model (``tracking="model"``)."""
+        self._model: Any = None
+        self._anchor: list[int] = []  # per frame its keyframe (-1: none)
+        self._loops: Any = None
+        self._kf_images: dict[int, object] = {}  # keyframe images, kept for loop closure
+        self._image_hw = (0, 0)
+        if c.loop_closure:
+            from sea3d.odometry.rgbd_loop import RgbdLoopCloser
+
+            self._loops = RgbdLoopCloser(self.K)
 
     # ------------------------------------------------------------------ helpers
     def _image(self, frame: FrameObservation) -> tuple[object, float]:
@@ -273,7 +315,46 @@ class DenseRgbdOdometry:
         self._kf = _Keyframe(kf_id, image, T.copy(), feats)
         self._kf_poses[kf_id] = T.copy()
         self._since_kf = 0
+        if self._loops is not None and grey is not None and depth is not None:
+            self._kf_images[kf_id] = image
+            if self._loops.add_keyframe(kf_id, self._segment, T, grey, depth,
+                                        refine=lambda q, T_q_k: self._refine_loop(q, kf_id, T_q_k)):
+                self.loop_closures = self._loops.loop_closures
         return kf_id
+
+    def _refine_loop(self, cand: int, query: int, T_cand_query: F64) -> F64 | None:
+        """A verified loop's ``T_cand_query`` refined by the dense alignment of the two
+        keyframes (started from the feature pose), or None when it fails or moves the feature
+        pose by more than a plausible step."""
+        res = self._align(self._kf_images[query], self._kf_images[cand], T_cand_query)
+        if res is None or res[1] < self.config.min_fitness:
+            return None
+        if not self._plausible(np.linalg.inv(T_cand_query) @ res[0]):
+            return None
+        return res[0]
+
+    def _new_model(self, depth: NDArray[np.float32]) -> Any:
+        from sea3d.odometry.rgbd_model import TsdfModel, voxel_from_depth
+
+        c = self.config
+        ok = np.isfinite(depth) & (depth > c.min_depth_m) & (depth < c.max_depth_m)
+        voxel = voxel_from_depth(np.where(ok, depth, np.float32(0)), float(self.K[0, 0]),
+                                 c.voxel_px)
+        h, w = depth.shape
+        log.debug("TSDF model: %.1f mm voxels", 1e3 * voxel)
+        return TsdfModel(self.K, w, h, voxel_m=voxel, trunc_voxels=c.trunc_voxels,
+                         min_depth_m=c.min_depth_m, max_depth_m=c.max_depth_m)
+
+    def _integrate(self, frame: FrameObservation, T: F64) -> None:
+        if self._model is None:
+            return
+        c = self.config
+        z = np.asarray(frame.depth_m, np.float32)
+        ok = np.isfinite(z) & (z > c.min_depth_m) & (z < c.max_depth_m)
+        rgb = np.asarray(frame.rect_left)
+        if rgb.ndim == 2:
+            rgb = np.repeat(rgb[..., None], 3, axis=2)
+        self._model.integrate(rgb, np.where(ok, z, np.float32(0)), T)
 
     # ------------------------------------------------------------------ Odometry
     def step(self, frame: FrameObservation) -> OdometryEstimate:
@@ -285,6 +366,7 @@ class DenseRgbdOdometry:
                                 f"{frame.rect_left.shape[:2]} differ in size")
         self._last_t = t
         c = self.config
+        self._image_hw = (int(frame.depth_m.shape[0]), int(frame.depth_m.shape[1]))
         image, valid_share = self._image(frame)
         grey = _grey(np.asarray(frame.rect_left))
         depth = np.asarray(frame.depth_m, np.float32)
@@ -299,35 +381,54 @@ class DenseRgbdOdometry:
             # first frame, or first frame after a loss: start a segment here
             self._segment += 1
             self._lost = False
+            if c.tracking == "model":  # a new segment gets a new model
+                self._model = self._new_model(depth)
             kf_id = self._new_keyframe(image, guess_T, grey, depth)
+            self._integrate(frame, guess_T)
             return self._emit(t, guess_T, image, TrackingStatus.TRACKING, kf_id, kf_id, info)
 
         kf = self._kf
         assert self._prev_T is not None
-        T_kf_guess = np.linalg.inv(kf.T_world) @ guess_T
-        if not c.use_velocity:
-            T_kf_guess = np.linalg.inv(kf.T_world) @ self._prev_T
-        inits = [T_kf_guess]
+        # starting poses, in the world: constant velocity, and the feature pose on disagreement
+        starts = [guess_T if c.use_velocity else self._prev_T]
         if c.feature_init and depth_ok:
             T_feat = self._feature_pose(grey)
             if T_feat is not None:
-                d = np.linalg.inv(T_kf_guess) @ T_feat
+                d = np.linalg.inv(np.linalg.inv(kf.T_world) @ starts[0]) @ T_feat
                 if (float(np.linalg.norm(d[:3, 3])) > c.init_disagree_m
                         or _angle_deg(d) > c.init_disagree_deg):
-                    inits.append(T_feat)
+                    starts.append(kf.T_world @ T_feat)
+        # targets: the model ray-cast at the previous pose (when it covers the frame), then
+        # the keyframe; the first target that gives a good alignment is kept
+        targets: list[tuple[object, F64, bool]] = []
+        if self._model is not None and depth_ok:
+            rendered = self._model.render(self._prev_T)
+            if rendered is not None:
+                frame_px = max(valid_share * depth.size, 1.0)
+                share = float(np.count_nonzero(rendered[1] > 0)) / frame_px
+                info["model_share"] = share
+                if share >= c.min_model_share:
+                    targets.append((rendered[0], self._prev_T, True))
+        targets.append((kf.image, kf.T_world, False))
         T_new: F64 | None = None
         fitness = 0.0
-        for k, init in enumerate(inits):
-            res = self._align(image, kf.image, init) if depth_ok else None
-            if res is None:
-                continue
-            T_kf_cur, fit = res
-            T_cand = kf.T_world @ T_kf_cur
-            if (fit >= c.min_fitness and fit > fitness
-                    and self._plausible(np.linalg.inv(self._prev_T) @ T_cand)):
-                T_new, fitness = T_cand, fit
-                if k > 0:
-                    self.feature_inits += 1
+        for target, T_target, is_model in targets:
+            from_feature = False
+            for k, start in enumerate(starts):
+                res = (self._align(image, target, np.linalg.inv(T_target) @ start)
+                       if depth_ok else None)
+                if res is None:
+                    continue
+                T_tgt_cur, fit = res
+                T_cand = T_target @ T_tgt_cur
+                if (fit >= c.min_fitness and fit > fitness
+                        and self._plausible(np.linalg.inv(self._prev_T) @ T_cand)):
+                    T_new, fitness, from_feature = T_cand, fit, k > 0
+            if T_new is not None:
+                self.feature_inits += int(from_feature)
+                self.model_frames += int(is_model)
+                info["model"] = float(is_model)
+                break
         if T_new is None and depth_ok and self._prev_image is not None and (
                 self._prev_image is not kf.image):
             # retry against the previous frame, then make this frame a keyframe
@@ -346,8 +447,10 @@ class DenseRgbdOdometry:
                    or _angle_deg(rel) >= c.keyframe_deg
                    or fitness < c.keyframe_min_fitness
                    or self._since_kf >= c.keyframe_max_frames)
-        new_kf: int | None = self._new_keyframe(image, T_new, grey, depth) if make_kf else None
+        new_kf: int | None = (self._new_keyframe(image, T_new, grey, depth) if make_kf
+                              else None)
         anchor = new_kf if new_kf is not None else kf.kf_id
+        self._integrate(frame, T_new)
         return self._emit(t, T_new, image, TrackingStatus.TRACKING, new_kf, anchor, info)
 
     def _emit(self, t: int, T: F64, image: object, status: TrackingStatus, kf_id: int | None,
@@ -356,6 +459,8 @@ class DenseRgbdOdometry:
         self._prev_image = image
         self._t.append(t)
         self._T.append(T.copy())
+        self._anchor.append(-1 if anchor is None else anchor)
+        T = self._corrected(T, anchor)
         return OdometryEstimate(t_ns=t, T_world_left=T.copy(), status=status,
                                 segment=self._segment, keyframe_id=kf_id,
                                 anchor_keyframe_id=anchor, info=info)
@@ -367,17 +472,35 @@ class DenseRgbdOdometry:
         self._prev_image = None
         self._t.append(t)
         self._T.append(T_guess.copy())
+        anchor = self._kf.kf_id if self._kf is not None else -1
+        self._anchor.append(anchor)
+        T_guess = self._corrected(T_guess, anchor)
         return OdometryEstimate(t_ns=t, T_world_left=T_guess.copy(), status=TrackingStatus.LOST,
                                 segment=max(self._segment, 0), info=info)
 
+    def _corrected(self, T: F64, anchor: int | None) -> F64:
+        """``T`` (odometry frame) re-expressed against its anchor keyframe's corrected pose."""
+        if self._loops is None or anchor is None or anchor < 0:
+            return T
+        return np.asarray(self._loops.correction(anchor) @ T, np.float64)
+
     def keyframe_poses(self) -> dict[int, F64]:
-        return {k: v.copy() for k, v in self._kf_poses.items()}
+        return {k: self._corrected(v, k) for k, v in self._kf_poses.items()}
 
     def trajectory(self) -> tuple[NDArray[np.int64], F64]:
         if not self._t:
             return np.zeros(0, np.int64), np.zeros((0, 4, 4))
-        return np.asarray(self._t, np.int64), np.stack(self._T)
+        T = [self._corrected(Ti, a) for Ti, a in zip(self._T, self._anchor, strict=True)]
+        return np.asarray(self._t, np.int64), np.stack(T)
 
     def memory_bytes(self) -> int:
-        """Bytes of state held (the poses; one keyframe image and the previous frame)."""
-        return 16 * 8 * len(self._T)
+        """Bytes of state held: the poses, the keyframe images kept for loop closure (about
+        2 MB each at 640x480: colour and float depth) and the model's voxel blocks."""
+        n = 16 * 8 * len(self._T)
+        if self._kf_images:
+            h, w = self._image_hw
+            n += len(self._kf_images) * h * w * 7  # 3 colour bytes and 4 depth bytes a pixel
+        if self._model is not None:
+            vox = 8**3  # voxels a block
+            n += self._model.blocks() * vox * 5 * 4  # tsdf, weight, colour (3): float32
+        return n

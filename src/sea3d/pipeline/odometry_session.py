@@ -17,7 +17,7 @@ import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -27,6 +27,9 @@ from sea3d.odometry.config import OdometryConfig
 from sea3d.odometry.types import TrackingStatus
 from sea3d.pipeline.odometry import OdometryRun
 from sea3d.stereo.recipe import DepthConfig
+
+if TYPE_CHECKING:
+    from sea3d.odometry.rgbd_dense import DenseRgbdConfig
 
 __all__ = [
     "CameraImuFromSession",
@@ -183,6 +186,7 @@ def rgbd_odometry_to_files(
     config: OdometryConfig | None = None,
     progress: Callable[[int], None] | None = None,
     on_start: Callable[[int], None] | None = None,
+    dense_config: DenseRgbdConfig | None = None,
 ) -> OdometryFiles:
     """RGB-D odometry over image files (:func:`sea3d.pipeline.odometry.rgbd_odometry`),
     written to files; ``on_start`` is called with the number of frames once the files are
@@ -200,7 +204,7 @@ def rgbd_odometry_to_files(
         cp, _, _, _ = rgbd_observations(color, depth, intrinsics, depth_scale=depth_scale)
         on_start(len(cp))
     run = rgbd_odometry(color, depth, intrinsics, depth_scale=depth_scale, config=config,
-                        progress=progress, method=method)
+                        progress=progress, method=method, dense_config=dense_config)
     return save_odometry(run, trajectory, status_csv)
 
 
