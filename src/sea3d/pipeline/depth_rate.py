@@ -106,7 +106,8 @@ class DepthRateConfig:
     """Each surface is to be seen by at least this many depth frames: the image flow between
     depth frames is at most ``width / min_views``."""
     max_stride: int = 8
-    """Most frames between depth frames (the odometry's ``keyframe_max_frames``)."""
+    """Most frames between depth frames (8, the odometry's keyframe bound before it became 30:
+    a still camera still gets depth at least every 8 frames)."""
 
     def __post_init__(self) -> None:
         if self.min_views < 1 or self.max_stride < 1:
