@@ -7,10 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sea3d.eval.trajectory import evaluate_trajectory
+from odometry._chess import INTR, ate_m, load_chess, obs, open3d_f2f
 from sea3d.odometry import TrackingStatus, create_dense_rgbd_odometry
-from sea3d.odometry.types import FrameObservation
-from sea3d.pipeline.odometry import read_rgbd_frame
 
 CHESS_FRAMES = 60
 """The whole 60-frame clip, as in benchmarks/bench_odometry.py --only chess (on shorter
@@ -19,51 +17,18 @@ prefixes the two are within the ground truth's noise: ours wins on 20 and 50 fra
 ATE_MARGIN = 0.85
 """Ours must be below this fraction of Open3D frame-to-frame's ATE on the same frames; the
 benchmark measured 0.41 cm against 0.57 cm, a ratio of 0.73."""
-INTR = (585.0, 585.0, 320.0, 240.0)
 
 
 @pytest.fixture(scope="module")
 def chess(data_dir):
-    root = data_dir / "rgbd/7scenes_chess"
-    frames = [read_rgbd_frame(root / f"frame-{i:06d}.color.jpg",
-                              root / f"frame-{i:06d}.depth.png", 1000.0)
-              for i in range(CHESS_FRAMES)]
-    gt = np.stack([np.loadtxt(root / f"frame-{i:06d}.pose.txt") for i in range(CHESS_FRAMES)])
-    return frames, gt
+    return load_chess(data_dir, CHESS_FRAMES)
 
-
-def _obs(i: int, rgb: np.ndarray, z: np.ndarray) -> FrameObservation:
-    K = np.array([[INTR[0], 0, INTR[2]], [0, INTR[1], INTR[3]], [0, 0, 1.0]])
-    return FrameObservation(t_ns=i * 10**9, rect_left=rgb, rect_right=rgb, depth_m=z, K_rect=K,
-                            baseline_m=0.0, R_rect_left_left=np.eye(3))
-
-
-def _ate_m(T: np.ndarray, gt: np.ndarray) -> float:
-    t = np.arange(len(gt), dtype=np.int64) * 10**9
-    return evaluate_trajectory(t, T, t, gt, align="se3", max_diff_s=0.001).ate_rmse_m
-
-
-def _open3d_f2f(frames) -> np.ndarray:
-    import open3d as o3d
-
-    K = o3d.core.Tensor(np.array([[INTR[0], 0, INTR[2]], [0, INTR[1], INTR[3]], [0, 0, 1.0]]),
-                        dtype=o3d.core.Dtype.Float64)
-    imgs = [o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(np.ascontiguousarray(rgb)),
-                                     o3d.t.geometry.Image(np.nan_to_num(z, nan=0.0)))
-            for rgb, z in frames]
-    T = [np.eye(4)]
-    for i in range(1, len(imgs)):
-        r = o3d.t.pipelines.odometry.rgbd_odometry_multi_scale(
-            imgs[i], imgs[i - 1], K, o3d.core.Tensor(np.eye(4)), 1.0, 3.0,
-            method=o3d.t.pipelines.odometry.Method.Hybrid)
-        T.append(T[-1] @ r.transformation.numpy())
-    return np.stack(T)
 
 
 def test_dense_tracker_drifts_less_than_open3d_frame_to_frame(chess) -> None:
     frames, gt = chess
     odo = create_dense_rgbd_odometry(*INTR)
-    est = [odo.step(_obs(i, rgb, z)) for i, (rgb, z) in enumerate(frames)]
+    est = [odo.step(obs(i, rgb, z)) for i, (rgb, z) in enumerate(frames)]
     assert all(e.status is TrackingStatus.TRACKING for e in est)
     assert all(e.segment == 0 for e in est)
     t, T = odo.trajectory()
@@ -71,7 +36,7 @@ def test_dense_tracker_drifts_less_than_open3d_frame_to_frame(chess) -> None:
     kf = [e.keyframe_id for e in est if e.keyframe_id is not None]
     assert kf[0] == 0 and 1 <= len(kf) < len(frames) // 2  # keyframes, not frame to frame
     assert set(odo.keyframe_poses()) == set(kf)
-    ours, ref = _ate_m(T, gt), _ate_m(_open3d_f2f(frames), gt)
+    ours, ref = ate_m(T, gt), ate_m(open3d_f2f(frames), gt)
     assert ours < ATE_MARGIN * ref, (ours, ref)
 
 
@@ -82,7 +47,7 @@ def test_frame_without_depth_is_lost_then_a_new_segment_starts(chess) -> None:
     for i, (rgb, z) in enumerate(frames[:5]):
         if i == 2:
             z = np.full_like(z, np.nan)
-        e = odo.step(_obs(i, rgb, z))
+        e = odo.step(obs(i, rgb, z))
         statuses.append(e.status)
         segments.append(e.segment)
         assert np.all(np.isfinite(e.T_world_left))
@@ -100,9 +65,9 @@ def test_first_frame_without_depth_is_lost_not_a_crash(chess) -> None:
     frames, _ = chess
     odo = create_dense_rgbd_odometry(*INTR)
     rgb, z = frames[0]
-    e = odo.step(_obs(0, rgb, np.full_like(z, np.nan)))
+    e = odo.step(obs(0, rgb, np.full_like(z, np.nan)))
     assert e.status is TrackingStatus.LOST
-    e = odo.step(_obs(1, *frames[1]))
+    e = odo.step(obs(1, *frames[1]))
     assert e.status is TrackingStatus.TRACKING and e.keyframe_id == 0
 
 
@@ -121,8 +86,8 @@ def test_a_jump_is_tracked_from_the_feature_pose(chess) -> None:
     out = {}
     for feature_init in (True, False):
         odo = DenseRgbdOdometry(K, DenseRgbdConfig(feature_init=feature_init))
-        est = [odo.step(_obs(k, *frames[i])) for k, i in enumerate(JUMP)]
+        est = [odo.step(obs(k, *frames[i])) for k, i in enumerate(JUMP)]
         assert all(e.status is TrackingStatus.TRACKING for e in est)
-        out[feature_init] = (_ate_m(odo.trajectory()[1], gt[JUMP]), odo.feature_inits)
+        out[feature_init] = (ate_m(odo.trajectory()[1], gt[JUMP]), odo.feature_inits)
     assert out[True][0] < JUMP_ATE_MAX_M and out[True][1] >= 1, out
     assert out[False][0] > 2 * JUMP_ATE_MAX_M, out  # the velocity guess alone slips

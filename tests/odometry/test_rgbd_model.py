@@ -8,55 +8,21 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from odometry._chess import K, ate_m, load_chess, obs, open3d_f2f
 from sea3d.errors import OdometryError
-from sea3d.eval.trajectory import evaluate_trajectory
 from sea3d.odometry import TrackingStatus
 from sea3d.odometry.rgbd_dense import DenseRgbdConfig, DenseRgbdOdometry
 from sea3d.odometry.rgbd_loop import RgbdLoopCloser
 from sea3d.odometry.rgbd_model import TsdfModel, voxel_from_depth
-from sea3d.odometry.types import FrameObservation
-from sea3d.pipeline.odometry import read_rgbd_frame
 
 pytestmark = pytest.mark.data
 
-INTR = (585.0, 585.0, 320.0, 240.0)
-K = np.array([[INTR[0], 0, INTR[2]], [0, INTR[1], INTR[3]], [0, 0, 1.0]])
 
 
 @pytest.fixture(scope="module")
 def chess(data_dir):
-    root = data_dir / "rgbd/7scenes_chess"
-    frames = [read_rgbd_frame(root / f"frame-{i:06d}.color.jpg",
-                              root / f"frame-{i:06d}.depth.png", 1000.0) for i in range(60)]
-    gt = np.stack([np.loadtxt(root / f"frame-{i:06d}.pose.txt") for i in range(60)])
-    return frames, gt
+    return load_chess(data_dir, 60)
 
-
-def _obs(i: int, rgb: np.ndarray, z: np.ndarray) -> FrameObservation:
-    return FrameObservation(t_ns=i * 10**9, rect_left=rgb, rect_right=rgb, depth_m=z, K_rect=K,
-                            baseline_m=0.0, R_rect_left_left=np.eye(3))
-
-
-def _ate_m(T: np.ndarray, gt: np.ndarray) -> float:
-    t = np.arange(len(gt), dtype=np.int64) * 10**9
-    return evaluate_trajectory(t, T, t, gt, align="se3", max_diff_s=0.001,
-                               rpe_deltas_m=[]).ate_rmse_m
-
-
-def _open3d_f2f(frames) -> np.ndarray:
-    import open3d as o3d
-
-    Kt = o3d.core.Tensor(K, dtype=o3d.core.Dtype.Float64)
-    imgs = [o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(np.ascontiguousarray(rgb)),
-                                     o3d.t.geometry.Image(np.nan_to_num(z, nan=0.0)))
-            for rgb, z in frames]
-    T = [np.eye(4)]
-    for i in range(1, len(imgs)):
-        r = o3d.t.pipelines.odometry.rgbd_odometry_multi_scale(
-            imgs[i], imgs[i - 1], Kt, o3d.core.Tensor(np.eye(4)), 1.0, 3.0,
-            method=o3d.t.pipelines.odometry.Method.Hybrid)
-        T.append(T[-1] @ r.transformation.numpy())
-    return np.stack(T)
 
 
 def test_voxel_from_depth_is_the_pixel_footprint_at_the_median_depth() -> None:
@@ -100,8 +66,8 @@ def test_model_tracking_falls_back_to_the_keyframe_when_the_raycast_is_too_spars
     odo = DenseRgbdOdometry(K, cfg)
     ref = DenseRgbdOdometry(K, DenseRgbdConfig(loop_closure=False))
     for i in range(0, 12, 4):
-        e = odo.step(_obs(i, *frames[i]))
-        ref.step(_obs(i, *frames[i]))
+        e = odo.step(obs(i, *frames[i]))
+        ref.step(obs(i, *frames[i]))
         assert e.status is TrackingStatus.TRACKING
         assert i == 0 or e.info["model_share"] < 1.0
     assert odo.model_frames == 0
@@ -123,11 +89,11 @@ def test_frame_to_model_beats_open3d_frame_to_frame_at_step_5(chess) -> None:
     frames, gt = chess
     idx = list(range(0, 60, 5))
     odo = DenseRgbdOdometry(K, DenseRgbdConfig(tracking="model"))
-    est = [odo.step(_obs(k, *frames[i])) for k, i in enumerate(idx)]
+    est = [odo.step(obs(k, *frames[i])) for k, i in enumerate(idx)]
     assert all(e.status is TrackingStatus.TRACKING for e in est)
     assert odo.model_frames == len(idx) - 1  # every frame after the first, against the model
-    ours = _ate_m(odo.trajectory()[1], gt[idx])
-    ref = _ate_m(_open3d_f2f([frames[i] for i in idx]), gt[idx])
+    ours = ate_m(odo.trajectory()[1], gt[idx])
+    ref = ate_m(open3d_f2f([frames[i] for i in idx]), gt[idx])
     assert ours < MODEL_MARGIN * ref, (ours, ref)
 
 
@@ -186,7 +152,7 @@ def test_there_and_back_closes_a_loop_and_ends_nearer_its_start(chess) -> None:
     end = {}
     for loops in (False, True):
         odo = DenseRgbdOdometry(K, DenseRgbdConfig(loop_closure=loops))
-        est = [odo.step(_obs(k, *frames[i])) for k, i in enumerate(idx)]
+        est = [odo.step(obs(k, *frames[i])) for k, i in enumerate(idx)]
         assert all(e.status is TrackingStatus.TRACKING for e in est)
         T = odo.trajectory()[1]
         end[loops] = float(np.linalg.norm((np.linalg.inv(T[0]) @ T[-1])[:3, 3]))  # truth: 0
@@ -217,7 +183,7 @@ def test_cli_tracks_against_the_model_with_tracking_model(chess, data_dir, tmp_p
     assert json.loads(capsys.readouterr().out)["frames"] == 4
     odo = DenseRgbdOdometry(K, DenseRgbdConfig(tracking="model", loop_closure=True))
     for i in range(4):
-        odo.step(_obs(i, *frames[i]))
+        odo.step(obs(i, *frames[i]))
     assert odo.model_frames == 3
     got = read_trajectory(out)
     np.testing.assert_allclose(got.T_world_x[:, :3, 3], odo.trajectory()[1][:, :3, 3], atol=1e-4)
