@@ -36,17 +36,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def simulate(session: Path, frames: int, size: str) -> None:
-    from sea3d.cli import main
-
-    if (session / "session.json").is_file():
-        return
-    code = main(["-q", "sim", "--scene", "lake", "--frames", str(frames), "--size", size,
-                 "--water", "coastal", "--format", "folder", "--out", str(session)])
-    if code != 0:
-        raise SystemExit(f"simulation failed ({code})")
+from bench_process import simulate  # noqa: E402  (the same simulated dive)
 
 
 def _cpu_children() -> float:
