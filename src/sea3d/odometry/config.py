@@ -37,6 +37,12 @@ class OdometryConfig:
     """Largest row difference of a left-right match in the rectified pair, pixels."""
     stereo_depth_agreement_px: float = 1.5
     """Largest disagreement between the matched disparity and the depth map's, pixels."""
+    stereo_on_row: bool = True
+    """Refine each left-right match on its own row (the disparity alone) after the 2D
+    Lucas-Kanade match, in a rectified pinhole pair (:mod:`sea3d.odometry.stereo_match`: a 2D
+    match slides along oblique edges and biases the disparity); matches that do not converge,
+    or that move a pixel or more, are dropped. Refractive rigs keep the 2D match (their true
+    matches sit off the row)."""
     min_depth_m: float | None = None
     """Nearest point used, metres; None: every point the depth map holds (its range comes
     from the rig: :class:`~sea3d.stereo.recipe.StereoDepth`)."""

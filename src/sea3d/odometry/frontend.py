@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 from sea3d._typing import F64
 from sea3d.odometry.config import OdometryConfig
 from sea3d.odometry.stereo_geometry import RectifiedStereo
+from sea3d.odometry.stereo_match import refine_on_row
 
 _NO_DIST = np.zeros(4)  # rectified, virtual-pinhole consistent pixels: no distortion
 
@@ -253,6 +254,7 @@ def stereo_points(
                 & (uv_r[:, 0] >= 1)
                 & (uv_r[:, 0] <= w - 2)
             )
+            good &= _on_row(left, right, uv[idx], uv_r, geometry, config)
             p, okp = geometry.points_from_stereo(uv[idx], uv_r)
             good &= okp
             pts[idx[good]] = p[good]
@@ -269,6 +271,25 @@ def stereo_points(
     pts[~ok] = np.nan
     meas[~ok] = np.nan
     return StereoPoints(ok=ok, points_rect=pts, measurement=meas)
+
+
+def _on_row(
+    left: NDArray[np.uint8],
+    right: NDArray[np.uint8],
+    uv: F64,
+    uv_r: F64,
+    geometry: RectifiedStereo,
+    config: OdometryConfig,
+) -> B:
+    """Move 2D matches ``uv_r`` (in place) onto their left pixels' rows with the disparity
+    refined there (pinhole geometry, ``config.stereo_on_row``); ``ok`` of each match."""
+    if geometry.refractive or not config.stereo_on_row or uv.shape[0] == 0:
+        return np.ones(uv.shape[0], bool)
+    u1, ok = refine_on_row(left, right, uv, uv_r[:, 0], window_px=config.stereo_window_px)
+    ok &= np.abs(u1 - uv_r[:, 0]) < 1.0
+    uv_r[:, 0] = u1
+    uv_r[:, 1] = uv[:, 1]
+    return ok
 
 
 def solve_pnp(
