@@ -113,9 +113,9 @@ def _cmd_mono_depth(args: argparse.Namespace) -> int:
                                                        device=args.device))
     src = Path(args.input)
     out = Path(args.output)
-    from sea3d.cli.sfm import _is_session
+    from sea3d.io.session import is_session
 
-    if src.exists() and _is_session(src):
+    if src.exists() and is_session(src):
         return _session(args, model, src, out)
     left = _read_rgb(src)
     sparse, fill, frame = None, False, "left"

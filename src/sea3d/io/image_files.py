@@ -1,0 +1,77 @@
+"""Image files given by a glob or a folder: which files, in which order, read as RGB.
+
+Image files are those whose suffix is in :data:`IMAGE_SUFFIXES` (any case); they sort in
+natural order (``left2.png`` before ``left10.png``, numbers compared as numbers, over the
+whole path). Images are returned as OpenCV reads them, then ``(H, W)`` grey or ``(H, W, 3)``
+RGB (alpha dropped), of the file's own dtype (uint8 or uint16).
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import re
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["IMAGE_SUFFIXES", "image_paths", "image_writer", "natural_key", "read_image_rgb"]
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm")
+
+
+def natural_key(path: str | os.PathLike[str]) -> list[Any]:
+    """Sort key of a whole path with its numbers compared as numbers (``1e9`` after ``2e8``)."""
+    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", os.fspath(path))]
+
+
+def image_paths(pattern: str) -> list[Path]:
+    """The image files of a folder (by suffix) or the files a glob matches, in natural order;
+    empty when there are none (the caller says what it needed them for)."""
+    p = Path(pattern)
+    if p.is_dir():
+        paths = [q for q in p.iterdir() if q.suffix.lower() in IMAGE_SUFFIXES]
+    else:
+        paths = [q for q in (Path(g) for g in glob.glob(pattern)) if q.is_file()]
+    return sorted(paths, key=natural_key)
+
+
+def read_image_rgb(path: str | os.PathLike[str]) -> NDArray[Any] | None:
+    """An image file as ``(H, W)`` grey or ``(H, W, 3)`` RGB (alpha dropped), or None when
+    OpenCV cannot read it (missing, not an image, damaged)."""
+    import cv2
+
+    img = cv2.imread(os.fspath(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        return None
+    if img.ndim == 3 and img.shape[2] == 4:
+        img = img[:, :, :3]
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    return np.asarray(img)
+
+
+def image_writer(folder: str | os.PathLike[str],
+                 error: Callable[[str], Exception]) -> Callable[[str, NDArray[Any]], None]:
+    """A ``write(name, image)`` that saves ``(H, W)`` grey or ``(H, W, 3)`` RGB images as
+    ``folder/name`` (the suffix of ``name`` chooses the format; sub-folders are made).
+
+    Args:
+        folder: where the images go.
+        error: makes the exception raised when a file cannot be written, from its message.
+    """
+    import cv2
+
+    root = Path(folder)
+
+    def write(name: str, img: NDArray[Any]) -> None:
+        path = root / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        arr = cv2.cvtColor(img, cv2.COLOR_RGB2BGR) if img.ndim == 3 else img
+        if not cv2.imwrite(str(path), arr):
+            raise error(f"cannot write {path}")
+
+    return write
