@@ -5,9 +5,9 @@
 ``pycolmap.Reconstruction.write_binary``/``write_text`` write them (COLMAP reads the binary
 files when both are present). COLMAP's pixel convention: the centre of the top-left pixel is at
 ``(0.5, 0.5)``. Image names are ``left/<name>.png`` and ``right/<name>.png``; for port cameras
-they refer to the images remapped into the virtual pinhole (``sea3d sfm --export-images``). Beside the model, :func:`write_sfm_model` writes
-``points.ply`` (the points, metres when metric) and ``trajectory.tum`` (``T_world_left`` of
-every registered frame).
+they refer to the images remapped into the virtual pinhole (``sea3d sfm --export-images``).
+Beside the model, :func:`write_sfm_model` writes ``points.ply`` (the points, metres when
+metric) and ``trajectory.tum`` (``T_world_left`` of every registered frame).
 """
 
 from __future__ import annotations
