@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Protocol
@@ -47,6 +47,7 @@ from sea3d.geometry.rig import ImuSpec, SonarSpec, StereoRig
 from sea3d.geometry.se3 import invert_T
 from sea3d.io.ground_truth import GroundTruth, write_gt_depth
 from sea3d.io.trajectory_files import write_tum
+from sea3d.sim.config import CalibrationSetConfig, SurveyConfig
 from sea3d.sim.motion import (
     GRAVITY_WORLD,
     HandHeld,
@@ -220,10 +221,10 @@ def render_calibration_set(
     rig: StereoRig,
     board: BoardSpec | str,
     views: int,
-    medium: str = "water",
-    seed: int = 0,
+    medium: str = CalibrationSetConfig.medium,
+    seed: int = CalibrationSetConfig.seed,
     *,
-    distance_range_m: tuple[float, float] = (0.5, 2.5),
+    distance_range_m: tuple[float, float] = CalibrationSetConfig.distance_range_m,
     tilt_max_deg: float = 40.0,
     water: str | Imaging | None = None,
     supersample: int = 6,
@@ -363,54 +364,6 @@ def write_calibration_set(cal: CalibrationSet, out: Path) -> None:
 # ----------------------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True, kw_only=True)
-class SurveyConfig:
-    """A simulated session.
-
-    Attributes:
-        frames: number of stereo frames.
-        fps: camera rate, frames per second.
-        imu_rate_hz: IMU rate.
-        sonar_rate_hz: echosounder rate.
-        trajectory: ``lawnmower``, ``orbit`` or ``handheld``.
-        water: ``none``, ``clear``, ``coastal`` or ``turbid``.
-        seed: noise and hand-held wobble seed.
-        supersample: rays per pixel along each axis.
-        camera_tilt_deg: the cameras' downward tilt on the body; None = 60 degrees for the
-            lawnmower survey (looking at the floor), 30 for the others.
-        imu_noise: add MTi-300-like IMU noise.
-        sonar_noise_fraction: echosounder range noise, fraction of range (standard deviation).
-        clean_reference: also write each view without water (same seed) to ``gt/clean/``.
-    """
-
-    frames: int = 300
-    fps: float = 10.0
-    imu_rate_hz: float = 200.0
-    sonar_rate_hz: float = 10.0
-    trajectory: str = "lawnmower"
-    water: str = "coastal"
-    seed: int = 0
-    supersample: int = 2
-    camera_tilt_deg: float | None = None
-    imu_noise: bool = True
-    sonar_noise_fraction: float = 0.005
-    clean_reference: bool = False
-
-    def tilt_deg(self) -> float:
-        """The camera tilt in effect (see ``camera_tilt_deg``)."""
-        if self.camera_tilt_deg is not None:
-            return float(self.camera_tilt_deg)
-        return 60.0 if self.trajectory == "lawnmower" else 30.0
-
-    def __post_init__(self) -> None:
-        if self.frames < 1 or self.fps <= 0 or self.imu_rate_hz <= 0 or self.sonar_rate_hz <= 0:
-            raise SimulationError(
-                f"survey needs frames >= 1 and positive rates; got frames={self.frames}, "
-                f"fps={self.fps}, "
-                f"imu_rate_hz={self.imu_rate_hz}, sonar_rate_hz={self.sonar_rate_hz}"
-            )
-
-
 @dataclass(frozen=True, kw_only=True, eq=False)
 class SurveyResult:
     """What :func:`simulate_survey` produced.
@@ -547,6 +500,29 @@ _SECONDS_PER_PAIR_PX = {
 # about 4-5 s with the renderer's numba kernels cached, 41 s on a first run that compiles them.
 _STARTUP_S = 4.0
 _COMPILE_S = 40.0
+
+
+def check_disk_room(targets: Iterable[Path], need_bytes: float) -> None:
+    """Refuse a run the disk cannot hold (with a 10 % margin): each of ``targets`` (the session,
+    its ground truth), or its nearest existing parent, must have ``1.1 * need_bytes`` free.
+
+    Raises:
+        SimulationError: too little free space, naming the place and both sizes.
+    """
+    import shutil
+
+    from sea3d._text import size_text
+
+    for target in set(targets):
+        probe = Path(target)
+        while not probe.exists() and probe != probe.parent:
+            probe = probe.parent
+        free = shutil.disk_usage(probe).free
+        if need_bytes * 1.1 > free:
+            raise SimulationError(
+                f"the run needs about {size_text(need_bytes)} but {probe} has "
+                f"{size_text(free)} free; use fewer frames or a smaller image size"
+            )
 
 
 def renderer_is_compiled() -> bool:
@@ -863,6 +839,7 @@ def simulate_survey(
 
 __all__ += [
     "SurveyCost",
+    "check_disk_room",
     "default_trajectory",
     "estimate_survey_cost",
     "in_air",
