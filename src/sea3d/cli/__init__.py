@@ -79,6 +79,9 @@ _PHRASES = {
     "give trajectories EST GT, or align by ICP for":
         "pass --trajectories EST GT, or --align icp for",
     "the IMU scale needs": "--imu-scale needs",
+    "free; use fewer frames or a smaller image size":
+        "free; use fewer --frames or a smaller --size",
+    "(neither a rig nor focal_px)": "(--rig or --focal-px)",
     "a monocular run (camera left/right)": "a monocular run (--camera left/right)",
     " and no extrinsics file was given (T_left_imu": "; pass --imu-extrinsics FILE (T_left_imu",
     "; give its times.txt (pose_priors_times)": "; give its times.txt with --pose-priors-times",
