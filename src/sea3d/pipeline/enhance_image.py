@@ -40,8 +40,8 @@ def _range_from_rectified(depth_path: Path, depth: NDArray[np.floating], shape: 
             "sea3d depth"
         )
     from sea3d.io.rig_file import load_rig, rig_to_yaml
-    from sea3d.rectify import rectify_rig
     from sea3d.rectify.depth_grid import rectified_depth_to_raw
+    from sea3d.stereo.recipe import DepthConfig, StereoDepth
 
     rig = load_rig(rig_path)
     if grid.rig_id and grid.rig_id != rig_identity(rig_to_yaml(rig)):
@@ -49,7 +49,10 @@ def _range_from_rectified(depth_path: Path, depth: NDArray[np.floating], shape: 
     if (rig.width, rig.height) != (shape[1], shape[0]):
         raise EnhanceError(f"rig {rig_path} is {rig.width}x{rig.height} but image "
                            f"{image_name} is {shape[1]}x{shape[0]}")
-    maps = rectify_rig(rig, depth_range_m=depth_range_m)
+    # the rectification sea3d depth uses with this rig and depth range (fitted over the
+    # rig's own range where none is given)
+    near, far = depth_range_m
+    maps = StereoDepth(rig, DepthConfig(min_depth_m=near, max_depth_m=far)).maps
     K = np.asarray(grid.K, dtype=np.float64)
     return rectified_depth_to_raw(depth, K, maps.R_rect_left_left, rig.left, quantity="range")
 
@@ -79,7 +82,8 @@ def range_for_image(
         rig_path: the rig file (intrinsics, and the rectification of rectified-grid depth).
         is_range: the file holds range already.
         focal_px: the focal length of a centred pinhole when there is no rig.
-        depth_range_m: the depth range of the rectification (None: from the rig).
+        depth_range_m: the depth range ``sea3d depth`` was given (None: from the rig), for
+            the rectification of rectified-grid depth.
 
     Raises:
         EnhanceError: depth on another grid or from another rig, sizes that disagree;
