@@ -73,9 +73,9 @@ def _cmd_live(args: argparse.Namespace) -> int:
                 print(f"monitor at {mon.url}", file=sys.stderr, flush=True)
                 servers.insert(0, mon)
         if recorder is not None:
-            from sea3d.cli.record import _StopOnSignals
+            from sea3d.cli._signals import StopOnSignals
 
-            with _StopOnSignals(recorder.request_stop):
+            with StopOnSignals(recorder.request_stop):
                 summary, stats, _rec = run_live_cameras(recorder, config, live, feed=feed)
         else:
             summary, stats = run_live_replay(args.replay, config, live, rate=args.rate,
