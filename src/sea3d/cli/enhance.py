@@ -21,44 +21,23 @@ __all__ = ["register", "register_eval"]
 
 
 def _read_image(path: str | Path) -> Any:
-    import cv2
-
     from sea3d.errors import EnhanceError
+    from sea3d.io.image_files import read_image_rgb
 
     p = Path(path)
     if not p.is_file():
         raise EnhanceError(f"image not found: {p}")
-    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    img = read_image_rgb(p)
     if img is None:
         raise EnhanceError(f"cannot read image {p}")
-    if img.ndim == 3 and img.shape[2] == 4:
-        img = img[..., :3]
-    if img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
     return img
 
 
 def _write_image(path: str | Path, img: Any) -> None:
-    import cv2
-    import numpy as np
-
     from sea3d.errors import EnhanceError
+    from sea3d.io.image_files import write_image_rgb
 
-    p = Path(path)
-    data = np.asarray(img)
-    if data.dtype.kind == "f":
-        data = (np.clip(data, 0, 1) * 255.0 + 0.5).astype(np.uint8)
-    if data.dtype == np.uint16 and p.suffix.lower() in (".jpg", ".jpeg"):
-        data = (data // 257).astype(np.uint8)
-    if data.ndim == 3:
-        data = cv2.cvtColor(data, cv2.COLOR_RGB2BGR)
-    try:
-        p.parent.mkdir(parents=True, exist_ok=True)
-        ok = cv2.imwrite(str(p), data)
-    except (cv2.error, OSError) as err:
-        raise EnhanceError(f"cannot write {p}: {err}") from err
-    if not ok:
-        raise EnhanceError(f"cannot write {p} (unknown image type {p.suffix!r}?)")
+    write_image_rgb(path, img, EnhanceError)
 
 
 def _seathru_config(args: argparse.Namespace) -> Any:

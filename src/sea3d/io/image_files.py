@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["IMAGE_SUFFIXES", "image_paths", "image_writer", "natural_key", "read_image_rgb"]
+__all__ = ["IMAGE_SUFFIXES", "image_paths", "image_writer", "natural_key", "read_image_rgb",
+           "write_image_rgb"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm")
 
@@ -75,3 +76,31 @@ def image_writer(folder: str | os.PathLike[str],
             raise error(f"cannot write {path}")
 
     return write
+
+
+def write_image_rgb(path: str | os.PathLike[str], img: NDArray[Any],
+                    error: Callable[[str], Exception]) -> None:
+    """Write ``(H, W)`` grey or ``(H, W, 3)`` RGB as an image file (the suffix chooses the
+    format; the folder is made): float images in [0, 1] become 8-bit, 16-bit images 8-bit in a
+    JPEG.
+
+    Args:
+        error: makes the exception raised when the file cannot be written, from its message.
+    """
+    import cv2
+
+    p = Path(path)
+    data = np.asarray(img)
+    if data.dtype.kind == "f":
+        data = (np.clip(data, 0, 1) * 255.0 + 0.5).astype(np.uint8)
+    if data.dtype == np.uint16 and p.suffix.lower() in (".jpg", ".jpeg"):
+        data = (data // 257).astype(np.uint8)
+    if data.ndim == 3:
+        data = cv2.cvtColor(data, cv2.COLOR_RGB2BGR)
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        ok = cv2.imwrite(str(p), data)
+    except (cv2.error, OSError) as err:
+        raise error(f"cannot write {p}: {err}") from err
+    if not ok:
+        raise error(f"cannot write {p} (unknown image type {p.suffix!r}?)")
