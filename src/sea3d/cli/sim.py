@@ -146,55 +146,24 @@ def _duration_text(seconds: float) -> str:
     return f"{seconds / 3600:.1f} h"
 
 
-def _remove_created(path: Path, existed: bool) -> None:
-    """Remove an output this run created (a session without a single frame, its ground truth)."""
-    import shutil
-
-    if existed or not path.exists():
-        return
-    if path.is_dir():
-        shutil.rmtree(path, ignore_errors=True)
-    else:
-        path.unlink(missing_ok=True)
-
-
-def _say_if_the_survey_folds(scene: Any, config: Any) -> None:
-    """A lawnmower longer than one pass over the scene flies its lanes again: say so, with the
-    number of frames one pass holds, before the (long) rendering starts."""
-    from sea3d.sim.motion import Lawnmower
-    from sea3d.sim.survey import default_trajectory
-
-    traj = default_trajectory(scene, config)
-    if not isinstance(traj, Lawnmower) or traj.pass_s is None:
-        return
-    pass_frames = round(traj.pass_s * config.fps)
-    if config.frames > pass_frames:
-        print(f"note: {scene.name} holds {traj.lanes} lanes of this survey, {pass_frames} frames "
-              f"at {config.fps:g} fps; after that the survey turns back over the same lanes "
-              "rather than leave the scene", flush=True)
-
-
 def _run_survey(args: argparse.Namespace) -> int:
     if args.out is None:
         raise SimulationError("sea3d sim needs -o/--output (an .mcap file or a folder)")
     if args.frames < 1:
         raise SimulationError(f"--frames must be >= 1, got {args.frames}")
-    from sea3d.io.rig_file import rig_to_yaml
-    from sea3d.io.session import SessionWriter, layout_of
+    from sea3d.io.ground_truth import ground_truth_dir
+    from sea3d.io.session import layout_of
     from sea3d.sim.scene import load_scene
     from sea3d.sim.survey import (
         check_disk_room,
         estimate_survey_cost,
-        simulate_survey,
-        survey_mount,
-        with_survey_sensors,
+        simulate_session,
+        survey_fold_note,
     )
 
     rig = _load_rig(args.rig, args.size)
     scene = load_scene(args.scene)
     fmt = args.format or layout_of(args.out)
-    from sea3d.io.ground_truth import ground_truth_dir
-
     gt_dir = args.gt if args.gt is not None else ground_truth_dir(args.out,
                                                                   folder=fmt == "folder")
     config = SurveyConfig(
@@ -220,32 +189,12 @@ def _run_survey(args: argparse.Namespace) -> int:
            " (with the one-off compilation of the renderer)" if cost.compiles else ""),
         flush=True,
     )
-    _say_if_the_survey_folds(scene, config)
-    mount = survey_mount(rig, config)
-    session_rig = with_survey_sensors(rig, config, mount)  # the IMU and echosounder simulated
-    existed = {path: path.exists() for path in (args.out, gt_dir)}
-    frames_written = 0
-
-    def advance(n: int) -> None:
-        nonlocal frames_written
-        frames_written += n
-        bar.update(n)
-
-    try:
-        with (
-            _progress(args.frames, f"sim {scene.name}") as bar,
-            SessionWriter(args.out, format=fmt, rig_yaml=rig_to_yaml(session_rig)) as writer,
-        ):
-            result = simulate_survey(
-                scene, rig, config, writer, gt_dir, mount=mount, progress=advance
-            )
-    except BaseException:
-        # A run that stops before its first frame leaves nothing behind; once frames are
-        # written, the session and its ground truth are kept (closed properly by the writer).
-        if frames_written == 0:
-            for path, was in existed.items():
-                _remove_created(path, was)
-        raise
+    note = survey_fold_note(scene, config)
+    if note is not None:
+        print(f"note: {note}", flush=True)
+    with _progress(args.frames, f"sim {scene.name}") as bar:
+        result = simulate_session(scene, rig, config, args.out, gt_dir, format=fmt,
+                                  progress=bar.update)
     print(
         f"wrote {plural(len(result.frame_t_ns), 'stereo frame')}, "
         f"{plural(result.imu_count, 'IMU sample')} and "

@@ -848,3 +848,83 @@ __all__ += [
     "with_survey_sensors",
     "write_calibration_set",
 ]
+
+
+def survey_fold_note(scene: Scene, config: SurveyConfig) -> str | None:
+    """A lawnmower longer than one pass over the scene flies its lanes again: the sentence
+    that says so, with the frames one pass holds (None when the survey does not fold)."""
+    traj = default_trajectory(scene, config)
+    if not isinstance(traj, Lawnmower) or traj.pass_s is None:
+        return None
+    pass_frames = round(traj.pass_s * config.fps)
+    if config.frames <= pass_frames:
+        return None
+    return (f"{scene.name} holds {traj.lanes} lanes of this survey, {pass_frames} frames at "
+            f"{config.fps:g} fps; after that the survey turns back over the same lanes rather "
+            "than leave the scene")
+
+
+def _remove_created(path: Path, existed: bool) -> None:
+    """Remove an output this run created (a session without a single frame, its ground truth)."""
+    import shutil
+
+    if existed or not path.exists():
+        return
+    if path.is_dir():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)
+
+
+def simulate_session(
+    scene: Scene,
+    rig: StereoRig,
+    config: SurveyConfig,
+    out: Path,
+    gt_dir: Path,
+    *,
+    format: str | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> SurveyResult:
+    """:func:`simulate_survey` into a session file or folder (:class:`~sea3d.io.session.
+    SessionWriter`) whose stored rig carries the simulated IMU and echosounder.
+
+    A run that stops before its first frame (an error, Ctrl-C) removes the session and ground
+    truth it created; once frames are written they are kept, closed properly by the writer.
+
+    Args:
+        out: the session (``.mcap`` or a folder).
+        gt_dir: the ground-truth folder (:func:`sea3d.io.ground_truth.ground_truth_dir`).
+        format: ``mcap`` or ``folder`` (default from ``out``).
+        progress: called with 1 after each frame.
+
+    Raises:
+        SimulationError, SessionWriteError: as :func:`simulate_survey` and the writer.
+    """
+    from sea3d.io.rig_file import rig_to_yaml
+    from sea3d.io.session import SessionWriter, layout_of
+
+    fmt = format or layout_of(out)
+    mount = survey_mount(rig, config)
+    session_rig = with_survey_sensors(rig, config, mount)  # the IMU and echosounder simulated
+    existed = {path: path.exists() for path in (Path(out), Path(gt_dir))}
+    frames_written = 0
+
+    def advance(n: int) -> None:
+        nonlocal frames_written
+        frames_written += n
+        if progress is not None:
+            progress(n)
+
+    try:
+        with SessionWriter(out, format=fmt, rig_yaml=rig_to_yaml(session_rig)) as writer:
+            return simulate_survey(scene, rig, config, writer, Path(gt_dir), mount=mount,
+                                   progress=advance)
+    except BaseException:
+        if frames_written == 0:
+            for path, was in existed.items():
+                _remove_created(path, was)
+        raise
+
+
+__all__ += ["simulate_session", "survey_fold_note"]
