@@ -205,7 +205,7 @@ def _run_survey(args: argparse.Namespace) -> int:
 
 
 def _run_calibration(args: argparse.Namespace) -> int:
-    from sea3d.io.rig_file import rig_to_yaml
+    from sea3d.io.rig_file import save_rig
     from sea3d.sim.survey import in_air, render_calibration_set, write_calibration_set
 
     rig = _load_rig(args.cal_rig, args.cal_size)
@@ -222,9 +222,7 @@ def _run_calibration(args: argparse.Namespace) -> int:
         )
     write_calibration_set(cal, args.cal_out)
     # The rig that rendered the images: in air the bare pinholes, without the ports.
-    (args.cal_out / "rig_true.yaml").write_text(
-        rig_to_yaml(in_air(rig) if args.medium == "air" else rig)
-    )
+    save_rig(in_air(rig) if args.medium == "air" else rig, args.cal_out / "rig_true.yaml")
     print(
         f"wrote {plural(args.views, args.medium + ' calibration pair')} of {args.board} to "
         f"{args.cal_out} (true poses in gt/boards.json, true rig in rig_true.yaml)"
