@@ -175,24 +175,21 @@ def _size_hint(paths: list[Path], dets: list[Any], board: Any, max_images: int =
 
 # ---------------------------------------------------------------------- handlers
 def _board(args: argparse.Namespace) -> int:
-    import cv2
-
     from sea3d.calib.printable import board_pdf
     from sea3d.calib.targets import parse_board, render_board
+    from sea3d.io.documents import write_document
+    from sea3d.io.image_files import write_image_rgb
 
     board = parse_board(args.board)
     out = Path(args.output)
     suffix = out.suffix.lower()
     if suffix == ".pdf":
-        data = board_pdf(board, args.paper)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_bytes(data)
+        write_document(out, board_pdf(board, args.paper))
     elif suffix in (".png", ".tif", ".tiff"):
         if args.dpi <= 0:
             raise ConfigError(f"--dpi must be positive; got {args.dpi}")
         img = render_board(board, px_per_m=args.dpi / 0.0254, margin_m=0.01)
-        if not cv2.imwrite(str(out), img):
-            raise ConfigError(f"cannot write {out}")
+        write_image_rgb(out, img, ConfigError)
     else:
         raise ConfigError(f"-o {out}: use a .pdf (true scale) or .png file")
     w, h = board.size_m
@@ -234,6 +231,7 @@ def _stereo(args: argparse.Namespace) -> int:
         raise CalibrationError(f"{err}{_size_hint(left_paths, left[first], board)}") from err
     if args.report:
         from sea3d.calib.report import render_report
+        from sea3d.io.documents import write_document
 
         sample = None
         if result.left is not None and result.views:
@@ -242,8 +240,7 @@ def _stereo(args: argparse.Namespace) -> int:
                 names[result.views[0].right])
             if li is not None and ri is not None:
                 sample = (li, ri)
-        Path(args.report).write_text(render_report(result, sample_pair=sample),
-                                     encoding="utf-8")
+        write_document(args.report, render_report(result, sample_pair=sample))
     if result.ok:
         save_rig(result.to_rig(), args.output)
     if args.json:
@@ -312,8 +309,9 @@ def _port(args: argparse.Namespace) -> int:
         save_rig(result.rig, args.output)
     if args.report:
         from sea3d.calib.report import render_port_report
+        from sea3d.io.documents import write_document
 
-        Path(args.report).write_text(render_port_report(result), encoding="utf-8")
+        write_document(args.report, render_port_report(result))
     if args.json:
         json.dump(result.to_dict(), sys.stdout, indent=2)
         print()

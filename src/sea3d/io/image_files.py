@@ -3,7 +3,8 @@
 Image files are those whose suffix is in :data:`IMAGE_SUFFIXES` (any case); they sort in
 natural order (``left2.png`` before ``left10.png``, numbers compared as numbers, over the
 whole path). Images are returned as OpenCV reads them, then ``(H, W)`` grey or ``(H, W, 3)``
-RGB (alpha dropped), of the file's own dtype (uint8 or uint16).
+RGB (alpha dropped), of the file's own dtype (uint8 or uint16). Written images are put in
+place atomically (a reader never sees half an image under the final name).
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+
+from sea3d.io._atomic import atomic_path
 
 __all__ = ["IMAGE_SUFFIXES", "image_paths", "image_writer", "natural_key", "read_image_rgb",
            "write_image_rgb"]
@@ -55,25 +58,28 @@ def read_image_rgb(path: str | os.PathLike[str]) -> NDArray[Any] | None:
     return np.asarray(img)
 
 
-def image_writer(folder: str | os.PathLike[str],
-                 error: Callable[[str], Exception]) -> Callable[[str, NDArray[Any]], None]:
+def image_writer(folder: str | os.PathLike[str], error: Callable[[str], Exception], *,
+                 png_compression: int | None = None) -> Callable[[str, NDArray[Any]], None]:
     """A ``write(name, image)`` that saves ``(H, W)`` grey or ``(H, W, 3)`` RGB images as
     ``folder/name`` (the suffix of ``name`` chooses the format; sub-folders are made).
 
     Args:
         folder: where the images go.
         error: makes the exception raised when a file cannot be written, from its message.
+        png_compression: zlib level 0-9 of PNG files (None: OpenCV's default, 3); 1 writes
+            scratch images fast.
     """
     import cv2
 
     root = Path(folder)
+    params = [] if png_compression is None else [cv2.IMWRITE_PNG_COMPRESSION, png_compression]
 
     def write(name: str, img: NDArray[Any]) -> None:
         path = root / name
-        path.parent.mkdir(parents=True, exist_ok=True)
         arr = cv2.cvtColor(img, cv2.COLOR_RGB2BGR) if img.ndim == 3 else img
-        if not cv2.imwrite(str(path), arr):
-            raise error(f"cannot write {path}")
+        with atomic_path(path, fsync=False) as tmp:
+            if not cv2.imwrite(str(tmp), arr, params):
+                raise error(f"cannot write {path}")
 
     return write
 
@@ -98,9 +104,8 @@ def write_image_rgb(path: str | os.PathLike[str], img: NDArray[Any],
     if data.ndim == 3:
         data = cv2.cvtColor(data, cv2.COLOR_RGB2BGR)
     try:
-        p.parent.mkdir(parents=True, exist_ok=True)
-        ok = cv2.imwrite(str(p), data)
+        with atomic_path(p, fsync=False) as tmp:
+            if not cv2.imwrite(str(tmp), data):
+                raise error(f"cannot write {p} (unknown image type {p.suffix!r}?)")
     except (cv2.error, OSError) as err:
         raise error(f"cannot write {p}: {err}") from err
-    if not ok:
-        raise error(f"cannot write {p} (unknown image type {p.suffix!r}?)")
