@@ -27,7 +27,6 @@ Ground truth on disk (``gt/``, written by :func:`simulate_survey` through
 
 from __future__ import annotations
 
-import json
 import logging
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, replace
@@ -36,7 +35,6 @@ from typing import Any, Protocol
 
 import cv2
 import numpy as np
-import open3d as o3d
 from numpy.typing import NDArray
 
 from sea3d._typing import FloatArray
@@ -45,7 +43,8 @@ from sea3d.errors import SimulationError
 from sea3d.geometry.camera import CameraModel
 from sea3d.geometry.rig import ImuSpec, SonarSpec, StereoRig
 from sea3d.geometry.se3 import invert_T
-from sea3d.io.ground_truth import GroundTruth, write_gt_depth
+from sea3d.io.ground_truth import GroundTruth, write_calibration_truth, write_gt_depth
+from sea3d.io.image_files import image_writer
 from sea3d.io.trajectory_files import write_tum
 from sea3d.sim.config import CalibrationSetConfig, SurveyConfig
 from sea3d.sim.motion import (
@@ -332,9 +331,10 @@ def write_calibration_set(cal: CalibrationSet, out: Path) -> None:
     try:
         for sub in ("left", "right", "gt"):
             (out / sub).mkdir(parents=True, exist_ok=True)
+        write = image_writer(out, SimulationError)
         for t, li, ri in zip(cal.t_ns, cal.lefts, cal.rights, strict=True):
-            cv2.imwrite(str(out / "left" / f"{t}.png"), li[:, :, ::-1])
-            cv2.imwrite(str(out / "right" / f"{t}.png"), ri[:, :, ::-1])
+            write(f"left/{t}.png", li)
+            write(f"right/{t}.png", ri)
         spec = cal.board
         boards = [
             {"t_ns": t, "T_left_board": T.tolist()}
@@ -353,8 +353,7 @@ def write_calibration_set(cal: CalibrationSet, out: Path) -> None:
                 "dictionary": spec.dictionary or "DICT_6X6_250",
             }
         }
-        (out / "gt" / "boards.json").write_text(json.dumps(boards, indent=1))
-        (out / "gt" / "board.json").write_text(json.dumps(meta, indent=1))
+        write_calibration_truth(out, boards, meta)
     except OSError as err:
         raise SimulationError(f"cannot write calibration set to {out}: {err}") from err
 
@@ -588,9 +587,7 @@ def _write_clean_reference(
     left = sensor.sensor(lv.radiance, rng)
     right = sensor.sensor(rv.radiance, rng)
     try:
-        gt = GroundTruth(gt_dir)
-        cv2.imwrite(str(gt.clean_folder("left") / f"{t_ns}.png"), left[:, :, ::-1])
-        cv2.imwrite(str(gt.clean_folder("right") / f"{t_ns}.png"), right[:, :, ::-1])
+        GroundTruth(gt_dir).write_clean_pair(t_ns, left, right)
     except OSError as err:
         raise SimulationError(f"cannot write clean reference to {gt_dir}: {err}") from err
     return e
@@ -690,17 +687,9 @@ def _write_ground_truth(
         gt.object_id_folder.mkdir(parents=True, exist_ok=True)
         write_tum(gt.poses_left_path, frame_t.tolist(), T_wl)
         write_tum(gt.poses_body_path, frame_t.tolist(), T_wb)
-        o3d.io.write_triangle_mesh(str(gt.scene_mesh_path), scene.combined_mesh())  # type: ignore[arg-type]
-        np.savetxt(
-            gt.imu_bias_path,
-            np.column_stack(
-                [imu.t_ns[:n_imu], imu.accel_bias_mps2[:n_imu], imu.gyro_bias_radps[:n_imu]]
-            ),
-            delimiter=",",
-            header="t_ns,ba_x,ba_y,ba_z,bg_x,bg_y,bg_z",
-            comments="",
-            fmt=["%d"] + ["%.9e"] * 6,
-        )
+        gt.write_scene_mesh(scene.combined_mesh())
+        gt.write_imu_bias(imu.t_ns[:n_imu], imu.accel_bias_mps2[:n_imu],
+                          imu.gyro_bias_radps[:n_imu])
         meta = {
             "scene": scene.name,
             "water": config.water,
@@ -726,7 +715,7 @@ def _write_ground_truth(
                 "clean/{left,right}/<t_ns>.png: the same views without water, same sensor "
                 "noise, exposure clean_reference_exposure"
             )
-        gt.sim_meta_path.write_text(json.dumps(meta, indent=1))
+        gt.write_meta(meta)
     except OSError as err:
         raise SimulationError(f"cannot write ground truth to {gt_dir}: {err}") from err
 
@@ -817,17 +806,13 @@ def simulate_survey(
             )
         if gt is not None:
             write_gt_depth(gt.new_depth_path(int(t_ns)), lv.gt.depth_m)
-            cv2.imwrite(
-                str(gt.object_id_folder / f"{int(t_ns)}.png"),
-                (lv.gt.object_id + 1).astype(np.uint16),
-            )
+            gt.write_object_id(int(t_ns), (lv.gt.object_id + 1).astype(np.uint16))
         if progress is not None:
             progress(1)
     if config.clean_reference and gt is not None and ref_exposure is not None:
-        meta_path = gt.sim_meta_path
-        meta = json.loads(meta_path.read_text())
+        meta = gt.read_meta()
         meta["clean_reference_exposure"] = ref_exposure
-        meta_path.write_text(json.dumps(meta, indent=1))
+        gt.write_meta(meta)
     return SurveyResult(
         frame_t_ns=frame_t,
         T_world_left=T_wl,
