@@ -62,7 +62,7 @@ def sea3d_direct(images: list[tuple[np.ndarray, np.ndarray]], poses: np.ndarray,
 
 
 def open3d_direct(images: list[tuple[np.ndarray, np.ndarray]], poses: np.ndarray,
-                  K_o3d: np.ndarray, voxel_m: float, depth_max_m: float
+                  K_o3d: np.ndarray, voxel_m: float, max_depth_m: float
                   ) -> tuple[np.ndarray, list[float], list[float]]:
     vbg = o3d.t.geometry.VoxelBlockGrid(
         attr_names=("tsdf", "weight", "color"),
@@ -76,8 +76,8 @@ def open3d_direct(images: list[tuple[np.ndarray, np.ndarray]], poses: np.ndarray
         d = o3d.t.geometry.Image(o3c.Tensor(np.nan_to_num(depth, nan=0.0)))
         c = o3d.t.geometry.Image(o3c.Tensor(color.astype(np.float32) / 255.0))
         E = o3c.Tensor(np.linalg.inv(T))
-        blocks = vbg.compute_unique_block_coordinates(d, Kt, E, 1.0, depth_max_m, 4.0)
-        vbg.integrate(blocks, d, c, Kt, Kt, E, 1.0, depth_max_m, 4.0)
+        blocks = vbg.compute_unique_block_coordinates(d, Kt, E, 1.0, max_depth_m, 4.0)
+        vbg.integrate(blocks, d, c, Kt, Kt, E, 1.0, max_depth_m, 4.0)
         wall.append(1000 * (time.perf_counter() - t0))
         cpu.append(1000 * (time.process_time() - c0))
     mesh = vbg.extract_triangle_mesh(0.5)
@@ -116,7 +116,7 @@ def main() -> None:
     traj = TrajectoryFile(t_ns=np.arange(len(poses), dtype=np.int64), T_world_x=poses,
                           format="tum", timed=False, path=args.data)
     images = [(read_depth(d, 1000.0), read_color(c)) for c, d in zip(colors, depths, strict=True)]
-    cfg = TsdfConfig(voxel_m=args.voxel_m, depth_min_m=0.0, depth_max_m=4.0)
+    cfg = TsdfConfig(voxel_m=args.voxel_m, min_depth_m=0.0, max_depth_m=4.0)
     K_half = K.copy()
     K_half[:2, 2] += 0.5
     ours_ms, ours_cpu, ref_ms, ref_cpu, e2e = [], [], [], [], []

@@ -23,6 +23,11 @@ Rules (each failure names the file, the line and the rule):
   docstrings aside: they may say which option sets a field) holds a command-line flag
   (``--word``, or ``--`` before an f-string field); the library names the config field or
   parameter and the CLI spells it as its option (``sea3d.cli.error_line``).
+- ``knows-file-format``: outside ``sea3d.io`` no call reads or writes a file by its format
+  (builtin ``open``, OpenCV's image, FileStorage and video files, NumPy's and pickle's files,
+  ``json.dump``/``load`` other than to ``sys.stdout``/``sys.stderr``, Open3D's io, tifffile,
+  imageio, PIL, PyAV, a path's ``read_text``/``write_text``/``read_bytes``/``write_bytes``,
+  an array's ``tofile``); io is the only place that knows file formats (docs/design.md).
 
 Every rule is also run on a planted violation so that the test is seen to fail.
 """
@@ -617,3 +622,121 @@ def test_flag_rule_trips_on_a_planted_violation(source: str) -> None:
 )
 def test_flag_rule_allows_docs_fields_and_dashes(rel_path: str, source: str) -> None:
     assert not check_flag_literals(parse_module(source, rel_path))
+
+
+# -- io is the only place that knows file formats (issue 18) -----------------------------------
+
+# Calls that open, read or write a file by its format, outside ``sea3d.io``. Aliases are
+# spelled as the house imports them (``np``, ``o3d``); ``json.dump`` to ``sys.stdout`` or
+# ``sys.stderr`` prints, it writes no file.
+_FILE_CALLS = {
+    "open", "cv2.imread", "cv2.imwrite", "cv2.imreadmulti", "cv2.FileStorage",
+    "np.save", "np.savez", "np.savez_compressed", "np.savetxt", "np.load", "np.loadtxt",
+    "np.fromfile", "json.dump", "json.load", "pickle.dump", "pickle.load",
+    "cv2.VideoCapture", "cv2.VideoWriter", "av.open",
+}
+_FILE_CALL_PREFIXES = ("o3d.io.", "tifffile.", "imageio.", "PIL.")
+_FILE_METHODS = {"write_text", "write_bytes", "read_text", "read_bytes", "tofile"}
+_ALIASES = {"numpy": "np", "open3d": "o3d"}
+
+# (path relative to src/, call) that may stay outside io, with why: a config file whose
+# parser builds a stage's own type (io may import no stage), or capture's live sources.
+_FILE_CALL_ALLOWED: dict[tuple[str, str], str] = {
+    ("sea3d/sim/scene.py", ".read_text"): "a scene YAML file, parsed by the simulator's "
+    "scene_from_dict (io may not import sim to build the scene)",
+    ("sea3d/calib/targets.py", ".read_text"): "a board YAML file, parsed into the calibration's "
+    "BoardSpec (io may not import calib to build it)",
+    ("sea3d/calib/targets.py", "cv2.FileStorage"): "an OpenCV FileStorage board file (as "
+    "above)",
+    ("sea3d/capture/sources.py", "cv2.VideoCapture"): "a camera device or a video file opened "
+    "as a live source: capture owns its sources",
+    ("sea3d/capture/stream.py", "av.open"): "the tether stream's MPEG-TS (over a pipe or "
+    "socket) and its remux copy, written as frames arrive: capture owns its transport "
+    "(io/h264.py holds the per-frame metadata it carries)",
+}
+
+
+def _dotted(node: ast.expr) -> str | None:
+    parts: list[str] = []
+    while isinstance(node, ast.Attribute):
+        parts.append(node.attr)
+        node = node.value
+    if not isinstance(node, ast.Name):
+        return None
+    parts.append(_ALIASES.get(node.id, node.id))
+    return ".".join(reversed(parts))
+
+
+def _prints(call: ast.Call) -> bool:
+    """``json.dump(obj, sys.stdout)`` (or ``sys.stderr``): printing, not writing a file."""
+    stream = call.args[1] if len(call.args) > 1 else None
+    return stream is not None and _dotted(stream) in ("sys.stdout", "sys.stderr")
+
+
+def file_calls_of(module: Module) -> list[tuple[int, str]]:
+    """(line, call) of every call in the module that reads or writes a file by its format."""
+    found = []
+    for node in ast.walk(module.tree):
+        if not isinstance(node, ast.Call):
+            continue
+        name = _dotted(node.func)
+        if name is not None and (name in _FILE_CALLS or name.startswith(_FILE_CALL_PREFIXES)):
+            if not (name == "json.dump" and _prints(node)):
+                found.append((node.lineno, name))
+        elif isinstance(node.func, ast.Attribute) and node.func.attr in _FILE_METHODS:
+            found.append((node.lineno, "." + node.func.attr))
+    return found
+
+
+def check_file_formats(module: Module, allowed: dict[tuple[str, str], str] | None = None
+                       ) -> list[str]:
+    """``knows-file-format`` problems of one module (none for ``sea3d.io``)."""
+    if module.subpackage == "io":
+        return []
+    allowed = allowed if allowed is not None else _FILE_CALL_ALLOWED
+    return [
+        f"src/{module.rel_path}:{line}: [knows-file-format] {name}(...) reads or writes a "
+        "file; io is the only place that knows file formats: call an io function"
+        for line, name in file_calls_of(module) if (module.rel_path, name) not in allowed
+    ]
+
+
+def test_only_io_reads_and_writes_files(modules: list[Module]) -> None:
+    problems = [p for m in modules for p in check_file_formats(m)]
+    assert not problems, "\n".join(problems)
+
+
+def test_file_call_allowances_are_still_needed(modules: list[Module]) -> None:
+    found = {(m.rel_path, name) for m in modules for _, name in file_calls_of(m)}
+    assert set(_FILE_CALL_ALLOWED) <= found, set(_FILE_CALL_ALLOWED) - found
+
+
+@pytest.mark.parametrize(
+    "source",
+    [
+        "import cv2\ncv2.imwrite('a.png', img)\n",
+        "import cv2\nimg = cv2.imread('a.png')\n",
+        "from pathlib import Path\nPath('r.html').write_text(page)\n",
+        "def f(out):\n    out.write_bytes(pdf)\n",
+        "with open('a.txt', 'w') as fh:\n    fh.write('x')\n",
+        "import numpy\nnumpy.save('d.npy', d)\n",
+        "import json\njson.dump(summary, fh)\n",
+        "import open3d as o3d\nm = o3d.io.read_triangle_mesh('m.ply')\n",
+    ],
+)
+def test_file_format_rule_trips_on_a_planted_violation(source: str) -> None:
+    problems = check_file_formats(parse_module(source, "sea3d/cli/x.py"), allowed={})
+    assert any("[knows-file-format]" in p and "src/sea3d/cli/x.py:" in p for p in problems)
+
+
+@pytest.mark.parametrize(
+    ("rel_path", "source"),
+    [
+        ("sea3d/cli/x.py", "import json, sys\njson.dump(summary, sys.stdout, indent=2)\n"),
+        ("sea3d/cli/x.py", "import json\nprint(json.dumps(summary))\n"),
+        ("sea3d/pipeline/x.py", "import os\nfd = os.open(path, os.O_RDWR)\n"),
+        ("sea3d/io/x.py", "import cv2\ncv2.imwrite('a.png', img)\n"),
+    ],
+)
+def test_file_format_rule_allows_printing_and_io(rel_path: str, source: str) -> None:
+    assert not check_file_formats(parse_module(source, rel_path), allowed={})

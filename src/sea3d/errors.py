@@ -4,6 +4,11 @@ Catch :class:`Sea3dError` to handle anything sea3d reports about bad input or a 
 Shape and value problems also derive from :class:`ValueError`, so generic code that expects a
 ``ValueError`` for bad arguments keeps working. Third-party errors are wrapped once, at the
 boundary, with ``raise XError(msg) from err``.
+
+Every exception class of sea3d is defined here. Two are internal signals, not errors a caller
+sees, and so are not :class:`Sea3dError` subclasses nor in ``__all__``: :class:`SmootherFailure`
+(the odometry turns it into a lost-tracking status) and :class:`ReserveReached` (the MCAP
+session writer turns it into :class:`SessionWriteError`).
 """
 
 from __future__ import annotations
@@ -125,3 +130,27 @@ class SfmError(Sea3dError):
 
 class MonoDepthError(Sea3dError, ValueError):
     """A monocular depth model or its input is unusable (not ONNX, unexpected input shape ...)."""
+
+
+# ---------------------------------------------------------------- internal control flow
+class SmootherFailure(RuntimeError):
+    """gtsam could not solve the window (an indeterminate system after too few observations).
+
+    Internal: raised by ``odometry.backend.SmootherBackend`` and caught in ``odometry.vio``,
+    which ends the tracking segment and reports it as a status; it never reaches a caller.
+    """
+
+
+class ReserveReached(Exception):
+    """The disk under a session being written has no more than its reserve free.
+
+    Internal: raised by ``io.session.mcap_chunks`` and turned by ``io.session.storage_mcap``
+    into :class:`SessionWriteError` (what was written stays readable).
+
+    Attributes:
+        free: free bytes on the disk when it was noticed.
+    """
+
+    def __init__(self, free: int) -> None:
+        super().__init__(f"{free} bytes free")
+        self.free = free

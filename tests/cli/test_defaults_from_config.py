@@ -105,3 +105,28 @@ def test_defaults_derived_in_other_units(parser: argparse.ArgumentParser, tmp_pa
         args = parser.parse_args(argv)
         assert args.inner_radius_mm * 1e-3 == pytest.approx(PAPER_DOME_INNER_RADIUS_M, abs=1e-12)
         assert args.flat_distance_mm * 1e-3 == pytest.approx(FlatPort.distance_m, abs=1e-12)
+
+
+def test_sim_options_come_from_the_light_sim_configs(parser: argparse.ArgumentParser) -> None:
+    """``sea3d sim``'s defaults are SurveyConfig's and CalibrationSetConfig's, read from
+    sea3d.sim.config without loading the renderer (numba kernels, Open3D)."""
+    import subprocess
+    import sys
+
+    from sea3d.sim.config import CalibrationSetConfig, SurveyConfig
+
+    subs = dict(_parsers(parser))
+    for where, cls, fields in (
+        ("sea3d sim", SurveyConfig, {"frames", "fps", "water", "trajectory", "seed",
+                                     "supersample"}),
+        ("sea3d sim calibration", CalibrationSetConfig, {"board", "views", "medium",
+                                                         "distance_range_m", "water", "seed"}),
+    ):
+        tagged = {a.sea3d_default_from[1] for a in subs[where]._actions
+                  if getattr(a, "sea3d_default_from", (None,))[0] is cls}
+        assert tagged == fields, where
+    code = ("import sys; from sea3d.cli import build_parser; build_parser(); "
+            "print(sorted(m for m in sys.modules if m.startswith(('sea3d.sim.', 'open3d'))))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.strip()
+    assert out == "['sea3d.sim.config']", out

@@ -75,3 +75,76 @@ def test_cli_log_filter_names_the_option() -> None:
     assert FlagNames().filter(record)
     assert record.getMessage() == ("rig.yml holds no image size; assuming 64x48 (pass --size to "
                                    "set it)")
+
+
+# ------------------------------------------------- the phrases still occur in the library
+# error_line matches library text exactly, so a reworded library message would silently lose
+# its flag spelling: every phrase must still occur in a string of the library, and every
+# pattern must rewrite a sample message that a library string still produces.
+_SRC = Path(__file__).resolve().parents[2] / "src" / "sea3d"
+_FIELD = "\x00"  # stands for an f-string field
+
+# A message each pattern of sea3d.cli._PATTERNS rewrites, as the library writes it.
+_PATTERN_SAMPLES = {
+    r"no right image; camera (\S+) needs": "f.png: no right image; camera stereo needs a right "
+    "camera in every frame (2 of 3 frames have none)",
+    r"(no right camera images|an image glob has one camera); camera (\S+) needs":
+        "s.mcap: the session has no right camera images; camera right needs a right camera",
+    r"^(color|depth) ('.*' matches no files)$": "depth 'd/*.png' matches no files",
+    r"^color matches (\d+) files but depth (\d+);": "color matches 8 files but depth 7; they "
+    "must pair up one to one in sorted order",
+    r"^intrinsics: ": "intrinsics: focal lengths must be > 0, got (0.0, 1.0, 2.0, 3.0)",
+    r"^the (left|right|imu|sonar) source needs ": "the left source needs image records, but "
+    "'imu.csv' gives imu records",
+    r"^align (se3|sim3) needs trajectories EST GT$": "align se3 needs trajectories EST GT",
+}
+
+
+def _library_strings() -> list[str]:
+    """Every string literal outside sea3d.cli, an f-string's fields as ``_FIELD``."""
+    import ast
+
+    out = []
+    for path in _SRC.rglob("*.py"):
+        if path.relative_to(_SRC).parts[0] == "cli":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.JoinedStr):
+                out.append("".join(v.value if isinstance(v, ast.Constant) else _FIELD
+                                   for v in node.values))
+            elif isinstance(node, ast.Constant) and isinstance(node.value, str):
+                out.append(node.value)
+    return out
+
+
+def _produces(template: str, message: str) -> bool:
+    """Whether a library string (fields as ``_FIELD``) can produce ``message``, its own text
+    making at least half of it (so that ``f"{where}: {why}"`` does not produce everything)."""
+    import re
+
+    parts = template.split(_FIELD)
+    if 2 * sum(map(len, parts)) < len(message):
+        return False
+    return re.fullmatch(".+?".join(map(re.escape, parts)), message, re.S) is not None
+
+
+def test_every_phrase_and_pattern_still_matches_a_library_message() -> None:
+    from sea3d.cli import _PATTERNS, _PHRASES
+
+    strings = _library_strings()
+    lost = [p for p in _PHRASES if not any(p in s for s in strings)]
+    assert not lost, f"phrases of sea3d.cli._PHRASES no library string holds: {lost}"
+    assert {p.pattern for p, _ in _PATTERNS} == set(_PATTERN_SAMPLES), "a sample per pattern"
+    for pattern, _ in _PATTERNS:
+        sample = _PATTERN_SAMPLES[pattern.pattern]
+        assert pattern.search(sample), (pattern.pattern, sample)
+        assert any(_produces(s, sample) for s in strings), (
+            f"no library string produces {sample!r} (rewritten by {pattern.pattern!r})")
+
+
+def test_a_reworded_library_message_is_caught() -> None:
+    sample = "f.png: no right image; camera stereo needs a right camera"
+    assert _produces(f"{_FIELD}: no right image; camera {_FIELD} needs a right camera", sample)
+    assert not _produces(f"{_FIELD}: no right image; the {_FIELD} camera needs a right camera",
+                         sample)
+    assert not _produces(f"{_FIELD}: {_FIELD}", sample)

@@ -149,3 +149,27 @@ def test_sea3d_depth_writes_raw_view_depth_that_enhance_takes(
     assert sea3d_main(["enhance", str(tmp_path / "L.png"), "-o", str(out), "--depth",
                        str(tmp_path / "raw.tiff"), "--rig", str(tmp_path / "rig.yaml")]) == 0
     assert out.exists()
+
+
+def test_enhance_resamples_a_dome_rigs_rectified_depth_without_a_depth_range(
+    tmp_path: Path,
+) -> None:
+    # Without --min-depth/--max-depth the rectification is the one sea3d depth uses with the
+    # rig's own range (it used to pass (None, None) to the virtual-pinhole fit and crash).
+    from sea3d.pipeline.enhance_image import range_for_image
+    from sea3d.stereo.recipe import StereoDepth
+
+    rig = paper_rig("dome", size_px=SIZE)
+    rig_path = tmp_path / "rig.yaml"
+    rig_path.write_text(rig_to_yaml(rig))
+    maps = StereoDepth(rig).maps
+    grid = DepthGrid(kind="rectified-left", width_px=maps.width, height_px=maps.height,
+                     K=tuple(tuple(float(x) for x in r) for r in maps.P_left[:3, :3]),
+                     rig_id=rig_identity(rig_to_yaml(rig)))
+    dpath = tmp_path / "depth.tiff"
+    write_depth(dpath, np.full((maps.height, maps.width), 2.0, np.float32), grid)
+    rng = range_for_image(dpath, (SIZE[1], SIZE[0]), image_name="in.png", rig_path=rig_path)
+    ok = np.isfinite(rng)
+    assert rng.shape == (SIZE[1], SIZE[0]) and ok.mean() > 0.5
+    # range along a ray to a plane 2 m ahead is at least 2 m (to the plane's splatting error)
+    assert rng[ok].min() > 2.0 - PLANE_TOL_M

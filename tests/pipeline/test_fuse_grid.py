@@ -38,7 +38,7 @@ def _frames(tmp_path: Path, grids: list[DepthGrid | None]) -> tuple[list[Path], 
     return colors, depths
 
 
-CONFIG = TsdfConfig(voxel_m=0.05, trunc_voxels=4.0, depth_min_m=0.1, depth_max_m=5.0)
+CONFIG = TsdfConfig(voxel_m=0.05, trunc_voxels=4.0, min_depth_m=0.1, max_depth_m=5.0)
 
 
 def test_depth_on_the_given_pinhole_grid_is_fused(tmp_path: Path) -> None:

@@ -230,7 +230,7 @@ def test_a_surface_seen_once_is_dropped_when_two_observations_are_required():
 
     cfg2 = MapConfig().fusion((0.1, 5.0)).tsdf
     assert cfg2.weight_threshold == 1.5
-    cfg1 = TsdfConfig(voxel_m=VOXEL_M, depth_min_m=0.1, depth_max_m=5.0, weight_threshold=0.5)
+    cfg1 = TsdfConfig(voxel_m=VOXEL_M, min_depth_m=0.1, max_depth_m=5.0, weight_threshold=0.5)
     store = MemorySubmapStore()
     fusion = SubmapFusion(FusionConfig(tsdf=cfg2, keyframes_per_submap=2))
     kf: dict = {}

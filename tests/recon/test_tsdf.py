@@ -53,7 +53,7 @@ def test_poses_place_the_box_in_the_world():
     assert abs(np.median(top[:, 0])) < 0.05
 
 
-def _open3d_direct(frames, K_o3d, depth_max_m=3.0):
+def _open3d_direct(frames, K_o3d, max_depth_m=3.0):
     vbg = o3d.t.geometry.VoxelBlockGrid(
         attr_names=("tsdf", "weight", "color"),
         attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
@@ -64,13 +64,13 @@ def _open3d_direct(frames, K_o3d, depth_max_m=3.0):
         E = o3c.Tensor(np.linalg.inv(T))
         di = o3d.t.geometry.Image(o3c.Tensor(np.nan_to_num(d, nan=0.0)))
         ci = o3d.t.geometry.Image(o3c.Tensor(c.astype(np.float32) / 255.0))
-        blocks = vbg.compute_unique_block_coordinates(di, Kt, E, 1.0, depth_max_m, 4.0)
-        vbg.integrate(blocks, di, ci, Kt, Kt, E, 1.0, depth_max_m, 4.0)
+        blocks = vbg.compute_unique_block_coordinates(di, Kt, E, 1.0, max_depth_m, 4.0)
+        vbg.integrate(blocks, di, ci, Kt, Kt, E, 1.0, max_depth_m, 4.0)
     return vbg.extract_triangle_mesh(0.5).vertex.positions.numpy().astype(np.float64)
 
 
 def test_same_mesh_as_open3d_called_directly_with_pixel_centres_at_integers():
-    ours = TsdfVolume(TsdfConfig(voxel_m=VOXEL_M, depth_max_m=3.0))
+    ours = TsdfVolume(TsdfConfig(voxel_m=VOXEL_M, max_depth_m=3.0))
     frames = [(T, *render(T)) for T in survey_poses(4)]
     for T, d, c in frames:
         ours.integrate(d, c, K, T)
@@ -121,10 +121,10 @@ def test_blocks_round_trip_to_an_identical_mesh():
 
 
 def test_invalid_and_out_of_range_depth_is_ignored():
-    vol = TsdfVolume(TsdfConfig(voxel_m=VOXEL_M, depth_max_m=2.0))
+    vol = TsdfVolume(TsdfConfig(voxel_m=VOXEL_M, max_depth_m=2.0))
     d = np.full((20, 30), np.nan, np.float32)
     assert vol.integrate(d, None, K, np.eye(4)) == 0
-    d[:] = 3.0  # beyond depth_max_m
+    d[:] = 3.0  # beyond max_depth_m
     assert vol.integrate(d, None, K, np.eye(4)) == 0
     assert vol.extract_mesh().empty and vol.frames == 0
 
@@ -132,7 +132,7 @@ def test_invalid_and_out_of_range_depth_is_ignored():
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [({"voxel_m": 0.0}, "voxel_m"), ({"block_resolution": 5}, "block_resolution"),
-     ({"depth_min_m": 2.0, "depth_max_m": 1.0}, "depth_min_m")],
+     ({"min_depth_m": 2.0, "max_depth_m": 1.0}, "min_depth_m")],
 )
 def test_bad_config(kwargs, message):
     with pytest.raises(ReconError, match=message):

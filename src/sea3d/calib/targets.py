@@ -27,6 +27,7 @@ import enum
 import functools
 import logging
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -41,12 +42,14 @@ from sea3d.errors import ConfigError
 
 __all__ = [
     "CHECKER_DETECTORS",
+    "DETECTOR_ALIASES",
     "BoardSpec",
     "Detection",
     "DetectionStatus",
     "corner_convention_offset_px",
     "detect_board",
     "detect_checkerboard_all",
+    "detect_images",
     "grid_continues",
     "load_board",
     "parse_board",
@@ -456,6 +459,8 @@ def _to_gray(image: NDArray[Any]) -> NDArray[np.uint8]:
 #: detector where they find nothing. Which is best depends on the images (docs/calibration.md):
 #: ``sea3d calibrate`` tries them all and keeps the one with the lowest holdout error.
 CHECKER_DETECTORS = ("sector+subpix", "sector", "classic")
+DETECTOR_ALIASES = {"accurate": "sector", "fast": "classic"}
+"""Old names of detectors: ``accurate`` is ``sector``, ``fast`` is ``classic``."""
 
 
 def _subpix_window(uv: FloatArray, pattern: tuple[int, int]) -> int:
@@ -967,3 +972,42 @@ def board_origin_offset_m(board: BoardSpec) -> tuple[float, float]:
     gap = board.square_m - board.marker_m
     return gap, gap
 
+
+
+def detect_images(images: Iterable[tuple[str, NDArray[Any] | None]], board: BoardSpec,
+                  detector: str = "auto") -> dict[str, list[Detection]]:
+    """The detections of a sequence of images, per checkerboard detector.
+
+    Args:
+        images: ``(name, image)`` pairs, the image None where it could not be read (its
+            detection is then ``UNREADABLE``).
+        board: the board.
+        detector: ``auto`` runs every detector of :data:`CHECKER_DETECTORS` on a checkerboard
+            (``{detector: [...]}`` for each; the caller keeps the one whose calibration is
+            best) and the board's own detector on other boards; a name (or an alias of
+            :data:`DETECTOR_ALIASES`) runs that one.
+
+    Returns:
+        ``{detector: [Detection, ...]}`` in input order, each named; the key is ``"auto"`` for
+        a non-checkerboard board with ``detector="auto"``.
+    """
+    detector = DETECTOR_ALIASES.get(detector, detector)
+    every = detector == "auto" and board.kind == "checkerboard"
+    names = list(CHECKER_DETECTORS) if every else [detector]
+    out: dict[str, list[Detection]] = {n: [] for n in names}
+    for name, img in images:
+        if img is None:
+            for n in names:
+                out[n].append(_empty(DetectionStatus.UNREADABLE, (0, 0),
+                                     "cannot read the image").with_name(name))
+            continue
+        if every:
+            found = detect_checkerboard_all(img, board)
+            for n in names:
+                out[n].append(found[n].with_name(name))
+        else:
+            checker = None if detector == "auto" or board.kind != "checkerboard" else detector
+            out[detector].append(detect_board(img, board, checker_detector=checker).with_name(
+                name))
+        log.debug("%s: %s", name, out[names[0]][-1].message)
+    return out

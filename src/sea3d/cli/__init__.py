@@ -78,9 +78,22 @@ _PHRASES = {
     "not aligned (align none)": "not aligned (--align none)",
     "give trajectories EST GT, or align by ICP for":
         "pass --trajectories EST GT, or --align icp for",
+    "the IMU scale needs": "--imu-scale needs",
+    "free; use fewer frames or a smaller image size":
+        "free; use fewer --frames or a smaller --size",
+    "(neither a rig nor focal_px)": "(--rig or --focal-px)",
+    "a monocular run (camera left/right)": "a monocular run (--camera left/right)",
+    " and no extrinsics file was given (T_left_imu": "; pass --imu-extrinsics FILE (T_left_imu",
+    "; give its times.txt (pose_priors_times)": "; give its times.txt with --pose-priors-times",
+    "camera stereo needs the rig's extrinsics; self_calibrate cannot be on":
+        "--camera stereo needs the rig's extrinsics; drop --self-calibrate",
+    "camera stereo needs the rig (its extrinsics fix the scale); give a rig file or":
+        "--camera stereo needs the rig (its extrinsics fix the scale); pass --rig or",
 }  # fmt: skip
 _PATTERNS = (
     (re.compile(r"no right image; camera (\S+) needs"), r"no right image; --camera \1 needs"),
+    (re.compile(r"(no right camera images|an image glob has one camera); camera (\S+) needs"),
+     r"\1; --camera \2 needs"),
     (re.compile(r"^(color|depth) ('.*' matches no files)$"), r"--\1 \2"),
     (re.compile(r"^color matches (\d+) files but depth (\d+);"),
      r"--color matches \1 files but --depth \2;"),

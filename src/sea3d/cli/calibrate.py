@@ -110,58 +110,19 @@ def _expand(pattern: str, side: str) -> list[Path]:
 
 
 def _load_image(path: Path) -> Any:
-    import cv2
+    from sea3d.io.image_files import read_image_rgb
 
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        return None
-    if img.ndim == 3 and img.shape[2] == 4:
-        img = img[:, :, :3]
-    if img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-    return img
-
-
-_DETECTOR_ALIASES = {"accurate": "sector", "fast": "classic"}
-
-
-def _unreadable(path: Path) -> Any:
-    import numpy as np
-
-    from sea3d.calib.targets import Detection, DetectionStatus
-
-    return Detection(status=DetectionStatus.UNREADABLE, corners_px=np.zeros((0, 2)),
-                     ids=np.zeros(0, np.int64), points_board_m=np.zeros((0, 3)),
-                     image_size=(0, 0), message="cannot read the image", name=path.name)
+    return read_image_rgb(path)
 
 
 def _detect_all(paths: list[Path], board: Any, quiet: bool, detector: str = "auto"
                 ) -> dict[str, list[Any]]:
-    """Detections of every image, per checkerboard detector (``{"": [...]}`` for other boards
-    and for one named detector)."""
-    from sea3d.calib.targets import CHECKER_DETECTORS, detect_board, detect_checkerboard_all
+    """Detections of every image (:func:`sea3d.calib.targets.detect_images`), with a bar."""
+    from sea3d.calib.targets import detect_images
     from sea3d.cli._progress import bar
 
-    detector = _DETECTOR_ALIASES.get(detector, detector)
-    every = detector == "auto" and board.kind == "checkerboard"
-    names = list(CHECKER_DETECTORS) if every else [detector]
-    out: dict[str, list[Any]] = {n: [] for n in names}
-    for path in bar(len(paths), "detecting", unit="img", enabled=not quiet, iterable=paths):
-        img = _load_image(path)
-        if img is None:
-            for n in names:
-                out[n].append(_unreadable(path))
-            continue
-        if every:
-            found = detect_checkerboard_all(img, board)
-            for n in names:
-                out[n].append(found[n].with_name(path.name))
-        else:
-            checker = None if detector == "auto" or board.kind != "checkerboard" else detector
-            out[detector].append(detect_board(img, board, checker_detector=checker).with_name(
-                path.name))
-        log.debug("%s: %s", path.name, out[names[0]][-1].message)
-    return out
+    return detect_images(((p.name, _load_image(p)) for p in bar(
+        len(paths), "detecting", unit="img", enabled=not quiet, iterable=paths)), board, detector)
 
 
 def _pair_paths(left: list[Path], right: list[Path]) -> None:
@@ -214,24 +175,21 @@ def _size_hint(paths: list[Path], dets: list[Any], board: Any, max_images: int =
 
 # ---------------------------------------------------------------------- handlers
 def _board(args: argparse.Namespace) -> int:
-    import cv2
-
     from sea3d.calib.printable import board_pdf
     from sea3d.calib.targets import parse_board, render_board
+    from sea3d.io.documents import write_document
+    from sea3d.io.image_files import write_image_rgb
 
     board = parse_board(args.board)
     out = Path(args.output)
     suffix = out.suffix.lower()
     if suffix == ".pdf":
-        data = board_pdf(board, args.paper)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_bytes(data)
+        write_document(out, board_pdf(board, args.paper))
     elif suffix in (".png", ".tif", ".tiff"):
         if args.dpi <= 0:
             raise ConfigError(f"--dpi must be positive; got {args.dpi}")
         img = render_board(board, px_per_m=args.dpi / 0.0254, margin_m=0.01)
-        if not cv2.imwrite(str(out), img):
-            raise ConfigError(f"cannot write {out}")
+        write_image_rgb(out, img, ConfigError)
     else:
         raise ConfigError(f"-o {out}: use a .pdf (true scale) or .png file")
     w, h = board.size_m
@@ -248,7 +206,9 @@ def _stereo(args: argparse.Namespace) -> int:
     left_paths, right_paths = _expand(args.left, "left"), _expand(args.right, "right")
     _pair_paths(left_paths, right_paths)
     quiet = bool(args.json)
-    detector = _DETECTOR_ALIASES.get(args.detector, args.detector)
+    from sea3d.calib.targets import DETECTOR_ALIASES
+
+    detector = DETECTOR_ALIASES.get(args.detector, args.detector)
     reason = f"{detector}, named with --detector {args.detector}"
     if detector == "auto" and args.no_holdout:
         detector = "sector+subpix"
@@ -271,6 +231,7 @@ def _stereo(args: argparse.Namespace) -> int:
         raise CalibrationError(f"{err}{_size_hint(left_paths, left[first], board)}") from err
     if args.report:
         from sea3d.calib.report import render_report
+        from sea3d.io.documents import write_document
 
         sample = None
         if result.left is not None and result.views:
@@ -279,8 +240,7 @@ def _stereo(args: argparse.Namespace) -> int:
                 names[result.views[0].right])
             if li is not None and ri is not None:
                 sample = (li, ri)
-        Path(args.report).write_text(render_report(result, sample_pair=sample),
-                                     encoding="utf-8")
+        write_document(args.report, render_report(result, sample_pair=sample))
     if result.ok:
         save_rig(result.to_rig(), args.output)
     if args.json:
@@ -349,8 +309,9 @@ def _port(args: argparse.Namespace) -> int:
         save_rig(result.rig, args.output)
     if args.report:
         from sea3d.calib.report import render_port_report
+        from sea3d.io.documents import write_document
 
-        Path(args.report).write_text(render_port_report(result), encoding="utf-8")
+        write_document(args.report, render_port_report(result))
     if args.json:
         json.dump(result.to_dict(), sys.stdout, indent=2)
         print()

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 from pathlib import Path
 from typing import Any
 
@@ -19,49 +18,26 @@ from sea3d.enhance.registry import METHODS
 
 __all__ = ["register", "register_eval"]
 
-_log = logging.getLogger(__name__)
-
 
 
 def _read_image(path: str | Path) -> Any:
-    import cv2
-
     from sea3d.errors import EnhanceError
+    from sea3d.io.image_files import read_image_rgb
 
     p = Path(path)
     if not p.is_file():
         raise EnhanceError(f"image not found: {p}")
-    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    img = read_image_rgb(p)
     if img is None:
         raise EnhanceError(f"cannot read image {p}")
-    if img.ndim == 3 and img.shape[2] == 4:
-        img = img[..., :3]
-    if img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
     return img
 
 
 def _write_image(path: str | Path, img: Any) -> None:
-    import cv2
-    import numpy as np
-
     from sea3d.errors import EnhanceError
+    from sea3d.io.image_files import write_image_rgb
 
-    p = Path(path)
-    data = np.asarray(img)
-    if data.dtype.kind == "f":
-        data = (np.clip(data, 0, 1) * 255.0 + 0.5).astype(np.uint8)
-    if data.dtype == np.uint16 and p.suffix.lower() in (".jpg", ".jpeg"):
-        data = (data // 257).astype(np.uint8)
-    if data.ndim == 3:
-        data = cv2.cvtColor(data, cv2.COLOR_RGB2BGR)
-    try:
-        p.parent.mkdir(parents=True, exist_ok=True)
-        ok = cv2.imwrite(str(p), data)
-    except (cv2.error, OSError) as err:
-        raise EnhanceError(f"cannot write {p}: {err}") from err
-    if not ok:
-        raise EnhanceError(f"cannot write {p} (unknown image type {p.suffix!r}?)")
+    write_image_rgb(path, img, EnhanceError)
 
 
 def _seathru_config(args: argparse.Namespace) -> Any:
@@ -76,83 +52,6 @@ def _seathru_config(args: argparse.Namespace) -> Any:
         attenuation=args.attenuation,
         white_balance="none" if args.no_white_balance else "grey-world",
     )
-
-
-def _range_for(args: argparse.Namespace, image: Any) -> Any:
-    """The range map for a single image from --depth (and the rig's intrinsics)."""
-    from sea3d.enhance.seathru import depth_to_range
-    from sea3d.errors import EnhanceError
-    from sea3d.io.depth_files import read_depth
-
-    if args.depth is None:
-        raise EnhanceError(
-            "--method seathru needs --depth DEPTH (float32 m .npy/.tiff or 16-bit mm PNG)"
-        )
-    depth = read_depth(args.depth)  # names the file in its errors
-    h, w = image.shape[:2]
-    from_rect = _range_from_rectified(args, depth, (h, w))
-    if from_rect is not None:
-        return from_rect
-    if depth.shape != (h, w):
-        raise EnhanceError(
-            f"depth {args.depth} is {depth.shape[1]}x{depth.shape[0]} but image {args.input} is "
-            f"{w}x{h}; the depth must be in the image's pixel grid"
-        )
-    if args.range:
-        return depth
-    if args.rig is not None:
-        from sea3d.io.rig_file import load_rig
-
-        rig = load_rig(args.rig)
-        pin = rig.left.lens
-        if (pin.width, pin.height) != (w, h):
-            raise EnhanceError(
-                f"rig {args.rig} is {pin.width}x{pin.height} but image {args.input} is {w}x{h}"
-            )
-        return depth_to_range(depth, pin.fx, pin.fy, pin.cx, pin.cy)
-    if args.focal_px is not None:
-        return depth_to_range(depth, args.focal_px, args.focal_px, (w - 1) / 2, (h - 1) / 2)
-    _log.warning(
-        "no intrinsics (--rig or --focal-px): the depth is used as range along the line of "
-        "sight (too short by 1/cos of the off-axis angle)"
-    )
-    return depth
-
-
-def _range_from_rectified(args: argparse.Namespace, depth: Any, shape: tuple[int, int]) -> Any:
-    """Range on the raw image's grid when --depth says (its grid sidecar) that it lives on the
-    rectified left view: resampled with --rig, refused in one line without it or with another
-    rig. None when the depth is on the raw grid (or says nothing)."""
-    from sea3d.errors import EnhanceError
-    from sea3d.io.depth_files import read_depth_grid, rig_identity
-
-    grid = read_depth_grid(args.depth)
-    if grid is None or grid.kind == "raw-left":
-        if grid is not None and (grid.width_px, grid.height_px) != (shape[1], shape[0]):
-            raise EnhanceError(f"depth {args.depth} lives on the {grid.describe()} grid but "
-                               f"image {args.input} is {shape[1]}x{shape[0]}")
-        return None
-    if args.rig is None:
-        raise EnhanceError(
-            f"depth {args.depth} lives on the {grid.describe()} grid, not on the raw image's "
-            "pixels: pass --rig to resample it, or write raw-view depth with sea3d depth "
-            "--grid raw"
-        )
-    import numpy as np
-
-    from sea3d.io.rig_file import load_rig, rig_to_yaml
-    from sea3d.rectify import rectify_rig
-    from sea3d.rectify.depth_grid import rectified_depth_to_raw
-
-    rig = load_rig(args.rig)
-    if grid.rig_id and grid.rig_id != rig_identity(rig_to_yaml(rig)):
-        raise EnhanceError(f"depth {args.depth} came from another rig than {args.rig}")
-    if (rig.width, rig.height) != (shape[1], shape[0]):
-        raise EnhanceError(f"rig {args.rig} is {rig.width}x{rig.height} but image "
-                           f"{args.input} is {shape[1]}x{shape[0]}")
-    maps = rectify_rig(rig, depth_range_m=(args.min_depth, args.max_depth))
-    K = np.asarray(grid.K, dtype=np.float64)
-    return rectified_depth_to_raw(depth, K, maps.R_rect_left_left, rig.left, quantity="range")
 
 
 def _cmd_enhance(args: argparse.Namespace) -> int:
@@ -170,7 +69,18 @@ def _cmd_enhance(args: argparse.Namespace) -> int:
     params: dict[str, Any] = {}
     if args.method == "clahe":
         params["clip_limit"] = args.clip_limit
-    range_m = _range_for(args, image) if args.method == "seathru" else None
+    range_m = None
+    if args.method == "seathru":
+        from sea3d.pipeline.enhance_image import range_for_image
+
+        if args.depth is None:
+            raise EnhanceError(
+                "--method seathru needs --depth DEPTH (float32 m .npy/.tiff or 16-bit mm PNG)"
+            )
+        range_m = range_for_image(args.depth, image.shape[:2], image_name=str(args.input),
+                                  rig_path=args.rig, is_range=args.range,
+                                  focal_px=args.focal_px,
+                                  depth_range_m=(args.min_depth, args.max_depth))
     out = enhance_image(
         image,
         args.method,

@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import image_size
+from sea3d.cli._args import config_option, image_size, param_option
 
 __all__ = ["register"]
 
@@ -73,9 +73,9 @@ def _cmd_live(args: argparse.Namespace) -> int:
                 print(f"monitor at {mon.url}", file=sys.stderr, flush=True)
                 servers.insert(0, mon)
         if recorder is not None:
-            from sea3d.cli.record import _StopOnSignals
+            from sea3d.cli._signals import StopOnSignals
 
-            with _StopOnSignals(recorder.request_stop):
+            with StopOnSignals(recorder.request_stop):
                 summary, stats, _rec = run_live_cameras(recorder, config, live, feed=feed)
         else:
             summary, stats = run_live_replay(args.replay, config, live, rate=args.rate,
@@ -98,6 +98,9 @@ def _cmd_live(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from sea3d.capture.spec import open_source
+    from sea3d.pipeline.live import LiveConfig, run_live_replay
+
     p = sub.add_parser("live", help="live reconstruction (cameras being recorded, or a "
                        "replayed session)", description=__doc__)
     p.add_argument("--replay", type=Path, help="a recorded session, replayed at its rate")
@@ -108,19 +111,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--imu", help="IMU source (as sea3d record's --imu)")
     p.add_argument("--duration", type=float, help="seconds to record (default: until the "
                    "cameras stop or Ctrl-C)")
-    p.add_argument("--replay-speed", type=float, default=1.0,
-                   help="pace of replay sources given to --left/--right (1: real time)")
+    param_option(p, open_source, "replay_speed", type=float,
+                 help="pace of replay sources given to --left/--right (1: real time)")
     p.add_argument("-o", "--output", type=Path, required=True, help="output folder")
-    p.add_argument("--rate", type=float, default=1.0, help="replay speed (default 1: as "
-                   "recorded)")
+    param_option(p, run_live_replay, "rate", type=float, help="replay speed (1: as recorded)")
     p.add_argument("--rig", type=Path, help="rig file (default: the session's); stored with "
                    "a --record session")
     p.add_argument("--size", type=image_size, help="process at WxH")
     p.add_argument("--poses", type=Path, help="known T_world_left poses instead of odometry")
     p.add_argument("--no-imu", action="store_true", help="visual odometry only")
     p.add_argument("--max-frames", type=int, help="only the first N pairs")
-    p.add_argument("--depth-in-flight", type=int, default=1,
-                   help="depth frames computed at once (default 1)")
+    config_option(p, LiveConfig, "depth_in_flight", type=int,
+                  help="depth frames computed at once")
     p.add_argument("--foxglove", metavar="HOST:PORT", help="publish the images, mesh, "
                    "trajectory and status on a Foxglove WebSocket server")
     p.add_argument("--monitor", metavar="HOST:PORT", help="serve the monitor page (with the "

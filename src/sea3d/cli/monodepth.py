@@ -61,18 +61,15 @@ def register(sub: Any) -> None:
 
 
 def _read_rgb(path: Path) -> Any:
-    import cv2
-
     from sea3d.errors import MonoDepthError
+    from sea3d.io.image_files import read_image_rgb
 
     if not path.is_file():
         raise MonoDepthError(f"{path}: image not found")
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    img = read_image_rgb(path)
     if img is None:
         raise MonoDepthError(f"{path}: cannot read the image")
-    if img.ndim == 3 and img.shape[2] == 4:
-        img = img[:, :, :3]
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB) if img.ndim == 3 else img
+    return img
 
 
 def _stereo(rig: Any, args: argparse.Namespace) -> Any:
@@ -113,9 +110,9 @@ def _cmd_mono_depth(args: argparse.Namespace) -> int:
                                                        device=args.device))
     src = Path(args.input)
     out = Path(args.output)
-    from sea3d.cli.sfm import _is_session
+    from sea3d.io.session import is_session
 
-    if src.exists() and _is_session(src):
+    if src.exists() and is_session(src):
         return _session(args, model, src, out)
     left = _read_rgb(src)
     sparse, fill, frame = None, False, "left"

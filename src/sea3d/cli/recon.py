@@ -123,7 +123,7 @@ def _cmd_fuse(args: argparse.Namespace) -> int:
     fx, fy, cx, cy = args.intrinsics
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     config = TsdfConfig(voxel_m=args.voxel_m, trunc_voxels=args.trunc_voxels,
-                        depth_min_m=args.min_depth, depth_max_m=args.max_depth)
+                        min_depth_m=args.min_depth, max_depth_m=args.max_depth)
     with _progress.bar(len(colors), "fuse", enabled=not args.json, leave=True) as bar:
         res = fuse_rgbd(colors, depths, poses, K, config, depth_scale=args.depth_scale,
                         progress=bar.update)
@@ -327,9 +327,9 @@ def register(sub: Any) -> None:
     f.add_argument("--voxel-m", type=float, required=True, metavar="V", help="voxel edge, metres")
     config_option(f, TsdfConfig, "trunc_voxels", type=float, metavar="N",
                   help="truncation distance in voxels")
-    config_option(f, TsdfConfig, "depth_min_m", "--min-depth", dest="min_depth", type=float,
+    config_option(f, TsdfConfig, "min_depth_m", "--min-depth", dest="min_depth", type=float,
                   metavar="M", help="nearest depth used, metres")
-    config_option(f, TsdfConfig, "depth_max_m", "--max-depth", dest="max_depth", type=float,
+    config_option(f, TsdfConfig, "max_depth_m", "--max-depth", dest="max_depth", type=float,
                   metavar="M", help="farthest depth used, metres")
     f.add_argument("-o", "--output", type=Path, required=True, metavar="MESH",
                    help="output mesh (.ply)")

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
 import threading
 from pathlib import Path
@@ -13,6 +12,7 @@ from typing import Any
 
 from sea3d.cli._args import add_output, config_default, config_option, param_option
 from sea3d.cli._foxglove import FOXGLOVE_HELP as _FOXGLOVE_HELP
+from sea3d.cli._signals import StopOnSignals
 
 __all__ = ["register"]
 
@@ -111,30 +111,6 @@ def register(sub: Any) -> None:
     mon.set_defaults(handler=_monitor)
 
 
-class _StopOnSignals:
-    """Route SIGINT/SIGTERM to a stop callback while active (main thread only)."""
-
-    def __init__(self, stop: Any) -> None:
-        self.stop = stop
-        self.old: dict[int, Any] = {}
-        self.received: int | None = None
-
-    def __enter__(self) -> _StopOnSignals:
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self.old[sig] = signal.signal(sig, self._handle)
-        return self
-
-    def _handle(self, signum: int, frame: Any) -> None:
-        del frame
-        self.received = signum
-        self.stop(f"stopped by {signal.Signals(signum).name}")
-
-    def __exit__(self, *exc: object) -> None:
-        for sig, old in self.old.items():
-            signal.signal(sig, old)
-
-
 def _print_summary(summary: Any, as_json: bool) -> None:
     if as_json:
         json.dump(summary.as_dict(), sys.stdout, indent=2)
@@ -215,7 +191,7 @@ def _record(args: argparse.Namespace) -> int:
 
         foxglove = start_foxglove(args.foxglove, recorder, rig_yaml=rig_yaml, required=False)
     try:
-        with _StopOnSignals(recorder.request_stop):
+        with StopOnSignals(recorder.request_stop):
             summary = recorder.run()
     finally:
         if server is not None:
@@ -244,7 +220,7 @@ def _monitor(args: argparse.Namespace) -> int:
             foxglove = start_foxglove(
                 args.foxglove, player, rig_yaml=player.session.rig_yaml, replay=player
             )
-        with _StopOnSignals(lambda _r: done.set()):
+        with StopOnSignals(lambda _r: done.set()):
             if args.no_browser:
                 print("serving Foxglove only (Ctrl-C to stop)", file=sys.stderr, flush=True)
                 done.wait(args.duration)

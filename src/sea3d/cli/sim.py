@@ -10,13 +10,18 @@ from __future__ import annotations
 
 import argparse
 import logging
+from functools import partial
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import add_output, image_size
+from sea3d._text import plural, size_text
+from sea3d.cli._args import add_output, config_option, image_size
 from sea3d.errors import SimulationError
+from sea3d.sim.config import DEFAULT_SCENE, CalibrationSetConfig, SurveyConfig
 
 _log = logging.getLogger(__name__)
+
+_WATERS = ["none", "clear", "coastal", "turbid"]
 
 
 def register(sub: Any) -> None:
@@ -31,49 +36,32 @@ def register(sub: Any) -> None:
         "Before it starts it prints what the run will write and roughly how long it takes, and "
         "refuses to start when the disk cannot hold it.",
     )
-    p.add_argument(
-        "--scene", default="lake", help="built-in scene (tank, lake, reef) or a scene YAML file"
-    )
+    p.add_argument("--scene", default=DEFAULT_SCENE,
+                   help=f"built-in scene (tank, lake, reef) or a scene YAML file "
+                        f"(default {DEFAULT_SCENE})")
     p.add_argument(
         "--rig",
         type=Path,
         metavar="RIG",
         help="rig file (default: the paper's rig with dome ports)",
     )
-    p.add_argument(
-        "--frames", type=int, default=300, metavar="N", help="stereo frames (default 300)"
-    )
-    p.add_argument("--fps", type=float, default=10.0, metavar="HZ", help="camera rate (default 10)")
-    p.add_argument(
-        "--water",
-        default="coastal",
-        choices=["none", "clear", "coastal", "turbid"],
-        help="water type; none = clean images (default coastal)",
-    )
-    p.add_argument(
-        "--trajectory",
-        default="lawnmower",
-        choices=["lawnmower", "orbit", "handheld"],
-        help="vehicle motion (default lawnmower)",
-    )
+    survey = partial(config_option, p, SurveyConfig)
+    survey("frames", type=int, metavar="N", help="stereo frames")
+    survey("fps", type=float, metavar="HZ", help="camera rate", shown="10")
+    survey("water", choices=_WATERS, help="water type; none = clean images")
+    survey("trajectory", choices=["lawnmower", "orbit", "handheld"], help="vehicle motion")
     add_output(p, type=Path, metavar="PATH", help="output: an .mcap file or a folder")
     p.add_argument(
         "--format", choices=["mcap", "folder"], help="session layout (default from --output)"
     )
-    p.add_argument("--seed", type=int, default=0, metavar="N", help="noise seed (default 0)")
+    survey("seed", type=int, metavar="N", help="noise seed")
     p.add_argument(
         "--size",
         type=image_size,
         metavar="WxH",
         help="render at WxH instead of the rig's size (intrinsics scaled)",
     )
-    p.add_argument(
-        "--supersample",
-        type=int,
-        default=2,
-        metavar="N",
-        help="rays per pixel along each axis at edges (default 2)",
-    )
+    survey("supersample", type=int, metavar="N", help="rays per pixel along each axis at edges")
     p.add_argument("--no-imu-noise", action="store_true", help="exact IMU readings")
     p.add_argument(
         "--clean-reference",
@@ -109,37 +97,16 @@ def register(sub: Any) -> None:
         metavar="RIG",
         help="rig file (default: the paper's rig with dome ports)",
     )
-    c.add_argument(
-        "--board",
-        default="checkerboard:9x6:40mm",
-        metavar="BOARD",
+    cal = partial(config_option, c, CalibrationSetConfig)
+    cal("board", metavar="BOARD",
         help="board as for 'sea3d calibrate': checkerboard:COLSxROWS:SQUARE (inner corners) or "
-        "charuco:COLSxROWS:SQUARE:MARKER[:DICT][:legacy] (squares), or a board .yaml file",
-    )
-    c.add_argument(
-        "--views", type=int, default=20, metavar="N", help="number of views (default 20)"
-    )
-    c.add_argument(
-        "--medium",
-        choices=["water", "air"],
-        default="water",
-        help="water: through the ports; air: the bare pinholes (default water)",
-    )
-    c.add_argument(
-        "--distance",
-        type=float,
-        nargs=2,
-        default=(0.5, 2.5),
-        metavar=("MIN_M", "MAX_M"),
-        help="board distance range in metres (default 0.5 2.5)",
-    )
-    c.add_argument(
-        "--water",
-        dest="cal_water",
-        default="none",
-        choices=["none", "clear", "coastal", "turbid"],
-        help="water effects on the images (default none)",
-    )
+        "charuco:COLSxROWS:SQUARE:MARKER[:DICT][:legacy] (squares), or a board .yaml file")
+    cal("views", type=int, metavar="N", help="number of views")
+    cal("medium", choices=["water", "air"],
+        help="water: through the ports; air: the bare pinholes")
+    cal("distance_range_m", "--distance", type=float, nargs=2, metavar=("MIN_M", "MAX_M"),
+        dest="distance", help="board distance range in metres")
+    cal("water", choices=_WATERS, dest="cal_water", help="water effects on the images")
     c.add_argument(
         "--size",
         dest="cal_size",
@@ -147,9 +114,7 @@ def register(sub: Any) -> None:
         metavar="WxH",
         help="render at WxH (intrinsics scaled)",
     )
-    c.add_argument(
-        "--seed", dest="cal_seed", type=int, default=0, metavar="N", help="pose seed (default 0)"
-    )
+    cal("seed", dest="cal_seed", type=int, metavar="N", help="pose seed")
     add_output(c, dest="cal_out", type=Path, required=True, metavar="DIR", help="output folder")
     c.set_defaults(handler=_run_calibration)
 
@@ -171,12 +136,6 @@ def _progress(total: int, desc: str) -> Any:
     return bar(total, desc, leave=True)
 
 
-def _size_text(n_bytes: float) -> str:
-    if n_bytes >= 1e9:
-        return f"{n_bytes / 1e9:.1f} GB"
-    return f"{n_bytes / 1e6:.0f} MB" if n_bytes >= 1e6 else f"{n_bytes / 1e3:.0f} kB"
-
-
 def _duration_text(seconds: float) -> str:
     if seconds < 1:
         return "a second"
@@ -187,71 +146,24 @@ def _duration_text(seconds: float) -> str:
     return f"{seconds / 3600:.1f} h"
 
 
-def _check_disk(out: Path, gt_dir: Path, need_bytes: float) -> None:
-    """Refuse a run the disk cannot hold (with a 10 % margin)."""
-    import shutil
-
-    for target in {out, gt_dir}:
-        probe = target
-        while not probe.exists() and probe != probe.parent:
-            probe = probe.parent
-        free = shutil.disk_usage(probe).free
-        if need_bytes * 1.1 > free:
-            raise SimulationError(
-                f"the run needs about {_size_text(need_bytes)} but {probe} has "
-                f"{_size_text(free)} free; use fewer --frames or a smaller --size"
-            )
-
-
-def _remove_created(path: Path, existed: bool) -> None:
-    """Remove an output this run created (a session without a single frame, its ground truth)."""
-    import shutil
-
-    if existed or not path.exists():
-        return
-    if path.is_dir():
-        shutil.rmtree(path, ignore_errors=True)
-    else:
-        path.unlink(missing_ok=True)
-
-
-def _say_if_the_survey_folds(scene: Any, config: Any) -> None:
-    """A lawnmower longer than one pass over the scene flies its lanes again: say so, with the
-    number of frames one pass holds, before the (long) rendering starts."""
-    from sea3d.sim.motion import Lawnmower
-    from sea3d.sim.survey import default_trajectory
-
-    traj = default_trajectory(scene, config)
-    if not isinstance(traj, Lawnmower) or traj.pass_s is None:
-        return
-    pass_frames = round(traj.pass_s * config.fps)
-    if config.frames > pass_frames:
-        print(f"note: {scene.name} holds {traj.lanes} lanes of this survey, {pass_frames} frames "
-              f"at {config.fps:g} fps; after that the survey turns back over the same lanes "
-              "rather than leave the scene", flush=True)
-
-
 def _run_survey(args: argparse.Namespace) -> int:
     if args.out is None:
         raise SimulationError("sea3d sim needs -o/--output (an .mcap file or a folder)")
     if args.frames < 1:
         raise SimulationError(f"--frames must be >= 1, got {args.frames}")
-    from sea3d.io.rig_file import rig_to_yaml
-    from sea3d.io.session import SessionWriter, layout_of
+    from sea3d.io.ground_truth import ground_truth_dir
+    from sea3d.io.session import layout_of
     from sea3d.sim.scene import load_scene
     from sea3d.sim.survey import (
-        SurveyConfig,
+        check_disk_room,
         estimate_survey_cost,
-        simulate_survey,
-        survey_mount,
-        with_survey_sensors,
+        simulate_session,
+        survey_fold_note,
     )
 
     rig = _load_rig(args.rig, args.size)
     scene = load_scene(args.scene)
     fmt = args.format or layout_of(args.out)
-    from sea3d.io.ground_truth import ground_truth_dir
-
     gt_dir = args.gt if args.gt is not None else ground_truth_dir(args.out,
                                                                   folder=fmt == "folder")
     config = SurveyConfig(
@@ -265,60 +177,35 @@ def _run_survey(args: argparse.Namespace) -> int:
         clean_reference=args.clean_reference,
     )
     cost = estimate_survey_cost(rig.width, rig.height, config)
-    _check_disk(args.out, gt_dir, cost.total_bytes)
+    check_disk_room((args.out, gt_dir), cost.total_bytes)
     pairs = "pair" if args.frames == 1 else "pairs"
     print(
         f"simulating {args.frames} stereo {pairs} of {scene.name} ({args.water} water) at "
-        f"{rig.width}x{rig.height}: about {_size_text(cost.image_bytes)} of images and "
-        f"{_size_text(cost.gt_bytes)} of ground truth, about {_duration_text(cost.total_seconds)} "
+        f"{rig.width}x{rig.height}: about {size_text(cost.image_bytes)} of images and "
+        f"{size_text(cost.gt_bytes)} of ground truth, about {_duration_text(cost.total_seconds)} "
         f"on two idle cores"
         + (" (most of it the one-off compilation of the renderer)"
            if cost.compiles and cost.startup_seconds > cost.seconds else
            " (with the one-off compilation of the renderer)" if cost.compiles else ""),
         flush=True,
     )
-    _say_if_the_survey_folds(scene, config)
-    mount = survey_mount(rig, config)
-    session_rig = with_survey_sensors(rig, config, mount)  # the IMU and echosounder simulated
-    existed = {path: path.exists() for path in (args.out, gt_dir)}
-    frames_written = 0
-
-    def advance(n: int) -> None:
-        nonlocal frames_written
-        frames_written += n
-        bar.update(n)
-
-    try:
-        with (
-            _progress(args.frames, f"sim {scene.name}") as bar,
-            SessionWriter(args.out, format=fmt, rig_yaml=rig_to_yaml(session_rig)) as writer,
-        ):
-            result = simulate_survey(
-                scene, rig, config, writer, gt_dir, mount=mount, progress=advance
-            )
-    except BaseException:
-        # A run that stops before its first frame leaves nothing behind; once frames are
-        # written, the session and its ground truth are kept (closed properly by the writer).
-        if frames_written == 0:
-            for path, was in existed.items():
-                _remove_created(path, was)
-        raise
+    note = survey_fold_note(scene, config)
+    if note is not None:
+        print(f"note: {note}", flush=True)
+    with _progress(args.frames, f"sim {scene.name}") as bar:
+        result = simulate_session(scene, rig, config, args.out, gt_dir, format=fmt,
+                                  progress=bar.update)
     print(
-        f"wrote {_count(len(result.frame_t_ns), 'stereo frame')}, "
-        f"{_count(result.imu_count, 'IMU sample')} and "
-        f"{_count(result.sonar_count, 'echosounder sample')} to {args.out}; ground truth in "
+        f"wrote {plural(len(result.frame_t_ns), 'stereo frame')}, "
+        f"{plural(result.imu_count, 'IMU sample')} and "
+        f"{plural(result.sonar_count, 'echosounder sample')} to {args.out}; ground truth in "
         f"{gt_dir}"
     )
     return 0
 
 
-def _count(n: int, noun: str) -> str:
-    """``1 pair``, ``2 pairs``."""
-    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
-
-
 def _run_calibration(args: argparse.Namespace) -> int:
-    from sea3d.io.rig_file import rig_to_yaml
+    from sea3d.io.rig_file import save_rig
     from sea3d.sim.survey import in_air, render_calibration_set, write_calibration_set
 
     rig = _load_rig(args.cal_rig, args.cal_size)
@@ -335,11 +222,9 @@ def _run_calibration(args: argparse.Namespace) -> int:
         )
     write_calibration_set(cal, args.cal_out)
     # The rig that rendered the images: in air the bare pinholes, without the ports.
-    (args.cal_out / "rig_true.yaml").write_text(
-        rig_to_yaml(in_air(rig) if args.medium == "air" else rig)
-    )
+    save_rig(in_air(rig) if args.medium == "air" else rig, args.cal_out / "rig_true.yaml")
     print(
-        f"wrote {_count(args.views, args.medium + ' calibration pair')} of {args.board} to "
+        f"wrote {plural(args.views, args.medium + ' calibration pair')} of {args.board} to "
         f"{args.cal_out} (true poses in gt/boards.json, true rig in rig_true.yaml)"
     )
     return 0

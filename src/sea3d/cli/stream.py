@@ -12,16 +12,14 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
-import signal
 import sys
 import threading
-from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 from sea3d.cli._args import config_option, image_size, param_option
+from sea3d.cli._signals import StopOnSignals
 
 __all__ = ["register"]
 
@@ -95,25 +93,6 @@ def register(sub: Any) -> None:
     p.set_defaults(handler=_stream)
 
 
-@contextlib.contextmanager
-def _on_signals(stop: Callable[[str], None]) -> Iterator[None]:
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    old = {}
-
-    def handle(signum: int, _frame: Any) -> None:
-        stop(f"stopped by {signal.Signals(signum).name}")
-
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        old[sig] = signal.signal(sig, handle)
-    try:
-        yield
-    finally:
-        for sig, h in old.items():
-            signal.signal(sig, h)
-
-
 def _stream(args: argparse.Namespace) -> int:
     from sea3d.errors import ConfigError
 
@@ -165,7 +144,7 @@ def _send(args: argparse.Namespace) -> int:
         pairs = live_pairs(left, right, stop=stop)
         what = " and ".join(str(s) for s in (left, right) if s is not None)
     sender = StreamSender(config)
-    with _on_signals(sender.request_stop):
+    with StopOnSignals(sender.request_stop):
         print(f"streaming {what} to {config.url} (Ctrl-C to stop)", file=sys.stderr, flush=True)
         try:
             summary = sender.run(pairs, duration_s=args.duration)
@@ -253,7 +232,7 @@ def _receive(args: argparse.Namespace) -> int:
     t_end = None if args.duration is None else time.monotonic() + args.duration
     timer = None
     try:
-        with _on_signals(receiver.request_stop):
+        with StopOnSignals(receiver.request_stop):
             # Said only once the signals are ours: a SIGTERM sent on seeing this line stops the
             # receiver cleanly instead of killing it (it raced under load before).
             print(f"receiving on {args.url} (Ctrl-C to stop)", file=sys.stderr, flush=True)

@@ -54,6 +54,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
+from sea3d._typing import F64
 from sea3d.enhance._image import as_unit_float, from_unit_float, require_rgb, saturated_mask
 from sea3d.errors import EnhanceError
 
@@ -69,7 +70,6 @@ __all__ = [
 _log = logging.getLogger(__name__)
 
 F32 = NDArray[np.float32]
-F64 = NDArray[np.float64]
 
 LIMITS: dict[str, tuple[float, float]] = {
     "beta_D_per_m": (0.0, 5.0),

@@ -10,11 +10,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.errors import Sea3dError
 
 __all__ = ["pose_alignment", "process_metrics"]
-
-F64 = NDArray[np.float64]
 
 
 def pose_alignment(t_est: NDArray[np.int64], T_est: F64, t_ref: NDArray[np.int64],

@@ -16,7 +16,11 @@ through it, so the rule and the names are written once:
   - ``scene.ply``: the scene mesh (world frame, vertex colours);
   - ``imu_bias.csv``: the IMU's true biases;
   - ``sim.json``: scene, water, seed, rates, ``T_body_left``, ``T_body_sonar``, water model;
-  - ``clean/{left,right}/<t_ns>.png``: the same views without water (optional).
+  - ``clean/{left,right}/<t_ns>.png``: the same views without water (optional);
+  - of a simulated calibration set (``gt/`` beside its ``left/`` and ``right/`` images):
+    ``boards.json`` (each view's ``t_ns`` and ``T_left_board``) and ``board.json`` (the board).
+
+Everything but the per-frame images is written atomically (a reader never sees half a file).
 """
 
 from __future__ import annotations
@@ -31,8 +35,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.errors import SessionError, SimulationError
+from sea3d.io._atomic import atomic_open, atomic_path, atomic_write
+from sea3d.io.image_files import write_image_rgb
 
 __all__ = [
+    "BOARD",
+    "BOARDS",
     "CLEAN_DIR",
     "DEPTH_DIR",
     "GT_DEPTH_SUFFIX",
@@ -47,6 +55,7 @@ __all__ = [
     "ground_truth_dir",
     "gt_depth_path",
     "read_gt_depth",
+    "write_calibration_truth",
     "write_gt_depth",
 ]
 
@@ -62,6 +71,8 @@ POSES_BODY = "poses_body.tum"
 SCENE_MESH = "scene.ply"
 IMU_BIAS = "imu_bias.csv"
 SIM_META = "sim.json"
+BOARDS = "boards.json"
+BOARD = "board.json"
 
 # Ground-truth depth on disk: float32 TIFF, deflate (zlib level 1) with the floating-point
 # predictor (TIFF predictor 3). Lossless; on the lake scene 0.36 of the .npy size at level 1,
@@ -243,6 +254,74 @@ class GroundTruth:
         if not isinstance(meta, dict):
             raise SessionError(f"{p}: expected a JSON object, got {type(meta).__name__}")
         return meta
+
+
+    # -- writing (the simulator) --------------------------------------------------------------
+    def write_meta(self, meta: dict[str, Any]) -> None:
+        """Write ``sim.json`` (atomic).
+
+        Raises:
+            OSError: it cannot be written.
+        """
+        atomic_write(self.sim_meta_path, json.dumps(meta, indent=1))
+
+    def write_scene_mesh(self, mesh: Any) -> None:
+        """Write ``scene.ply`` from an Open3D ``TriangleMesh`` (world frame, vertex colours;
+        atomic).
+
+        Raises:
+            OSError: it cannot be written.
+        """
+        import open3d as o3d
+
+        with atomic_path(self.scene_mesh_path) as tmp:
+            if not o3d.io.write_triangle_mesh(tmp, mesh):
+                raise OSError(f"Open3D could not write {self.scene_mesh_path}")
+
+    def write_imu_bias(self, t_ns: NDArray[np.int64], accel_bias_mps2: NDArray[np.float64],
+                       gyro_bias_radps: NDArray[np.float64]) -> None:
+        """Write ``imu_bias.csv``: ``t_ns,ba_x,ba_y,ba_z,bg_x,bg_y,bg_z`` per IMU sample
+        (``(N,)`` ns, ``(N, 3)`` m/s^2 and rad/s; atomic).
+
+        Raises:
+            OSError: it cannot be written.
+        """
+        with atomic_open(self.imu_bias_path, "w") as fh:
+            np.savetxt(fh, np.column_stack([t_ns, accel_bias_mps2, gyro_bias_radps]),
+                       delimiter=",", header="t_ns,ba_x,ba_y,ba_z,bg_x,bg_y,bg_z", comments="",
+                       fmt=["%d"] + ["%.9e"] * 6)
+
+    def write_object_id(self, t_ns: int, object_id: NDArray[np.uint16]) -> None:
+        """Write ``object_id/<t_ns>.png``: ``(H, W)`` uint16, object index + 1, 0 = no hit.
+
+        Raises:
+            SimulationError: it cannot be written.
+        """
+        write_image_rgb(self.object_id_folder / f"{int(t_ns)}.png",
+                        np.asarray(object_id, np.uint16), SimulationError)
+
+    def write_clean_pair(self, t_ns: int, left_rgb: NDArray[Any], right_rgb: NDArray[Any]
+                         ) -> None:
+        """Write ``clean/{left,right}/<t_ns>.png``: the views without water, ``(H, W, 3)`` RGB.
+
+        Raises:
+            SimulationError: they cannot be written.
+        """
+        for side, img in (("left", left_rgb), ("right", right_rgb)):
+            write_image_rgb(self.clean_folder(side) / f"{int(t_ns)}.png", img, SimulationError)
+
+
+def write_calibration_truth(root: str | os.PathLike[str], boards: list[dict[str, Any]],
+                            board: dict[str, Any]) -> None:
+    """Write a simulated calibration set's truth: ``gt/boards.json`` (each view's ``t_ns`` and
+    ``T_left_board``) and ``gt/board.json`` (the board) under ``root`` (atomic).
+
+    Raises:
+        OSError: they cannot be written.
+    """
+    gt = Path(root) / GT_FOLDER
+    atomic_write(gt / BOARDS, json.dumps(boards, indent=1))
+    atomic_write(gt / BOARD, json.dumps(board, indent=1))
 
 
 def find_ground_truth(session: str | os.PathLike[str]) -> GroundTruth | None:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import csv
 import json
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,8 +27,8 @@ from numpy.typing import NDArray
 
 from sea3d.io._atomic import atomic_open, atomic_write
 
-__all__ = ["FrameRow", "process_files", "write_process_outputs", "write_status_csv",
-           "write_summary_json"]
+__all__ = ["FrameRow", "process_files", "read_status_csv", "read_summary_json",
+           "write_process_outputs", "write_status_csv", "write_summary_json"]
 
 _log = logging.getLogger(__name__)
 
@@ -69,9 +69,11 @@ def _json_default(o: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
-def write_summary_json(path: Path, data: dict[str, Any]) -> None:
-    """summary.json (atomic)."""
-    atomic_write(path, json.dumps(data, indent=2, default=_json_default) + "\n")
+def write_summary_json(path: Path, data: dict[str, Any],
+                       default: Callable[[Any], Any] | None = None) -> None:
+    """summary.json (atomic). ``default`` turns what JSON cannot hold into what it can
+    (numpy scalars and arrays and paths by default; ``str`` takes anything)."""
+    atomic_write(path, json.dumps(data, indent=2, default=default or _json_default) + "\n")
 
 
 def write_status_csv(path: Path, rows: Sequence[FrameRow]) -> None:
@@ -87,6 +89,21 @@ def write_status_csv(path: Path, rows: Sequence[FrameRow]) -> None:
                         "" if r.anchor_keyframe_id is None else r.anchor_keyframe_id,
                         int(r.loop_closure), r.tracked_features, r.depth,
                         f"{r.valid_depth_fraction:.4f}", r.fusion])
+
+
+def read_summary_json(path: Path) -> dict[str, Any] | None:
+    """A summary.json as a dict; None when it is missing, unreadable or not a JSON object."""
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def read_status_csv(path: Path) -> list[dict[str, str]]:
+    """The rows of a status.csv by column name, as text (the report reads them)."""
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
 
 
 def _write_results_mcap(path: Path, t_ns: NDArray[np.int64], T: NDArray[np.float64],

@@ -1090,7 +1090,7 @@ def resolve_rig(path: str | os.PathLike[str] | None, session: _StoresRig) -> Ste
 
     Args:
         path: a rig file (any format :func:`load_rig` reads), or None.
-        session: an open :class:`~sea3d.io.session_common.SessionReader`.
+        session: an open :class:`~sea3d.io.session.SessionReader`.
 
     Raises:
         RigFileError: the rig file is missing or invalid, or the stored rig is invalid.

@@ -6,6 +6,8 @@
 files when both are present). COLMAP's pixel convention: the centre of the top-left pixel is at
 ``(0.5, 0.5)``. Image names are ``left/<name>.png`` and ``right/<name>.png``; for port cameras
 they refer to the images remapped into the virtual pinhole (``sea3d sfm --export-images``).
+Beside the model, :func:`write_sfm_model` writes ``points.ply`` (the points, metres when
+metric) and ``trajectory.tum`` (``T_world_left`` of every registered frame).
 """
 
 from __future__ import annotations
@@ -18,7 +20,10 @@ from typing import Any
 from sea3d.errors import SfmError
 from sea3d.io._atomic import atomic_write
 
-__all__ = ["read_colmap_model", "read_imu_extrinsics", "write_colmap_model", "write_summary"]
+__all__ = ["SFM_TRAJECTORY_HEADER", "read_colmap_model", "read_imu_extrinsics",
+           "write_colmap_model", "write_sfm_model", "write_summary"]
+
+SFM_TRAJECTORY_HEADER = "t x y z qx qy qz qw (T_world_left, metres when metric)"
 
 
 def write_colmap_model(reconstruction: Any, out_dir: str | os.PathLike[str]) -> None:
@@ -34,6 +39,30 @@ def write_colmap_model(reconstruction: Any, out_dir: str | os.PathLike[str]) -> 
         reconstruction.write_text(str(d))
     except (OSError, RuntimeError, ValueError) as err:
         raise SfmError(f"cannot write the COLMAP model to {d}: {err}") from err
+
+
+def write_sfm_model(out_dir: str | os.PathLike[str], reconstruction: Any, *, t_ns: Any,
+                    T_world_left: Any, points_world: Any, colors_rgb: Any) -> None:
+    """Write a model's files into ``out_dir``: ``sparse/`` (:func:`write_colmap_model`),
+    ``points.ply`` and ``trajectory.tum``.
+
+    Args:
+        reconstruction: the ``pycolmap.Reconstruction``.
+        t_ns: (N,) int64 stamps of the registered frames.
+        T_world_left: (N, 4, 4) float64 poses of the left camera.
+        points_world: (M, 3) float64 points; colors_rgb: (M, 3) uint8 or None.
+
+    Raises:
+        SfmError: the COLMAP model cannot be written; StereoError (the PLY) or OdometryError
+            (the TUM file) when those cannot.
+    """
+    from sea3d.io.depth_files import write_ply
+    from sea3d.io.trajectory_files import write_tum
+
+    d = Path(out_dir)
+    write_colmap_model(reconstruction, d / "sparse")
+    write_ply(d / "points.ply", points_world, colors_rgb)
+    write_tum(d / "trajectory.tum", t_ns, T_world_left, header=SFM_TRAJECTORY_HEADER)
 
 
 def read_colmap_model(model_dir: str | os.PathLike[str]) -> Any:

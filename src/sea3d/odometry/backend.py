@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from sea3d._typing import F64
+from sea3d.errors import SmootherFailure  # defined with every error class; re-exported
 from sea3d.odometry.stereo_geometry import RectifiedStereo
 
 __all__ = ["KeyframeState", "SmootherBackend", "SmootherFailure"]
@@ -32,10 +33,6 @@ log = logging.getLogger(__name__)
 
 LANDMARK_PRIOR_SIGMA_M = 50.0
 """Standard deviation of the weak prior on each new landmark (see ``add_keyframe``), metres."""
-
-
-class SmootherFailure(RuntimeError):
-    """gtsam could not solve the window (an indeterminate system after too few observations)."""
 
 
 def _X(k: int) -> int:

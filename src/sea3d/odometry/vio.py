@@ -29,10 +29,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d._typing import F64
-from sea3d.errors import OdometryError
+from sea3d.errors import OdometryError, SmootherFailure
 from sea3d.geometry.rig import ImuSpec
 from sea3d.geometry.se3 import invert_T
-from sea3d.odometry.backend import KeyframeState, SmootherBackend, SmootherFailure
+from sea3d.odometry.backend import KeyframeState, SmootherBackend
 from sea3d.odometry.config import OdometryConfig
 from sea3d.odometry.frontend import (
     StereoPoints,

@@ -55,8 +55,8 @@ class MapConfig:
         from sea3d.recon.submaps import FusionConfig
         from sea3d.recon.tsdf import TsdfConfig
 
-        return FusionConfig(tsdf=TsdfConfig(voxel_m=self.voxel_m, depth_min_m=depth_range_m[0],
-                                            depth_max_m=depth_range_m[1],
+        return FusionConfig(tsdf=TsdfConfig(voxel_m=self.voxel_m, min_depth_m=depth_range_m[0],
+                                            max_depth_m=depth_range_m[1],
                                             weight_threshold=n_obs - 0.5),
                             integrate=self.integrate,
                             keyframes_per_submap=self.keyframes_per_submap,

@@ -19,7 +19,6 @@ ground truth (the report and the summary say which).
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from collections.abc import Callable
@@ -118,6 +117,7 @@ def run_demo(
     Raises:
         ConfigError, SimulationError, RectifyError, StereoError: bad configuration.
     """
+    from sea3d.io.process_outputs import write_summary_json
     from sea3d.io.rig_file import rig_to_yaml
     from sea3d.io.session import SessionWriter
     from sea3d.pipeline.process import ExecutorConfig, MapConfig, ProcessConfig, run_process
@@ -197,7 +197,7 @@ def run_demo(
         "note": "compile_s is the one-off compilation (or cache load) of the matcher's kernels "
                 "in this process; the worker processes' own is in process.one_off_s",
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
+    write_summary_json(out / "summary.json", summary, default=str)
     intro = _intro_html(config, summary)
     report = write_process_report(out / "report.html", result, title="sea3d demo: a simulated "
                                   "dive, processed", intro_html=intro, sections_html=pair_html)
@@ -224,6 +224,7 @@ def _depth_check(config: DemoConfig, rig: Any, session: Path, out: Path
                  ) -> tuple[str, dict[str, Any], float]:
     """The first pair's depth against ground truth (HTML fragment, figures, compile seconds)."""
     from sea3d.eval.depth_gt import depth_error_map, point_depth_errors
+    from sea3d.io.depth_files import write_depth
     from sea3d.io.session import open_session
     from sea3d.pipeline.report import depth_check_html
     from sea3d.refraction.presets import paper_rig
@@ -271,7 +272,7 @@ def _depth_check(config: DemoConfig, rig: Any, session: Path, out: Path
         ),
         "timings_s": depth.timings_s,
     }
-    np.save(out / "pair_depth_m.npy", depth.depth_m)
+    write_depth(out / "pair_depth_m.npy", depth.depth_m)
     fragment = depth_check_html(
         left=left,
         right=right,

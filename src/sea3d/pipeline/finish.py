@@ -13,14 +13,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.io.process_outputs import FrameRow
 from sea3d.odometry.types import TrackingStatus
 from sea3d.pipeline.depth_scheduler import StageTimer
 from sea3d.pipeline.ordered import TRUSTED, OrderedStages
 
 __all__ = ["Reconstruction", "finish_reconstruction", "frame_rows", "run_summary"]
-
-F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.errors import ConfigError
 from sea3d.geometry.mesh import Mesh
 from sea3d.pipeline.ordered import TRUSTED
@@ -41,8 +42,6 @@ from sea3d.pipeline.ordered import TRUSTED
 __all__ = ["FeedConfig", "LiveFeed"]
 
 log = logging.getLogger(__name__)
-
-F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True, kw_only=True)

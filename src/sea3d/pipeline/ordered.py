@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.odometry.types import FrameObservation, ImuChunk, Odometry, OdometryEstimate
 from sea3d.odometry.types import TrackingStatus as TS
 from sea3d.pipeline.depth_scheduler import StageTimer
@@ -24,7 +25,6 @@ __all__ = ["TRUSTED", "OrderedStages", "T_left_rect"]
 
 log = logging.getLogger(__name__)
 
-F64 = NDArray[np.float64]
 TRUSTED = (TS.TRACKING, TS.RELOCALISED)
 
 

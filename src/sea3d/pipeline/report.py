@@ -204,13 +204,6 @@ def _timeline_figure(result: Any, status_rows: list[dict[str, str]]) -> str:
     return _figure_tag(fig, "status timeline")
 
 
-def _read_status_rows(path: Path) -> list[dict[str, str]]:
-    import csv
-
-    with open(path, newline="") as fh:
-        return list(csv.DictReader(fh))
-
-
 def _fmt(x: Any, unit: str = "", scale: float = 1.0, digits: int = 3) -> str:
     if x is None or (isinstance(x, float) and not np.isfinite(x)):
         return "n/a"
@@ -413,10 +406,13 @@ def write_process_report(path: Path, result: Any, *, title: str | None = None,
     own parts on the same page; ``colour_pictures`` (one frame's rectified left before and
     after ``--restore-colours``) go into the colour section with each frame's status.
     """
+    from sea3d.io.documents import write_document
+    from sea3d.io.process_outputs import read_status_csv
+
     s = result.summary
     gt, T_ref_est = _ground_truth_of(s)
     tv = s.get("trajectory_vs_gt")
-    rows = _read_status_rows(result.files["status"])
+    rows = read_status_csv(result.files["status"])
     traj_img = _trajectory_figure(result, gt, T_ref_est)
     timeline_img = _timeline_figure(result, rows)
     mesh_img = _mesh_picture_html(result.mesh, T_ref_est)
@@ -469,5 +465,5 @@ took {timings.get("rectify_maps_s", 0.0):.2f} s once.</p>
 {_files_note(path, result)}
 </body></html>
 """
-    path.write_text(page)
+    write_document(path, page)
     return path

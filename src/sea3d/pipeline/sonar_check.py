@@ -25,7 +25,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from sea3d.errors import SessionError
@@ -159,26 +158,17 @@ def _load_views(
         stamps = np.array([int(p.stem) for p in files], dtype=np.int64)
         poses = _poses_at(stamps, pose_t, pose_T)
         from sea3d.errors import StereoError
-        from sea3d.io.depth_files import check_depth_grid, read_depth_png_mm
+        from sea3d.io.depth_files import check_depth_grid, read_depth
 
         for f, t, T in zip(files, stamps.tolist(), poses, strict=True):
             if progress is not None:
                 progress(1)
             if T is None:
                 continue
-            try:
-                suffix = f.suffix.lower()
-                if suffix == ".npy":
-                    d = np.load(f)
-                elif suffix == ".png":
-                    d = read_depth_png_mm(f)
-                else:  # float32 metres (the simulator's gt/depth since it went lossless TIFF)
-                    d = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
-                    if d is None:
-                        raise ValueError("not a readable TIFF")
-            except (OSError, ValueError) as err:
+            try:  # .npy / .tif(f) float metres (the simulator's gt/depth), .png millimetres
+                d = read_depth(f)
+            except StereoError as err:
                 raise SessionError(f"cannot read depth map {f}: {err}") from err
-            d = np.asarray(d, dtype=np.float32)
             try:  # the file's grid sidecar, when it has one, must be the grid asked for
                 check_depth_grid(f, d.shape, width_px=camera.width, height_px=camera.height,
                                  kind="rectified-left" if depth_frame == "rect" else "raw-left",
@@ -228,11 +218,19 @@ def _true_ranges(
 ) -> np.ndarray:
     import open3d as o3d
 
-    mesh = o3d.io.read_triangle_mesh(str(mesh_path))  # type: ignore[arg-type,unused-ignore]
+    from sea3d.errors import ReconError
+    from sea3d.io.mesh_files import read_mesh
+
+    try:
+        mesh = read_mesh(mesh_path)
+    except ReconError as err:
+        raise SessionError(str(err)) from err
     if len(mesh.triangles) == 0:
         raise SessionError(f"{mesh_path} holds no triangles")
     scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+    tensor: Any = o3d.core.Tensor
+    scene.add_triangles(tensor(np.ascontiguousarray(mesh.vertices, np.float32)),
+                        tensor(np.ascontiguousarray(mesh.triangles, np.uint32)))
     gap = int(np.median(np.diff(pose_t))) if pose_t.size > 1 else 100_000_000
     out = np.full(sonar_t.shape, np.nan)
     rays, owner = [], []
@@ -442,8 +440,10 @@ td:first-child{{text-align:left}}</style>
 <h3>Inputs</h3><table>{meta}</table>
 </body></html>
 """
+    from sea3d.io.documents import write_document
+
     try:
-        p.write_text(text, encoding="utf-8")
+        write_document(p, text)
     except OSError as err:
         raise SessionError(f"cannot write the report {p}: {err}") from err
     return p

@@ -16,7 +16,6 @@ The alignment, by ``align``:
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 from dataclasses import dataclass
@@ -33,14 +32,10 @@ log = logging.getLogger(__name__)
 
 
 def _process_summary(mesh: Path) -> tuple[Path, dict[str, Any]]:
+    from sea3d.io.process_outputs import read_summary_json
+
     path = mesh.parent / "summary.json"
-    if path.is_file():
-        try:
-            data = json.loads(path.read_text())
-        except (OSError, ValueError):
-            data = {}
-        return path, data if isinstance(data, dict) else {}
-    return path, {}
+    return path, read_summary_json(path) or {}
 
 
 def _from_trajectories(trajectories: tuple[Path, Path], align: str, max_diff_s: float) -> Any:

@@ -49,9 +49,9 @@ class TsdfConfig:
     """Truncation distance in voxels (the signed distance is clipped at this many voxels)."""
     block_resolution: int = 8
     """Voxels along a block edge (a block is the unit of allocation)."""
-    depth_min_m: float = 0.1
+    min_depth_m: float = 0.1
     """Nearer depths are ignored, metres."""
-    depth_max_m: float = 5.0
+    max_depth_m: float = 5.0
     """Farther depths are ignored, metres (stereo depth error grows with the square of depth)."""
     initial_blocks: int = 4096
     """Blocks allocated up front (the hash map grows as needed)."""
@@ -66,9 +66,9 @@ class TsdfConfig:
             raise ReconError(f"trunc_voxels must be >= 1, got {self.trunc_voxels}")
         if self.block_resolution not in (4, 8, 16):
             raise ReconError(f"block_resolution must be 4, 8 or 16, got {self.block_resolution}")
-        if not 0 <= self.depth_min_m < self.depth_max_m:
-            raise ReconError(f"need 0 <= depth_min_m < depth_max_m, got {self.depth_min_m}, "
-                             f"{self.depth_max_m}")
+        if not 0 <= self.min_depth_m < self.max_depth_m:
+            raise ReconError(f"need 0 <= min_depth_m < max_depth_m, got {self.min_depth_m}, "
+                             f"{self.max_depth_m}")
         if self.initial_blocks < 1 or self.weight_threshold < 0:
             raise ReconError("initial_blocks must be >= 1 and weight_threshold >= 0")
 
@@ -150,7 +150,7 @@ class TsdfVolume:
         Kt = o3c.Tensor(K_o3d, o3c.float64)
         # Invalid and out-of-range depth -> 0, which Open3D skips.
         d = np.nan_to_num(depth, nan=0.0, posinf=0.0, neginf=0.0)
-        d[(d < c.depth_min_m) | (d > c.depth_max_m)] = 0.0
+        d[(d < c.min_depth_m) | (d > c.max_depth_m)] = 0.0
         if not d.any():
             return 0  # Open3D raises when an image touches no block
         R, t = T[:3, :3], T[:3, 3]
@@ -160,16 +160,16 @@ class TsdfVolume:
         Et = o3c.Tensor(extrinsic, o3c.float64)
         dimg = o3d.t.geometry.Image(o3c.Tensor(d))
         blocks = self._vbg.compute_unique_block_coordinates(
-            dimg, Kt, Et, 1.0, c.depth_max_m, c.trunc_voxels
+            dimg, Kt, Et, 1.0, c.max_depth_m, c.trunc_voxels
         )
         if blocks.shape[0] == 0:
             return 0
         if color_rgb is None:
-            self._vbg.integrate(blocks, dimg, Kt, Et, 1.0, c.depth_max_m, c.trunc_voxels)
+            self._vbg.integrate(blocks, dimg, Kt, Et, 1.0, c.max_depth_m, c.trunc_voxels)
         else:
             col = np.ascontiguousarray(color_rgb, dtype=np.float32) * np.float32(1.0 / 255.0)
             cimg = o3d.t.geometry.Image(o3c.Tensor(col))
-            self._vbg.integrate(blocks, dimg, cimg, Kt, Kt, Et, 1.0, c.depth_max_m,
+            self._vbg.integrate(blocks, dimg, cimg, Kt, Kt, Et, 1.0, c.max_depth_m,
                                 c.trunc_voxels)
         self.frames += 1
         return int(blocks.shape[0])

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import cv2
+import cv2  # noqa: F401 - loaded before pycolmap (see above), not called here
 import numpy as np
 
 from sea3d._typing import F64
@@ -392,6 +392,10 @@ def _write_images(
         SfmError: an image of another size than the first (or the rig's), or a PNG that cannot
             be written.
     """
+    from sea3d.io.image_files import image_writer
+
+    scratch = image_writer(image_dir, lambda msg: SfmError(f"scratch image: {msg}"),
+                           png_compression=1)
     n_images = len(frames) * len(sensors)
     image_ids: list[list[int]] = []
     names: list[str] = []
@@ -413,11 +417,7 @@ def _write_images(
             name = f"{s.name}/{fr.name}.png"
             if image_sink is not None:
                 image_sink(name, img)
-            path = image_dir / name
-            path.parent.mkdir(parents=True, exist_ok=True)
-            bgr = cv2.cvtColor(img, cv2.COLOR_RGB2BGR) if img.ndim == 3 else img
-            if not cv2.imwrite(str(path), bgr, [cv2.IMWRITE_PNG_COMPRESSION, 1]):
-                raise SfmError(f"cannot write the scratch image {path}")
+            scratch(name, img)
             db.write_image(pycolmap.Image(name=name, camera_id=s.camera_id, image_id=iid),
                            use_image_id=True)
             names.append(name)

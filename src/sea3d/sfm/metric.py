@@ -12,13 +12,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.errors import SfmError
 
 __all__ = ["ImuScaleDecision", "imu_extrinsics", "imu_scale_for", "scaled_outputs"]
-
-F64 = NDArray[np.float64]
 
 
 def imu_extrinsics(rig: Any, file_T: F64 | None = None) -> F64:

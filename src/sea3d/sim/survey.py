@@ -27,16 +27,14 @@ Ground truth on disk (``gt/``, written by :func:`simulate_survey` through
 
 from __future__ import annotations
 
-import json
 import logging
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Protocol
 
 import cv2
 import numpy as np
-import open3d as o3d
 from numpy.typing import NDArray
 
 from sea3d._typing import FloatArray
@@ -45,8 +43,10 @@ from sea3d.errors import SimulationError
 from sea3d.geometry.camera import CameraModel
 from sea3d.geometry.rig import ImuSpec, SonarSpec, StereoRig
 from sea3d.geometry.se3 import invert_T
-from sea3d.io.ground_truth import GroundTruth, write_gt_depth
+from sea3d.io.ground_truth import GroundTruth, write_calibration_truth, write_gt_depth
+from sea3d.io.image_files import image_writer
 from sea3d.io.trajectory_files import write_tum
+from sea3d.sim.config import CalibrationSetConfig, SurveyConfig
 from sea3d.sim.motion import (
     GRAVITY_WORLD,
     HandHeld,
@@ -220,10 +220,10 @@ def render_calibration_set(
     rig: StereoRig,
     board: BoardSpec | str,
     views: int,
-    medium: str = "water",
-    seed: int = 0,
+    medium: str = CalibrationSetConfig.medium,
+    seed: int = CalibrationSetConfig.seed,
     *,
-    distance_range_m: tuple[float, float] = (0.5, 2.5),
+    distance_range_m: tuple[float, float] = CalibrationSetConfig.distance_range_m,
     tilt_max_deg: float = 40.0,
     water: str | Imaging | None = None,
     supersample: int = 6,
@@ -331,9 +331,10 @@ def write_calibration_set(cal: CalibrationSet, out: Path) -> None:
     try:
         for sub in ("left", "right", "gt"):
             (out / sub).mkdir(parents=True, exist_ok=True)
+        write = image_writer(out, SimulationError)
         for t, li, ri in zip(cal.t_ns, cal.lefts, cal.rights, strict=True):
-            cv2.imwrite(str(out / "left" / f"{t}.png"), li[:, :, ::-1])
-            cv2.imwrite(str(out / "right" / f"{t}.png"), ri[:, :, ::-1])
+            write(f"left/{t}.png", li)
+            write(f"right/{t}.png", ri)
         spec = cal.board
         boards = [
             {"t_ns": t, "T_left_board": T.tolist()}
@@ -352,8 +353,7 @@ def write_calibration_set(cal: CalibrationSet, out: Path) -> None:
                 "dictionary": spec.dictionary or "DICT_6X6_250",
             }
         }
-        (out / "gt" / "boards.json").write_text(json.dumps(boards, indent=1))
-        (out / "gt" / "board.json").write_text(json.dumps(meta, indent=1))
+        write_calibration_truth(out, boards, meta)
     except OSError as err:
         raise SimulationError(f"cannot write calibration set to {out}: {err}") from err
 
@@ -361,54 +361,6 @@ def write_calibration_set(cal: CalibrationSet, out: Path) -> None:
 # ----------------------------------------------------------------------------------------------
 # Surveys
 # ----------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, kw_only=True)
-class SurveyConfig:
-    """A simulated session.
-
-    Attributes:
-        frames: number of stereo frames.
-        fps: camera rate, frames per second.
-        imu_rate_hz: IMU rate.
-        sonar_rate_hz: echosounder rate.
-        trajectory: ``lawnmower``, ``orbit`` or ``handheld``.
-        water: ``none``, ``clear``, ``coastal`` or ``turbid``.
-        seed: noise and hand-held wobble seed.
-        supersample: rays per pixel along each axis.
-        camera_tilt_deg: the cameras' downward tilt on the body; None = 60 degrees for the
-            lawnmower survey (looking at the floor), 30 for the others.
-        imu_noise: add MTi-300-like IMU noise.
-        sonar_noise_fraction: echosounder range noise, fraction of range (standard deviation).
-        clean_reference: also write each view without water (same seed) to ``gt/clean/``.
-    """
-
-    frames: int = 300
-    fps: float = 10.0
-    imu_rate_hz: float = 200.0
-    sonar_rate_hz: float = 10.0
-    trajectory: str = "lawnmower"
-    water: str = "coastal"
-    seed: int = 0
-    supersample: int = 2
-    camera_tilt_deg: float | None = None
-    imu_noise: bool = True
-    sonar_noise_fraction: float = 0.005
-    clean_reference: bool = False
-
-    def tilt_deg(self) -> float:
-        """The camera tilt in effect (see ``camera_tilt_deg``)."""
-        if self.camera_tilt_deg is not None:
-            return float(self.camera_tilt_deg)
-        return 60.0 if self.trajectory == "lawnmower" else 30.0
-
-    def __post_init__(self) -> None:
-        if self.frames < 1 or self.fps <= 0 or self.imu_rate_hz <= 0 or self.sonar_rate_hz <= 0:
-            raise SimulationError(
-                f"survey needs frames >= 1 and positive rates; got frames={self.frames}, "
-                f"fps={self.fps}, "
-                f"imu_rate_hz={self.imu_rate_hz}, sonar_rate_hz={self.sonar_rate_hz}"
-            )
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -549,6 +501,29 @@ _STARTUP_S = 4.0
 _COMPILE_S = 40.0
 
 
+def check_disk_room(targets: Iterable[Path], need_bytes: float) -> None:
+    """Refuse a run the disk cannot hold (with a 10 % margin): each of ``targets`` (the session,
+    its ground truth), or its nearest existing parent, must have ``1.1 * need_bytes`` free.
+
+    Raises:
+        SimulationError: too little free space, naming the place and both sizes.
+    """
+    import shutil
+
+    from sea3d._text import size_text
+
+    for target in set(targets):
+        probe = Path(target)
+        while not probe.exists() and probe != probe.parent:
+            probe = probe.parent
+        free = shutil.disk_usage(probe).free
+        if need_bytes * 1.1 > free:
+            raise SimulationError(
+                f"the run needs about {size_text(need_bytes)} but {probe} has "
+                f"{size_text(free)} free; use fewer frames or a smaller image size"
+            )
+
+
 def renderer_is_compiled() -> bool:
     """Whether numba's on-disk cache holds the renderer's kernels (``sim/_kernels.py``), so a
     run starts without compiling them: index files beside the module or under
@@ -612,9 +587,7 @@ def _write_clean_reference(
     left = sensor.sensor(lv.radiance, rng)
     right = sensor.sensor(rv.radiance, rng)
     try:
-        gt = GroundTruth(gt_dir)
-        cv2.imwrite(str(gt.clean_folder("left") / f"{t_ns}.png"), left[:, :, ::-1])
-        cv2.imwrite(str(gt.clean_folder("right") / f"{t_ns}.png"), right[:, :, ::-1])
+        GroundTruth(gt_dir).write_clean_pair(t_ns, left, right)
     except OSError as err:
         raise SimulationError(f"cannot write clean reference to {gt_dir}: {err}") from err
     return e
@@ -714,17 +687,9 @@ def _write_ground_truth(
         gt.object_id_folder.mkdir(parents=True, exist_ok=True)
         write_tum(gt.poses_left_path, frame_t.tolist(), T_wl)
         write_tum(gt.poses_body_path, frame_t.tolist(), T_wb)
-        o3d.io.write_triangle_mesh(str(gt.scene_mesh_path), scene.combined_mesh())  # type: ignore[arg-type]
-        np.savetxt(
-            gt.imu_bias_path,
-            np.column_stack(
-                [imu.t_ns[:n_imu], imu.accel_bias_mps2[:n_imu], imu.gyro_bias_radps[:n_imu]]
-            ),
-            delimiter=",",
-            header="t_ns,ba_x,ba_y,ba_z,bg_x,bg_y,bg_z",
-            comments="",
-            fmt=["%d"] + ["%.9e"] * 6,
-        )
+        gt.write_scene_mesh(scene.combined_mesh())
+        gt.write_imu_bias(imu.t_ns[:n_imu], imu.accel_bias_mps2[:n_imu],
+                          imu.gyro_bias_radps[:n_imu])
         meta = {
             "scene": scene.name,
             "water": config.water,
@@ -750,7 +715,7 @@ def _write_ground_truth(
                 "clean/{left,right}/<t_ns>.png: the same views without water, same sensor "
                 "noise, exposure clean_reference_exposure"
             )
-        gt.sim_meta_path.write_text(json.dumps(meta, indent=1))
+        gt.write_meta(meta)
     except OSError as err:
         raise SimulationError(f"cannot write ground truth to {gt_dir}: {err}") from err
 
@@ -841,17 +806,13 @@ def simulate_survey(
             )
         if gt is not None:
             write_gt_depth(gt.new_depth_path(int(t_ns)), lv.gt.depth_m)
-            cv2.imwrite(
-                str(gt.object_id_folder / f"{int(t_ns)}.png"),
-                (lv.gt.object_id + 1).astype(np.uint16),
-            )
+            gt.write_object_id(int(t_ns), (lv.gt.object_id + 1).astype(np.uint16))
         if progress is not None:
             progress(1)
     if config.clean_reference and gt is not None and ref_exposure is not None:
-        meta_path = gt.sim_meta_path
-        meta = json.loads(meta_path.read_text())
+        meta = gt.read_meta()
         meta["clean_reference_exposure"] = ref_exposure
-        meta_path.write_text(json.dumps(meta, indent=1))
+        gt.write_meta(meta)
     return SurveyResult(
         frame_t_ns=frame_t,
         T_world_left=T_wl,
@@ -863,6 +824,7 @@ def simulate_survey(
 
 __all__ += [
     "SurveyCost",
+    "check_disk_room",
     "default_trajectory",
     "estimate_survey_cost",
     "in_air",
@@ -871,3 +833,83 @@ __all__ += [
     "with_survey_sensors",
     "write_calibration_set",
 ]
+
+
+def survey_fold_note(scene: Scene, config: SurveyConfig) -> str | None:
+    """A lawnmower longer than one pass over the scene flies its lanes again: the sentence
+    that says so, with the frames one pass holds (None when the survey does not fold)."""
+    traj = default_trajectory(scene, config)
+    if not isinstance(traj, Lawnmower) or traj.pass_s is None:
+        return None
+    pass_frames = round(traj.pass_s * config.fps)
+    if config.frames <= pass_frames:
+        return None
+    return (f"{scene.name} holds {traj.lanes} lanes of this survey, {pass_frames} frames at "
+            f"{config.fps:g} fps; after that the survey turns back over the same lanes rather "
+            "than leave the scene")
+
+
+def _remove_created(path: Path, existed: bool) -> None:
+    """Remove an output this run created (a session without a single frame, its ground truth)."""
+    import shutil
+
+    if existed or not path.exists():
+        return
+    if path.is_dir():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)
+
+
+def simulate_session(
+    scene: Scene,
+    rig: StereoRig,
+    config: SurveyConfig,
+    out: Path,
+    gt_dir: Path,
+    *,
+    format: str | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> SurveyResult:
+    """:func:`simulate_survey` into a session file or folder (:class:`~sea3d.io.session.
+    SessionWriter`) whose stored rig carries the simulated IMU and echosounder.
+
+    A run that stops before its first frame (an error, Ctrl-C) removes the session and ground
+    truth it created; once frames are written they are kept, closed properly by the writer.
+
+    Args:
+        out: the session (``.mcap`` or a folder).
+        gt_dir: the ground-truth folder (:func:`sea3d.io.ground_truth.ground_truth_dir`).
+        format: ``mcap`` or ``folder`` (default from ``out``).
+        progress: called with 1 after each frame.
+
+    Raises:
+        SimulationError, SessionWriteError: as :func:`simulate_survey` and the writer.
+    """
+    from sea3d.io.rig_file import rig_to_yaml
+    from sea3d.io.session import SessionWriter, layout_of
+
+    fmt = format or layout_of(out)
+    mount = survey_mount(rig, config)
+    session_rig = with_survey_sensors(rig, config, mount)  # the IMU and echosounder simulated
+    existed = {path: path.exists() for path in (Path(out), Path(gt_dir))}
+    frames_written = 0
+
+    def advance(n: int) -> None:
+        nonlocal frames_written
+        frames_written += n
+        if progress is not None:
+            progress(n)
+
+    try:
+        with SessionWriter(out, format=fmt, rig_yaml=rig_to_yaml(session_rig)) as writer:
+            return simulate_survey(scene, rig, config, writer, Path(gt_dir), mount=mount,
+                                   progress=advance)
+    except BaseException:
+        if frames_written == 0:
+            for path, was in existed.items():
+                _remove_created(path, was)
+        raise
+
+
+__all__ += ["simulate_session", "survey_fold_note"]

@@ -26,13 +26,13 @@ import numpy as np
 from numba import njit, prange
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.errors import StereoError
 from sea3d.rectify.maps import RectifyMaps
 
 __all__ = ["RayTables", "triangulate_with_tables"]
 
 F32 = NDArray[np.float32]
-F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)

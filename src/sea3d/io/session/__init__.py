@@ -39,7 +39,7 @@ from sea3d.io.session.common import (
     SonarSeries,
     StereoPair,
 )
-from sea3d.io.session.reader import SessionReader, layout_of, open_session
+from sea3d.io.session.reader import SessionReader, is_session, layout_of, open_session
 from sea3d.io.session.tools import convert_session, verify_session
 from sea3d.io.session.writer import SessionWriter
 
@@ -54,6 +54,7 @@ __all__ = [
     "SonarSeries",
     "StereoPair",
     "convert_session",
+    "is_session",
     "layout_of",
     "open_session",
     "verify_session",

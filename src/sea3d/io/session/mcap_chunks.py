@@ -29,7 +29,7 @@ from mcap.records import (
     SummaryOffset,
 )
 
-from sea3d.errors import SessionError
+from sea3d.errors import ReserveReached, SessionError
 from sea3d.io.session.common import (
     SessionWriteError,
 )
@@ -395,11 +395,5 @@ class ChunkedMcap:
             crc = zlib.crc32(p, crc)
         crc = zlib.crc32(footer_head, crc)
         self._commit([*parts, footer_head, struct.pack("<I", crc), MCAP_MAGIC])
-
-
-class ReserveReached(Exception):
-    def __init__(self, free: int) -> None:
-        super().__init__(f"{free} bytes free")
-        self.free = free
 
 

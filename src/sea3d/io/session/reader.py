@@ -25,7 +25,7 @@ from sea3d.io.session.common import (
     stream_stats,
 )
 
-__all__ = ["SessionReader", "layout_of", "open_session"]
+__all__ = ["SessionReader", "is_session", "layout_of", "open_session"]
 
 _log = logging.getLogger(__name__)
 
@@ -348,6 +348,16 @@ class SessionReader(ABC):
 def layout_of(path: str | os.PathLike[str]) -> str:
     """``"mcap"`` for a path ending in ``.mcap``, ``"folder"`` otherwise."""
     return "mcap" if os.fspath(path).lower().endswith(".mcap") else "folder"
+
+
+def is_session(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` is a session: an ``.mcap`` file or a file starting with the MCAP magic,
+    or a folder with ``left/`` or ``session.json`` in it (a folder of images is not one)."""
+    p = Path(path)
+    if p.is_file():
+        with open(p, "rb") as fh:
+            return p.suffix.lower() == ".mcap" or fh.read(8).startswith(b"\x89MCAP")
+    return p.is_dir() and ((p / "left").is_dir() or (p / "session.json").is_file())
 
 
 def open_session(path: str | os.PathLike[str], *, name_unit: str = "ns") -> SessionReader:

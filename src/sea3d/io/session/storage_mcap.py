@@ -45,14 +45,13 @@ from pathlib import Path
 
 import numpy as np
 
-from sea3d.errors import SessionError
+from sea3d.errors import ReserveReached, SessionError
 from sea3d.io.session.common import (
     SessionWriteError,
 )
 from sea3d.io.session.mcap_chunks import (
     ChunkedMcap,
     FdWriter,
-    ReserveReached,
     disk_free_bytes,
 )
 from sea3d.io.session.mcap_reader import DamagedChunk, McapSessionReader
