@@ -318,17 +318,12 @@ class LiveFeed:
                            "trajectory_xyz": np.round(xyz[::step], 4).tolist()}
 
     def _delete_entities(self, t_ns: int, entities: list[str]) -> None:
-        from foxglove.messages import SceneEntityDeletion, SceneEntityDeletionType, SceneUpdate
-
-        from sea3d.io.foxglove_msgs import timestamp
+        from sea3d.io.foxglove_msgs import scene_deletions
 
         pub = self.publisher
         if pub is None or not pub.subscribed(pub.mesh):
             return
-        dels = [SceneEntityDeletion(timestamp=timestamp(t_ns),
-                                    type=SceneEntityDeletionType.MatchingId, id=e)
-                for e in entities]
-        pub.mesh.log(SceneUpdate(deletions=dels), log_time=int(t_ns))
+        pub.mesh.log(scene_deletions(t_ns, entities), log_time=int(t_ns))
 
     # -- the monitor page ------------------------------------------------------------------
     def live_state(self) -> dict[str, Any]:
