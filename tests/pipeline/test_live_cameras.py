@@ -240,3 +240,32 @@ def test_pairs_by_mutual_nearest_stamp_and_counts_frames_without_a_partner():
     assert all(f.imu is not None and f.imu.t_ns[-1] == f.t_ns for f in got)
     with pytest.raises(ValueError):  # the recorder's arrays are not writable through live
         got[0].left[0, 0] = 1
+
+
+@pytest.mark.parametrize("imu_offset_s, warned", [(0.0, False), (100.0, True), (-100.0, True)])
+def test_an_imu_clock_far_from_the_cameras_is_named_once(caplog, imu_offset_s, warned):
+    """IMU stamps 100 s from the cameras' (an unsynchronised IMU): one warning naming the
+    stream, from the clock check of ``sea3d process``; then pairs no longer wait for IMU
+    samples up to their stamps. 1 s is the tolerance (OdometryConfig's default)."""
+    rec = _FakeRecorder()
+    rec.sources["imu"] = None
+    frames = RecorderFrames(rec, imu_wait_s=0.05, imu_tolerance_s=1.0)
+    img = np.zeros((4, 4), np.uint8)
+    ms = 1_000_000
+    for k in range(10):
+        t = k * 100 * ms
+        for j in range(20):  # 200 Hz
+            rec.fn("imu", ImuSample(t + j * 5 * ms + int(imu_offset_s * 1e9), np.zeros(3),
+                                    np.zeros(3)))
+        rec.fn("left", ImageFrame(t, img))
+        rec.fn("right", ImageFrame(t, img))
+    it = iter(frames)
+    with caplog.at_level("WARNING", logger="sea3d.pipeline.live"):
+        got = [next(it) for _ in range(9)]
+    notes = [r.getMessage() for r in caplog.records if "clock" in r.getMessage()]
+    assert len(got) == 9
+    if warned:
+        assert len(notes) == 1 and notes[0].startswith("live: stream imu: the IMU stamps")
+        assert frames.imu_clock_note is not None and not frames.has_imu
+    else:
+        assert notes == [] and frames.imu_clock_note is None and frames.has_imu

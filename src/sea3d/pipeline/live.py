@@ -185,6 +185,12 @@ class RecorderFrames:
     samples in ``(previous pair, this pair]`` go with each pair; a pair waits at most
     ``imu_wait_s`` for the IMU to reach its stamp.
 
+    The IMU's clock is checked against the cameras' once, at the first pair after the first
+    IMU sample (:func:`~sea3d.pipeline.odometry.imu_clock_check`, the check of ``sea3d
+    process``, on the samples seen so far): stamps more than ``imu_tolerance_s`` away are
+    logged once as a warning naming the stream (``imu_clock_note``), and pairs no longer wait
+    for an IMU that will not reach their stamps.
+
     No pair is dropped to keep up: those the consumer has not taken yet wait
     (``backlog``). Call :meth:`end` when the recorder has stopped (:func:`run_live_cameras`
     does): the pairs still waiting are handed on, then iteration ends with ``stop_reason``.
@@ -193,15 +199,23 @@ class RecorderFrames:
         recorder: the recorder (it must not be running yet, or records before are missed).
         pair_tolerance_ns: largest stamp difference of a pair (None: from the data).
         imu_wait_s: wall seconds a pair waits for IMU samples up to its stamp.
+        imu_time_offset_s: the rig's ``t_imu = t_cam + offset``.
+        imu_tolerance_s: largest clock disagreement, seconds
+            (:attr:`~sea3d.odometry.config.OdometryConfig.imu_max_clock_offset_s`).
     """
 
     def __init__(self, recorder: Any, *, pair_tolerance_ns: int | None = None,
-                 imu_wait_s: float = 0.2) -> None:
+                 imu_wait_s: float = 0.2, imu_time_offset_s: float = 0.0,
+                 imu_tolerance_s: float = 1.0) -> None:
         if pair_tolerance_ns is not None and pair_tolerance_ns < 0:
             raise ConfigError(f"pair_tolerance_ns must be >= 0, got {pair_tolerance_ns}")
         self.pair_tolerance_ns = pair_tolerance_ns
         self.imu_wait_s = float(imu_wait_s)
         self.has_imu = "imu" in getattr(recorder, "sources", {})
+        self.imu_time_offset_s, self.imu_tolerance_s = imu_time_offset_s, imu_tolerance_s
+        self.imu_clock_note: str | None = None
+        self._imu_first_t: int | None = None
+        self._imu_checked = False
         self._cv = threading.Condition()
         self._left: deque[Any] = deque()
         self._right: deque[Any] = deque()
@@ -233,6 +247,8 @@ class RecorderFrames:
             elif stream == "imu":
                 self._imu.append(record)
                 self._imu_last_t = int(record.t_ns)
+                if self._imu_first_t is None:
+                    self._imu_first_t = self._imu_last_t
             else:
                 return
             if stream in ("left", "right"):
@@ -310,6 +326,21 @@ class RecorderFrames:
                         accel_mps2=np.array([s.accel_mps2 for s in take], np.float64),
                         gyro_radps=np.array([s.gyro_radps for s in take], np.float64))
 
+    def _check_imu_clock(self, t_ns: int) -> None:
+        """Once, at the first pair after the first IMU sample (under the lock)."""
+        from sea3d.pipeline.odometry import imu_clock_check
+
+        if self._imu_checked or self._imu_first_t is None or self._imu_last_t is None:
+            return
+        self._imu_checked = True
+        why = imu_clock_check(np.array([t_ns], np.int64),
+                              np.array([self._imu_first_t, self._imu_last_t], np.int64),
+                              self.imu_time_offset_s, tolerance_s=self.imu_tolerance_s)
+        if why is not None:
+            self.imu_clock_note = f"stream imu: {why}"
+            self.has_imu = False  # pairs stop waiting for samples that will not come
+            log.warning("live: %s", self.imu_clock_note)
+
     # -- the live loop's side ------------------------------------------------------------------
     def __iter__(self) -> Iterator[LiveFrame]:
         while True:
@@ -325,6 +356,7 @@ class RecorderFrames:
                     while ((self._imu_last_t is None or self._imu_last_t < t)
                            and not self._ended and time.monotonic() < end):
                         self._cv.wait(0.02)
+                self._check_imu_clock(t)
                 imu = self._imu_until(t)
                 self.backlog = len(self._pairs) + 1
             yield LiveFrame(t_ns=t, left=_read_only(left.image), right=_read_only(right.image),
@@ -611,7 +643,10 @@ def run_live_cameras(recorder: Any, config: Any, live: LiveConfig | None = None,
     use_imu = bool(config.poses.use_imu and "imu" in recorder.sources)
     run = _Run(config, rig, Path(config.out_dir), use_imu=use_imu, feed=feed)
     warm_s = run.warm()  # before the cameras start
-    frames = RecorderFrames(recorder, pair_tolerance_ns=pair_tolerance_ns)
+    frames = RecorderFrames(
+        recorder, pair_tolerance_ns=pair_tolerance_ns,
+        imu_time_offset_s=rig.imu.time_offset_s if rig.imu is not None else 0.0,
+        imu_tolerance_s=getattr(config.poses.odometry_config, "imu_max_clock_offset_s", 1.0))
     result: dict[str, Any] = {}
 
     def record() -> None:
@@ -638,5 +673,5 @@ def run_live_cameras(recorder: Any, config: Any, live: LiveConfig | None = None,
         raise result["error"]
     summary = run.finish(stats, live, session=str(rc.out_path), pairs_in_session=frames.pairs_made,
                          live_extra={"unpaired_frames": frames.unpaired, "source": "cameras",
-                                     "warmup_s": warm_s})
+                                     "warmup_s": warm_s, "imu_clock": frames.imu_clock_note})
     return summary, stats, result["summary"]
