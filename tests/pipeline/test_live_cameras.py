@@ -269,3 +269,43 @@ def test_an_imu_clock_far_from_the_cameras_is_named_once(caplog, imu_offset_s, w
         assert frames.imu_clock_note is not None and not frames.has_imu
     else:
         assert notes == [] and frames.imu_clock_note is None and frames.has_imu
+
+
+def test_the_feed_keeps_finished_submap_meshes_on_disk_and_serves_them(monkeypatch, tmp_path):
+    """A finished submap's mesh goes to the feed's folder (float32: 1e-6 m at metres) and
+    comes back, at its anchor's pose, in /live/mesh.ply; in memory only its pose and sizes."""
+    from types import SimpleNamespace
+
+    from sea3d.geometry.mesh import Mesh
+    from sea3d.pipeline import live_publish
+    from sea3d.recon import tsdf as tsdf_mod
+
+    rng = np.random.default_rng(0)
+    mesh = Mesh(vertices=rng.uniform(-1, 1, (50, 3)), triangles=rng.integers(0, 50, (80, 3)),
+                colors_rgb=rng.integers(0, 256, (50, 3), dtype=np.uint8))
+
+    class _Volume:
+        @staticmethod
+        def from_blocks(blocks, cfg):
+            return SimpleNamespace(extract_mesh=lambda: mesh)
+
+    monkeypatch.setattr(tsdf_mod, "TsdfVolume", _Volume)
+    feed = LiveFeed(mesh_dir=tmp_path / "meshes")
+    try:
+        T = np.eye(4)
+        T[:3, 3] = (1.0, 2.0, 3.0)
+        store = feed.wrap_store(SimpleNamespace(put=lambda s: None), None)
+        store.put(SimpleNamespace(submap_id=3, anchor_keyframe_id=7, T_anchor_grid=np.eye(4),
+                                  blocks=None))
+        fin = feed._finished[3]
+        assert isinstance(fin, live_publish._Finished) and fin.path.is_file()
+        assert fin.vertices == 50  # no mesh arrays held, only where it is and its size
+        no_active = SimpleNamespace(active_mesh=lambda kf: None)
+        out = feed._mesh_changes(SimpleNamespace(kf_rect={7: T}, fusion=no_active))
+        np.testing.assert_allclose(out["submap-3"].vertices, mesh.vertices + T[:3, 3], atol=1e-6)
+        np.testing.assert_array_equal(out["submap-3"].triangles, mesh.triangles)
+        np.testing.assert_array_equal(out["submap-3"].colors_rgb, mesh.colors_rgb)
+        ply = feed.mesh_ply()
+        assert ply is not None and b"element vertex 50" in ply and b"element face 80" in ply
+    finally:
+        feed.close()

@@ -99,6 +99,8 @@ def _cmd_live(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from sea3d.pipeline.live import LiveConfig
+
     p = sub.add_parser("live", help="live reconstruction (cameras being recorded, or a "
                        "replayed session)", description=__doc__)
     p.add_argument("--replay", type=Path, help="a recorded session, replayed at its rate")
@@ -122,8 +124,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-frames", type=int, help="only the first N pairs")
     p.add_argument("--depth-in-flight", type=int, default=1,
                    help="depth frames computed at once (default 1)")
-    from sea3d.pipeline.live import LiveConfig
-
     config_option(p, LiveConfig, "depth_max_backlog", type=int, metavar="N",
                   help="a frame gets depth only while at most N frames, itself included, "
                   "wait for the live loop (older ones are stale); 0: any", shown="any")

@@ -20,7 +20,7 @@ the end of the publication of the first mesh that holds it (``LiveStats.mesh_lat
 Memory stays flat in the number of submaps: a finished submap's mesh is written once to the
 feed's folder (``mesh_dir``: float32 vertices, int32 triangles, uint8 colours, 39 bytes a
 vertex with about two triangles each) and read back only to be sent again or served as PLY;
-in memory the feed keeps per finished submap its anchor, pose and sizes (under 1 kB), and
+in memory the feed keeps per finished submap its anchor, pose and sizes (about 1.4 kB), and
 one mesh: the active submap's latest.
 
 For the monitor page the feed answers ``live_state()`` (``/live.json``) and ``mesh_ply()``
@@ -200,10 +200,17 @@ class LiveFeed:
         mesh = TsdfVolume.from_blocks(submap.blocks, tsdf).extract_mesh()
         sid = int(submap.submap_id)
         path = self.mesh_dir / f"submap-{sid}.npz"
-        np.savez(path, vertices=mesh.vertices.astype(np.float32),
-                 triangles=mesh.triangles.astype(np.int32),
-                 colors=mesh.colors_rgb if mesh.colors_rgb is not None else np.zeros((0, 3),
-                                                                                 np.uint8))
+        try:
+            np.savez(path, vertices=mesh.vertices.astype(np.float32),
+                     triangles=mesh.triangles.astype(np.int32),
+                     colors=mesh.colors_rgb if mesh.colors_rgb is not None
+                     else np.zeros((0, 3), np.uint8))
+        except OSError as err:  # the view never stops the reconstruction (the store has it)
+            msg = f"live view: cannot keep submap {sid}'s mesh in {self.mesh_dir}: {err}"
+            if msg not in self.errors:
+                self.errors.append(msg)
+                log.warning("%s", msg)
+            return
         with self._lock:
             self._finished[sid] = _Finished(anchor=int(submap.anchor_keyframe_id),
                                             T_anchor_grid=np.asarray(submap.T_anchor_grid),
