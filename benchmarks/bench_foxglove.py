@@ -15,9 +15,18 @@ as messages per second received by the client (and per camera), MB/s, and this p
 seconds per second (2 cores means at most 2.0).
 
 Frames: the real Sea3D lake frames of ``$SEA3D_TEST_DATA/underwater/sea3d_field_left``, else
-synthetic. Usage::
+synthetic.
+
+``--mesh V``: the ``/mesh`` message of a live mesh update instead: a marching-cubes mesh of
+about V vertices with colours (a sphere from Open3D, subdivided), encoded as
+``foxglove.SceneUpdate`` bytes by ours (:func:`sea3d.io.foxglove_msgs.mesh_scene`, from the
+arrays) and by the reference, the foxglove-sdk's own message built from one ``Point3`` and
+one ``Color`` per vertex, then encoded by the SDK (what ``mesh_scene`` did before); CPU
+seconds per message, median of ``--repeats``, and whether the two decode to the same
+message. Usage::
 
     python benchmarks/bench_foxglove.py               # 5 s per run, 3 repeats
+    python benchmarks/bench_foxglove.py --mesh 100000 --repeats 5
 """
 
 from __future__ import annotations
@@ -151,11 +160,73 @@ def run(mode: str, pair: tuple[np.ndarray, np.ndarray], seconds: float) -> dict[
     }
 
 
+def _sdk_mesh_scene(t_ns, v, tri, col):
+    """The reference: the SDK's objects, one per vertex, encoded by the SDK."""
+    from foxglove.messages import (
+        Color,
+        Point3,
+        SceneEntity,
+        SceneUpdate,
+        TriangleListPrimitive,
+    )
+
+    prim = TriangleListPrimitive(
+        pose=fm.pose(np.eye(4)),
+        points=[Point3(x=a, y=b, z=c) for a, b, c in v.tolist()],
+        color=Color(r=0.7, g=0.7, b=0.7, a=1.0),
+        colors=[Color(r=r, g=g, b=b, a=1.0) for r, g, b in (col / 255.0).tolist()],
+        indices=[int(i) for i in tri.reshape(-1).tolist()],
+    )
+    ent = SceneEntity(timestamp=fm.timestamp(t_ns), frame_id="world", id="mesh",
+                      triangles=[prim])
+    return bytes(SceneUpdate(entities=[ent]).encode())
+
+
+def mesh_bench(n_vertices: int, repeats: int) -> None:
+    import open3d as o3d
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+    mesh = o3d.geometry.TriangleMesh.create_sphere(radius=1.0, resolution=20)
+    while len(mesh.vertices) < n_vertices:
+        mesh = mesh.subdivide_midpoint(1)
+    v = np.asarray(mesh.vertices)[:n_vertices]
+    tri = np.asarray(mesh.triangles)
+    tri = tri[(tri < len(v)).all(axis=1)]
+    col = np.random.default_rng(0).integers(0, 256, (len(v), 3), dtype=np.uint8)
+    t_ns = 1_700_000_000_000_000_000
+
+    def cpu(fn):
+        times, out = [], b""
+        for _ in range(repeats):
+            c0 = time.process_time()
+            out = fn()
+            times.append(time.process_time() - c0)
+        return statistics.median(times), out
+
+    ours_s, ours = cpu(lambda: fm.mesh_scene(t_ns, "world", v, tri, col))
+    ref_s, ref = cpu(lambda: _sdk_mesh_scene(t_ns, v, tri, col))
+    pool = descriptor_pool.DescriptorPool()
+    for f in descriptor_pb2.FileDescriptorSet.FromString(fm.SCENE_UPDATE_SCHEMA.data).file:
+        pool.Add(f)
+    cls = message_factory.GetMessageClass(pool.FindMessageTypeByName("foxglove.SceneUpdate"))
+    same = cls.FromString(ours) == cls.FromString(ref)
+    print(f"mesh of {len(v)} vertices, {len(tri)} triangles, colours; {os.cpu_count()} CPUs "
+          f"(load average {os.getloadavg()[0]:.1f}); CPU s per message, median of {repeats}")
+    print(f"ours (from the arrays)          {ours_s:8.4f} s  {len(ours) / 1e6:6.1f} MB")
+    print(f"reference (SDK object per vertex) {ref_s:6.4f} s  {len(ref) / 1e6:6.1f} MB")
+    print(f"ratio {ref_s / max(ours_s, 1e-9):.0f}x; decoded messages equal: {same}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--mesh", type=int, default=0, metavar="V",
+                    help="benchmark the /mesh message of about V vertices instead")
     args = ap.parse_args()
+    if args.mesh:
+        mesh_bench(args.mesh, args.repeats)
+        return
     pair = load_pair()
     print(
         f"two 1920x1080 RGB cameras, {os.cpu_count()} CPUs (load average "

@@ -27,6 +27,7 @@ import argparse
 import json
 import os
 import resource
+import shlex
 import shutil
 import subprocess
 import sys
@@ -44,7 +45,7 @@ def _cpu_children() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def one_run(mode: str, session: Path, work: Path) -> dict:
+def one_run(mode: str, session: Path, work: Path, extra: str = "") -> dict:
     out = work / "out"
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir(parents=True)
@@ -57,6 +58,7 @@ def one_run(mode: str, session: Path, work: Path) -> dict:
                 "--replay-speed", "1", "--monitor", "127.0.0.1:0"]
     else:
         raise SystemExit(f"unknown mode {mode!r}")
+    cmd += shlex.split(extra)
     c0, t0 = _cpu_children(), time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT,
                           env={**os.environ, "PYTHONPATH": str(ROOT / "src")}, check=False)
@@ -72,6 +74,11 @@ def one_run(mode: str, session: Path, work: Path) -> dict:
             "loop_cpu": live["cpu_s_per_frame"], "run_cpu": cpu / max(live["frames"], 1),
             "wall_s": wall, "imu_only": s["frames_imu_only"], "lost": s["frames_lost"],
             "warmup_s": live.get("warmup_s"), "backlog_max": live.get("backlog_max"),
+            "stale": live.get("depth_stale"),
+            "wait_p50": (live.get("wait_s") or {}).get("p50"),
+            "wait_p99": (live.get("wait_s") or {}).get("p99"),
+            "depth_p50": (live.get("depth_s") or {}).get("p50"),
+            "hold_p50": (live.get("hold_s") or {}).get("p50"),
             "stop": live["stop_reason"]}
 
 
@@ -93,6 +100,8 @@ def main() -> None:
     ap.add_argument("--runs", default="replay,cameras")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "bench_live")
+    ap.add_argument("--extra", default="", help="more arguments for sea3d live, e.g. "
+                    "'--depth-max-backlog 0' (the policy before newest-first)")
     args = ap.parse_args()
     session = args.out / f"session_{args.frames}_{args.size}"
     simulate(session, args.frames, args.size)
@@ -101,11 +110,14 @@ def main() -> None:
     rows = []
     for _ in range(args.repeat):
         for mode in args.runs.split(","):
-            r = one_run(mode, session, args.out / f"run_{mode}")
+            r = one_run(mode, session, args.out / f"run_{mode}", args.extra)
             rows.append(r)
             print(_line(r), f"(imu-only {r['imu_only']}, lost {r['lost']}, warm-up "
-                  f"{_fmt(r['warmup_s'], '.1f')} s, backlog {r['backlog_max']}; {r['stop']})",
-                  flush=True)
+                  f"{_fmt(r['warmup_s'], '.1f')} s, backlog {r['backlog_max']}, stale "
+                  f"{r['stale']}; wait p50/p99 {_fmt(r['wait_p50'], '.2f')}/"
+                  f"{_fmt(r['wait_p99'], '.2f')} s, fused frames' depth p50 "
+                  f"{_fmt(r['depth_p50'], '.2f')} s, then to fusion p50 "
+                  f"{_fmt(r['hold_p50'], '.2f')} s; {r['stop']})", flush=True)
     print("medians:")
     for mode in args.runs.split(","):
         mine = [r for r in rows if r["mode"] == mode]

@@ -155,15 +155,61 @@ def _record_args(src, out, port):
     ]  # fmt: skip
 
 
+class _Cameras:
+    """Left and right cameras (``sim:`` hooks) that repeat the session's frames at 20 fps
+    until the test has what it waits for (``done``), then deliver ``TAIL`` more pairs and
+    end: the recording outlasts the clients however slow the machine is (a fixed 1 s
+    recording ended before the second client got an image under load)."""
+
+    TAIL = 5
+    MAX_FRAMES = 1200  # one minute: the clients' own timeouts have failed the test by then
+
+    def __init__(self, frames: list[np.ndarray]) -> None:
+        self.frames, self.done = frames, threading.Event()
+        self.count = {"left": 0, "right": 0}
+        self.stop_at: int | None = None
+        self.lock = threading.Lock()
+
+    def producer(self, stream: str):
+        def produce():
+            with self.lock:
+                k = self.count[stream]
+                if self.stop_at is None and (self.done.is_set() or k >= self.MAX_FRAMES):
+                    self.stop_at = max(self.count.values()) + self.TAIL
+                if self.stop_at is not None and k >= self.stop_at:
+                    return None
+                self.count[stream] = k + 1
+            return round(k * 1e9 / FPS), self.frames[k % N_FRAMES]
+
+        return produce
+
+
+_CAMERAS: list[_Cameras] = []
+
+
+def _left_camera():
+    return _CAMERAS[-1].producer("left")
+
+
+def _right_camera():
+    return _CAMERAS[-1].producer("right")
+
+
 def test_record_keeps_recording_when_a_client_drops_mid_stream(session, tmp_path, capsys):
     src, frames = session
+    cams = _Cameras(frames)
+    _CAMERAS.append(cams)
     out = tmp_path / "rec.mcap"
     port = _free_port()
+    args = _record_args(src, out, port)
+    args[args.index("--left") + 1] = f"sim:{__name__}:_left_camera"
+    args[args.index("--right") + 1] = f"sim:{__name__}:_right_camera"
     result: dict[str, int] = {}
-    th = threading.Thread(target=lambda: result.update(rc=main(_record_args(src, out, port))))
+    th = threading.Thread(target=lambda: result.update(rc=main(args)))
     th.start()
     try:
-        deadline = time.monotonic() + 10
+        # a bound on failure only: at load 12 on 2 cores, starting sea3d record took > 10 s
+        deadline = time.monotonic() + 60
         while True:
             try:
                 first = FoxgloveClient(f"ws://127.0.0.1:{port}")
@@ -173,30 +219,28 @@ def test_record_keeps_recording_when_a_client_drops_mid_stream(session, tmp_path
                     raise
                 time.sleep(0.05)
         first.subscribe(["/cam/left/image", "/imu"])
-        first.wait_for("/imu", 5)
+        first.wait_for("/cam/left/image", 5)
         first.drop()  # the tether goes: no close handshake
         second = FoxgloveClient(f"ws://127.0.0.1:{port}")
         second.subscribe(["/cam/right/image"])
         second.wait_for("/cam/right/image", 2)
         second.close()
     finally:
+        cams.done.set()  # the cameras end a few frames later, the recording with them
         th.join(timeout=30)
     assert result["rc"] == 0
     import json
 
     summary = json.loads(capsys.readouterr().out)
+    n = cams.count["left"]
+    assert cams.count["right"] == n and n > _Cameras.TAIL
     with open_session(src) as s:
         n_imu, n_sonar = s.stamps("imu").size, s.stamps("sonar").size
-    assert summary["frames"] == {
-        "left": N_FRAMES,
-        "right": N_FRAMES,
-        "imu": n_imu,
-        "sonar": n_sonar,
-    }
+    assert summary["frames"] == {"left": n, "right": n, "imu": n_imu, "sonar": n_sonar}
     assert summary["dropped"] == {"left": 0, "right": 0, "imu": 0, "sonar": 0}
     with open_session(out) as s:  # nothing recorded is lost
-        for k in (0, N_FRAMES - 1):
-            np.testing.assert_array_equal(s.image("left", k), frames[k])
+        for k in (0, n - 1):
+            np.testing.assert_array_equal(s.image("left", k), frames[k % N_FRAMES])
 
 
 def test_record_goes_on_without_foxglove_when_its_port_is_taken(session, tmp_path, capsys):
@@ -373,3 +417,37 @@ def test_capture_runs_no_depth_without_a_provider_and_refuses_a_bad_one(session)
     assert "sea3d-foxglove-depth" not in names
     assert "sea3d-foxglove-depth" in names_depth
     assert calls == []  # no client subscribed to /depth: the provider was never called
+
+
+def test_a_client_that_connects_while_the_server_starts_waits_for_it():
+    """The shim holds the public port from the start; a client that connects before the SDK
+    server runs is served once it runs, not forwarded to no server and dropped mid-handshake
+    (what made the record test above fail under load)."""
+    from sea3d.capture.foxglove_shim import SubprotocolShim
+
+    head = b"GET / HTTP/1.1\r\nHost: x\r\n\r\n"
+    answer = b"HTTP/1.1 101 Switching Protocols\r\n\r\nhello"
+    with socket.socket() as upstream:
+        upstream.bind(("127.0.0.1", 0))
+        upstream.listen(1)
+        shim = SubprotocolShim("127.0.0.1", 0)
+        try:
+            with socket.create_connection(("127.0.0.1", shim.port), timeout=5) as client:
+                client.sendall(head)
+                time.sleep(0.3)  # the server is still starting
+                shim.start(upstream.getsockname()[1])
+                conn, _ = upstream.accept()
+                with conn:
+                    conn.settimeout(5)
+                    got = b""
+                    while not got.endswith(b"\r\n\r\n"):
+                        got += conn.recv(4096)
+                    conn.sendall(answer)
+                    reply = b""
+                    while not reply.endswith(b"hello"):
+                        chunk = client.recv(4096)
+                        assert chunk, "the shim dropped the waiting client"
+                        reply += chunk
+        finally:
+            shim.close()
+    assert got == head and reply == answer

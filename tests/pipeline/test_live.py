@@ -12,7 +12,7 @@ import pytest
 from sea3d.cli import main
 from sea3d.errors import SessionError
 from sea3d.pipeline.frame_source import SessionFrames
-from sea3d.pipeline.live import LiveConfig, run_live_replay
+from sea3d.pipeline.live import LiveConfig, ReplayFrames, run_live_replay
 from sea3d.pipeline.process import MapConfig, PoseConfig, ProcessConfig
 
 FRAMES = 12
@@ -31,10 +31,13 @@ def _rows(out):
 def test_replay_tracks_every_frame_and_fuses_what_it_keeps_up_with(sim_session, tmp_path,
                                                                    rate):
     """At the recorded rate (10 fps, 320x180) and 50 times faster: every frame reaches the
-    odometry; frames whose depth was dropped are not fused, and say so; the count adds up."""
+    odometry; frames whose depth was dropped are not fused, and say so; the count adds up;
+    the latency's parts (depth on the worker, then to fusion) lie within it."""
     cfg = ProcessConfig(out_dir=tmp_path / "live", poses=PoseConfig(poses_path=_gt(sim_session)),
                         max_frames=FRAMES, map=MapConfig(keyframes_per_submap=2))
-    summary, stats = run_live_replay(sim_session, cfg, LiveConfig(), rate=rate)
+    # 50x: also newest first (frames with newer ones waiting behind them get no depth)
+    live_cfg = LiveConfig(depth_max_backlog=1 if rate > 10 else None)
+    summary, stats = run_live_replay(sim_session, cfg, live_cfg, rate=rate)
     live = summary["live"]
     assert stats.frames == FRAMES and summary["frames"] == FRAMES
     assert live["fraction_tracked"] == 1.0
@@ -44,16 +47,56 @@ def test_replay_tracks_every_frame_and_fuses_what_it_keeps_up_with(sim_session, 
     assert no_depth == stats.depth_dropped
     assert stats.fused + stats.depth_dropped <= FRAMES and stats.fused >= 1
     assert len(stats.latency_s) == stats.fused and min(stats.latency_s) > 0
+    # where the latency goes: depth on the worker, then to fusion, within arrival to fusion
+    assert len(stats.depth_s) == len(stats.hold_s) == stats.fused
+    assert len(stats.wait_s) == FRAMES
+    for lat, d, h in zip(stats.latency_s, stats.depth_s, stats.hold_s, strict=True):
+        assert d > 0 and h >= 0 and d + h <= lat + 1e-6
+    assert 0 <= stats.depth_stale <= stats.depth_dropped == live["depth_dropped"]
     assert live["stop_reason"] == "replay ended"
     # a frame without depth says so, and its seeds are the last depth map moved to its
     # predicted pose (from the second tracked frame on: constant velocity needs two)
     assert sum(r["depth"] == "seeded" for r in rows) == stats.depth_dropped
-    if rate > 10:  # 500 fps asked of one depth worker: it must drop
-        assert stats.depth_dropped > 0
+    if rate > 10:  # 500 fps asked of one depth worker: it must drop, stale frames too
+        assert stats.depth_dropped > 0 and stats.depth_stale > 0
         assert stats.depth_dropped - 2 <= stats.seeds_moved <= stats.depth_dropped
     assert summary["mesh"]["triangles"] > 1000
     traj = np.loadtxt(tmp_path / "live" / "trajectory.tum")
     assert len(traj) == FRAMES
+
+
+class _Pairs:
+    """A session's pairs as :class:`ReplayFrames` reads them (10 fps, no IMU)."""
+
+    def __init__(self, n):
+        from sea3d.pipeline.frame_source import FramePair
+
+        self.pairs = [FramePair(index=i, t_ns=i * 100_000_000, left_index=i, right_index=i)
+                      for i in range(n)]
+        self.imu = None
+
+    def read(self, pair):
+        return np.zeros((2, 2), np.uint8), np.zeros((2, 2), np.uint8)
+
+
+def test_replay_counts_the_frames_due_behind_each_one_and_skips_none():
+    """A consumer taking 250 ms a frame of a 10 fps replay: the frames already due pile up
+    (the backlog, this frame included) and none is skipped; a consumer that keeps up sees 1."""
+    clock = [0.0]
+    frames = ReplayFrames(_Pairs(8), clock=lambda: clock[0],
+                          sleep=lambda s: clock.__setitem__(0, clock[0] + s))
+    seen = []
+    for f in frames:
+        seen.append((f.t_ns // 100_000_000, frames.backlog, round(f.arrival_s, 3)))
+        clock[0] += 0.25
+    assert [k for k, _, _ in seen] == list(range(8))
+    # at frame k the clock reads 0.25 k s: frames up to floor(2.5 k) are due
+    assert [b for _, b, _ in seen] == [min(8, int(2.5 * k) + 1) - k for k in range(8)]
+    assert [a for _, _, a in seen] == [round(0.1 * k, 3) for k in range(8)]  # due times
+    clock[0] = 0.0
+    fast = ReplayFrames(_Pairs(5), clock=lambda: clock[0],
+                        sleep=lambda s: clock.__setitem__(0, clock[0] + s))
+    assert [fast.backlog for _ in fast] == [1] * 5
 
 
 def test_a_camera_that_stops_keeps_the_mesh_so_far(sim_session, tmp_path, monkeypatch):

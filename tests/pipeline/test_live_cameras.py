@@ -240,3 +240,72 @@ def test_pairs_by_mutual_nearest_stamp_and_counts_frames_without_a_partner():
     assert all(f.imu is not None and f.imu.t_ns[-1] == f.t_ns for f in got)
     with pytest.raises(ValueError):  # the recorder's arrays are not writable through live
         got[0].left[0, 0] = 1
+
+
+@pytest.mark.parametrize("imu_offset_s, warned", [(0.0, False), (100.0, True), (-100.0, True)])
+def test_an_imu_clock_far_from_the_cameras_is_named_once(caplog, imu_offset_s, warned):
+    """IMU stamps 100 s from the cameras' (an unsynchronised IMU): one warning naming the
+    stream, from the clock check of ``sea3d process``; then pairs no longer wait for IMU
+    samples up to their stamps. 1 s is the tolerance (OdometryConfig's default)."""
+    rec = _FakeRecorder()
+    rec.sources["imu"] = None
+    frames = RecorderFrames(rec, imu_wait_s=0.05, imu_tolerance_s=1.0)
+    img = np.zeros((4, 4), np.uint8)
+    ms = 1_000_000
+    for k in range(10):
+        t = k * 100 * ms
+        for j in range(20):  # 200 Hz
+            rec.fn("imu", ImuSample(t + j * 5 * ms + int(imu_offset_s * 1e9), np.zeros(3),
+                                    np.zeros(3)))
+        rec.fn("left", ImageFrame(t, img))
+        rec.fn("right", ImageFrame(t, img))
+    it = iter(frames)
+    with caplog.at_level("WARNING", logger="sea3d.pipeline.live"):
+        got = [next(it) for _ in range(9)]
+    notes = [r.getMessage() for r in caplog.records if "clock" in r.getMessage()]
+    assert len(got) == 9
+    if warned:
+        assert len(notes) == 1 and notes[0].startswith("live: stream imu: the IMU stamps")
+        assert frames.imu_clock_note is not None and not frames.has_imu
+    else:
+        assert notes == [] and frames.imu_clock_note is None and frames.has_imu
+
+
+def test_the_feed_keeps_finished_submap_meshes_on_disk_and_serves_them(monkeypatch, tmp_path):
+    """A finished submap's mesh goes to the feed's folder (float32: 1e-6 m at metres) and
+    comes back, at its anchor's pose, in /live/mesh.ply; in memory only its pose and sizes."""
+    from types import SimpleNamespace
+
+    from sea3d.geometry.mesh import Mesh
+    from sea3d.pipeline import live_publish
+    from sea3d.recon import tsdf as tsdf_mod
+
+    rng = np.random.default_rng(0)
+    mesh = Mesh(vertices=rng.uniform(-1, 1, (50, 3)), triangles=rng.integers(0, 50, (80, 3)),
+                colors_rgb=rng.integers(0, 256, (50, 3), dtype=np.uint8))
+
+    class _Volume:
+        @staticmethod
+        def from_blocks(blocks, cfg):
+            return SimpleNamespace(extract_mesh=lambda: mesh)
+
+    monkeypatch.setattr(tsdf_mod, "TsdfVolume", _Volume)
+    feed = LiveFeed(mesh_dir=tmp_path / "meshes")
+    try:
+        T = np.eye(4)
+        T[:3, 3] = (1.0, 2.0, 3.0)
+        store = feed.wrap_store(SimpleNamespace(put=lambda s: None), None)
+        store.put(SimpleNamespace(submap_id=3, anchor_keyframe_id=7, T_anchor_grid=np.eye(4),
+                                  blocks=None))
+        fin = feed._finished[3]
+        assert isinstance(fin, live_publish._Finished) and fin.path.is_file()
+        assert fin.vertices == 50  # no mesh arrays held, only where it is and its size
+        no_active = SimpleNamespace(active_mesh=lambda kf: None)
+        out = feed._mesh_changes(SimpleNamespace(kf_rect={7: T}, fusion=no_active))
+        np.testing.assert_allclose(out["submap-3"].vertices, mesh.vertices + T[:3, 3], atol=1e-6)
+        np.testing.assert_array_equal(out["submap-3"].triangles, mesh.triangles)
+        np.testing.assert_array_equal(out["submap-3"].colors_rgb, mesh.colors_rgb)
+        ply = feed.mesh_ply()
+        assert ply is not None and b"element vertex 50" in ply and b"element face 80" in ply
+    finally:
+        feed.close()

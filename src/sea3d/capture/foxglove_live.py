@@ -187,7 +187,6 @@ class FoxglovePublisher:
             PoseInFrameChannel,
             PosesInFrameChannel,
             RawImageChannel,
-            SceneUpdateChannel,
         )
 
         self.config = cfg = config or FoxgloveConfig()
@@ -198,7 +197,7 @@ class FoxglovePublisher:
 
         # The SDK's server on a loopback port behind a shim on the public address, which also
         # accepts clients of the protocol's old name (foxglove.websocket.v1).
-        self._shim = SubprotocolShim(cfg.host, cfg.port, 0) if cfg.accept_old_subprotocol else None
+        self._shim = SubprotocolShim(cfg.host, cfg.port) if cfg.accept_old_subprotocol else None
         try:
             self._server = foxglove.start_server(
                 name=cfg.name,
@@ -217,7 +216,7 @@ class FoxglovePublisher:
                 f"cannot serve Foxglove on {cfg.host}:{cfg.port}: {reason}{hint}"
             ) from err
         if self._shim is not None:
-            self._shim.target = ("127.0.0.1", int(self._server.port))
+            self._shim.start(int(self._server.port))  # clients wait until the server runs
         if cfg.host not in ("127.0.0.1", "localhost", "::1"):
             _log.warning(
                 "Foxglove server listens on %s, reachable from other machines; it has no "
@@ -239,7 +238,9 @@ class FoxglovePublisher:
         self.pose = PoseInFrameChannel(fm.TOPICS["pose"], context=ctx)
         self.trajectory = PosesInFrameChannel(fm.TOPICS["trajectory"], context=ctx)
         self.cloud = PointCloudChannel(fm.TOPICS["cloud"], context=ctx)
-        self.mesh = SceneUpdateChannel(fm.TOPICS["mesh"], context=ctx)
+        # foxglove.SceneUpdate bytes encoded from the arrays (fm.mesh_scene)
+        self.mesh = foxglove.Channel(fm.TOPICS["mesh"], schema=fm.SCENE_UPDATE_SCHEMA,
+                                     message_encoding="protobuf", context=ctx)
         self.live_status = foxglove.Channel(LIVE_STATUS_TOPIC, schema=LIVE_STATUS_SCHEMA,
                                             context=ctx)
         self.counts: collections.Counter[str] = collections.Counter()

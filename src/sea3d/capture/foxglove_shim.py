@@ -100,14 +100,18 @@ class SubprotocolShim:
 
     Args:
         host, port: the public address (port 0: any free port; see :attr:`port`).
-        target_port: the SDK server's port on 127.0.0.1.
+        target_port: the SDK server's port on 127.0.0.1; None: not known yet, call
+            :meth:`start` once the server runs. The address is bound (and named when taken)
+            at once, but connections are accepted only once the target is known: a client
+            that comes while the server starts waits in the listen queue instead of being
+            forwarded to no server and dropped mid-handshake.
 
     Raises:
         CaptureError: the public address cannot be bound (a port in use is named).
     """
 
-    def __init__(self, host: str, port: int, target_port: int) -> None:
-        self.target = ("127.0.0.1", int(target_port))
+    def __init__(self, host: str, port: int, target_port: int | None = None) -> None:
+        self.target = ("127.0.0.1", 0)
         self.renamed = 0  # connections whose handshake was renamed
         try:
             family = socket.AF_INET6 if ":" in host else socket.AF_INET
@@ -120,6 +124,12 @@ class SubprotocolShim:
         self._sock.settimeout(0.2)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._accept, name="foxglove-shim", daemon=True)
+        if target_port is not None:
+            self.start(target_port)
+
+    def start(self, target_port: int) -> None:
+        """Forward to the SDK server on 127.0.0.1:``target_port`` and start accepting."""
+        self.target = ("127.0.0.1", int(target_port))
         self._thread.start()
 
     @property
@@ -166,4 +176,5 @@ class SubprotocolShim:
             self._sock.close()
         except OSError:
             pass
-        self._thread.join(timeout=1.0)
+        if self._thread.is_alive():
+            self._thread.join(timeout=1.0)

@@ -49,7 +49,8 @@ def _cmd_live(args: argparse.Namespace) -> int:
     config = ProcessConfig(out_dir=args.output, rig_path=args.rig, size_px=args.size,
                            poses=PoseConfig(poses_path=args.poses, use_imu=not args.no_imu),
                            max_frames=args.max_frames, report=False)
-    live = LiveConfig(depth_in_flight=args.depth_in_flight)
+    live = LiveConfig(depth_in_flight=args.depth_in_flight,
+                      depth_max_backlog=args.depth_max_backlog or None)  # 0: any
     recorder = _recorder(args) if args.record is not None else None
     servers: list[Any] = []
     rig_yaml = recorder.config.rig_yaml if recorder is not None else None
@@ -123,6 +124,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-frames", type=int, help="only the first N pairs")
     config_option(p, LiveConfig, "depth_in_flight", type=int,
                   help="depth frames computed at once")
+    config_option(p, LiveConfig, "depth_max_backlog", type=int, metavar="N",
+                  help="a frame gets depth only while at most N frames, itself included, "
+                  "wait for the live loop (older ones are stale); 0: any", shown="any")
     p.add_argument("--foxglove", metavar="HOST:PORT", help="publish the images, mesh, "
                    "trajectory and status on a Foxglove WebSocket server")
     p.add_argument("--monitor", metavar="HOST:PORT", help="serve the monitor page (with the "

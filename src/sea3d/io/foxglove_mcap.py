@@ -79,7 +79,6 @@ class ResultsMcapWriter:
             PointCloudChannel,
             PoseInFrameChannel,
             PosesInFrameChannel,
-            SceneUpdateChannel,
         )
 
         self.path = Path(path)
@@ -98,7 +97,8 @@ class ResultsMcapWriter:
         self._pose = PoseInFrameChannel(fm.TOPICS["pose"], context=ctx)
         self._path_ch = PosesInFrameChannel(fm.TOPICS["trajectory"], context=ctx)
         self._cloud = PointCloudChannel(fm.TOPICS["cloud"], context=ctx)
-        self._mesh = SceneUpdateChannel(fm.TOPICS["mesh"], context=ctx)
+        self._mesh = foxglove.Channel(fm.TOPICS["mesh"], schema=fm.SCENE_UPDATE_SCHEMA,
+                                      message_encoding="protobuf", context=ctx)
         self._status = foxglove.Channel("/odometry/status", schema=_STATUS_SCHEMA, context=ctx)
         self.counts: dict[str, int] = {"poses": 0, "clouds": 0, "meshes": 0}
         self.last_t_ns = 0

@@ -30,6 +30,7 @@ and Foxglove's Plot panel plots them; their field names follow ``sensor_msgs/Imu
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Sequence
 from typing import Any
 
@@ -37,23 +38,21 @@ import cv2
 import numpy as np
 from foxglove.messages import (
     CameraCalibration,
-    Color,
     CompressedImage,
     FrameTransform,
     FrameTransforms,
     PackedElementField,
     PackedElementFieldNumericType,
-    Point3,
     PointCloud,
     Pose,
     PoseInFrame,
     PosesInFrame,
     Quaternion,
     RawImage,
-    SceneEntity,
+    SceneEntityDeletion,
+    SceneEntityDeletionType,
     SceneUpdate,
     Timestamp,
-    TriangleListPrimitive,
     Vector3,
 )
 
@@ -62,6 +61,7 @@ from sea3d.geometry.se3 import R_to_quat_wxyz, check_T
 
 __all__ = [
     "IMU_SCHEMA",
+    "SCENE_UPDATE_SCHEMA",
     "SONAR_SCHEMA",
     "TOPICS",
     "camera_calibration",
@@ -76,6 +76,7 @@ __all__ = [
     "pose",
     "pose_in_frame",
     "poses_in_frame",
+    "scene_deletions",
     "sonar_message",
     "timestamp",
 ]
@@ -361,6 +362,54 @@ def point_cloud(
     )
 
 
+SCENE_UPDATE_SCHEMA = SceneUpdate.get_schema()
+"""The protobuf schema (FileDescriptorSet) of ``foxglove.SceneUpdate``, for a channel that
+carries :func:`mesh_scene`'s bytes (message encoding ``protobuf``)."""
+
+
+def _varint(n: int) -> bytes:
+    out = bytearray()
+    while True:
+        b, n = n & 0x7F, n >> 7
+        if n:
+            out.append(b | 0x80)
+        else:
+            out.append(b)
+            return bytes(out)
+
+
+def _field(number: int, payload: bytes) -> bytes:
+    """A length-delimited protobuf field (wire type 2)."""
+    return _varint(number << 3 | 2) + _varint(len(payload)) + payload
+
+
+# Protobuf wire tags of the fixed-size fields (field number << 3 | wire type; 1: 64-bit).
+_DOUBLE_TAGS = (0x09, 0x11, 0x19, 0x21)  # fields 1..4 as doubles
+_POINT3 = np.dtype([("tag", "u1"), ("len", "u1"), ("tx", "u1"), ("x", "<f8"), ("ty", "u1"),
+                    ("y", "<f8"), ("tz", "u1"), ("z", "<f8")])
+_COLOR = np.dtype([("tag", "u1"), ("len", "u1"), ("tr", "u1"), ("r", "<f8"), ("tg", "u1"),
+                   ("g", "<f8"), ("tb", "u1"), ("b", "<f8"), ("ta", "u1"), ("a", "<f8")])
+
+
+def _point3_fields(number: int, xyz: np.ndarray) -> bytes:
+    """``repeated Point3`` field ``number`` of (N, 3) float64 points, one 29-byte record each:
+    tag, length 27, then x, y, z as tagged doubles (fields 1, 2, 3)."""
+    rec = np.empty(len(xyz), _POINT3)
+    rec["tag"], rec["len"] = number << 3 | 2, _POINT3.itemsize - 2
+    rec["tx"], rec["ty"], rec["tz"] = _DOUBLE_TAGS[:3]
+    rec["x"], rec["y"], rec["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    return rec.tobytes()
+
+
+def _color_fields(number: int, rgba: np.ndarray) -> bytes:
+    """``repeated Color`` field ``number`` of (N, 4) float64 RGBA in 0..1 (38 bytes each)."""
+    rec = np.empty(len(rgba), _COLOR)
+    rec["tag"], rec["len"] = number << 3 | 2, _COLOR.itemsize - 2
+    rec["tr"], rec["tg"], rec["tb"], rec["ta"] = _DOUBLE_TAGS
+    rec["r"], rec["g"], rec["b"], rec["a"] = rgba[:, 0], rgba[:, 1], rgba[:, 2], rgba[:, 3]
+    return rec.tobytes()
+
+
 def mesh_scene(
     t_ns: int,
     frame_id: str,
@@ -369,8 +418,18 @@ def mesh_scene(
     vertex_colors_rgb: np.ndarray | None = None,
     *,
     entity_id: str = "mesh",
-) -> SceneUpdate:
-    """``foxglove.SceneUpdate`` with one entity holding the mesh as an indexed triangle list.
+) -> bytes:
+    """A ``foxglove.SceneUpdate`` with one entity holding the mesh as an indexed triangle
+    list, protobuf-encoded (:data:`SCENE_UPDATE_SCHEMA`) straight from the arrays: a
+    100,000-vertex mesh takes milliseconds (building one ``Point3`` object per vertex took
+    about 0.2 CPU-s). Log it on a channel with that schema and message encoding
+    ``protobuf``.
+
+    Field numbers are those of the schema (foxglove/SceneUpdate.proto and the messages it
+    uses): ``SceneUpdate.entities`` 2; ``SceneEntity`` timestamp 1, frame_id 2, id 3,
+    triangles 12; ``TriangleListPrimitive`` pose 1, points 2, color 3, colors 4, indices 5
+    (packed fixed32). Every double is written, zeros too (a proto3 reader takes an explicit
+    zero as the default).
 
     Args:
         t_ns: stamp.
@@ -380,8 +439,11 @@ def mesh_scene(
         vertex_colors_rgb: (V, 3) uint8 RGB, or None for a uniform grey.
         entity_id: the scene entity's id.
 
+    Returns:
+        The encoded message.
+
     Raises:
-        GeometryError: bad shapes or indices out of range.
+        GeometryError: bad shapes, indices out of range, or a stamp before 0.
     """
     v = np.asarray(vertices, dtype=np.float64)
     tri = np.asarray(triangles)
@@ -391,22 +453,34 @@ def mesh_scene(
         )
     if tri.size and (tri.min() < 0 or tri.max() >= v.shape[0]):
         raise GeometryError(f"triangle indices must lie in 0..{v.shape[0] - 1}")
-    pts = [Point3(x=float(a), y=float(b), z=float(c)) for a, b, c in v.tolist()]
-    colors: list[Color] | None = None
-    color = Color(r=0.7, g=0.7, b=0.7, a=1.0)
+    timestamp(t_ns)  # checks the stamp
+    sec, nsec = divmod(int(t_ns), 1_000_000_000)
+    # identity pose: position (field 1) all zeros, orientation (field 2) w (field 4) = 1
+    pose_bytes = _field(1, b"") + _field(2, bytes([_DOUBLE_TAGS[3]]) + struct.pack("<d", 1.0))
+    prim_parts = [_field(1, pose_bytes), _point3_fields(2, v),
+                  _color_fields(3, np.array([[0.7, 0.7, 0.7, 1.0]]))]
     if vertex_colors_rgb is not None:
         col = np.asarray(vertex_colors_rgb, dtype=np.float64)
         if col.shape != v.shape:
             raise GeometryError(f"vertex colours must be {v.shape}, got {col.shape}")
-        colors = [Color(r=r, g=g, b=b, a=1.0) for r, g, b in (col / 255.0).tolist()]
-    prim = TriangleListPrimitive(
-        pose=pose(np.eye(4)),
-        points=pts,
-        color=color,
-        colors=colors,
-        indices=[int(i) for i in tri.reshape(-1).tolist()],
-    )
-    entity = SceneEntity(
-        timestamp=timestamp(t_ns), frame_id=frame_id, id=entity_id, triangles=[prim]
-    )
-    return SceneUpdate(entities=[entity])
+        rgba = np.concatenate([col / 255.0, np.ones((len(col), 1))], axis=1)
+        prim_parts.append(_color_fields(4, rgba))
+    if tri.size:
+        prim_parts.append(_field(5, np.ascontiguousarray(tri.reshape(-1), "<u4").tobytes()))
+    prim = b"".join(prim_parts)
+    entity = b"".join([
+        _field(1, _varint(1 << 3) + _varint(sec) + _varint(2 << 3) + _varint(nsec)),
+        _field(2, frame_id.encode()),
+        _field(3, entity_id.encode()),
+        _field(12, prim),
+    ])
+    return _field(2, entity)
+
+
+def scene_deletions(t_ns: int, entity_ids: Sequence[str]) -> bytes:
+    """A ``foxglove.SceneUpdate`` deleting the entities ``entity_ids`` (matching id),
+    protobuf-encoded like :func:`mesh_scene`."""
+    dels = [SceneEntityDeletion(timestamp=timestamp(t_ns),
+                                type=SceneEntityDeletionType.MatchingId, id=e)
+            for e in entity_ids]
+    return bytes(SceneUpdate(deletions=dels).encode())

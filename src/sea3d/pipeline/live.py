@@ -1,10 +1,14 @@
 """Live reconstruction: the ordered stages of ``sea3d process`` over frames as they arrive.
 
 Every frame goes through the odometry, in time order; none is dropped. Depth (the per-frame
-stage, on a worker) runs on as many frames as it keeps up with: a frame that arrives while
-``depth_in_flight`` depth frames are still computing gets no depth of its own; it is only
-rectified, the odometry takes the latest depth map as its stereo seeds (the row search
-refines them), and fusion skips it (``no-depth`` in status.csv). The drops are counted.
+stage, on a worker) runs on as many frames as it keeps up with: a frame gets no depth of its
+own when ``depth_in_flight`` depth frames are still computing, or, with
+``depth_max_backlog`` set, when it is stale, i.e. more frames than that already wait behind
+it for the odometry (its depth would be fused late; the worker's core is left to the
+odometry until it catches up). Such a frame is only rectified, the odometry takes the
+latest depth map as its stereo seeds (the row search refines them), and fusion skips it
+(``no-depth`` in status.csv). The drops are counted (``depth_dropped``, of which
+``depth_stale``).
 
 A frame without depth of its own gets the latest depth map moved to its predicted pose
 (:meth:`~sea3d.pipeline.depth_rate.DepthRate.seed`: constant velocity from the two previous
@@ -55,10 +59,18 @@ class LiveConfig:
 
     depth_in_flight: int = 1
     """Depth frames computing at once; a frame arriving when that many are busy gets none."""
+    depth_max_backlog: int | None = None
+    """A frame gets depth only while at most this many frames, itself included, wait in the
+    source for the live loop (the source's ``backlog``): an older one is stale. None: any
+    (the default: on a loop that falls behind, 1 fused 3.8 % of the 80-frame dive at p50
+    2.5 s instead of 17.5 % at 6.1 s; docs/reconstruction.md)."""
 
     def __post_init__(self) -> None:
         if self.depth_in_flight < 1:
             raise ConfigError(f"depth_in_flight must be >= 1, got {self.depth_in_flight}")
+        if self.depth_max_backlog is not None and self.depth_max_backlog < 1:
+            raise ConfigError(f"depth_max_backlog must be >= 1 or None, got "
+                              f"{self.depth_max_backlog}")
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -83,6 +95,8 @@ class LiveStats:
     tracked: int = 0
     fused: int = 0
     depth_dropped: int = 0
+    depth_stale: int = 0
+    """Of ``depth_dropped``: frames that got no depth because newer ones waited behind them."""
     seeds_moved: int = 0
     """Frames without depth whose seeds were moved to their predicted pose."""
     latency_s: list[float] = field(default_factory=list)
@@ -91,6 +105,13 @@ class LiveStats:
     """Per fused frame: arrival to the published mesh update that holds it (with a feed)."""
     backlog_max: int = 0
     """Most frames waiting for the odometry at once (none is dropped: they wait)."""
+    wait_s: list[float] = field(default_factory=list)
+    """Per frame: arrival to the live loop taking it (waiting behind earlier frames)."""
+    depth_s: list[float] = field(default_factory=list)
+    """Per fused frame: its depth on the worker, submitted to done (wall)."""
+    hold_s: list[float] = field(default_factory=list)
+    """Per fused frame: depth done to the end of its fusion (odometry of the frames before it,
+    its own odometry and fusion)."""
     stop_reason: str = ""
     cpu_s: float = 0.0
 
@@ -101,10 +122,13 @@ class LiveStats:
                     "p99": float(np.percentile(a, 99)) if a.size else None}
 
         return {"frames": self.frames, "tracked": self.tracked, "fused": self.fused,
-                "depth_dropped": self.depth_dropped, "seeds_moved": self.seeds_moved,
+                "depth_dropped": self.depth_dropped, "depth_stale": self.depth_stale,
+                "seeds_moved": self.seeds_moved,
                 "fraction_tracked": self.tracked / self.frames if self.frames else 0.0,
                 "fraction_fused": self.fused / self.frames if self.frames else 0.0,
                 "latency_s": pct(self.latency_s), "mesh_latency_s": pct(self.mesh_latency_s),
+                "wait_s": pct(self.wait_s), "depth_s": pct(self.depth_s),
+                "hold_s": pct(self.hold_s),
                 "backlog_max": self.backlog_max,
                 "cpu_s_per_frame": self.cpu_s / self.frames if self.frames else 0.0,
                 "stop_reason": self.stop_reason}
@@ -143,6 +167,7 @@ class ReplayFrames:
 
     def __iter__(self) -> Iterator[LiveFrame]:
         pairs = self.source.pairs
+        stamps = np.array([p.t_ns for p in pairs], np.int64)
         t0_wall, t0 = self.clock(), pairs[0].t_ns
         t_prev: int | None = None
         for pair in pairs:
@@ -152,7 +177,7 @@ class ReplayFrames:
                 self.sleep(wait)
             # frames already due and not yet handed on: what a camera's queue would hold
             now_stamp = t0 + (self.clock() - t0_wall) * self.rate * 1e9
-            self.backlog = sum(1 for p in pairs[pair.index:] if p.t_ns <= now_stamp)
+            self.backlog = max(1, int(np.searchsorted(stamps, now_stamp, "right")) - pair.index)
             try:
                 left, right = self.source.read(pair)
             except SessionError as err:
@@ -185,6 +210,12 @@ class RecorderFrames:
     samples in ``(previous pair, this pair]`` go with each pair; a pair waits at most
     ``imu_wait_s`` for the IMU to reach its stamp.
 
+    The IMU's clock is checked against the cameras' once, at the first pair after the first
+    IMU sample (:func:`~sea3d.pipeline.odometry.imu_clock_check`, the check of ``sea3d
+    process``, on the samples seen so far): stamps more than ``imu_tolerance_s`` away are
+    logged once as a warning naming the stream (``imu_clock_note``), and pairs no longer wait
+    for an IMU that will not reach their stamps.
+
     No pair is dropped to keep up: those the consumer has not taken yet wait
     (``backlog``). Call :meth:`end` when the recorder has stopped (:func:`run_live_cameras`
     does): the pairs still waiting are handed on, then iteration ends with ``stop_reason``.
@@ -193,15 +224,23 @@ class RecorderFrames:
         recorder: the recorder (it must not be running yet, or records before are missed).
         pair_tolerance_ns: largest stamp difference of a pair (None: from the data).
         imu_wait_s: wall seconds a pair waits for IMU samples up to its stamp.
+        imu_time_offset_s: the rig's ``t_imu = t_cam + offset``.
+        imu_tolerance_s: largest clock disagreement, seconds
+            (:attr:`~sea3d.odometry.config.OdometryConfig.imu_max_clock_offset_s`).
     """
 
     def __init__(self, recorder: Any, *, pair_tolerance_ns: int | None = None,
-                 imu_wait_s: float = 0.2) -> None:
+                 imu_wait_s: float = 0.2, imu_time_offset_s: float = 0.0,
+                 imu_tolerance_s: float = 1.0) -> None:
         if pair_tolerance_ns is not None and pair_tolerance_ns < 0:
             raise ConfigError(f"pair_tolerance_ns must be >= 0, got {pair_tolerance_ns}")
         self.pair_tolerance_ns = pair_tolerance_ns
         self.imu_wait_s = float(imu_wait_s)
         self.has_imu = "imu" in getattr(recorder, "sources", {})
+        self.imu_time_offset_s, self.imu_tolerance_s = imu_time_offset_s, imu_tolerance_s
+        self.imu_clock_note: str | None = None
+        self._imu_first_t: int | None = None
+        self._imu_checked = False
         self._cv = threading.Condition()
         self._left: deque[Any] = deque()
         self._right: deque[Any] = deque()
@@ -233,6 +272,8 @@ class RecorderFrames:
             elif stream == "imu":
                 self._imu.append(record)
                 self._imu_last_t = int(record.t_ns)
+                if self._imu_first_t is None:
+                    self._imu_first_t = self._imu_last_t
             else:
                 return
             if stream in ("left", "right"):
@@ -310,6 +351,21 @@ class RecorderFrames:
                         accel_mps2=np.array([s.accel_mps2 for s in take], np.float64),
                         gyro_radps=np.array([s.gyro_radps for s in take], np.float64))
 
+    def _check_imu_clock(self, t_ns: int) -> None:
+        """Once, at the first pair after the first IMU sample (under the lock)."""
+        from sea3d.pipeline.odometry import imu_clock_check
+
+        if self._imu_checked or self._imu_first_t is None or self._imu_last_t is None:
+            return
+        self._imu_checked = True
+        why = imu_clock_check(np.array([t_ns], np.int64),
+                              np.array([self._imu_first_t, self._imu_last_t], np.int64),
+                              self.imu_time_offset_s, tolerance_s=self.imu_tolerance_s)
+        if why is not None:
+            self.imu_clock_note = f"stream imu: {why}"
+            self.has_imu = False  # pairs stop waiting for samples that will not come
+            log.warning("live: %s", self.imu_clock_note)
+
     # -- the live loop's side ------------------------------------------------------------------
     def __iter__(self) -> Iterator[LiveFrame]:
         while True:
@@ -325,6 +381,7 @@ class RecorderFrames:
                     while ((self._imu_last_t is None or self._imu_last_t < t)
                            and not self._ended and time.monotonic() < end):
                         self._cv.wait(0.02)
+                self._check_imu_clock(t)
                 imu = self._imu_until(t)
                 self.backlog = len(self._pairs) + 1
             yield LiveFrame(t_ns=t, left=_read_only(left.image), right=_read_only(right.image),
@@ -338,6 +395,8 @@ class _Pending:
     arrival: float
     future: Any = None
     rect: tuple[NDArray[np.uint8], NDArray[np.uint8]] | None = None
+    submitted: float = 0.0
+    done: list[float] = field(default_factory=list)  # when the worker finished (its callback)
 
 
 def run_live(frames: Iterable[LiveFrame], stage: FrameStageConfig, stereo: Any,
@@ -404,7 +463,11 @@ def run_live(frames: Iterable[LiveFrame], stage: FrameStageConfig, stereo: Any,
             fused = own and stages.fuse_status[-1] == "integrated"
             if fused:
                 stats.fused += 1
-                stats.latency_s.append(time.monotonic() - head.arrival)
+                now = time.monotonic()
+                stats.latency_s.append(now - head.arrival)
+                done = head.done[0] if head.done else now
+                stats.depth_s.append(done - head.submitted)
+                stats.hold_s.append(now - done)
             if hook:
                 try:
                     hook[0](LiveUpdate(estimate=est, fused=fused, arrival_s=head.arrival,
@@ -415,16 +478,23 @@ def run_live(frames: Iterable[LiveFrame], stage: FrameStageConfig, stereo: Any,
                     hook.clear()
 
     for frame in frames:
-        arrival = time.monotonic() if frame.arrival_s is None else frame.arrival_s
+        taken = time.monotonic()
+        arrival = taken if frame.arrival_s is None else frame.arrival_s
         stats.frames += 1
-        stats.backlog_max = max(stats.backlog_max, int(getattr(frames, "backlog", 0) or 0))
+        stats.wait_s.append(max(0.0, taken - arrival))
+        backlog = int(getattr(frames, "backlog", 0) or 0)
+        stats.backlog_max = max(stats.backlog_max, backlog)
         busy = sum(1 for p in queue if p.future is not None and not p.future.done())
+        stale = cfg.depth_max_backlog is not None and backlog > cfg.depth_max_backlog
         entry = _Pending(frame=frame, arrival=arrival)
-        if busy < cfg.depth_in_flight:
+        if busy < cfg.depth_in_flight and not stale:
+            entry.submitted = time.monotonic()
             entry.future = executor.submit(process_frame, stage, frame.t_ns, frame.left,
                                            frame.right, shared)
+            entry.future.add_done_callback(lambda _f, d=entry.done: d.append(time.monotonic()))
         else:
             stats.depth_dropped += 1
+            stats.depth_stale += int(busy < cfg.depth_in_flight)
             entry.rect = rectify_pair(stereo, frame.left, frame.right)
         queue.append(entry)
         drain(block=False)
@@ -611,7 +681,10 @@ def run_live_cameras(recorder: Any, config: Any, live: LiveConfig | None = None,
     use_imu = bool(config.poses.use_imu and "imu" in recorder.sources)
     run = _Run(config, rig, Path(config.out_dir), use_imu=use_imu, feed=feed)
     warm_s = run.warm()  # before the cameras start
-    frames = RecorderFrames(recorder, pair_tolerance_ns=pair_tolerance_ns)
+    frames = RecorderFrames(
+        recorder, pair_tolerance_ns=pair_tolerance_ns,
+        imu_time_offset_s=rig.imu.time_offset_s if rig.imu is not None else 0.0,
+        imu_tolerance_s=getattr(config.poses.odometry_config, "imu_max_clock_offset_s", 1.0))
     result: dict[str, Any] = {}
 
     def record() -> None:
@@ -638,5 +711,5 @@ def run_live_cameras(recorder: Any, config: Any, live: LiveConfig | None = None,
         raise result["error"]
     summary = run.finish(stats, live, session=str(rc.out_path), pairs_in_session=frames.pairs_made,
                          live_extra={"unpaired_frames": frames.unpaired, "source": "cameras",
-                                     "warmup_s": warm_s})
+                                     "warmup_s": warm_s, "imu_clock": frames.imu_clock_note})
     return summary, stats, result["summary"]

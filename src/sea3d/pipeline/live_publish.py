@@ -17,6 +17,12 @@ the stop reason.
 The latency from a frame to its mesh update is measured per fused frame, from its arrival to
 the end of the publication of the first mesh that holds it (``LiveStats.mesh_latency_s``).
 
+Memory stays flat in the number of submaps: a finished submap's mesh is written once to the
+feed's folder (``mesh_dir``: float32 vertices, int32 triangles, uint8 colours, 39 bytes a
+vertex with about two triangles each) and read back only to be sent again or served as PLY;
+in memory the feed keeps per finished submap its anchor, pose and sizes (about 1.4 kB), and
+one mesh: the active submap's latest.
+
 For the monitor page the feed answers ``live_state()`` (``/live.json``) and ``mesh_ply()``
 (``/live/mesh.ply``); without a recorder (``--replay``) it is also the page's provider
 (``stats()`` and ``latest()`` of the frames it saw).
@@ -26,9 +32,12 @@ from __future__ import annotations
 
 import io
 import logging
+import shutil
+import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -50,6 +59,10 @@ class FeedConfig:
 
     mesh_interval_s: float = 1.0
     """Seconds between mesh updates (marching cubes of the active submap in the live loop)."""
+    mesh_cpu_fraction: float = 0.1
+    """At most this share of the live loop's time goes to meshing: after an update that took
+    ``c`` CPU-s, the next comes no sooner than ``c / mesh_cpu_fraction`` s later (a large
+    active submap is meshed less often rather than holding the odometry back)."""
     status_interval_s: float = 0.25
     """Seconds between status, pose and trajectory updates."""
     full_scene_interval_s: float = 10.0
@@ -62,6 +75,9 @@ class FeedConfig:
                 and self.full_scene_interval_s > 0):
             raise ConfigError("mesh_interval_s, status_interval_s and full_scene_interval_s "
                               "must be > 0")
+        if not 0 < self.mesh_cpu_fraction <= 1:
+            raise ConfigError(f"mesh_cpu_fraction must be in (0, 1], got "
+                              f"{self.mesh_cpu_fraction}")
         if self.max_trajectory_poses < 2:
             raise ConfigError(f"max_trajectory_poses must be >= 2, got "
                               f"{self.max_trajectory_poses}")
@@ -75,6 +91,23 @@ class _Snapshot:
     meshes: dict[str, Mesh] = field(default_factory=dict)
     arrivals: list[float] = field(default_factory=list)
     final: bool = False
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class _Finished:
+    """A finished submap's mesh, on disk (in the submap's grid frame)."""
+
+    anchor: int
+    T_anchor_grid: F64
+    path: Path
+    vertices: int
+
+    def load(self) -> Mesh:
+        with np.load(self.path) as z:
+            col = z["colors"]
+            return Mesh(vertices=z["vertices"].astype(np.float64),
+                        triangles=z["triangles"].astype(np.int64),
+                        colors_rgb=col if len(col) else None)
 
 
 class _MeshingStore:
@@ -111,19 +144,29 @@ class LiveFeed:
         publisher: a :class:`~sea3d.capture.foxglove_live.FoxglovePublisher`, or None (the
             monitor page only).
         config: :class:`FeedConfig`.
+        mesh_dir: where finished submap meshes are kept (None: a temporary folder, removed
+            by :meth:`close`).
     """
 
-    def __init__(self, publisher: Any = None, config: FeedConfig | None = None) -> None:
+    def __init__(self, publisher: Any = None, config: FeedConfig | None = None, *,
+                 mesh_dir: Path | None = None) -> None:
         self.publisher = publisher
         self.config = config or FeedConfig()
+        self._own_dir = mesh_dir is None
+        self.mesh_dir = Path(tempfile.mkdtemp(prefix="sea3d-live-")) if mesh_dir is None \
+            else Path(mesh_dir)
+        self.mesh_dir.mkdir(parents=True, exist_ok=True)
         self._lock = threading.Condition()
-        self._finished: dict[int, tuple[int, F64, Mesh]] = {}  # id: anchor, T_anchor_grid, mesh
+        self._finished: dict[int, _Finished] = {}
+        self._sent_T: dict[str, F64] = {}  # finished entity: the pose it was last sent at
         self._dirty: set[int] = set()
         self._active_id: int | None = None
         self._poses: list[tuple[int, F64]] = []  # tracked frames
         self._arrivals: list[float] = []  # fused since the last mesh snapshot
         self._pending: _Snapshot | None = None
         self._last_mesh = -1e9
+        self._mesh_gap_s = self.config.mesh_interval_s  # grows when meshing is expensive
+        self.mesh_cpu_s = 0.0  # the loop's CPU seconds spent meshing
         self._last_status = -1e9
         self._last_full = time.monotonic()
         self._clients = 0
@@ -135,7 +178,9 @@ class LiveFeed:
                                        "mesh_triangles": 0, "mesh_updates": 0,
                                        "trajectory_xyz": [], "trajectory_poses": 0,
                                        "stop_reason": None}
-        self._meshes: dict[str, Mesh] = {}  # what the client holds now, by entity
+        self._sizes: dict[str, tuple[int, int]] = {}  # what the client holds: (V, T) by entity
+        self._active: tuple[str, Mesh] | None = None  # the active submap's last mesh sent
+        self._final: Mesh | None = None
         self._stop = False
         self.errors: list[str] = []
         self.mesh_updates = 0
@@ -152,10 +197,24 @@ class LiveFeed:
         from sea3d.recon.tsdf import TsdfVolume
 
         mesh = TsdfVolume.from_blocks(submap.blocks, tsdf).extract_mesh()
+        sid = int(submap.submap_id)
+        path = self.mesh_dir / f"submap-{sid}.npz"
+        try:
+            np.savez(path, vertices=mesh.vertices.astype(np.float32),
+                     triangles=mesh.triangles.astype(np.int32),
+                     colors=mesh.colors_rgb if mesh.colors_rgb is not None
+                     else np.zeros((0, 3), np.uint8))
+        except OSError as err:  # the view never stops the reconstruction (the store has it)
+            msg = f"live view: cannot keep submap {sid}'s mesh in {self.mesh_dir}: {err}"
+            if msg not in self.errors:
+                self.errors.append(msg)
+                log.warning("%s", msg)
+            return
         with self._lock:
-            self._finished[int(submap.submap_id)] = (int(submap.anchor_keyframe_id),
-                                                     np.asarray(submap.T_anchor_grid), mesh)
-            self._dirty.add(int(submap.submap_id))
+            self._finished[sid] = _Finished(anchor=int(submap.anchor_keyframe_id),
+                                            T_anchor_grid=np.asarray(submap.T_anchor_grid),
+                                            path=path, vertices=len(mesh.vertices))
+            self._dirty.add(sid)
 
     # -- the live loop's side --------------------------------------------------------------
     def on_update(self, u: Any) -> None:
@@ -176,14 +235,19 @@ class LiveFeed:
         if u.fused:
             self._arrivals.append(u.arrival_s)
         now = time.monotonic()
-        mesh_due = self._arrivals and now - self._last_mesh >= self.config.mesh_interval_s
+        mesh_due = self._arrivals and now - self._last_mesh >= self._mesh_gap_s
         if not mesh_due and now - self._last_status < self.config.status_interval_s:
             return
         snap = _Snapshot(t_ns=t, status=self._status(), trajectory=self._trajectory())
         self._last_status = now
         if mesh_due:
             self._last_mesh = now
+            c0 = time.thread_time()
             snap.meshes = self._mesh_changes(stages)
+            cost = time.thread_time() - c0
+            self.mesh_cpu_s += cost
+            self._mesh_gap_s = max(self.config.mesh_interval_s,
+                                   cost / self.config.mesh_cpu_fraction)
             snap.arrivals, self._arrivals = self._arrivals, []
         self._hand_over(snap)
 
@@ -200,12 +264,15 @@ class LiveFeed:
                     self._clients):
                 self._dirty.update(self._finished)
                 self._last_full, self._clients = now, clients
-            for sid in sorted(self._dirty):
-                anchor, T_anchor_grid, mesh = self._finished[sid]
-                T = kf.get(anchor)
-                if T is not None:
-                    out[f"submap-{sid}"] = mesh.transformed(np.asarray(T) @ T_anchor_grid)
+            todo = [(sid, self._finished[sid]) for sid in sorted(self._dirty)]
             self._dirty.clear()
+        for sid, fin in todo:
+            T = kf.get(fin.anchor)
+            if T is not None:
+                T_world_grid = np.asarray(T) @ fin.T_anchor_grid
+                out[f"submap-{sid}"] = fin.load().transformed(T_world_grid)
+                with self._lock:
+                    self._sent_T[f"submap-{sid}"] = T_world_grid
         if active is not None and active[0] not in self._finished:
             out[f"submap-{active[0]}"] = active[1]
         return out
@@ -223,8 +290,8 @@ class LiveFeed:
         lat = s.latency_s[-200:] if s is not None else []
         mlat = s.mesh_latency_s[-200:] if s is not None else []
         with self._lock:
-            verts = sum(len(m.vertices) for m in self._meshes.values())
-            tris = sum(len(m.triangles) for m in self._meshes.values())
+            verts = sum(v for v, _ in self._sizes.values())
+            tris = sum(t for _, t in self._sizes.values())
         return {"running": True, "frames": s.frames if s else 0,
                 "tracked": s.tracked if s else 0, "fused": s.fused if s else 0,
                 "depth_dropped": s.depth_dropped if s else 0,
@@ -258,11 +325,14 @@ class LiveFeed:
         self.close()
 
     def close(self) -> None:
-        """Send what is pending and stop the thread (safe to call twice)."""
+        """Send what is pending and stop the thread (safe to call twice); a temporary mesh
+        folder is removed (the merged mesh, once published, stays in memory for the page)."""
         with self._lock:
             self._stop = True
             self._lock.notify_all()
         self._thread.join(timeout=60)
+        if self._own_dir:
+            shutil.rmtree(self.mesh_dir, ignore_errors=True)
 
     # -- the feed's thread --------------------------------------------------------------------
     def _run(self) -> None:
@@ -285,8 +355,9 @@ class LiveFeed:
         pub = self.publisher
         if snap.final:
             with self._lock:
-                gone = [k for k in self._meshes if k != "mesh"]
-                self._meshes = {}
+                gone = [k for k in self._sizes if k != "mesh"]
+                self._sizes, self._active, self._sent_T = {}, None, {}
+                self._final = snap.meshes.get("mesh")
         else:
             gone = []
         if pub is not None:
@@ -299,9 +370,12 @@ class LiveFeed:
                 pub.publish_pose(snap.t_ns, snap.trajectory[-1])
                 pub.publish_trajectory(snap.t_ns, snap.trajectory)
         with self._lock:
-            self._meshes.update(snap.meshes)
-            verts = sum(len(m.vertices) for m in self._meshes.values())
-            tris = sum(len(m.triangles) for m in self._meshes.values())
+            for entity, mesh in snap.meshes.items():
+                self._sizes[entity] = (len(mesh.vertices), len(mesh.triangles))
+                if entity not in self._sent_T and entity != "mesh":
+                    self._active = (entity, mesh)
+            verts = sum(v for v, _ in self._sizes.values())
+            tris = sum(t for _, t in self._sizes.values())
         if snap.meshes:
             self.mesh_updates += 1
             done = time.monotonic()
@@ -317,17 +391,12 @@ class LiveFeed:
                            "trajectory_xyz": np.round(xyz[::step], 4).tolist()}
 
     def _delete_entities(self, t_ns: int, entities: list[str]) -> None:
-        from foxglove.messages import SceneEntityDeletion, SceneEntityDeletionType, SceneUpdate
-
-        from sea3d.io.foxglove_msgs import timestamp
+        from sea3d.io.foxglove_msgs import scene_deletions
 
         pub = self.publisher
         if pub is None or not pub.subscribed(pub.mesh):
             return
-        dels = [SceneEntityDeletion(timestamp=timestamp(t_ns),
-                                    type=SceneEntityDeletionType.MatchingId, id=e)
-                for e in entities]
-        pub.mesh.log(SceneUpdate(deletions=dels), log_time=int(t_ns))
+        pub.mesh.log(scene_deletions(t_ns, entities), log_time=int(t_ns))
 
     # -- the monitor page ------------------------------------------------------------------
     def live_state(self) -> dict[str, Any]:
@@ -340,7 +409,16 @@ class LiveFeed:
         """``/live/mesh.ply``: the mesh published so far (every entity), binary PLY; None
         before the first mesh."""
         with self._lock:
-            meshes = list(self._meshes.values())
+            final, active = self._final, self._active
+            sent = [(self._finished[int(e.split("-")[1])], T) for e, T in self._sent_T.items()]
+            if active is not None and active[0] in self._sent_T:
+                active = None  # it finished: its finished mesh is in ``sent``
+        if final is not None:
+            meshes = [final]
+        else:  # finished submaps from disk at the pose last sent, and the active one
+            meshes = [fin.load().transformed(T) for fin, T in sent]
+            if active is not None:
+                meshes.append(active[1])
         mesh = Mesh.concatenate(meshes)
         if not len(mesh.vertices):
             return None
