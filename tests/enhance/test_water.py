@@ -262,13 +262,14 @@ def test_a_beta_d_below_any_natural_water_is_named_and_tied_to_a_jerlov_class() 
     planted = Water(name="planted", beta_D_per_m=(0.05, 0.20, 0.29),
                     beta_B_per_m=(0.45, 0.25, 0.30), B_inf_rgb=(0.04, 0.20, 0.17))
     frames = _frames_in(planted, np.random.default_rng(3))
-    free = fit_water_model(frames, WaterFitConfig(jerlov_fallback=False))
+    free = fit_water_model(frames)  # the default: no Jerlov step
     assert free.status == "attenuation-unidentified" and free.beta_D_per_m == (0, 0, 0)
     named = [c for c in free.checks if c.startswith("beta_D_per_m[R]")]
     assert named and "pure water" in named[0], free.checks
     assert f"{0.5 * PURE_WATER_KD_PER_M[0]:.3f}" in named[0]
-    # Next step of the ladder: beta_D tied to Jerlov's rows (one parameter), backscatter free.
-    tied = fit_water_model(frames)
+    # The optional step (WaterFitConfig.jerlov_fallback): beta_D tied to Jerlov's rows (one
+    # parameter), backscatter free.
+    tied = fit_water_model(frames, WaterFitConfig(jerlov_fallback=True))
     assert tied.status == "attenuation-jerlov" and tied.has_attenuation
     assert any("tied to Jerlov" in c for c in tied.checks)
     rows = np.log(np.asarray(list(JERLOV_KD_PER_M.values())))

@@ -134,9 +134,12 @@ class WaterFitConfig:
     """The range is in metres: the fitted ``beta_D`` is then also checked against what any
     natural water has (:data:`PURE_WATER_KD_PER_M`). False for range in other units (a
     board's squares), where only the unit-free limits hold."""
-    jerlov_fallback: bool = True
+    jerlov_fallback: bool = False
     """Where the free fit is implausible, fit ``beta_D`` tied to Jerlov's water classes (one
-    parameter) before giving up attenuation (``attenuation-jerlov``)."""
+    parameter) before giving up attenuation (``attenuation-jerlov``). Off by default: on our
+    simulator's dives where it was reached (turbid lake, coastal and turbid reef) it restored
+    worse than backscatter alone, against both references (``docs/enhance.md``); no real
+    dive with metric range and a reference has tried it."""
 
     def __post_init__(self) -> None:
         if self.range_bins < 3:

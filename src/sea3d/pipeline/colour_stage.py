@@ -1,6 +1,7 @@
 """The dive's colours in ``sea3d process --restore-colours seathru`` (older name
-``water-model``): one water model per dive, fitted in the client from the first frames' stereo range, then every frame restored with
-it before the ordered stages colour the mesh and cloud with it.
+``water-model``): one water model per dive, fitted in the client from the first frames'
+stereo range, then every frame restored with it before the ordered stages colour the mesh
+and cloud with it.
 
 Why here and not in the per-frame stage: the model needs the depth of several frames, which
 only the per-frame stage makes, so a per-frame restoration would need the model before the
