@@ -222,7 +222,8 @@ def test_process_fits_one_water_model_per_run_and_the_cache_holds_no_colours(
     info = colours["water_model"]
     assert info["fits"] == 1 and len(info["fit_frames_t_ns"]) == 3
     model = info["water_model"]
-    assert model["status"] in ("ok", "attenuation-unidentified", "backscatter-unidentified")
+    assert model["status"] in ("ok", "attenuation-floor", "attenuation-unidentified",
+                               "backscatter-unidentified")
     # Every frame restored with the model, each with the model's status: none passed on early.
     assert [st for _t, st in colours["per_frame"]] == [model["status"]] * 8
     assert colours["restore_status"] == {model["status"]: 8}

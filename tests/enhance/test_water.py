@@ -253,33 +253,58 @@ def _not_empty(img: np.ndarray) -> None:
     assert np.mean(y < 1) < 0.5 and np.mean(img.max(axis=2) >= 255) < 0.5
 
 
-def test_a_beta_d_below_any_natural_water_is_named_and_tied_to_a_jerlov_class() -> None:
-    from sea3d.enhance.water import JERLOV_KD_PER_M, PURE_WATER_KD_PER_M
+def test_a_beta_d_below_any_natural_water_is_named_and_raised_to_the_floor() -> None:
+    from sea3d.enhance.water import PURE_WATER_KD_PER_M
     from sea3d.sim.optics import Water
 
     # Red attenuated at 0.05 1/m: less than pure water absorbs at 600 nm (0.244): no water
     # does that, so a fit that finds it (here: the truth, planted) must not pass as ok.
-    planted = Water(name="planted", beta_D_per_m=(0.05, 0.20, 0.29),
+    truth = (0.05, 0.20, 0.29)
+    planted = Water(name="planted", beta_D_per_m=truth,
                     beta_B_per_m=(0.45, 0.25, 0.30), B_inf_rgb=(0.04, 0.20, 0.17))
     frames = _frames_in(planted, np.random.default_rng(3))
-    free = fit_water_model(frames)  # the default: no Jerlov step
-    assert free.status == "attenuation-unidentified" and free.beta_D_per_m == (0, 0, 0)
-    named = [c for c in free.checks if c.startswith("beta_D_per_m[R]")]
-    assert named and "pure water" in named[0], free.checks
-    assert f"{0.5 * PURE_WATER_KD_PER_M[0]:.3f}" in named[0]
-    # The optional step (WaterFitConfig.jerlov_fallback): beta_D tied to Jerlov's rows (one
-    # parameter), backscatter free.
-    tied = fit_water_model(frames, WaterFitConfig(jerlov_fallback=True))
-    assert tied.status == "attenuation-jerlov" and tied.has_attenuation
-    assert any("tied to Jerlov" in c for c in tied.checks)
-    rows = np.log(np.asarray(list(JERLOV_KD_PER_M.values())))
-    got = np.log(np.asarray(tied.beta_D_per_m))
-    # On the log-linear path II - 3C - 9C: between two neighbouring rows, channel by channel.
-    lo, hi = rows.min(axis=0), rows.max(axis=0)
-    assert np.all(got >= lo - 1e-9) and np.all(got <= hi + 1e-9)
+    model = fit_water_model(frames)
+    assert model.status == "attenuation-floor" and model.has_attenuation
+    floor = 0.5 * PURE_WATER_KD_PER_M[0]
+    named = [c for c in model.checks if c.startswith("beta_D_per_m[R]")]
+    assert named and "pure water" in named[0] and f"{floor:.3f}" in named[0], model.checks
+    # The red channel raised to the floor; green and blue, plausible, kept as fitted.
+    assert model.beta_D_per_m[0] == pytest.approx(floor)
+    np.testing.assert_allclose(model.beta_D_per_m[1:], truth[1:], atol=BETA_D_TOL_PER_M)
     for img, z in frames:
-        res = restore(img, z, tied)
-        assert res.status == "attenuation-jerlov"
+        res = restore(img, z, model)
+        assert res.status == "attenuation-floor"
+        _not_empty(res.image)
+    # Range in other units: no floor in 1/m applies; the same fit is ok there.
+    assert fit_water_model(frames, WaterFitConfig(metric_range=False)).status == "ok"
+
+
+def test_a_beta_d_at_its_upper_limit_drops_the_attenuation_and_keeps_the_backscatter(
+    coastal: tuple[list[tuple[np.ndarray, np.ndarray]], list[np.ndarray], WaterModel],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from sea3d.enhance import water
+
+    # Planted: the blue channel's fit runs into beta_D's upper limit (5 1/m). Not a floor to
+    # raise to, so attenuation is not used; the backscatter fitted with it is kept.
+    real = water._fit_channel
+    calls = []
+
+    def blue_at_limit(*args, **kwargs):  # type: ignore[no-untyped-def]
+        calls.append(1)
+        b_inf, beta_b, beta_d, rms = real(*args, **kwargs)
+        return (b_inf, beta_b, 5.0, rms) if len(calls) % 3 == 0 else (b_inf, beta_b, beta_d, rms)
+
+    monkeypatch.setattr(water, "_fit_channel", blue_at_limit)
+    frames = coastal[0]
+    model = fit_water_model(frames)
+    assert model.status == "attenuation-unidentified" and model.beta_D_per_m == (0, 0, 0)
+    assert any(c.startswith("beta_D_per_m[B]") and "upper limit" in c for c in model.checks)
+    assert "the backscatter fitted with it kept" in model.checks[-1]
+    assert model.has_backscatter and model.B_inf_rgb == pytest.approx(coastal[2].B_inf_rgb)
+    for img, z in frames[:2]:
+        res = restore(img, z, model)
+        assert res.status == "attenuation-unidentified"
         _not_empty(res.image)
 
 
