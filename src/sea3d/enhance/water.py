@@ -329,14 +329,14 @@ _QUANTILES = (5.0, 15.0, 30.0, 50.0, 70.0, 85.0, 95.0)
 
 
 def _fit_channel(
-    zk: F64, qk: F64, wk: F64, dark_k: F64
+    zk: F64, qk: F64, wk: F64, dark_k: F64, beta_d_fixed: float | None = None
 ) -> tuple[float, float, float, float]:
     """Fit ``q_kp = B_inf (1 - e^{-beta_B z_k}) + A_p e^{-beta_D z_k}`` to the per-bin
     quantiles ``qk`` ``(K, P)`` of one channel (weights ``wk`` ``(K,)``): for each
     ``(beta_B, beta_D)`` on a grid the rest is linear least squares (variable projection);
     the best grid point is then refined. The backscatter may not exceed the darkest pixels of
-    any bin (``dark_k``, ``(K,)``): ``B_inf`` is capped so. Returns
-    ``(B_inf, beta_B, beta_D, rms)``."""
+    any bin (``dark_k``, ``(K,)``): ``B_inf`` is capped so. With ``beta_d_fixed`` only
+    ``beta_B`` (and the linear terms) are fitted. Returns ``(B_inf, beta_B, beta_D, rms)``."""
     n_k, n_p = qk.shape
     sw = np.sqrt(wk)
     y = (qk * sw[:, None]).T.ravel()  # (P*K,)
@@ -345,6 +345,8 @@ def _fit_channel(
     lo_d, hi_d = LIMITS["beta_D_per_m"]
     grid_b = np.geomspace(lo_b, hi_b, 40)
     grid_d = np.concatenate([[0.0], np.geomspace(0.01, hi_d, 60)])
+    if beta_d_fixed is not None:
+        grid_d = np.array([beta_d_fixed])
 
     def solve(a: F64, beta_b: float) -> F64:
         x, *_ = np.linalg.lstsq(a, y, rcond=None)
@@ -380,9 +382,17 @@ def _fit_channel(
         a = design(float(p[0]), float(p[1]))
         return np.asarray(a @ solve(a, float(p[0])) - y)
 
-    r = least_squares(resid, np.array([best[2], best[3]]), bounds=([lo_b, lo_d], [hi_b, hi_d]),
-                      method="trf", max_nfev=200)
-    beta_b, beta_d = float(r.x[0]), float(r.x[1])
+    if beta_d_fixed is not None:
+        def resid_b(p: F64) -> F64:
+            return resid(np.array([p[0], beta_d_fixed]))
+
+        r = least_squares(resid_b, np.array([best[2]]), bounds=([lo_b], [hi_b]),
+                          method="trf", max_nfev=100)
+        beta_b, beta_d = float(r.x[0]), float(beta_d_fixed)
+    else:
+        r = least_squares(resid, np.array([best[2], best[3]]),
+                          bounds=([lo_b, lo_d], [hi_b, hi_d]), method="trf", max_nfev=200)
+        beta_b, beta_d = float(r.x[0]), float(r.x[1])
     x = solve(design(beta_b, beta_d), beta_b)
     rms = float(np.sqrt(np.mean(r.fun**2) / max(np.mean(wk), 1e-12)))
     return float(max(x[0], 0.0)), beta_b, beta_d, rms
@@ -466,8 +476,14 @@ def _fit_ladder(
     if config.metric_range and all(low):
         floor = 0.5 * np.asarray(PURE_WATER_KD_PER_M)
         raised = np.maximum(beta_d, floor)
+        for c in np.flatnonzero(beta_d < floor):
+            # The backscatter again with beta_D held at the floor (fitted with the implausible
+            # beta_D, it took up part of the attenuation).
+            b_inf[c], beta_b[c], _d, _rms = _fit_channel(zk, qcs[c], wk, dark[:, c],
+                                                       beta_d_fixed=float(floor[c]))
         return b_inf, beta_b, raised, "attenuation-floor", checks + [
-            f"beta_D raised to the natural-water floor: {np.round(raised, 3).tolist()} 1/m"
+            f"beta_D raised to the natural-water floor: {np.round(raised, 3).tolist()} 1/m, "
+            "the backscatter of those channels fitted again with it"
         ], True
     return b_inf, beta_b, beta_d, "attenuation-unidentified", checks, back_ok
 
