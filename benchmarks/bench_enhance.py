@@ -26,7 +26,7 @@ Sections (``--section``, default all):
   must shrink, SSIM of L* to the input must stay high); pictures for the docs.
 - ``speed``: wall and CPU time per 1920x1080 image for each method, beside OpenCV's xphoto
   grey world and OpenCV's CLAHE on 8-bit L (medians of ``--repeats`` runs).
-- ``process``: ``sea3d process --restore-colours seathru|water-model`` on a simulated coastal
+- ``process``: ``sea3d process --restore-colours seathru|seathru-per-image`` on a simulated coastal
   dive (``--process-frames``, default 12): per-image Sea-thru, the dive's one water model and
   grey world against the clean views (CIEDE2000 after one gain, colour cast and its spread
   over the frames), the fused cloud's and mesh's cast, and restoring against matching per
@@ -648,11 +648,13 @@ def section_board(args: argparse.Namespace) -> None:
         imgs, corners = _board_frames(folder)
         geo = _board_geometry(imgs, corners)
         t0 = time.perf_counter()
-        model = fit_water_model([(im, g[0]) for im, g in zip(imgs, geo, strict=True)])
-        keep_j = WaterFitConfig(white_balance="none")
+        # Range in squares, not metres: only the unit-free plausibility limits apply.
+        sq = WaterFitConfig(metric_range=False)
+        model = fit_water_model([(im, g[0]) for im, g in zip(imgs, geo, strict=True)], sq)
+        keep_j = WaterFitConfig(white_balance="none", metric_range=False)
         model_j = fit_water_model([(im, g[0]) for im, g in zip(imgs, geo, strict=True)],
                                   keep_j)
-        locus = WaterFitConfig(white_balance="locus")
+        locus = WaterFitConfig(white_balance="locus", metric_range=False)
         model_l = fit_water_model([(im, g[0]) for im, g in zip(imgs, geo, strict=True)],
                                   locus)
         fit_s = time.perf_counter() - t0
@@ -663,9 +665,9 @@ def section_board(args: argparse.Namespace) -> None:
                 "input": img,
                 "grey-world": enhance_image(img, "grey-world").images[0],
                 "xphoto-grey (OpenCV)": _xphoto_grey(img),
-                "water model of each image alone, board range": enhance_image(
-                    img, "seathru", range_m=rng_sq).images[0],
-                "water model, board range": restore(img, rng_sq, model).image,
+                "water model of each image alone, board range": restore(
+                    img, rng_sq, fit_water_model([(img, rng_sq)], sq), sq).image,
+                "water model, board range": restore(img, rng_sq, model, sq).image,
                 "water model, no balance (J), board range": restore(img, rng_sq, model_j,
                                                                     keep_j).image,
                 "water model, locus balance, board range": restore(img, rng_sq, model_l,
@@ -793,8 +795,8 @@ def _log_chroma(pixels: np.ndarray) -> np.ndarray:
 
 def section_process(args: argparse.Namespace) -> None:
     """``sea3d process --restore-colours`` on a simulated coastal dive of the lake with clean
-    references: per-image Sea-thru (``seathru``), the dive's one water model
-    (``water-model``) and grey world of each frame, in the same run. Per frame: CIEDE2000
+    references: per-image Sea-thru (``seathru-per-image``), the dive's one water model
+    (``seathru``, the default) and grey world of each frame, in the same run. Per frame: CIEDE2000
     after one exposure gain and the colour cast against the clean view (rectified the same
     way), over the pixels with depth, and the spread of the cast over the frames (frame-to-
     frame stability); per run: the cast of the fused cloud and mesh against the clean views'
@@ -846,7 +848,7 @@ def section_process(args: argparse.Namespace) -> None:
             other_wb[wb] = [r.colors() for plain, _ in frames for r in d.push(plain)] + [
                 r.colors() for r in d.flush()]
         runs = {}
-        for mode in ("seathru", "water-model"):
+        for mode in ("seathru-per-image", "seathru"):
             runs[mode] = run_process(src, ProcessConfig(
                 out_dir=Path(tmp) / mode, executor=ExecutorConfig(workers=0),
                 poses=PoseConfig(poses_path=gt / "poses_left.tum"),
@@ -855,8 +857,8 @@ def section_process(args: argparse.Namespace) -> None:
     variants = {
         "input": [plain.rect_left for plain, _ in frames],
         "grey world (per frame)": [grey_world(plain.rect_left) for plain, _ in frames],
-        "sea-thru per image (seathru)": [rest.colors() for _, rest in frames],
-        "dive water model (water-model)": [r.colors() for r in dived],
+        "sea-thru per image (seathru-per-image)": [rest.colors() for _, rest in frames],
+        "dive water model (seathru)": [r.colors() for r in dived],
         "dive water model, wb locus": other_wb["locus"],
         "dive water model, wb grey world": other_wb["grey-world"],
     }
@@ -884,14 +886,14 @@ def section_process(args: argparse.Namespace) -> None:
         per = res.summary["colours"].get("per_frame_s", {})
         casts = {name: float(np.abs(_log_chroma(np.asarray(c)) - ref).sum())
                  for name, c in (("cloud", res.cloud_colors), ("mesh", res.mesh.colors_rgb))}
-        print(f"  {mode:12s} cloud {casts['cloud']:.3f}  mesh {casts['mesh']:.3f}  status "
+        print(f"  {mode:17s} cloud {casts['cloud']:.3f}  mesh {casts['mesh']:.3f}  status "
               f"{res.summary['colours']['restore_status']}  per frame: restore "
               f"{per.get('restore_colours_s', 0):.4f} s, match {per.get('match_s', 0):.4f} s")
         rows[f"process {mode}"] = {**casts, "per_frame_s": per}
     wm = dive.summary()["water_model"] or {}
     print(f"dive water model: status {wm.get('status')}, beta_D {wm.get('beta_D_per_m')}, "
           f"B_inf {wm.get('B_inf_rgb')}, fit {dive.fit_s:.2f} s over "
-          f"{len(dive.fit_stamps)} frames")
+          f"{len(dive.fit_stamps)} frames; checks: {wm.get('checks')}")
     OUT["process"] = rows
 
 

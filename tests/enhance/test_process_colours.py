@@ -1,5 +1,6 @@
 """Enhancement inside ``sea3d process``: named ``--enhance`` hooks before matching, and
-``--restore-colours seathru`` on the mesh and cloud colours after depth.
+``--restore-colours seathru`` (the dive's one water model) and ``seathru-per-image`` on the
+mesh and cloud colours after depth.
 
 The session is a short simulated survey of the lake in coastal water with clean references
 (the same views without water), through a portless rig so that no virtual pinhole is fitted.
@@ -129,11 +130,11 @@ def test_process_colours_mesh_and_cloud_with_the_restored_frames(
     res = run_process(Path(str(survey["session"])), ProcessConfig(
         out_dir=out, executor=ExecutorConfig(workers=0),
         poses=PoseConfig(poses_path=Path(str(survey["gt"])) / "poses_left.tum"),
-        colours=ColourConfig(restore_colours="seathru"),
+        colours=ColourConfig(restore_colours="seathru-per-image"),
         depth=DepthConfig(max_depth_m=MAX_DEPTH_M), report=False, evaluate=False))
     colours = res.summary["colours"]
     assert {k: v for k, v in colours.items() if k not in ("per_frame", "per_frame_s")} == {
-        "enhance": "none", "restore": "seathru", "restore_status": {"ok": 2}}
+        "enhance": "none", "restore": "seathru-per-image", "restore_status": {"ok": 2}}
     assert set(colours["per_frame_s"]) == {"match_s", "restore_colours_s"}
     assert [st for _t, st in colours["per_frame"]] == ["ok", "ok"]
     restored, plain = survey["restored"], survey["plain"]
@@ -196,7 +197,7 @@ def _water_run(dive: dict[str, Path], out: Path) -> object:
     return run_process(dive["session"], ProcessConfig(
         out_dir=out, executor=ExecutorConfig(workers=0),
         poses=PoseConfig(poses_path=dive["gt"] / "poses_left.tum"),
-        colours=ColourConfig(restore_colours="water-model",
+        colours=ColourConfig(restore_colours="seathru",
                              dive_colours=DiveColourConfig(fit_frames=3, fit_stride=2)),
         depth=DepthConfig(max_depth_m=MAX_DEPTH_M), report=False, evaluate=False))
 
@@ -221,7 +222,8 @@ def test_process_fits_one_water_model_per_run_and_the_cache_holds_no_colours(
     info = colours["water_model"]
     assert info["fits"] == 1 and len(info["fit_frames_t_ns"]) == 3
     model = info["water_model"]
-    assert model["status"] in ("ok", "attenuation-unidentified", "backscatter-unidentified")
+    assert model["status"] in ("ok", "attenuation-floor", "attenuation-unidentified",
+                               "backscatter-unidentified")
     # Every frame restored with the model, each with the model's status: none passed on early.
     assert [st for _t, st in colours["per_frame"]] == [model["status"]] * 8
     assert colours["restore_status"] == {model["status"]: 8}
@@ -232,6 +234,13 @@ def test_process_fits_one_water_model_per_run_and_the_cache_holds_no_colours(
     water = ProcessConfig(out_dir=out, colours=ColourConfig(restore_colours="water-model"))
     rig = paper_rig("none", size_px=SIZE_PX)
     assert water.frame_stage(rig).fingerprint() == plain.frame_stage(rig).fingerprint()
+    # ``seathru`` is the dive's model (``water-model`` its older name); per image is its own.
+    dive_cfg = ProcessConfig(out_dir=out, colours=ColourConfig(restore_colours="seathru"))
+    assert dive_cfg.colours.per_dive and water.colours.per_dive
+    assert dive_cfg.frame_stage(rig).fingerprint() == plain.frame_stage(rig).fingerprint()
+    per_image = ProcessConfig(out_dir=out,
+                              colours=ColourConfig(restore_colours="seathru-per-image"))
+    assert per_image.frame_stage(rig).restore_colours == "seathru"
     entries = sorted((out / "cache").rglob("*.s3c"))
     assert len(entries) == 8
     assert all("color_left" not in read_entry(e)[0] for e in entries)

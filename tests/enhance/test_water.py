@@ -223,3 +223,116 @@ def test_fitted_attenuation_keeps_the_channel_order_of_the_water(
     beta = model.beta_d_per_m(np.array([3.0]))[0]
     want = np.asarray(WATER_PRESETS["coastal"].beta_D_per_m)  # R 0.60 > B 0.32 > G 0.22
     assert list(np.argsort(beta)) == list(np.argsort(want)), beta
+
+
+# ----------------------------------------------------------------- plausibility, fallbacks
+
+
+def _frames_in(water: object, rng: np.random.Generator, n: int = 6
+               ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """As :func:`_frames`, through a planted water (a :class:`sea3d.sim.optics.Water`)."""
+    import dataclasses
+
+    imaging = dataclasses.replace(Imaging.underwater("coastal"), water=water)
+    frames = []
+    for k in range(n):
+        base = rng.uniform(0.05, 0.6, (H // 3, W // 3, 3))
+        albedo = np.kron(base, np.ones((3, 3, 1))) * rng.uniform(0.85, 1.0, (H, W, 1))
+        z0 = 1.0 + 2.5 * k / max(n - 1, 1)
+        ramp = np.linspace(0.0, 1.0, H)[:, None] * np.ones((1, W))
+        range_m = (z0 + ramp * 2.5).astype(np.float32)
+        lin = imaging.through_water(albedo.reshape(-1, 3), range_m.ravel()).reshape(H, W, 3)
+        frames.append((encode_srgb(lin), range_m))
+    return frames
+
+
+def _not_empty(img: np.ndarray) -> None:
+    """Never a black, NaN or saturated image passed on as a result."""
+    y = img.astype(np.float64).mean(axis=2)
+    assert np.isfinite(y).all()
+    assert np.mean(y < 1) < 0.5 and np.mean(img.max(axis=2) >= 255) < 0.5
+
+
+def test_a_beta_d_below_any_natural_water_is_named_and_raised_to_the_floor() -> None:
+    from sea3d.enhance.water import PURE_WATER_KD_PER_M
+    from sea3d.sim.optics import Water
+
+    # Red attenuated at 0.05 1/m: less than pure water absorbs at 600 nm (0.244): no water
+    # does that, so a fit that finds it (here: the truth, planted) must not pass as ok.
+    truth = (0.05, 0.20, 0.29)
+    planted = Water(name="planted", beta_D_per_m=truth,
+                    beta_B_per_m=(0.45, 0.25, 0.30), B_inf_rgb=(0.04, 0.20, 0.17))
+    frames = _frames_in(planted, np.random.default_rng(3))
+    model = fit_water_model(frames)
+    assert model.status == "attenuation-floor" and model.has_attenuation
+    floor = 0.5 * PURE_WATER_KD_PER_M[0]
+    named = [c for c in model.checks if c.startswith("beta_D_per_m[R]")]
+    assert named and "pure water" in named[0] and f"{floor:.3f}" in named[0], model.checks
+    # The red channel raised to the floor; green and blue, plausible, kept as fitted.
+    assert model.beta_D_per_m[0] == pytest.approx(floor)
+    np.testing.assert_allclose(model.beta_D_per_m[1:], truth[1:], atol=BETA_D_TOL_PER_M)
+    for img, z in frames:
+        res = restore(img, z, model)
+        assert res.status == "attenuation-floor"
+        _not_empty(res.image)
+    # Range in other units: no floor in 1/m applies; the same fit is ok there.
+    assert fit_water_model(frames, WaterFitConfig(metric_range=False)).status == "ok"
+
+
+def test_a_beta_d_at_its_upper_limit_drops_the_attenuation_and_keeps_the_backscatter(
+    coastal: tuple[list[tuple[np.ndarray, np.ndarray]], list[np.ndarray], WaterModel],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from sea3d.enhance import water
+
+    # Planted: the blue channel's fit runs into beta_D's upper limit (5 1/m). Not a floor to
+    # raise to, so attenuation is not used; the backscatter fitted with it is kept.
+    real = water._fit_channel
+    calls = []
+
+    def blue_at_limit(*args, **kwargs):  # type: ignore[no-untyped-def]
+        calls.append(1)
+        b_inf, beta_b, beta_d, rms = real(*args, **kwargs)
+        return (b_inf, beta_b, 5.0, rms) if len(calls) % 3 == 0 else (b_inf, beta_b, beta_d, rms)
+
+    monkeypatch.setattr(water, "_fit_channel", blue_at_limit)
+    frames = coastal[0]
+    model = fit_water_model(frames)
+    assert model.status == "attenuation-unidentified" and model.beta_D_per_m == (0, 0, 0)
+    assert any(c.startswith("beta_D_per_m[B]") and "upper limit" in c for c in model.checks)
+    assert "the backscatter fitted with it kept" in model.checks[-1]
+    assert model.has_backscatter and model.B_inf_rgb == pytest.approx(coastal[2].B_inf_rgb)
+    for img, z in frames[:2]:
+        res = restore(img, z, model)
+        assert res.status == "attenuation-unidentified"
+        _not_empty(res.image)
+
+
+def test_a_veiling_light_at_its_limit_is_reported_by_name() -> None:
+    from sea3d.sim.optics import Water
+
+    # B_inf 1.2 in green: above the 0.95 limit, so the fit runs into the bound. That is
+    # reported by name; the curve B(z) over the fitted span is still what the frames give,
+    # so the attenuation stays fitted (within the tolerance of the coastal test).
+    truth = (0.60, 0.22, 0.32)
+    planted = Water(name="bright", beta_D_per_m=truth, beta_B_per_m=(0.45, 0.25, 0.30),
+                    B_inf_rgb=(0.04, 1.2, 0.17))
+    frames = _frames_in(planted, np.random.default_rng(4))
+    model = fit_water_model(frames)
+    assert any(c.startswith("B_inf[G]") and "upper limit" in c for c in model.checks)
+    assert model.status == "ok"
+    np.testing.assert_allclose(model.beta_D_per_m, truth, atol=BETA_D_TOL_PER_M)
+    for img, z in frames[:2]:
+        res = restore(img, z, model)
+        assert any(c.startswith("B_inf[G]") for c in res.notes)
+        _not_empty(res.image)
+
+
+def test_the_plausible_coastal_fit_trips_no_check(
+    coastal: tuple[list[tuple[np.ndarray, np.ndarray]], list[np.ndarray], WaterModel],
+) -> None:
+    # The checks are not so tight that the simulator's own coastal water fails them.
+    assert coastal[2].status == "ok" and coastal[2].checks == ()
+    # Range in other units (a board's squares): only the unit-free limits apply.
+    frames = [(img, z * 4.0) for img, z in coastal[0]]
+    assert fit_water_model(frames, WaterFitConfig(metric_range=False)).status == "ok"

@@ -149,7 +149,8 @@ def test_one_model_per_dive_keeps_the_colour_stable_from_frame_to_frame(
     # The same frames, each with a model of its own: the colour moves from frame to frame.
     alone = []
     for f, _a in frames:
-        (r,) = DiveColours(MAPS, DiveColourConfig(fit_frames=1, water=KEEP_J)).push(f)
+        (r,) = DiveColours(MAPS, DiveColourConfig(fit_frames=1, more_frames=0,
+                                                 water=KEEP_J)).push(f)
         alone.append(_chroma(r.color_left))
     assert np.std(np.stack(alone) - want, axis=0).max() > 3 * STABLE_LOG_CHROMA_SD
 
@@ -250,3 +251,42 @@ def test_the_right_range_is_the_left_surface_seen_from_the_right_centre(
     assert have.mean() > 0.8
     # the right pixel's own ray (its rounded column) against the exact point: < 0.5 px off
     np.testing.assert_allclose(got[have], want[have], rtol=3e-3)
+
+
+def test_a_first_fit_that_is_not_ok_gathers_more_frames_and_fits_again(
+    rng: np.random.Generator, monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The first fallback step: the model from the first fit frames fails a check (planted:
+    # the first fit says so), so more frames are held and the dive is fitted once more over
+    # all of them; every frame is restored with that second model, none leaves early.
+    from sea3d.enhance.water import WaterModel
+
+    calls: list[int] = []
+    real_fit = colour_stage.fit_water_model
+
+    def first_fails(frames, config=None):  # type: ignore[no-untyped-def]
+        calls.append(len(frames))
+        got = real_fit(frames, config)
+        if len(calls) == 1:
+            return WaterModel(B_inf_rgb=got.B_inf_rgb, beta_B_per_m=got.beta_B_per_m,
+                              beta_D_per_m=(0.0, 0.0, 0.0), status="attenuation-unidentified",
+                              checks=("beta_D_per_m[R] = 0.010 below 0.122 (planted)",))
+        return got
+
+    monkeypatch.setattr(colour_stage, "fit_water_model", first_fails)
+    dive = DiveColours(MAPS, DiveColourConfig(fit_frames=2, fit_stride=1, more_frames=2))
+    frames = [_frame(k, rng)[0] for k in range(6)]
+    got_at = [len(dive.push(f)) for f in frames]
+    out_n = sum(got_at) + len(dive.flush())
+    assert got_at == [0, 0, 0, 4, 1, 1]  # held until the 4th fit frame, then one by one
+    assert calls == [4, 8] and dive.fits == 1  # both views: 2 pairs, then 4
+    assert out_n == 6 and dive.model is not None and dive.model.status == "ok"
+    info = dive.summary()
+    assert info["first_fit_status"] == "attenuation-unidentified"
+    assert len(info["fit_frames_t_ns"]) == 4
+    # With more_frames 0 the first model restores (no second fit).
+    calls.clear()
+    dive0 = DiveColours(MAPS, DiveColourConfig(fit_frames=2, fit_stride=1, more_frames=0))
+    assert [len(dive0.push(f)) for f in frames[:2]] == [0, 2]
+    assert calls == [4] and dive0.model is not None
+    assert dive0.model.status == "attenuation-unidentified"

@@ -260,7 +260,7 @@ def register(sub: Any) -> None:
     p.add_argument("--rig", type=Path, help="rig file (default: the rig stored with the session)")
     p.add_argument("--size", type=image_size, metavar="WxH",
                    help="process at this size (images resized, intrinsics scaled)")
-    from sea3d.pipeline.config import ColourConfig, MapConfig
+    from sea3d.pipeline.config import RESTORE_COLOURS, ColourConfig, MapConfig
     from sea3d.stereo.recipe import DepthConfig
 
     config_option(p, MapConfig, "voxel_m", type=float, metavar="V",
@@ -288,12 +288,12 @@ def register(sub: Any) -> None:
                         "red-comp, clahe, udcp, or a package.module:function (docs/enhance.md)"
                         "; --enhance is a deprecated alias, kept for one release")
     config_option(p, ColourConfig, "restore_colours", "--restore-colors", "--restore-colours",
-                  choices=["none", "seathru", "water-model"],
+                  choices=list(RESTORE_COLOURS),
                   help="colours of mesh and cloud, restored after depth with the stereo "
-                  "range: seathru (per-image Sea-thru in the per-frame stage) or "
-                  "water-model (one water model fitted to the dive's first 8 frames, every "
-                  "frame inverted with it); --restore-colours is a deprecated alias, kept "
-                  "for one release")
+                  "range: seathru (one water model fitted to the dive's first 8 frames, "
+                  "every frame inverted with it; water-model is its older name) or "
+                  "seathru-per-image (Sea-thru fitted to each image alone, seconds per "
+                  "frame); --restore-colours is a deprecated alias, kept for one release")
     from sea3d.pipeline.process import ProcessConfig
 
     config_option(p, ProcessConfig, "depth_rate", metavar="all|auto|N",

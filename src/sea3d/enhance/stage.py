@@ -62,7 +62,8 @@ class ColourResult:
     Attributes:
         image: the image for colouring output, the input's dtype.
         status: ``ok``, ``disabled``, a water-model fallback step
-            (``attenuation-unidentified``, ``backscatter-unidentified``),
+            (``attenuation-floor``, ``attenuation-unidentified``,
+            ``backscatter-unidentified``),
             ``fallback-grey-world`` or ``fallback-none`` (with the reason in ``notes``).
         model: the per-image Sea-thru model, when it ran.
         water_model: the water model used, when it ran.

@@ -24,12 +24,18 @@ at many ranges; one image rarely spans enough range to separate attenuation from
    other choices in :attr:`WaterFitConfig.white_balance`); then the
    ``white_point_percentile`` of the brightest channel to 1.
 
-Each fitted parameter is checked for physical plausibility (:data:`LIMITS`); a failed check is
-reported by name and the fit falls back in stated steps, each with its status:
+Each fitted parameter is checked for physical plausibility (:data:`LIMITS`, and for metric
+range :data:`PURE_WATER_KD_PER_M`); a failed check is reported by name in ``checks``
+(``B_inf`` or ``beta_B`` at a limit: reported only, the status kept) and a fatal one makes
+the fit fall back in stated steps, each with its status:
 
-- ``ok``: everything fitted and plausible;
-- ``attenuation-unidentified``: backscatter fitted, ``beta_D`` not (range span too narrow, too
-  few bins, or an implausible slope): the restoration removes backscatter, then white-balances;
+- ``ok``: everything fitted, no fatal check;
+- ``attenuation-floor``: some channel's ``beta_D`` came out below what any natural water has
+  (or at 0): raised to that floor, the other channels and the backscatter kept;
+- ``attenuation-unidentified``: ``beta_D`` not identified (range span too narrow, too few
+  bins, a ``beta_D`` at its upper limit or outside it): beta_D is not used; the backscatter is
+  the joint fit's where that was plausible, else the dark-pixel envelope's; the restoration
+  removes backscatter, then white-balances;
 - ``backscatter-unidentified``: no usable dark pixels across range either: white balance only
   (grey world on the pooled frames);
 - a model that cannot be fitted at all (no frame with range) raises :class:`EnhanceError`
@@ -60,6 +66,7 @@ from sea3d.errors import EnhanceError
 
 __all__ = [
     "LIMITS",
+    "PURE_WATER_KD_PER_M",
     "RestoreResult",
     "WaterFitConfig",
     "WaterModel",
@@ -128,6 +135,10 @@ class WaterFitConfig:
     grey world where not (the default before the real board frames: it leaves the light's
     cast on a real neutral target, ``docs/enhance.md``)."""
 
+    metric_range: bool = True
+    """The range is in metres: the fitted ``beta_D`` is then also checked against what any
+    natural water has (:data:`PURE_WATER_KD_PER_M`). False for range in other units (a
+    board's squares), where only the unit-free limits hold."""
     def __post_init__(self) -> None:
         if self.range_bins < 3:
             raise EnhanceError(f"range_bins must be >= 3, got {self.range_bins}")
@@ -153,7 +164,8 @@ class WaterModel:
         exposure_gain: final linear scale.
         range_span_m: the 5th and 95th percentiles of the range the fit saw, metres.
         frames: frames pooled.
-        status: ``ok``, ``attenuation-unidentified`` or ``backscatter-unidentified``.
+        status: ``ok``, ``attenuation-floor``, ``attenuation-unidentified`` or
+            ``backscatter-unidentified`` (module docstring).
         checks: every plausibility check that failed, by parameter, and why.
     """
 
@@ -173,7 +185,7 @@ class WaterModel:
 
     @property
     def has_attenuation(self) -> bool:
-        return self.status == "ok"
+        return self.status in ("ok", "attenuation-floor")
 
     def as_dict(self) -> dict[str, object]:
         """Plain dict (JSON)."""
@@ -317,14 +329,14 @@ _QUANTILES = (5.0, 15.0, 30.0, 50.0, 70.0, 85.0, 95.0)
 
 
 def _fit_channel(
-    zk: F64, qk: F64, wk: F64, dark_k: F64
+    zk: F64, qk: F64, wk: F64, dark_k: F64, beta_d_fixed: float | None = None
 ) -> tuple[float, float, float, float]:
     """Fit ``q_kp = B_inf (1 - e^{-beta_B z_k}) + A_p e^{-beta_D z_k}`` to the per-bin
     quantiles ``qk`` ``(K, P)`` of one channel (weights ``wk`` ``(K,)``): for each
     ``(beta_B, beta_D)`` on a grid the rest is linear least squares (variable projection);
     the best grid point is then refined. The backscatter may not exceed the darkest pixels of
-    any bin (``dark_k``, ``(K,)``): ``B_inf`` is capped so. Returns
-    ``(B_inf, beta_B, beta_D, rms)``."""
+    any bin (``dark_k``, ``(K,)``): ``B_inf`` is capped so. With ``beta_d_fixed`` only
+    ``beta_B`` (and the linear terms) are fitted. Returns ``(B_inf, beta_B, beta_D, rms)``."""
     n_k, n_p = qk.shape
     sw = np.sqrt(wk)
     y = (qk * sw[:, None]).T.ravel()  # (P*K,)
@@ -333,6 +345,8 @@ def _fit_channel(
     lo_d, hi_d = LIMITS["beta_D_per_m"]
     grid_b = np.geomspace(lo_b, hi_b, 40)
     grid_d = np.concatenate([[0.0], np.geomspace(0.01, hi_d, 60)])
+    if beta_d_fixed is not None:
+        grid_d = np.array([beta_d_fixed])
 
     def solve(a: F64, beta_b: float) -> F64:
         x, *_ = np.linalg.lstsq(a, y, rcond=None)
@@ -368,9 +382,17 @@ def _fit_channel(
         a = design(float(p[0]), float(p[1]))
         return np.asarray(a @ solve(a, float(p[0])) - y)
 
-    r = least_squares(resid, np.array([best[2], best[3]]), bounds=([lo_b, lo_d], [hi_b, hi_d]),
-                      method="trf", max_nfev=200)
-    beta_b, beta_d = float(r.x[0]), float(r.x[1])
+    if beta_d_fixed is not None:
+        def resid_b(p: F64) -> F64:
+            return resid(np.array([p[0], beta_d_fixed]))
+
+        r = least_squares(resid_b, np.array([best[2]]), bounds=([lo_b], [hi_b]),
+                          method="trf", max_nfev=100)
+        beta_b, beta_d = float(r.x[0]), float(beta_d_fixed)
+    else:
+        r = least_squares(resid, np.array([best[2], best[3]]),
+                          bounds=([lo_b, lo_d], [hi_b, hi_d]), method="trf", max_nfev=200)
+        beta_b, beta_d = float(r.x[0]), float(r.x[1])
     x = solve(design(beta_b, beta_d), beta_b)
     rms = float(np.sqrt(np.mean(r.fun**2) / max(np.mean(wk), 1e-12)))
     return float(max(x[0], 0.0)), beta_b, beta_d, rms
@@ -387,6 +409,83 @@ def _line_slope(zk: F64, yk: F64, wk: F64) -> float:
 
     r = least_squares(resid, np.array([a0, s0]), loss="soft_l1", f_scale=scale)
     return float(r.x[1])
+
+
+PURE_WATER_KD_PER_M: tuple[float, float, float] = (0.244, 0.0509, 0.0176)
+"""``K_d`` of pure water at 600, 525 and 475 nm (Smith and Baker, "Optical properties of the
+clearest natural waters (200-800 nm)", Applied Optics 20(2), 1981, Table 1): no natural
+water attenuates less. A fitted ``beta_D`` below half of it (a margin for the channels'
+wide bands) is implausible for any water and is reported as such."""
+
+
+def _implausible(
+    b_inf: F64, beta_b: F64, beta_d: F64, config: WaterFitConfig
+) -> tuple[list[str], list[str]]:
+    """The failed checks of a fit, as ``(fatal, reported)``.
+
+    Fatal: a parameter outside its limit (:data:`LIMITS`) or not finite, ``beta_D`` at a limit,
+    and, for metric range, a ``beta_D`` below what any natural water has
+    (:data:`PURE_WATER_KD_PER_M`). Reported only: ``B_inf`` or ``beta_B`` at a limit (the fit
+    ran into it: over a short range span ``B_inf`` and ``beta_B`` trade, and the curve
+    ``B(z)`` over the fitted span, which is what the restoration uses, is still what the
+    frames determine)."""
+    fatal: list[str] = []
+    reported: list[str] = []
+    for c, name in enumerate("RGB"):
+        for key, val in (("B_inf", b_inf[c]), ("beta_B_per_m", beta_b[c]),
+                         ("beta_D_per_m", beta_d[c])):
+            lo, hi = LIMITS[key]
+            tol = 1e-3 * (hi - lo)
+            to = fatal if key == "beta_D_per_m" else reported
+            if not (np.isfinite(val) and lo <= val <= hi):
+                fatal.append(f"{key}[{name}] = {val:.3f} outside [{lo}, {hi}]")
+            elif val >= hi - tol:
+                to.append(f"{key}[{name}] = {val:.3f} at its upper limit {hi}: the fit ran "
+                          "into the bound")
+            elif val <= lo + tol and key != "B_inf":
+                to.append(f"{key}[{name}] = {val:.3f} at its lower limit {lo}: the fit ran "
+                          "into the bound")
+        floor = 0.5 * PURE_WATER_KD_PER_M[c]
+        if config.metric_range and beta_d[c] < floor:
+            fatal.append(f"beta_D_per_m[{name}] = {beta_d[c]:.3f} below {floor:.3f}, half of "
+                         "pure water's K_d in that band: implausible for any water (too "
+                         "short a range span or too strong a backscatter to see attenuation)")
+    return fatal, reported
+
+
+def _fit_ladder(
+    zk: F64, qcs: list[F64], wk: F64, dark: F64, config: WaterFitConfig
+) -> tuple[F64, F64, F64, str, list[str], bool]:
+    """The fit and its first fallback: every parameter free (``ok`` if no fatal check, the
+    reported ones in ``checks``); else, where the only fatal checks are a ``beta_D`` below
+    the natural-water floor (or at 0), those channels raised to the floor, the others and
+    the backscatter kept (``attenuation-floor``: the truth is at least the floor); else
+    ``attenuation-unidentified``. Returns ``(B_inf, beta_B, beta_D, status, checks,
+    backscatter_ok)``: ``backscatter_ok`` when no fatal check is on ``B_inf`` or ``beta_B``
+    (the joint fit's backscatter can be kept without its ``beta_D``)."""
+    b_inf, beta_b, beta_d = np.zeros(3), np.zeros(3), np.zeros(3)
+    for c in range(3):
+        b_inf[c], beta_b[c], beta_d[c], _rms = _fit_channel(zk, qcs[c], wk, dark[:, c])
+    fatal, reported = _implausible(b_inf, beta_b, beta_d, config)
+    if not fatal:
+        return b_inf, beta_b, beta_d, "ok", reported, True
+    checks = fatal + reported
+    back_ok = not any(c.startswith(("B_inf", "beta_B")) for c in fatal)
+    low = [("pure water" in c) or (c.startswith("beta_D") and "lower limit" in c)
+           for c in fatal]
+    if config.metric_range and all(low):
+        floor = 0.5 * np.asarray(PURE_WATER_KD_PER_M)
+        raised = np.maximum(beta_d, floor)
+        for c in np.flatnonzero(beta_d < floor):
+            # The backscatter again with beta_D held at the floor (fitted with the implausible
+            # beta_D, it took up part of the attenuation).
+            b_inf[c], beta_b[c], _d, _rms = _fit_channel(zk, qcs[c], wk, dark[:, c],
+                                                       beta_d_fixed=float(floor[c]))
+        return b_inf, beta_b, raised, "attenuation-floor", checks + [
+            f"beta_D raised to the natural-water floor: {np.round(raised, 3).tolist()} 1/m, "
+            "the backscatter of those channels fitted again with it"
+        ], True
+    return b_inf, beta_b, beta_d, "attenuation-unidentified", checks, back_ok
 
 
 def fit_water_model(
@@ -450,10 +549,11 @@ def fit_water_model(
         members.append(sel)
     zk_a, dark_a = np.asarray(zk), np.asarray(qk).reshape(-1, 3)
     ratio = span[1] / max(span[0], 1e-6)
-    b_inf = np.zeros(3)
-    beta_b = np.full(3, LIMITS["beta_B_per_m"][1])
-    beta_d = np.zeros(3)
+    b_inf: F64 = np.zeros(3)
+    beta_b: F64 = np.full(3, LIMITS["beta_B_per_m"][1])
+    beta_d: F64 = np.zeros(3)
     status = "ok"
+    keep_back = False
     if len(zk) < 2:
         checks.append(f"B_inf: only {len(zk)} populated range bin(s); 2 are needed")
         status = "backscatter-unidentified"
@@ -468,18 +568,16 @@ def fit_water_model(
         # Albedo quantiles do not depend on range over a dive, and the model is monotone in
         # J at fixed z: every quantile of I follows B(z) + A_p exp(-beta_D z).
         wk = np.asarray([np.sqrt(m.size) for m in members])
-        for c in range(3):
-            qc = np.stack([np.percentile(rgb[m, c], _QUANTILES) for m in members])
-            b_inf[c], beta_b[c], beta_d[c], _rms = _fit_channel(zk_a, qc, wk, dark_a[:, c])
-        for c, name in enumerate("RGB"):
-            for key, val in (("B_inf", b_inf[c]), ("beta_D_per_m", beta_d[c]),
-                             ("beta_B_per_m", beta_b[c])):
-                lo, hi = LIMITS[key]
-                if not (np.isfinite(val) and lo <= val <= hi):
-                    checks.append(f"{key}[{name}] = {val:.3f} at or outside [{lo}, {hi}]")
-        if checks:
-            status = "attenuation-unidentified"
-    if status == "attenuation-unidentified":
+        qcs = [np.stack([np.percentile(rgb[m, c], _QUANTILES) for m in members])
+               for c in range(3)]
+        b_inf, beta_b, beta_d, status, found, keep_back = _fit_ladder(
+            zk_a, qcs, wk, dark_a, config)
+        checks += found
+    if status == "attenuation-unidentified" and keep_back:
+        # beta_D implausible, the joint fit's backscatter plausible: keep it, drop beta_D.
+        beta_d[:] = 0.0
+        checks.append("beta_D not used; the backscatter fitted with it kept")
+    elif status == "attenuation-unidentified":
         # Fall back to the dark-pixel envelope for backscatter alone (an upper bound).
         beta_d[:] = 0.0
         for c in range(3):
@@ -500,8 +598,8 @@ def fit_water_model(
     j = _invert(rgb.astype(np.float32), z.astype(np.float32), model, config.max_gain)
     wb = config.white_balance
     if wb == "auto":
-        wb = "none" if status == "ok" else "grey-world"
-    if wb == "locus" and status != "ok":
+        wb = "none" if model.has_attenuation else "grey-world"
+    if wb == "locus" and not model.has_attenuation:
         wb = "grey-world"
     if wb == "grey-world":
         gains = _grey_world_gains(j, config.max_gain)

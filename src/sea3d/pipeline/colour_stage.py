@@ -1,6 +1,7 @@
-"""The dive's colours in ``sea3d process --restore-colours water-model``: one water model per
-dive, fitted in the client from the first frames' stereo range, then every frame restored with
-it before the ordered stages colour the mesh and cloud with it.
+"""The dive's colours in ``sea3d process --restore-colours seathru`` (older name
+``water-model``): one water model per dive, fitted in the client from the first frames'
+stereo range, then every frame restored with it before the ordered stages colour the mesh
+and cloud with it.
 
 Why here and not in the per-frame stage: the model needs the depth of several frames, which
 only the per-frame stage makes, so a per-frame restoration would need the model before the
@@ -17,7 +18,11 @@ Frames before the model exists are **held**, not passed on: the first
 :attr:`DiveColourConfig.fit_stride`-th frame (so the fit sees the start of the dive, not one
 instant), are buffered with every frame between them; when the last is in (or the session
 ends sooner, or ``2 fit_frames fit_stride`` frames are held without enough depth) the model
-is fitted once and every held frame is restored with it and handed on in time order. So
+is fitted once and every held frame is restored with it and handed on in time order. If that
+model is not ``ok`` (a plausibility check failed, :func:`~sea3d.enhance.water.fit_water_model`),
+the first fallback step is more frames: :attr:`DiveColourConfig.more_frames` more are
+gathered (and held) and the model is fitted once more over all of them; the fit's own steps
+(``beta_D`` tied to a Jerlov class, backscatter alone, grey world) follow inside it. So
 every frame is restored with the dive's one model and carries its status; none goes out
 unrestored under an ``ok``. A dive whose water cannot be fitted at all (no frame with
 range) gives every frame grey world with ``fallback-grey-world`` and the reason.
@@ -58,6 +63,11 @@ class DiveColourConfig:
     until the model exists."""
     water: WaterFitConfig = field(default_factory=WaterFitConfig)
     """The fit's own settings."""
+    more_frames: int = 8
+    """Fallback step before the fit's own (:func:`~sea3d.enhance.water.fit_water_model`):
+    when the model from ``fit_frames`` frames is not ``ok`` (a check failed), gather this many
+    more frames with depth (at the same stride, held likewise) and fit once more over all of
+    them: a wider range span may identify what a short one could not. 0: no second fit."""
     pool_pair: bool = True
     """Fit (and so white-balance) over both views of each fit pair, not the left alone: the
     pair gets one balance (:meth:`DiveColours.restore_right` restores the right view with
@@ -68,6 +78,8 @@ class DiveColourConfig:
             raise ConfigError(f"fit_frames must be >= 1, got {self.fit_frames}")
         if self.fit_stride < 1:
             raise ConfigError(f"fit_stride must be >= 1, got {self.fit_stride}")
+        if self.more_frames < 0:
+            raise ConfigError(f"more_frames must be >= 0, got {self.more_frames}")
 
 
 def frame_range_m(res: FrameResult, maps: Any) -> NDArray[np.float32]:
@@ -121,6 +133,10 @@ class DiveColours:
         self._held: list[FrameResult] = []
         self._seen_with_depth = 0
         self._samples: list[tuple[NDArray[np.uint8], NDArray[np.float32]]] = []
+        self._first: WaterModel | None = None
+        self.first_status = ""
+        """Status of the first fit over ``fit_frames`` when it was not ``ok`` (then the model
+        that restores was fitted over ``more_frames`` more); empty otherwise."""
 
     @property
     def fitted(self) -> bool:
@@ -141,10 +157,38 @@ class DiveColours:
                 self.fit_stamps.append(int(res.t_ns))
             self._seen_with_depth += 1
         # Held frames are bounded: where depth is rare, fit with what came in twice the span.
-        max_held = 2 * self.config.fit_frames * self.config.fit_stride
-        if len(self.fit_stamps) < self.config.fit_frames and len(self._held) < max_held:
+        want = self.config.fit_frames + (self.config.more_frames if self._extending else 0)
+        max_held = 2 * want * self.config.fit_stride
+        if len(self.fit_stamps) < want and len(self._held) < max_held:
+            return []
+        if not self._extending and self._first_fit_wants_more():
             return []
         return self._fit_and_release()
+
+    @property
+    def _extending(self) -> bool:
+        return bool(self.first_status)
+
+    def _first_fit_wants_more(self) -> bool:
+        """The first fallback step: fit ``fit_frames``; if not ``ok``, keep gathering
+        ``more_frames`` more before the fit that restores (True: keep holding)."""
+        if self.config.more_frames == 0 or not self._samples:
+            return False
+        t0 = time.perf_counter()
+        try:
+            first = fit_water_model(self._samples, self.config.water)
+        except EnhanceError as err:
+            self.fit_error = str(err)  # unfittable: released now with grey world
+            return False
+        finally:
+            self.fit_s += time.perf_counter() - t0
+        if first.status == "ok":
+            self._first = first
+            return False
+        self.first_status = first.status
+        log.info("water model from the first %d frames: %s; fitting again over %d more",
+                 len(self.fit_stamps), first.status, self.config.more_frames)
+        return True
 
     def flush(self) -> list[FrameResult]:
         """After the last frame: fit with what was gathered (a short session) and release."""
@@ -153,14 +197,18 @@ class DiveColours:
     def _fit_and_release(self) -> list[FrameResult]:
         t0 = time.perf_counter()
         self.fits += 1
-        if self._samples:
+        if self._first is not None:
+            self.model = self._first
+        elif self.fit_error:
+            pass  # the first fit raised: unfittable, said there
+        elif self._samples:
             try:
                 self.model = fit_water_model(self._samples, self.config.water)
             except EnhanceError as err:
                 self.fit_error = str(err)
         else:
             self.fit_error = "no frame with depth and colour to fit the water to"
-        self.fit_s = time.perf_counter() - t0
+        self.fit_s += time.perf_counter() - t0
         if self.model is not None:
             log.info("water model of the dive (%d frames): %s", len(self._samples),
                      self.model.status)
@@ -217,6 +265,7 @@ class DiveColours:
             "fit_frames_wanted": self.config.fit_frames, "fit_stride": self.config.fit_stride,
             "fit_frames_t_ns": self.fit_stamps, "fits": self.fits, "fit_s": self.fit_s,
             "pooled_over_pair": self.config.pool_pair,
+            "first_fit_status": self.first_status or None,
             "restore_s_median": float(np.median(self.restore_s)) if self.restore_s else None,
         }
         if self.model is not None:

@@ -13,7 +13,7 @@ if TYPE_CHECKING:
     from sea3d.pipeline.colour_stage import DiveColourConfig
     from sea3d.recon.submaps import FusionConfig
 
-__all__ = ["ColourConfig", "ExecutorConfig", "MapConfig", "PoseConfig"]
+__all__ = ["RESTORE_COLOURS", "ColourConfig", "ExecutorConfig", "MapConfig", "PoseConfig"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -81,19 +81,34 @@ class ColourConfig:
 
     enhance: Any = None
     """Enhancement hook of the per-frame stage (see :class:`FrameStageConfig`)."""
-    restore_colours: Literal["none", "seathru", "water-model"] = "none"
-    """The output colours after depth: ``seathru``, the per-image Sea-thru in the per-frame
-    stage (see :class:`FrameStageConfig`); ``water-model``, one water model fitted to the
-    dive's first frames in the client and every frame restored with it
-    (:mod:`sea3d.pipeline.colour_stage`)."""
+    restore_colours: Literal["none", "seathru", "water-model", "seathru-per-image"] = "none"
+    """The output colours after depth: ``seathru`` (or its older name ``water-model``), one
+    water model fitted to the dive's first frames in the client and every frame restored with
+    it (:mod:`sea3d.pipeline.colour_stage`; an inversion per frame, cheaper than matching);
+    ``seathru-per-image``, a Sea-thru fitted to each image alone in the per-frame stage
+    (:class:`FrameStageConfig`; seconds per frame)."""
     dive_colours: DiveColourConfig | None = None
-    """How ``water-model`` fits the dive's model (None: :class:`DiveColourConfig`'s
+    """How ``seathru`` fits the dive's model (None: :class:`DiveColourConfig`'s
     defaults)."""
 
     def __post_init__(self) -> None:
-        if self.restore_colours not in ("none", "seathru", "water-model"):
-            raise ConfigError(f"restore_colours must be none, seathru or water-model, got "
-                              f"{self.restore_colours!r}")
+        if self.restore_colours not in RESTORE_COLOURS:
+            raise ConfigError(f"restore_colours must be one of {', '.join(RESTORE_COLOURS)}, "
+                              f"got {self.restore_colours!r}")
+
+    @property
+    def per_dive(self) -> bool:
+        """Whether the colours come from the dive's one water model."""
+        return self.restore_colours in ("seathru", "water-model")
+
+    @property
+    def per_image(self) -> bool:
+        """Whether each image gets its own Sea-thru in the per-frame stage."""
+        return self.restore_colours == "seathru-per-image"
+
+
+RESTORE_COLOURS = ("none", "seathru", "water-model", "seathru-per-image")
+"""The values of :attr:`ColourConfig.restore_colours`."""
 
 
 @dataclass(frozen=True, kw_only=True)

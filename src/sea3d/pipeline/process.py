@@ -6,7 +6,7 @@
                                             [enhance] ─► rectify ─► match ─► exact depth
                                             ─► depth for the virtual pinhole
             ◄── results stream back, cached in OUT/cache/frames/<t_ns>.s3c as they arrive
-    [--restore-colours water-model: the dive's one water model, fitted in the client from the
+    [--restore-colours seathru: the dive's one water model, fitted in the client from the
      first frames, restores every frame's colours (held until it exists)]
     ordered stages, in time order:  odometry ─► fusion into keyframe-anchored TSDF submaps
                                     (finished submaps spilled to OUT/submaps/)
@@ -124,8 +124,7 @@ class ProcessConfig:
             enhance=self.colours.enhance,
             # The dive's water model restores in the client, after the fit: the per-frame
             # stage (and its cache) stays as without restoration.
-            restore_colours=("seathru" if self.colours.restore_colours == "seathru"
-                             else "none"),
+            restore_colours="seathru" if self.colours.per_image else "none",
             threads=max(1, (os.cpu_count() or 1) // max(1, n_local))
             if ex.scheduler is None else None)
 
@@ -144,8 +143,9 @@ class ProcessConfig:
         from sea3d.pipeline.depth_rate import parse_depth_rate
 
         object.__setattr__(self, "depth_rate", parse_depth_rate(self.depth_rate))
-        if self.colours.restore_colours == "water-model" and self.depth_rate not in ("all", 1):
-            raise ConfigError("restore_colours water-model needs depth of every frame's own "
+        if self.colours.per_dive and self.depth_rate not in ("all", 1):
+            raise ConfigError(f"restore_colours {self.colours.restore_colours} (the dive's "
+                              "water model) needs depth of every frame's own "
                               f"(depth_rate all), got depth_rate {self.depth_rate!r}")
 
 
@@ -353,7 +353,7 @@ def run_process(
                                    depth_rate=rate,
                                    rectify=functools.partial(rectify_pair, stereo))
             colours = (DiveColours(stereo.maps, config.colours.dive_colours)
-                       if config.colours.restore_colours == "water-model" else None)
+                       if config.colours.per_dive else None)
             t_loop, t_prev = time.perf_counter(), None
 
             def step(res: Any) -> None:

@@ -226,7 +226,7 @@ def _files_note(path: Path, result: Any) -> str:
 
 
 def _water_model_html(info: Any) -> str:
-    """The dive's water model (``--restore-colours water-model``): its fit status, checks and
+    """The dive's water model (``--restore-colours seathru``): its fit status, checks and
     parameters, or why it could not be fitted."""
     if not isinstance(info, dict):
         return ""
@@ -252,7 +252,10 @@ def _water_model_html(info: Any) -> str:
             f"<tr><td>white-balance gains</td><td>{rgb('wb_gains')}</td></tr>"
             f"<tr><td>exposure gain</td><td>{float(model.get('exposure_gain', 1.0)):.3f}"
             "</td></tr></table>"
-            + (f"<p>Checks that failed:</p><ul>{checks}</ul>" if checks else ""))
+            + (f"<p>First fit over {info.get('fit_frames_wanted')} frames: "
+               f"{html.escape(str(info.get('first_fit_status')))}; fitted again over more "
+               "frames.</p>" if info.get("first_fit_status") else "")
+            + (f"<p>Checks that failed (by parameter):</p><ul>{checks}</ul>" if checks else ""))
 
 
 def _colour_html(colours: Any, pictures: Any) -> str:

@@ -79,11 +79,16 @@ def clean_point_cloud(
     if n_in == 0:
         return CleanCloud(points=p, colors=np.zeros((0, 3), np.uint8), normals=np.zeros((0, 3)),
                           input_points=0, downsampled_points=0, outliers=0)
+    # Open3D's voxel averages sum in input order, and the merged TSDF's points come in hash
+    # map order: sorted first, the same points give the same colours (a float sum in another
+    # order flipped one 8-bit level in a rerun from the cache).
+    order = np.lexsort(p.T[::-1])
+    p = p[order]
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p))
     if colors is not None:
-        pc.colors = o3d.utility.Vector3dVector(np.asarray(colors, np.float64) / 255.0)
+        pc.colors = o3d.utility.Vector3dVector(np.asarray(colors, np.float64)[order] / 255.0)
     if normals is not None:
-        pc.normals = o3d.utility.Vector3dVector(np.asarray(normals, np.float64))
+        pc.normals = o3d.utility.Vector3dVector(np.asarray(normals, np.float64)[order])
     if cfg.voxel_m > 0:
         pc = pc.voxel_down_sample(cfg.voxel_m)
     n_ds = len(pc.points)

@@ -14,11 +14,37 @@ attenuated over the light-to-surface path). The sensor then adds vignetting, blu
 noise, and sRGB encoding. With :meth:`Imaging.clean` every effect is off: the image is albedo
 times a fixed Lambertian sun (no noise, no water), so geometry can be tested alone.
 
-The water presets are chosen by us, not fitted: their ``beta_D`` are of the order of the diffuse
-attenuation coefficients of Jerlov's water types I (clear ocean), 3C (coastal) and 9C (turbid
-coastal / lake) at roughly 600, 525 and 475 nm as tabulated by Solonenko and Mobley, "Inherent
-optical properties of Jerlov water types", Applied Optics 54(17), 2015; ``beta_B`` and ``B_inf``
-are set so the veiling light has the hue typical of each water (blue, green, yellow-green).
+The water presets are chosen by us, not fitted, and they are **not** Jerlov's table: they are
+wideband camera-channel coefficients of the order of the clear ocean (``clear``), coastal
+(``coastal``) and turbid coastal / lake (``turbid``) waters. Beside Jerlov's downward
+irradiance attenuation ``K_d`` at 600/525/475 nm (N. G. Jerlov, *Marine Optics*, 2nd ed. 1976,
+Table XXVII, p. 135; ``sea3d.enhance.water.JERLOV_KD_PER_M``), 1/m:
+
+===========  ===================  ==========================
+preset       ``beta_D`` R/G/B     nearest Jerlov ``K_d``
+===========  ===================  ==========================
+clear        0.40 / 0.08 / 0.05   II 0.26 / 0.076 / 0.062
+coastal      0.60 / 0.22 / 0.32   3C 0.33 / 0.20 / 0.29
+turbid       1.10 / 0.75 / 1.30   9C 0.60 / 0.78 / 1.23
+===========  ===================  ==========================
+
+Green and blue are close to the table; red is 1.5-1.8x it. A camera's red channel integrates
+about 570-700 nm, where pure water alone absorbs from about 0.07 to 0.65 1/m (Pope and Fry,
+Applied Optics 36(33), 1997), so a wideband red above ``K_d(600 nm)`` is expected (wideband
+coefficients depend on the camera's spectral response: Akkaynak et al., "What is the space
+of attenuation coefficients in underwater computer vision?", CVPR 2017), but the exact
+values are ours. They are kept because every
+rendered figure of the project (tests, the demo, the benchmarks) is pinned to them; the
+independent formation judge (``sea3d.eval.enhance_formation``) uses the table itself.
+``beta_B`` and ``B_inf`` are set so the veiling light has the hue typical of each water
+(blue, green, yellow-green).
+
+Vignetting is applied by the sensor to everything that reaches the lens, direct signal and
+backscatter alike (after the water): that is the physical order (a lens attenuates the light
+arriving off-axis whatever scattered it). So an image ``I = V(u) (D + B)`` has a backscatter
+that falls off towards the corners with ``V``, which a per-image constant ``B_inf`` does not
+hold: a restoration should divide by a calibrated flat field ``V`` before inverting the
+water (``sea3d.enhance.water`` does not: no rig here carries a flat-field calibration).
 """
 
 from __future__ import annotations
