@@ -17,7 +17,14 @@ from sea3d.errors import ReconError
 from sea3d.geometry.mesh import Mesh
 from sea3d.io._atomic import atomic_path
 
-__all__ = ["read_mesh", "read_point_cloud", "write_mesh", "write_point_cloud"]
+__all__ = [
+    "read_compact_mesh",
+    "read_mesh",
+    "read_point_cloud",
+    "write_compact_mesh",
+    "write_mesh",
+    "write_point_cloud",
+]
 
 
 def write_mesh(path: str | os.PathLike[str], mesh: Mesh) -> None:
@@ -138,3 +145,26 @@ def read_point_cloud(path: str | os.PathLike[str]) -> tuple[NDArray[np.float64],
     cols = (np.clip(np.rint(np.asarray(pc.colors) * 255), 0, 255).astype(np.uint8)
             if pc.has_colors() else None)
     return pts, cols
+
+
+def write_compact_mesh(path: str | os.PathLike[str], mesh: Mesh) -> None:
+    """Write ``mesh`` as a scratch ``.npz`` (float32 vertices, int32 triangles, uint8 colours;
+    no normals): the live view's finished submaps, read back with :func:`read_compact_mesh`.
+
+    Raises:
+        OSError: the file cannot be written (nothing is left under ``path``).
+    """
+    colours = (mesh.colors_rgb if mesh.colors_rgb is not None
+               else np.zeros((0, 3), np.uint8))
+    with atomic_path(path, fsync=False) as tmp, open(tmp, "wb") as f:
+        np.savez(f, vertices=mesh.vertices.astype(np.float32),
+                 triangles=mesh.triangles.astype(np.int32), colors=colours)
+
+
+def read_compact_mesh(path: str | os.PathLike[str]) -> Mesh:
+    """A mesh written by :func:`write_compact_mesh` (float64 vertices, int64 triangles)."""
+    with np.load(path) as z:
+        col = z["colors"]
+        return Mesh(vertices=z["vertices"].astype(np.float64),
+                    triangles=z["triangles"].astype(np.int64),
+                    colors_rgb=col if len(col) else None)

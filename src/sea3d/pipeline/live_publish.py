@@ -103,11 +103,9 @@ class _Finished:
     vertices: int
 
     def load(self) -> Mesh:
-        with np.load(self.path) as z:
-            col = z["colors"]
-            return Mesh(vertices=z["vertices"].astype(np.float64),
-                        triangles=z["triangles"].astype(np.int64),
-                        colors_rgb=col if len(col) else None)
+        from sea3d.io.mesh_files import read_compact_mesh
+
+        return read_compact_mesh(self.path)
 
 
 class _MeshingStore:
@@ -194,16 +192,14 @@ class LiveFeed:
         return _MeshingStore(store, self, tsdf)
 
     def _submap_finished(self, submap: Any, tsdf: Any) -> None:
+        from sea3d.io.mesh_files import write_compact_mesh
         from sea3d.recon.tsdf import TsdfVolume
 
         mesh = TsdfVolume.from_blocks(submap.blocks, tsdf).extract_mesh()
         sid = int(submap.submap_id)
         path = self.mesh_dir / f"submap-{sid}.npz"
         try:
-            np.savez(path, vertices=mesh.vertices.astype(np.float32),
-                     triangles=mesh.triangles.astype(np.int32),
-                     colors=mesh.colors_rgb if mesh.colors_rgb is not None
-                     else np.zeros((0, 3), np.uint8))
+            write_compact_mesh(path, mesh)
         except OSError as err:  # the view never stops the reconstruction (the store has it)
             msg = f"live view: cannot keep submap {sid}'s mesh in {self.mesh_dir}: {err}"
             if msg not in self.errors:
