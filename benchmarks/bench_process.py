@@ -25,7 +25,12 @@ and of the largest worker (``ru_maxrss``). Printed per run: frames per second of
 loop (reading, per-frame stage, odometry, fusion; merge, outputs and evaluation after it
 listed apart), wall time, CPU time (client and workers, whole run), peak memory, and the
 mesh's accuracy and completeness against the scene (median and 90th percentile, mm) with the
-ATE. On a shared machine wall times depend on the load; CPU seconds much less.
+ATE. On a shared machine wall times depend on the load; CPU seconds much less. CPU per frame
+comes three ways: the whole subprocess (``CPU s/fr``: imports, set-up and this script's
+evaluation too), the run alone (``run s/fr``: sea3d's ``run_process``, the paper's chain from
+rectification to mesh, with the libraries both use imported before), and the frame loop's
+steady state (``loop s/fr``: from the first frame to the last, client and local workers; no
+one-off costs, what a long dive pays per frame; not counted for Dask workers).
 
 Poses: ``--odometry real`` (sea3d's stereo-inertial odometry, default) or ``gt`` (the
 simulator's). ``--integrate keyframes`` compares fusing only
@@ -38,11 +43,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -95,6 +102,7 @@ def paper_run(session: Path, frames: int | None, voxel_m: float = 0.02,
     from sea3d.rectify import rectify_images, rectify_rig
     from sea3d.stereo.depth import max_disparity_for_depth
 
+    c_run = time.process_time()  # its run: rectification to mesh, as sea3d's run_cpu_s
     with open_session(session) as s:
         rig = rig_from_yaml(s.rig_yaml, "the session's rig")
         maps = rectify_rig(rig, depth_range_m=depth_range_m)
@@ -116,6 +124,7 @@ def paper_run(session: Path, frames: int | None, voxel_m: float = 0.02,
             block_count=50_000, device=o3c.Device("CPU:0"))
         T_rect = [np.eye(4)]
         prev = None
+        marks: list[float] = []  # CPU after the first and the latest frame
         w0, c0 = time.perf_counter(), time.process_time()
         for i in range(n):
             left = s.image("left", int(match.left_index[i]), by="index")
@@ -145,8 +154,10 @@ def paper_run(session: Path, frames: int | None, voxel_m: float = 0.02,
             blocks = vbg.compute_unique_block_coordinates(dimg, Kt, ext, 1.0, depth_range_m[1])
             vbg.integrate(blocks, dimg, o3d.t.geometry.Image(colour.astype(np.float32) / 255.0),
                           Kt, Kt, ext, 1.0, depth_range_m[1])
+            marks = [marks[0] if marks else time.process_time(), time.process_time()]
         mesh = vbg.extract_triangle_mesh(weight_threshold=1.0).to_legacy()
         wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+        run_cpu = time.process_time() - c_run
     R1 = np.eye(4)
     R1[:3, :3] = maps.R_rect_left_left
     T_left = np.stack(T_rect) @ R1
@@ -157,6 +168,9 @@ def paper_run(session: Path, frames: int | None, voxel_m: float = 0.02,
                               np.asarray(mesh.triangles))
     return {"kind": "paper", "frames": n, "wall_s": wall, "fps": n / wall,
             "frame_loop_s": wall, "cpu_client_s": cpu, "cpu_workers_s": 0.0,
+            "run_cpu_s": run_cpu,
+            "loop_cpu_per_frame_s": {"client": (marks[1] - marks[0]) / max(n - 1, 1),
+                                     "workers": 0.0},
             "peak_rss_client_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
             "peak_rss_worker_mb": 0.0, "mesh_accuracy_mm": None, "mesh_first_pose_mm": acc,
             "mesh_completeness_mm": None, "ate_rmse_mm": 1000 * ate.ate_m.rmse,
@@ -223,6 +237,63 @@ class RssRecorder:
             return None
 
 
+def _proc_cpu_s(pid: str) -> float:
+    """CPU seconds (user + system) of a live process, from ``/proc/PID/stat``."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+class LoopCpu:
+    """A progress factory for ``run_process`` that measures the steady-state CPU of the frame
+    loop: the client's CPU from its first odometry frame to its last, and the local workers'
+    CPU (summed, from ``/proc``) from the first depth result to the last, each over the
+    frames in between. One-off costs (imports, kernel loading, rectification maps, the
+    workers' start) fall before the first frame and the merge after the last, so they are
+    left out; :func:`paper_run` measures its loop the same way. ``inner`` (an
+    :class:`RssRecorder` or None) gets the same calls."""
+
+    def __init__(self, inner: RssRecorder | None = None) -> None:
+        self.inner = inner
+        self.marks: dict[str, list[float]] = {"odometry": [], "depth": []}
+        self.counts = {"odometry": 0, "depth": 0}
+
+    def __call__(self, stage: str, total: int) -> LoopCpu._Bar:
+        return LoopCpu._Bar(self, stage, self.inner(stage, total) if self.inner else None)
+
+    def _mark(self, stage: str) -> None:
+        self.counts[stage] += 1
+        cpu = (time.process_time() if stage == "odometry"
+               else sum(_proc_cpu_s(k) for k in _children()))
+        m = self.marks[stage]
+        m[:] = [cpu] if not m else [m[0], cpu]
+
+    def per_frame_s(self) -> dict[str, float]:
+        """Client and workers' CPU per frame between their first and last frames."""
+        out = {}
+        for stage, who in (("odometry", "client"), ("depth", "workers")):
+            m, n = self.marks[stage], self.counts[stage]
+            out[who] = (m[1] - m[0]) / (n - 1) if len(m) == 2 and n > 1 else 0.0
+        return out
+
+    class _Bar:
+        def __init__(self, rec: LoopCpu, stage: str, inner: Any) -> None:
+            self.rec, self.stage, self.inner = rec, stage, inner
+
+        def update(self, n: int = 1) -> None:
+            if self.stage in self.rec.marks:
+                for _ in range(n):
+                    self.rec._mark(self.stage)
+            if self.inner is not None:
+                self.inner.update(n)
+
+        def close(self) -> None:
+            if self.inner is not None:
+                self.inner.close()
+
+
 def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
             fresh: bool, rss_every: int = 0, min_observations: int = 2) -> dict:
     """Process once in this process and return the figures (run in a subprocess)."""
@@ -262,9 +333,16 @@ def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
                            depth=DepthConfig(min_depth_m=0.5, max_depth_m=4.0),
                            executor=ExecutorConfig(**ex), depth_rate=depth_rate or "all")
     rec = RssRecorder(rss_every, out) if rss_every > 0 else None
-    t0 = time.perf_counter()
+    loop_cpu = LoopCpu(rec)
+    # the libraries both chains use, imported before either is timed (paper_run's too)
+    import cv2  # noqa: F401
+    import gtsam  # noqa: F401
+    import open3d  # noqa: F401
+
+    t0, c0 = time.perf_counter(), _cpu(resource.RUSAGE_SELF)
     try:
-        res = run_process(session, config, progress=rec)
+        res = run_process(session, config, progress=loop_cpu)
+        run_cpu_client = _cpu(resource.RUSAGE_SELF) - c0
     finally:
         if client is not None:
             client.close()
@@ -287,6 +365,10 @@ def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
         "one_off_s": s["one_off_s"],
         "cpu_client_s": _cpu(resource.RUSAGE_SELF),
         "cpu_workers_s": _cpu(resource.RUSAGE_CHILDREN),
+        # run_process alone (client, and the workers, which have ended by now; Dask's are
+        # not counted), and the frame loop's steady state per frame (LoopCpu)
+        "run_cpu_s": run_cpu_client + _cpu(resource.RUSAGE_CHILDREN),
+        "loop_cpu_per_frame_s": loop_cpu.per_frame_s(),
         "peak_rss_client_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
         "peak_rss_worker_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024,
         "active_submap_peak_mb": s["active_submap_peak_mb"],
@@ -305,6 +387,11 @@ def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
         "worker_timings_s": s["worker_timings_s"],
         "rss_rows": rec.rows if rec is not None else [],
     }
+
+
+def _loop(r: dict) -> float:
+    """The frame loop's steady-state CPU per frame, client and workers."""
+    return float(sum(r["loop_cpu_per_frame_s"].values()))
 
 
 def main() -> None:
@@ -339,7 +426,7 @@ def main() -> None:
           "fresh process, per-frame results recomputed")
     print(f"{'run':10} {'fps':>6} {'loop s':>7} {'wall s':>7} {'CPU s':>7} {'client MB':>10} "
           f"{'worker MB':>10} {'mesh acc mm (med/p90)':>22} {'compl mm':>12} {'ATE mm':>7} "
-          f"{'CPU s/fr':>8} {'mesh 1st mm':>14}")
+          f"{'CPU s/fr':>8} {'mesh 1st mm':>14} {'run s/fr':>8} {'loop s/fr':>9}")
     results = []
     for kind in args.runs.split(","):
         policies = ["trusted", "keyframes"] if args.integrate == "both" else [args.integrate]
@@ -368,7 +455,8 @@ def main() -> None:
                   f"{acc[0]:10.1f} / {acc[1]:7.1f} {comp[0]:5.1f} / {comp[1]:4.1f} "
                   f"{r['ate_rmse_mm'] if r['ate_rmse_mm'] is not None else float('nan'):7.2f} "
                   f"{cpu / r['frames']:8.3f} "
-                  f"{r['mesh_first_pose_mm'][0]:6.1f} / {r['mesh_first_pose_mm'][1]:5.1f}")
+                  f"{r['mesh_first_pose_mm'][0]:6.1f} / {r['mesh_first_pose_mm'][1]:5.1f} "
+                  f"{r['run_cpu_s'] / r['frames']:8.3f} {_loop(r):9.3f}")
     if results:
         r = results[0]
         print(f"poses: {r['odometry']}; path {r['path_length_m']:.2f} m; after the frame loop "
@@ -390,15 +478,23 @@ def main() -> None:
                 print(f"  {row['frames']:6d} {row['client_rss_mb']:8.0f} "
                       f"{row['client_hwm_mb']:8.0f} {row['workers_rss_mb']:8.0f} "
                       f"{row['out_mb']:8.1f}")
-    print("medians per run: frames with depth, fps, CPU-s per frame, ATE mm, mesh 1st mm")
+    print("CPU s/fr: the whole subprocess (imports, set-up, merge and this script's evaluation "
+          "included); run s/fr: the run alone (sea3d's run_process, the paper's chain from "
+          "rectification to mesh), libraries imported before; loop s/fr: the frame loop's steady "
+          "state (client and workers, first frame to last)")
+    print("medians per run: frames with depth, fps, CPU-s per frame (whole / run / loop), "
+          "ATE mm, mesh 1st mm")
     for kind in dict.fromkeys(x["kind"] for x in results):
         rs = [x for x in results if x["kind"] == kind]
         cpu = [(x["cpu_client_s"] + x["cpu_workers_s"]) / x["frames"] for x in rs]
         ate = [x["ate_rmse_mm"] for x in rs if x["ate_rmse_mm"] is not None]
         m1 = np.array([x["mesh_first_pose_mm"] for x in rs])
         nd = int(np.median([x.get("frames_with_depth", x["frames"]) for x in rs]))
+        run = np.median([x["run_cpu_s"] / x["frames"] for x in rs])
+        loop = np.median([_loop(x) for x in rs])
         print(f"  {kind:14} n={len(rs)} depth {nd}/{rs[0]['frames']} "
-              f"fps {np.median([x['fps'] for x in rs]):.2f} CPU {np.median(cpu):.3f} "
+              f"fps {np.median([x['fps'] for x in rs]):.2f} CPU {np.median(cpu):.3f} / "
+              f"{run:.3f} / {loop:.3f} "
               f"ATE {np.median(ate) if ate else float('nan'):.2f} (range "
               f"{min(ate) if ate else float('nan'):.2f}-{max(ate) if ate else float('nan'):.2f}) "
               f"mesh {np.median(m1[:, 0]):.1f} / {np.median(m1[:, 1]):.1f} (medians range "
@@ -410,7 +506,8 @@ def main() -> None:
         p_cpu = (p["cpu_client_s"] + p["cpu_workers_s"]) / p["frames"]
         o_cpu = (o["cpu_client_s"] + o["cpu_workers_s"]) / o["frames"]
         print(f"ratio sea3d ({o['kind']}) / paper's chain: frames/s {o['fps'] / p['fps']:.2f}, "
-              f"CPU-s per frame {o_cpu / p_cpu:.2f} (paper {p_cpu:.3f}, sea3d {o_cpu:.3f})")
+              f"CPU-s per frame {o_cpu / p_cpu:.2f} (paper {p_cpu:.3f}, sea3d {o_cpu:.3f}), "
+              f"run {o['run_cpu_s'] / p['run_cpu_s']:.2f}, loop {_loop(o) / _loop(p):.2f}")
     (base / "last_results.json").write_text(json.dumps(results, indent=1))
 
 

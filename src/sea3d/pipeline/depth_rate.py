@@ -36,6 +36,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 from sea3d.errors import ConfigError
@@ -66,6 +67,38 @@ def parse_depth_rate(text: str | int) -> str | int:
     return 1 if value == 1 else int(value)
 
 
+@njit(cache=True)
+def _warp_kernel(depth: NDArray[np.float32], fx: float, fy: float, cx: float, cy: float,
+                 R: NDArray[np.float64], t: NDArray[np.float64]) -> NDArray[np.float32]:
+    """One pass of :func:`warp_depth`: back-project, move, project and keep the nearest."""
+    h, w = depth.shape
+    out = np.full((h, w), np.inf, np.float32)
+    for v in range(h):
+        for u in range(w):
+            zf = depth[v, u]
+            if not (np.isfinite(zf) and zf > 0):
+                continue
+            z = np.float64(zf)
+            x, y = (u - cx) / fx * z, (v - cy) / fy * z
+            qx = R[0, 0] * x + R[0, 1] * y + R[0, 2] * z + t[0]
+            qy = R[1, 0] * x + R[1, 1] * y + R[1, 2] * z + t[1]
+            qz = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z + t[2]
+            if not qz > 1e-6:
+                continue
+            uq = np.rint(fx * qx / qz + cx)
+            vq = np.rint(fy * qy / qz + cy)
+            if not (uq >= 0 and uq < w and vq >= 0 and vq < h):
+                continue
+            zq = np.float32(qz)
+            if zq < out[int(vq), int(uq)]:
+                out[int(vq), int(uq)] = zq
+    for v in range(h):
+        for u in range(w):
+            if not np.isfinite(out[v, u]):
+                out[v, u] = np.nan
+    return out
+
+
 def warp_depth(depth_m: NDArray[np.float32], K: NDArray[np.float64],
                T_cur_src: NDArray[np.float64]) -> NDArray[np.float32]:
     """A depth map moved into another pose of the same camera (forward splat, nearest
@@ -78,24 +111,15 @@ def warp_depth(depth_m: NDArray[np.float32], K: NDArray[np.float64],
 
     Returns:
         (H, W) float32 depth in the current frame, NaN where nothing lands.
+
+    One numba pass over the pixels (3 ms of CPU at 640x360 against 37 ms for the same
+    arithmetic in numpy, whose (3, 3) x (3, N) product went through OpenBLAS; a frame
+    without depth pays it in the client, on the odometry's path).
     """
-    h, w = depth_m.shape
-    v, u = np.nonzero(np.isfinite(depth_m) & (depth_m > 0))
-    z = depth_m[v, u].astype(np.float64)
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    p = np.stack([(u - cx) / fx * z, (v - cy) / fy * z, z])
-    q = T_cur_src[:3, :3] @ p + T_cur_src[:3, 3:4]
-    out = np.full((h, w), np.inf, np.float32)
-    zq = q[2]
-    front = zq > 1e-6
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uq = np.rint(fx * q[0] / zq + cx)
-        vq = np.rint(fy * q[1] / zq + cy)
-    ok = front & (uq >= 0) & (uq < w) & (vq >= 0) & (vq < h)
-    flat = vq[ok].astype(np.int64) * w + uq[ok].astype(np.int64)
-    np.minimum.at(out.reshape(-1), flat, zq[ok].astype(np.float32))
-    out[~np.isfinite(out)] = np.nan
-    return out
+    T = np.asarray(T_cur_src, np.float64)
+    return _warp_kernel(np.ascontiguousarray(depth_m, np.float32), float(K[0, 0]),
+                        float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
+                        np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]))
 
 
 @dataclass(frozen=True, kw_only=True)
