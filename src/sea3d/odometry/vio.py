@@ -1193,7 +1193,7 @@ class StereoInertialOdometry:
         )
 
     def _close_loop(self, loop: LoopCandidate, k: int, *, relink: bool = False) -> None:
-        self._graph.add_loop(loop.candidate, k, loop.T_cand_query)
+        self._graph.add_loop(loop.candidate, k, loop.T_cand_query, loop.covariance)
         odometry = {q: kf.T_odom for q, kf in self._keyframes.items()}
         segments = {q: kf.segment for q, kf in self._keyframes.items()}
         initial = {q: kf.T_world_rect for q, kf in self._keyframes.items()}
