@@ -287,6 +287,27 @@ def pnp_covariance(points_query: F64, uv: F64, K: F64) -> F64 | None:
     return s2 * np.linalg.inv(H)
 
 
+def _match_places(
+    query: PlaceFeatures, places: list[PlaceFeatures], ratio: float
+) -> tuple[NDArray[np.int64], F64]:
+    """Query feature indices and the 3D points (in the first place's frame) they match: the
+    ratio test within each place, then each query feature's best match over the places."""
+    matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+    best: dict[int, tuple[float, NDArray[np.float32]]] = {}
+    for place in places:
+        if place.descriptors.shape[0] < 2:
+            continue
+        for m in matcher.knnMatch(query.descriptors, place.descriptors, k=2):
+            if len(m) == 2 and m[0].distance < ratio * m[1].distance and m[0].distance < 64:
+                q = m[0].queryIdx
+                if q not in best or m[0].distance < best[q][0]:
+                    best[q] = (float(m[0].distance), place.points_rect[m[0].trainIdx])
+    q_idx = np.asarray(sorted(best), dtype=np.int64)
+    points = (np.asarray([best[q][1] for q in q_idx.tolist()], dtype=np.float64)
+              if q_idx.size else np.zeros((0, 3)))
+    return q_idx, points
+
+
 def verify_loop(
     query: PlaceFeatures,
     cand: PlaceFeatures,
@@ -296,6 +317,7 @@ def verify_loop(
     min_inliers: int,
     threshold_px: float = 2.0,
     ratio: float = 0.8,
+    local_map: list[PlaceFeatures] | None = None,
 ) -> LoopCandidate | None:
     """Geometric verification of a loop candidate.
 
@@ -303,26 +325,26 @@ def verify_loop(
     loop is kept when at least ``min_inliers`` inliers remain and most inliers with depth in both
     keyframes agree in 3D (within 3 cm plus 3 % of their depth).
 
+    ``local_map``: the candidate's neighbouring keyframes' features with their points moved into
+    the candidate's frame (by the odometry between them): the query is matched against each
+    place apart (the ratio test within one place) and each query feature keeps its best match,
+    so the inliers cover the part of the view that the candidate alone missed, as ORB-SLAM
+    verifies a loop against the candidate's covisible map rather than one keyframe.
+
     Returns:
         A :class:`LoopCandidate`, or None when the geometry does not hold.
     """
     if query.descriptors.shape[0] < min_inliers or cand.descriptors.shape[0] < min_inliers:
         return None
-    matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
-    knn = matcher.knnMatch(query.descriptors, cand.descriptors, k=2)
-    qi, ci = [], []
-    for m in knn:
-        if len(m) == 2 and m[0].distance < ratio * m[1].distance and m[0].distance < 64:
-            qi.append(m[0].queryIdx)
-            ci.append(m[0].trainIdx)
-    if len(qi) < min_inliers:
+    places = [cand, *(local_map or [])]
+    q_idx, points = _match_places(query, places, ratio)
+    if len(q_idx) < min_inliers:
         return None
-    q_idx, c_idx = np.asarray(qi), np.asarray(ci)
-    P = cand.points_rect[c_idx].astype(np.float64)
+    P = points
     ok = np.isfinite(P).all(axis=1)
     if ok.sum() < min_inliers:
         return None
-    q_idx, c_idx, P = q_idx[ok], c_idx[ok], P[ok]
+    q_idx, P = q_idx[ok], P[ok]
     uv = query.uv[q_idx].astype(np.float64)
     try:
         found, rvec, tvec, inl = cv2.solvePnPRansac(
