@@ -17,6 +17,11 @@ from sea3d.odometry.types import ImuChunk
 ROT_TOL = 1e-9
 LOOP_TRANSLATION_TOL_M = 2e-3  # PnP on 0.2 px pixel noise at 1-3 m, 150 points
 LOOP_ROTATION_TOL_RAD = 2e-3
+# The loop covariance against 200 noisy repeats of one fit: the normalised squared error of a
+# 6-dof estimate averages 6 (chi-square), +-0.25 (one sigma) over 200 draws; 1.2 either side
+# is ~5 sigma. Each deviation within 25 % of the repeats' (a deviation from 200 draws is +-5 %).
+LOOP_NEES_TOL = 1.2
+LOOP_SIGMA_RTOL = 0.25
 
 
 def _chunk(t_ns, value=1.0) -> ImuChunk:
@@ -99,6 +104,42 @@ def test_verify_loop_recovers_the_relative_pose_and_refuses_strangers(rng) -> No
     assert verify_loop(query, shuffled, 9, K, min_inliers=30) is None
 
 
+def _loop_errors(rng, P_c, K, T_cand_query, draws):
+    """Errors ``xi`` of repeated loop fits (``T_true = T_fit @ Exp(xi)``, first order) and the
+    covariances they came with."""
+    T_qc = np.linalg.inv(T_cand_query)
+    P_q = P_c @ T_qc[:3, :3].T + T_qc[:3, 3]
+    desc = rng.integers(0, 256, (P_c.shape[0], 32), dtype=np.uint8)
+    cand = _place(P_c, K, rng, desc)
+    xis, covs = [], []
+    for _ in range(draws):
+        found = verify_loop(_place(P_q, K, rng, desc), cand, 1, K, min_inliers=20)
+        assert found is not None and found.covariance is not None
+        D = np.linalg.inv(found.T_cand_query) @ T_cand_query
+        xis.append(np.r_[cv_rotvec(D[:3, :3]), D[:3, 3]])
+        covs.append(found.covariance)
+    return np.array(xis), np.array(covs)
+
+
+def test_loop_covariance_predicts_the_spread_of_the_fit(rng) -> None:
+    K = np.array([[350.0, 0, 320], [0, 350, 180], [0, 0, 1]])
+    T_cand_query = make_T(rotvec_to_R([0.02, -0.05, 0.03]), [0.05, -0.02, 0.03])
+    wide = np.c_[rng.uniform(-1.2, 1.2, (60, 2)), rng.uniform(1.5, 2.5, 60)]
+    # the same number of points crowded into a corner of the view, 1/8 of its width
+    corner = np.c_[rng.uniform(0.6, 0.9, (60, 1)), rng.uniform(0.3, 0.45, (60, 1)),
+                   rng.uniform(1.9, 2.1, 60)]
+    sigmas = {}
+    for name, P_c in (("wide", wide), ("corner", corner)):
+        xi, cov = _loop_errors(rng, P_c, K, T_cand_query, 200)
+        nees = np.mean([x @ np.linalg.solve(c, x) for x, c in zip(xi, cov, strict=True)])
+        assert abs(nees - 6.0) < LOOP_NEES_TOL, name
+        predicted = np.sqrt(np.diagonal(cov, axis1=1, axis2=2).mean(axis=0))
+        np.testing.assert_allclose(predicted, xi.std(axis=0), rtol=LOOP_SIGMA_RTOL)
+        sigmas[name] = predicted
+    # a fit crowded into a corner trades rotation for translation: far weaker than a wide one
+    assert (sigmas["corner"][:2] > 5 * sigmas["wide"][:2]).all()
+
+
 def cv_rotvec(R):
     from sea3d.geometry.se3 import R_to_rotvec
 
@@ -145,3 +186,8 @@ def test_pose_graph_spreads_a_loop_over_the_drifted_chain() -> None:
     assert before > 0.1
     assert after < 0.25 * before
     np.testing.assert_allclose(solved[0], odo[0], atol=1e-6)  # the first keyframe holds
+    # a loop that says it is weak (its own covariance: 10 rad, 10 m) leaves the chain as it was
+    weak = PoseGraph()
+    weak.add_loop(0, 40, np.linalg.inv(true[0]) @ true[40], covariance=np.eye(6) * 100.0)
+    loose = weak.optimise(odo, segs, odo)
+    assert max(np.linalg.norm(loose[k][:3, 3] - odo[k][:3, 3]) for k in odo) < 0.05 * before

@@ -123,6 +123,10 @@ class OdometryConfig:
     """Candidates geometrically verified per keyframe."""
     loop_min_inliers: int = 25
     """PnP RANSAC inliers needed to accept a loop."""
+    loop_local_keyframes: int = 2
+    """Keyframes on each side of a loop candidate (its segment, placed by the odometry) whose
+    features join the candidate's in the geometric check (a local map, as ORB-SLAM checks a
+    loop against the candidate's covisible keyframes): 0, the candidate alone."""
     loop_cooldown_keyframes: int = 3
     """Keyframes after an accepted loop before the next search."""
     pose_graph_rotation_sigma_rad: float = 0.001

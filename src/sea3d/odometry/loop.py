@@ -7,7 +7,9 @@
   of two L1-normalised vectors is ``sum_w min(a_w, b_w)`` (DBoW2's L1 score, in [0, 1]).
 - :func:`verify_loop`: ORB matches between the query and a candidate, PnP RANSAC of the
   candidate's 3D points (exact, from its refraction-corrected depth) against the query's pixels,
-  then a 3D-3D check of the inliers that have depth in both.
+  then a 3D-3D check of the inliers that have depth in both; the loop carries the covariance of
+  its PnP fit, so a closure whose inliers crowd into a corner of the image (a fit that trades
+  rotation for translation) weighs less in the pose graph than one spread over the view.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ __all__ = [
     "LoopCandidate",
     "PlaceFeatures",
     "Vocabulary",
+    "pnp_covariance",
     "verify_loop",
 ]
 
@@ -224,12 +227,85 @@ class LoopCandidate:
         T_cand_query: 4x4, maps the query's ``rect_left`` points into the candidate's.
         inliers: PnP inliers.
         consistent_3d: inliers whose two 3D points agree after the transform.
+        covariance: (6, 6) covariance of ``T_cand_query`` as ``T_cand_query @ Exp(xi)``,
+            ``xi = (rotation rad, translation m)`` in the query's ``rect_left`` (gtsam's Pose3
+            tangent, as a pose graph edge wants it); None when not known.
     """
 
     candidate: int
     T_cand_query: F64
     inliers: int
     consistent_3d: int
+    covariance: F64 | None = None
+
+
+def _skew(x: F64) -> F64:
+    """``(N, 3)`` vectors to ``(N, 3, 3)`` cross-product matrices."""
+    S = np.zeros((x.shape[0], 3, 3))
+    S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -x[:, 2], x[:, 1], -x[:, 0]
+    return S - S.transpose(0, 2, 1)
+
+
+def _pinhole(X: F64, K: F64) -> tuple[F64, F64]:
+    """Pinhole projections ``(N, 2)`` of points ``X (N, 3)`` and their Jacobians ``(N, 2, 3)``."""
+    x, y, z = X.T
+    fx, fy = float(K[0, 0]), float(K[1, 1])
+    Jp = np.zeros((X.shape[0], 2, 3))
+    Jp[:, 0, 0], Jp[:, 0, 2] = fx / z, -fx * x / z**2
+    Jp[:, 1, 1], Jp[:, 1, 2] = fy / z, -fy * y / z**2
+    return np.stack([fx * x / z + K[0, 2], fy * y / z + K[1, 2]], axis=1), Jp
+
+
+def pnp_covariance(points_query: F64, uv: F64, K: F64) -> F64 | None:
+    """Covariance of a PnP pose from its inliers' reprojection residuals (Gauss-Newton).
+
+    With ``J (2N, 6)`` the Jacobian of the pinhole projections of ``points_query`` with respect
+    to the perturbation ``xi`` of :class:`LoopCandidate` (the query's points move as
+    ``Exp(-xi) @ p``: ``dp/dxi = [[p]_x, -I]``) and ``r`` the residuals, the covariance is
+    ``s^2 (J^T J)^-1`` with ``s^2 = |r|^2 / (2N - 6)`` (Hartley and Zisserman, 2nd ed., 5.2.3).
+    The weak directions of a poorly spread fit (rotation traded for translation) come out as
+    large deviations.
+
+    Args:
+        points_query: (N, 3) inlier points in the query's ``rect_left`` after the fit, metres.
+        uv: (N, 2) their measured query pixels (virtual pinhole).
+        K: (3, 3) virtual-pinhole intrinsics.
+
+    Returns:
+        (6, 6) covariance, or None when the fit has fewer than 4 points or is degenerate.
+    """
+    n = points_query.shape[0]
+    if n < 4 or not (points_query[:, 2] > 0).all():
+        return None
+    proj, Jp = _pinhole(points_query, K)
+    dp = np.concatenate([_skew(points_query), -np.broadcast_to(np.eye(3), (n, 3, 3))], axis=2)
+    J = (Jp @ dp).reshape(2 * n, 6)
+    H = J.T @ J
+    if not np.isfinite(H).all() or np.linalg.cond(H) > 1e12:
+        return None
+    s2 = float(np.sum((proj - uv) ** 2)) / (2 * n - 6)
+    return s2 * np.linalg.inv(H)
+
+
+def _match_places(
+    query: PlaceFeatures, places: list[PlaceFeatures], ratio: float
+) -> tuple[NDArray[np.int64], F64]:
+    """Query feature indices and the 3D points (in the first place's frame) they match: the
+    ratio test within each place, then each query feature's best match over the places."""
+    matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+    best: dict[int, tuple[float, NDArray[np.float32]]] = {}
+    for place in places:
+        if place.descriptors.shape[0] < 2:
+            continue
+        for m in matcher.knnMatch(query.descriptors, place.descriptors, k=2):
+            if len(m) == 2 and m[0].distance < ratio * m[1].distance and m[0].distance < 64:
+                q = m[0].queryIdx
+                if q not in best or m[0].distance < best[q][0]:
+                    best[q] = (float(m[0].distance), place.points_rect[m[0].trainIdx])
+    q_idx = np.asarray(sorted(best), dtype=np.int64)
+    points = (np.asarray([best[q][1] for q in q_idx.tolist()], dtype=np.float64)
+              if q_idx.size else np.zeros((0, 3)))
+    return q_idx, points
 
 
 def verify_loop(
@@ -241,6 +317,7 @@ def verify_loop(
     min_inliers: int,
     threshold_px: float = 2.0,
     ratio: float = 0.8,
+    local_map: list[PlaceFeatures] | None = None,
 ) -> LoopCandidate | None:
     """Geometric verification of a loop candidate.
 
@@ -248,26 +325,26 @@ def verify_loop(
     loop is kept when at least ``min_inliers`` inliers remain and most inliers with depth in both
     keyframes agree in 3D (within 3 cm plus 3 % of their depth).
 
+    ``local_map``: the candidate's neighbouring keyframes' features with their points moved into
+    the candidate's frame (by the odometry between them): the query is matched against each
+    place apart (the ratio test within one place) and each query feature keeps its best match,
+    so the inliers cover the part of the view that the candidate alone missed, as ORB-SLAM
+    verifies a loop against the candidate's covisible map rather than one keyframe.
+
     Returns:
         A :class:`LoopCandidate`, or None when the geometry does not hold.
     """
     if query.descriptors.shape[0] < min_inliers or cand.descriptors.shape[0] < min_inliers:
         return None
-    matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
-    knn = matcher.knnMatch(query.descriptors, cand.descriptors, k=2)
-    qi, ci = [], []
-    for m in knn:
-        if len(m) == 2 and m[0].distance < ratio * m[1].distance and m[0].distance < 64:
-            qi.append(m[0].queryIdx)
-            ci.append(m[0].trainIdx)
-    if len(qi) < min_inliers:
+    places = [cand, *(local_map or [])]
+    q_idx, points = _match_places(query, places, ratio)
+    if len(q_idx) < min_inliers:
         return None
-    q_idx, c_idx = np.asarray(qi), np.asarray(ci)
-    P = cand.points_rect[c_idx].astype(np.float64)
+    P = points
     ok = np.isfinite(P).all(axis=1)
     if ok.sum() < min_inliers:
         return None
-    q_idx, c_idx, P = q_idx[ok], c_idx[ok], P[ok]
+    q_idx, P = q_idx[ok], P[ok]
     uv = query.uv[q_idx].astype(np.float64)
     try:
         found, rvec, tvec, inl = cv2.solvePnPRansac(
@@ -307,5 +384,9 @@ def verify_loop(
     T_cq[:3, :3] = R.T
     T_cq[:3, 3] = -R.T @ T_qc[:3, 3]
     return LoopCandidate(
-        candidate=cand_id, T_cand_query=T_cq, inliers=int(inl.size), consistent_3d=consistent
+        candidate=cand_id,
+        T_cand_query=T_cq,
+        inliers=int(inl.size),
+        consistent_3d=consistent,
+        covariance=pnp_covariance(moved, uv[inl], K),
     )

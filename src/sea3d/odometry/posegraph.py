@@ -2,7 +2,10 @@
 
 Nodes are keyframe poses ``T_world_rect``. Consecutive keyframes of one segment are joined by
 the relative pose the smoother estimated; a loop adds the verified relative pose with a Cauchy
-kernel, so one wrong loop cannot drag the map. The first segment's first keyframe is held
+kernel, so one wrong loop cannot drag the map. A loop that comes with the covariance of its own
+fit (a PnP loop: :attr:`~sea3d.odometry.loop.LoopCandidate.covariance`) is weighted by it, plus
+the fixed loop deviations as a floor for what the fit does not see; one without is weighted by
+the fixed deviations alone. The first segment's first keyframe is held
 (the world's gauge); every later segment's first keyframe has only a loose prior, so segments
 started after a tracking loss float until a loop joins them. Solved by gtsam's
 Levenberg-Marquardt whenever a loop is added.
@@ -28,6 +31,7 @@ class _Loop:
     a: int
     b: int
     T_a_b: F64
+    covariance: F64 | None = None
 
 
 @dataclass
@@ -37,7 +41,8 @@ class PoseGraph:
     Attributes:
         rotation_sigma_rad, translation_sigma_m: odometry edge standard deviations at rest.
         drift_per_m: growth of the odometry edge deviations per metre (and radian) moved.
-        loop_rotation_sigma_rad, loop_translation_sigma_m: loop edge standard deviations.
+        loop_rotation_sigma_rad, loop_translation_sigma_m: loop edge standard deviations (added
+            to a loop's own covariance when it has one).
         loop_kernel: Cauchy threshold of the loop edges, in standard deviations.
     """
 
@@ -61,9 +66,25 @@ class PoseGraph:
         sr = self.rotation_sigma_rad + self.drift_per_m * (angle + dist)
         return gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sr] * 3, [st] * 3])
 
-    def add_loop(self, a: int, b: int, T_a_b: F64) -> None:
-        """A loop edge: keyframe ``b``'s pose in keyframe ``a``'s frame."""
-        self.loops.append(_Loop(a, b, np.asarray(T_a_b, dtype=np.float64)))
+    def add_loop(self, a: int, b: int, T_a_b: F64, covariance: F64 | None = None) -> None:
+        """A loop edge: keyframe ``b``'s pose in keyframe ``a``'s frame, optionally with the
+        (6, 6) covariance of its measurement as ``T_a_b @ Exp(xi)``, ``xi = (rotation rad,
+        translation m)`` in ``b`` (gtsam's Pose3 tangent)."""
+        cov = None if covariance is None else np.asarray(covariance, dtype=np.float64)
+        self.loops.append(_Loop(a, b, np.asarray(T_a_b, dtype=np.float64), cov))
+
+    def _loop_noise(self, lp: _Loop) -> Any:
+        """Cauchy-robust loop edge noise: the fixed deviations, plus the loop's covariance."""
+        import gtsam
+
+        floor = np.r_[[self.loop_rotation_sigma_rad] * 3, [self.loop_translation_sigma_m] * 3]
+        base: Any = gtsam.noiseModel.Diagonal.Sigmas(floor)
+        if lp.covariance is not None:
+            cov = 0.5 * (lp.covariance + lp.covariance.T) + np.diag(floor**2)
+            base = gtsam.noiseModel.Gaussian.Covariance(cov)
+        return gtsam.noiseModel.Robust.Create(
+            gtsam.noiseModel.mEstimator.Cauchy.Create(self.loop_kernel), base
+        )
 
     def optimise(
         self,
@@ -85,12 +106,6 @@ class PoseGraph:
 
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
-        loop_noise = gtsam.noiseModel.Robust.Create(
-            gtsam.noiseModel.mEstimator.Cauchy.Create(self.loop_kernel),
-            gtsam.noiseModel.Diagonal.Sigmas(
-                np.r_[[self.loop_rotation_sigma_rad] * 3, [self.loop_translation_sigma_m] * 3]
-            ),
-        )
         held = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[1e-6] * 3, [1e-6] * 3])
         loose = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[3.0] * 3, [100.0] * 3])
         ids = sorted(odometry)
@@ -110,7 +125,8 @@ class PoseGraph:
             prev_of[s] = k
         for lp in self.loops:
             if lp.a in odometry and lp.b in odometry:
-                graph.add(gtsam.BetweenFactorPose3(lp.a, lp.b, gtsam.Pose3(lp.T_a_b), loop_noise))
+                noise = self._loop_noise(lp)
+                graph.add(gtsam.BetweenFactorPose3(lp.a, lp.b, gtsam.Pose3(lp.T_a_b), noise))
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(50)
         result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()

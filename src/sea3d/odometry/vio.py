@@ -1140,7 +1140,8 @@ class StereoInertialOdometry:
             if other.place is None:
                 continue
             found = verify_loop(
-                kf.place, other.place, q, self.geometry.K, min_inliers=c.loop_min_inliers
+                kf.place, other.place, q, self.geometry.K, min_inliers=c.loop_min_inliers,
+                local_map=self._local_map(q),
             )
             if found is not None:
                 break
@@ -1159,6 +1160,27 @@ class StereoInertialOdometry:
         self._close_loop(found, k, relink=relink)
         seg.loops_since = 0
         return True, joined
+
+    def _local_map(self, q: int) -> list[PlaceFeatures]:
+        """Places of keyframe ``q``'s neighbours in its segment (``loop_local_keyframes`` on
+        each side), their points moved into ``q``'s frame by the poses between them."""
+        n = self.config.loop_local_keyframes
+        if n <= 0:
+            return []
+        cand = self._keyframes[q]
+        same = [o for o in self._kf_order if self._keyframes[o].segment == cand.segment]
+        i = same.index(q)
+        T_q_world = invert_T(cand.T_world_rect)
+        out = []
+        for o in same[max(0, i - n): i] + same[i + 1: i + 1 + n]:
+            place = self._keyframes[o].place
+            if place is None or place.descriptors.shape[0] == 0:
+                continue
+            T = T_q_world @ self._keyframes[o].T_world_rect
+            P = place.points_rect.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+            out.append(PlaceFeatures(uv=place.uv, descriptors=place.descriptors,
+                                     points_rect=P.astype(np.float32)))
+        return out
 
     def _train_vocabulary(self, kf_ids: list[int]) -> None:
         c = self.config
@@ -1193,7 +1215,7 @@ class StereoInertialOdometry:
         )
 
     def _close_loop(self, loop: LoopCandidate, k: int, *, relink: bool = False) -> None:
-        self._graph.add_loop(loop.candidate, k, loop.T_cand_query)
+        self._graph.add_loop(loop.candidate, k, loop.T_cand_query, loop.covariance)
         odometry = {q: kf.T_odom for q, kf in self._keyframes.items()}
         segments = {q: kf.segment for q, kf in self._keyframes.items()}
         initial = {q: kf.T_world_rect for q, kf in self._keyframes.items()}
