@@ -5,7 +5,8 @@ stage, on a worker) runs on as many frames as it keeps up with: a frame gets no 
 own when ``depth_in_flight`` depth frames are still computing, or, with
 ``depth_max_backlog`` set, when it is stale, i.e. more frames than that already wait behind
 it for the odometry (its depth would be fused late; the worker's core is left to the
-odometry until it catches up). Such a frame is only rectified, the odometry takes the
+odometry until it catches up), once a depth frame has been started (before that no depth map
+exists to seed a frame without its own). Such a frame is only rectified, the odometry takes the
 latest depth map as its stereo seeds (the row search refines them), and fusion skips it
 (``no-depth`` in status.csv). The drops are counted (``depth_dropped``, of which
 ``depth_stale``).
@@ -61,7 +62,8 @@ class LiveConfig:
     """Depth frames computing at once; a frame arriving when that many are busy gets none."""
     depth_max_backlog: int | None = None
     """A frame gets depth only while at most this many frames, itself included, wait in the
-    source for the live loop (the source's ``backlog``): an older one is stale. None: any
+    source for the live loop (the source's ``backlog``): an older one is stale (not before
+    the first depth frame has been started: there is nothing to seed it from). None: any
     (the default: on a loop that falls behind, 1 fused 3.8 % of the 80-frame dive at p50
     2.5 s instead of 17.5 % at 6.1 s; docs/reconstruction.md)."""
 
@@ -477,6 +479,7 @@ def run_live(frames: Iterable[LiveFrame], stage: FrameStageConfig, stereo: Any,
                                 type(err).__name__, err)
                     hook.clear()
 
+    started_depth = False
     for frame in frames:
         taken = time.monotonic()
         arrival = taken if frame.arrival_s is None else frame.arrival_s
@@ -485,9 +488,11 @@ def run_live(frames: Iterable[LiveFrame], stage: FrameStageConfig, stereo: Any,
         backlog = int(getattr(frames, "backlog", 0) or 0)
         stats.backlog_max = max(stats.backlog_max, backlog)
         busy = sum(1 for p in queue if p.future is not None and not p.future.done())
-        stale = cfg.depth_max_backlog is not None and backlog > cfg.depth_max_backlog
+        stale = (cfg.depth_max_backlog is not None and backlog > cfg.depth_max_backlog
+                 and started_depth)
         entry = _Pending(frame=frame, arrival=arrival)
         if busy < cfg.depth_in_flight and not stale:
+            started_depth = True
             entry.submitted = time.monotonic()
             entry.future = executor.submit(process_frame, stage, frame.t_ns, frame.left,
                                            frame.right, shared)
