@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.errors import StereoError
+from sea3d.io._atomic import atomic_open, atomic_path
 
 __all__ = [
     "DepthGrid",
@@ -244,7 +245,7 @@ def write_pfm(path: str | Path, image: np.ndarray) -> None:
     h, w = arr.shape[:2]
     data = np.ascontiguousarray(arr[::-1]).astype("<f4")
     try:
-        with open(path, "wb") as fh:
+        with atomic_open(path, "wb", fsync=False) as fh:
             fh.write(kind + b"\n" + f"{w} {h}\n".encode() + b"-1.0\n")
             fh.write(data.tobytes())
     except OSError as err:
@@ -367,16 +368,16 @@ def write_disparity(path: str | Path, disparity: np.ndarray) -> None:
     if suffix == ".pfm":
         write_pfm(p, d)
         return
+    if suffix not in (".npy", ".tif", ".tiff"):
+        raise StereoError(
+            f"unknown disparity output type {suffix!r} ({p}); use .pfm, .npy or .tiff"
+        )
     try:
-        if suffix == ".npy":
-            np.save(p, d)
-        elif suffix in (".tif", ".tiff"):
-            if not cv2.imwrite(str(p), d):
+        with atomic_path(p, fsync=False) as tmp:
+            if suffix == ".npy":
+                np.save(tmp, d)
+            elif not cv2.imwrite(str(tmp), d):
                 raise StereoError(f"OpenCV could not write {p}")
-        else:
-            raise StereoError(
-                f"unknown disparity output type {suffix!r} ({p}); use .pfm, .npy or .tiff"
-            )
     except OSError as err:
         raise StereoError(f"cannot write {p}: {err}") from err
 
@@ -393,8 +394,12 @@ def write_depth_png_mm(path: str | Path, depth_m: np.ndarray) -> None:
         mm = np.round(z * 1000.0)
         ok = np.isfinite(mm) & (mm > 0) & (mm <= 65535)
     out = np.where(ok, mm, 0).astype(np.uint16)
-    if not cv2.imwrite(str(path), out):
-        raise StereoError(f"cannot write 16-bit PNG {path}")
+    try:
+        with atomic_path(path, fsync=False) as tmp:
+            if not cv2.imwrite(str(tmp), out):
+                raise StereoError(f"cannot write 16-bit PNG {path}")
+    except OSError as err:
+        raise StereoError(f"cannot write 16-bit PNG {path}: {err}") from err
 
 
 def read_depth_png_mm(path: str | Path) -> NDArray[np.float32]:
@@ -524,7 +529,7 @@ def write_ply(path: str | Path, points: np.ndarray, colors_rgb: np.ndarray | Non
         header += ["property uchar red", "property uchar green", "property uchar blue"]
     header.append("end_header")
     try:
-        with open(path, "wb") as fh:
+        with atomic_open(path, "wb") as fh:
             fh.write(("\n".join(header) + "\n").encode("ascii"))
             fh.write(rec.tobytes())
     except OSError as err:

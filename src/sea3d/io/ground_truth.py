@@ -113,13 +113,16 @@ def write_gt_depth(path: str | os.PathLike[str], depth_m: NDArray[np.float32]) -
     """
     import tifffile
 
-    tifffile.imwrite(
-        Path(path),
-        np.ascontiguousarray(depth_m, dtype=np.float32),
-        compression="zlib",
-        predictor=3,
-        compressionargs={"level": _GT_DEPTH_ZLIB_LEVEL},
-    )
+    # Atomic (a crash never leaves half a map under the final name); not synced: a lost
+    # map is rendered again.
+    with atomic_path(path, fsync=False) as tmp:
+        tifffile.imwrite(
+            tmp,
+            np.ascontiguousarray(depth_m, dtype=np.float32),
+            compression="zlib",
+            predictor=3,
+            compressionargs={"level": _GT_DEPTH_ZLIB_LEVEL},
+        )
 
 
 def read_gt_depth(path: str | os.PathLike[str]) -> NDArray[np.float32]:
