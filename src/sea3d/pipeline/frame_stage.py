@@ -325,8 +325,10 @@ def process_frame(config: FrameStageConfig, t_ns: int, left: NDArray[Any],
             timings["enhance_s"] = time.perf_counter() - te
         res = stereo.compute(left, right)
         tr = time.perf_counter()
-        rect_right = cv2.remap(right, maps.map_right_x, maps.map_right_y, cv2.INTER_LINEAR,
-                               borderMode=cv2.BORDER_CONSTANT)
+        # the matcher's own rectified right view (the same remap), else remapped here
+        rect_right = res.rect_right if res.rect_right is not None else cv2.remap(
+            right, maps.map_right_x, maps.map_right_y, cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT)
         timings["rectify_right_s"] = time.perf_counter() - tr
         timings.update({k: float(v) for k, v in res.timings_s.items()})
     except Sea3dError as err:

@@ -107,9 +107,11 @@ class RayTables:
 
 @njit(parallel=True, cache=True)
 def _triangulate_kernel(disp: F32, lo: F32, ld: F32, ro: F32, rd: F32, rz: F64,
-                        max_gap: float, points: F64, depth: F64) -> None:  # pragma: no cover
+                        max_gap: float, max_depth: float, points: F64, depth: F64,
+                        counts: NDArray[np.int64]) -> None:  # pragma: no cover
     h, w = disp.shape
     for v in prange(h):
+        counts[v] = 0
         for u in range(w):
             d = disp[v, u]
             points[v, u, 0] = np.nan
@@ -169,14 +171,39 @@ def _triangulate_kernel(disp: F32, lo: F32, ld: F32, ro: F32, rd: F32, rz: F64,
             px = 0.5 * (pax + pbx)
             py = 0.5 * (pay + pby)
             pz = 0.5 * (paz + pbz)
+            z = rz[0] * px + rz[1] * py + rz[2] * pz
+            if np.float32(z) > max_depth:
+                continue
             points[v, u, 0] = px
             points[v, u, 1] = py
             points[v, u, 2] = pz
-            depth[v, u] = rz[0] * px + rz[1] * py + rz[2] * pz
+            depth[v, u] = z
+            counts[v] += 1
+
+
+@njit(parallel=True, cache=True)
+def _compact_kernel(points: F64, depth: F64, starts: NDArray[np.int64], out_points: F64,
+                    out_depth: F64, mask: NDArray[np.bool_]) -> None:  # pragma: no cover
+    """The valid pixels' points and depths in row-major order (``points[mask]`` without
+    numpy's boolean indexing: 4 ms of CPU at 640x360 against under 1 ms), rows in parallel
+    from their ``starts``."""
+    h, w = depth.shape
+    for v in prange(h):
+        i = starts[v]
+        for u in range(w):
+            z = depth[v, u]
+            if z == z:
+                out_points[i, 0] = points[v, u, 0]
+                out_points[i, 1] = points[v, u, 1]
+                out_points[i, 2] = points[v, u, 2]
+                out_depth[i] = z
+                mask[v, u] = True
+                i += 1
 
 
 def triangulate_with_tables(
-    tables: RayTables, disparity_px: np.ndarray, *, max_gap_m: float = 0.01
+    tables: RayTables, disparity_px: np.ndarray, *, max_gap_m: float = 0.01,
+    max_depth_m: float | None = None,
 ) -> tuple[F64, F64, NDArray[np.bool_]]:
     """Triangulate every valid disparity with the rig's true rays, from the tables.
 
@@ -186,6 +213,8 @@ def triangulate_with_tables(
         tables: :meth:`RayTables.from_maps` of the rectification the disparity lives on.
         disparity_px: (H, W) float in the rectified left view, NaN (or <= 0) invalid.
         max_gap_m: matches whose rays pass farther apart than this are dropped, metres.
+        max_depth_m: matches whose depth (as float32) exceeds this are dropped (None keeps
+            all).
 
     Returns:
         ``points_left`` (N, 3) float64 metres in the left camera frame, ``depth_rect`` (N,)
@@ -202,8 +231,16 @@ def triangulate_with_tables(
     h, w = d.shape
     points = np.empty((h, w, 3), np.float64)
     depth = np.empty((h, w), np.float64)
+    counts = np.empty(h, np.int64)
+    far = np.inf if max_depth_m is None else float(max_depth_m)
     _triangulate_kernel(d, tables.left_origins, tables.left_directions, tables.right_origins,
-                        tables.right_directions, tables.rect_z_left, float(max_gap_m), points,
-                        depth)
-    mask = np.isfinite(depth)
-    return points[mask], depth[mask], mask
+                        tables.right_directions, tables.rect_z_left, float(max_gap_m), far,
+                        points, depth, counts)
+    starts = np.zeros(h + 1, np.int64)
+    np.cumsum(counts, out=starts[1:])
+    n = int(starts[-1])
+    out_points = np.empty((n, 3), np.float64)
+    out_depth = np.empty(n, np.float64)
+    mask = np.zeros((h, w), np.bool_)
+    _compact_kernel(points, depth, starts, out_points, out_depth, mask)
+    return out_points, out_depth, mask
