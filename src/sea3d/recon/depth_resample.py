@@ -161,6 +161,7 @@ def virtual_pinhole_depth(
     focal_baseline_px_m: float | None = None,
     edge_disparity_px: float = 1.0,
     edge_rel: float = 0.02,
+    rotation: F64 | None = None,
 ) -> F32:
     """The depth image a pinhole TSDF integration needs for exactly triangulated points.
 
@@ -178,6 +179,9 @@ def virtual_pinhole_depth(
         edge_disparity_px: see above.
         edge_rel: without ``focal_baseline_px_m``, edges are steps of more than this fraction
             of the inverse depth.
+        rotation: (3, 3) when given, ``points_rect`` are in another frame and the rectified
+            points are ``rotation @ p`` (``resample`` rotates each point as it reads it: no
+            rotated copy of the cloud; the other methods rotate the cloud first).
 
     Returns:
         (H, W) float32 metres, NaN invalid.
@@ -195,7 +199,12 @@ def virtual_pinhole_depth(
     K = np.asarray(K, dtype=np.float64)
     h, w = depth.shape
     pts = np.asarray(points_rect, dtype=np.float64)
+    R = np.eye(3) if rotation is None else np.asarray(rotation, dtype=np.float64)
+    if R.shape != (3, 3):
+        raise ReconError(f"rotation must be (3, 3), got {R.shape}")
     if method == "raster":
+        if rotation is not None:
+            pts = np.einsum("ij,kj->ki", R, pts)
         valid = np.isfinite(depth)
         if pts.shape != (int(valid.sum()), 3):
             raise ReconError(f"{len(pts)} points for {int(valid.sum())} valid depth pixels")
@@ -223,14 +232,14 @@ def virtual_pinhole_depth(
             scale = 1.0 / float(np.nanmedian(1.0 / depth)) if np.isfinite(depth).any() else 1.0
         edges = _edge_cells(depth, scale, edge_rel)
     out: F32 = _resample_kernel(np.ascontiguousarray(depth), np.ascontiguousarray(pts),
-                                float(K[0, 0]), float(K[0, 1]), float(K[0, 2]),
-                                float(K[1, 1]), float(K[1, 2]), edges)
+                                np.ascontiguousarray(R), float(K[0, 0]), float(K[0, 1]),
+                                float(K[0, 2]), float(K[1, 1]), float(K[1, 2]), edges)
     return out
 
 
 @njit(cache=True, error_model="numpy")
-def _resample_kernel(depth: F32, pts: F64, fx: float, skew: float, cx: float, fy: float,
-                     cy: float, edges: NDArray[np.bool_]) -> F32:
+def _resample_kernel(depth: F32, pts: F64, R: F64, fx: float, skew: float, cx: float,
+                     fy: float, cy: float, edges: NDArray[np.bool_]) -> F32:
     """The ``resample`` method in one pass (module docstring): pixel ``(u, v)`` whose exact
     point projects to ``(u + du, v + dv)`` reads the depth map at ``(u - du, v - dv)``,
     bilinearly where the whole 2x2 cell is valid and inside the image, else the nearest
@@ -245,8 +254,11 @@ def _resample_kernel(depth: F32, pts: F64, fx: float, skew: float, cx: float, fy
             z0 = depth[y, x]
             if not np.isfinite(z0):
                 continue
-            px, py, pz = pts[i, 0], pts[i, 1], pts[i, 2]
+            ax, ay, az = pts[i, 0], pts[i, 1], pts[i, 2]
             i += 1
+            px = R[0, 0] * ax + R[0, 1] * ay + R[0, 2] * az
+            py = R[1, 0] * ax + R[1, 1] * ay + R[1, 2] * az
+            pz = R[2, 0] * ax + R[2, 1] * ay + R[2, 2] * az
             mx = np.float32(x) - np.float32(fx * px / pz + skew * py / pz + cx - x)
             my = np.float32(y) - np.float32(fy * py / pz + cy - y)
             if not (np.isfinite(mx) and np.isfinite(my)):
