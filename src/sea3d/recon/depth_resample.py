@@ -29,7 +29,6 @@ from __future__ import annotations
 
 from typing import Literal
 
-import cv2
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray

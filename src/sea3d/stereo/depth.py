@@ -32,7 +32,7 @@ from sea3d.geometry.camera import Rays
 from sea3d.geometry.triangulate import triangulate_midpoint
 from sea3d.rectify.maps import RectifyMaps, rectify_images
 from sea3d.stereo.engine import EngineConfig, match
-from sea3d.stereo.triangulation import RayTables, triangulate_with_tables
+from sea3d.stereo.triangulation import RayTables, triangulate_frame, triangulate_with_tables
 
 __all__ = [
     "DepthResult",
@@ -269,17 +269,23 @@ def compute_depth(
     disp = res.disparity_px
     h, w = disp.shape
     keep = res.confidence >= min_confidence if min_confidence > 0 else np.isfinite(disp)
-    # depth beyond max_depth_m is left out with the triangulation (one pass, no second
-    # compaction of the points)
-    points, z, mask = disparity_to_points(maps, np.where(keep, disp, np.nan), tables=tables,
-                                          max_depth_m=max_depth_m)
-    depth: F32 = np.full((h, w), np.nan, np.float32)
-    depth[mask] = z
     img = rl if rl.ndim == 3 else np.repeat(rl[..., None], 3, axis=2)
     if img.dtype != np.uint8:
         top = float(img.max()) or 1.0
         img = np.clip(img * (255.0 / top), 0, 255).astype(np.uint8)
-    colors = img[mask]
+    kept = np.where(keep, disp, np.nan)
+    # depth beyond max_depth_m is left out with the triangulation (one pass, no second
+    # compaction of the points); refractive rigs gather depth map and colours in it too
+    if maps.refractive and maps.rig is not None:
+        points, depth, mask, colors = triangulate_frame(
+            tables if tables is not None else ray_tables(maps), kept, img,
+            max_depth_m=max_depth_m)
+    else:
+        points, z, mask = disparity_to_points(maps, kept, tables=tables,
+                                              max_depth_m=max_depth_m)
+        depth = np.full((h, w), np.nan, np.float32)
+        depth[mask] = z
+        colors = img[mask]
     t3 = time.perf_counter()
     timings = {"rectify_s": t1 - t0, "match_s": res.timings_s.get("match_s", t2 - t1),
                "depth_s": t3 - t2}
