@@ -243,8 +243,10 @@ def _resample_kernel(depth: F32, pts: F64, R: F64, fx: float, skew: float, cx: f
     point projects to ``(u + du, v + dv)`` reads the depth map at ``(u - du, v - dv)``,
     bilinearly where the whole 2x2 cell is valid and inside the image, else the nearest
     sample inside the image, else its own value; dropped where its cell is an edge cell.
-    Measured at 640x360 (dome rig): 2.5 ms of CPU against 19 ms for the same steps in numpy
-    and two OpenCV remaps (whose 1/32-pixel fixed-point weights it does not round to)."""
+    Measured on 640x360 frames of the simulated dive (dome rig, the machine loaded): 5 ms of
+    CPU against 12 ms for the same steps in numpy and two OpenCV remaps; it interpolates
+    with exact weights where OpenCV rounds them to 1/32 px (median difference 0.03 mm, the
+    same pixels kept)."""
     h, w = depth.shape
     out = np.full((h, w), np.nan, np.float32)
     i = 0
