@@ -61,6 +61,28 @@ def test_resampling_puts_each_point_on_its_pinhole_ray():
     assert np.abs(as_is - truth).max() > 10 * RESAMPLE_TOL_M
 
 
+def test_points_in_another_frame_are_rotated_as_they_are_read():
+    # the pipeline hands over the points in the left camera frame and the rotation into the
+    # rectified frame; the result is that of the rotated points, for every method
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    # sub-pixel offsets that stay clear of the rounding boundaries of the raster (+-0.5 px)
+    pts = _plane_points(u + 0.3 * np.sin(u / 30.0) + 0.17, v + 0.21).reshape(-1, 3)
+    depth = pts[:, 2].reshape(H, W).astype(np.float32)
+    c, s_ = np.cos(0.2), np.sin(0.2)
+    R = np.array([[c, 0.0, s_], [0.0, 1.0, 0.0], [-s_, 0.0, c]])  # rectified <- other
+    other = pts @ R  # R^T p: the points in the other frame
+    for method in ("resample", "raster"):
+        want = virtual_pinhole_depth(depth, pts, K, method=method)
+        got = virtual_pinhole_depth(depth, other, K, method=method, rotation=R)
+        assert np.array_equal(np.isfinite(got), np.isfinite(want))
+        np.testing.assert_allclose(got[np.isfinite(got)], want[np.isfinite(want)], atol=1e-6)
+    unrotated = virtual_pinhole_depth(depth, other, K)
+    ok = np.isfinite(unrotated) & np.isfinite(want)
+    assert np.abs(unrotated[ok] - want[ok]).max() > 100 * 1e-6  # the rotation matters
+    with pytest.raises(ReconError, match="rotation"):
+        virtual_pinhole_depth(depth, pts, K, rotation=np.eye(4))
+
+
 def test_no_interpolation_across_a_depth_edge():
     v, u = np.mgrid[0:H, 0:W].astype(np.float64)
     z = np.where(u < W / 2, 1.0, 2.0)

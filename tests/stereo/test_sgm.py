@@ -238,7 +238,8 @@ def test_coarse_trial_keeps_the_band_on_smooth_depth_and_searches_in_full_at_ste
     assert choose_pyramid_levels(160, 320, 80, cfg) == 0  # inside the full-search budget
     res = match(left, right, cfg)
     full = match(left, right, SgmConfig(max_disparity_px=79, pyramid_levels=0))
-    assert res.timings_s["pyramid_levels"] == 1  # smooth: the trial's band is kept
+    # smooth: the trial's band is kept (two coarser levels: 20 disparities at a quarter size)
+    assert res.timings_s["pyramid_levels"] == 2
     assert res.timings_s["trial_step_fraction"] < cfg.trial_step_fraction
     err, density = _errors(res.disparity_px, d_true, margin_px=64)
     err_full, _ = _errors(full.disparity_px, d_true, margin_px=64)

@@ -16,7 +16,7 @@ from _rigs import real_sea3d_rig
 from sea3d.errors import StereoError
 from sea3d.rectify import rectify_rig
 from sea3d.stereo.depth import disparity_to_points, ray_tables, triangulate_disparity
-from sea3d.stereo.triangulation import RayTables, triangulate_with_tables
+from sea3d.stereo.triangulation import RayTables, triangulate_frame, triangulate_with_tables
 
 DEPTH_REL_TOL = 1e-4
 SIZE = (320, 180)
@@ -76,6 +76,28 @@ def test_disparity_to_points_uses_tables_built_once(rng):
     _p2, z2, m2 = triangulate_with_tables(t, d)
     np.testing.assert_array_equal(m1, m2)
     np.testing.assert_array_equal(z1, z2)
+
+
+def test_one_pass_frame_triangulation_gathers_depth_map_and_colours(rng):
+    maps = rectify_rig(real_sea3d_rig("dome", SIZE), depth_range_m=(0.5, 4.0))
+    t = ray_tables(maps)
+    d = _disparity(maps, rng)
+    img = rng.integers(0, 256, (maps.height, maps.width, 3), dtype=np.uint8)
+    far = 2.5
+    p1, z1, m1 = triangulate_with_tables(t, d)
+    p2, depth, m2, colours = triangulate_frame(t, d, img, max_depth_m=far)
+    near = m1.copy()
+    near[m1] = z1.astype(np.float32) <= far  # the far ones are left out, nothing else
+    assert 0 < near.sum() < m1.sum()
+    np.testing.assert_array_equal(m2, near)
+    np.testing.assert_array_equal(p2, p1[near[m1]])
+    np.testing.assert_array_equal(colours, img[m2])
+    want = np.full(d.shape, np.nan, np.float32)
+    want[m1] = z1
+    want[~near] = np.nan
+    np.testing.assert_array_equal(depth, want)
+    with pytest.raises(StereoError, match="image"):
+        triangulate_frame(t, d, img[:, :-1])
 
 
 def test_tables_refuse_a_disparity_of_another_size():

@@ -188,7 +188,12 @@ def _sweep_block(
                 mq = mins[j]
                 # the predecessor's entries, read ``off`` entries along when the band moved
                 ip = rd + j * ll + off - 1
-                if accumulate:
+                if kp == LANES:  # most pixels of a band search: one vector step
+                    if accumulate:
+                        m = path_step16_add(state, ip, cf, cb, sw, tf, cb, p1, mq + pe, mq)
+                    else:
+                        m = path_step16_set(state, ip, cf, cb, sw, tf, cb, p1, mq + pe, mq)
+                elif accumulate:
                     m = path_step16_add(state, ip, cf, cb, sw, tf, cb, p1, mq + pe, mq)
                     for c in range(LANES, kp, LANES):
                         m = min(m, path_step16_add(state, ip + c, cf, cb + c, sw + c, tf,
@@ -204,6 +209,62 @@ def _sweep_block(
                 for k in range(kp, extent[e]):
                     state[sw + k] = _INF
             extent[e] = kp
+
+
+@njit(cache=True)
+def _sweep_block1(
+    cf: np.ndarray, lof: np.ndarray, gf: np.ndarray, tf: np.ndarray, p1: int,
+    p2_lut: np.ndarray, p0: int, so: int, si: int, n_outer: int, n_inner: int, s: int, b0: int,
+    nb: int, accumulate: bool,
+) -> None:
+    """:func:`_sweep_block` where every pixel's band is one chunk (``offs[p] = 16 p``): no
+    per-pixel band widths to read, no chunk loop and no stale entries to clear."""
+    k_max = LANES
+    pad = k_max + 2
+    ll = 3 * k_max + 4
+    state = np.full(2 * nb * ll, _INF, np.int16)
+    mins = np.zeros(nb, np.int64)
+    alive = np.zeros(nb, np.bool_)
+    back = so + s * si
+    for o in range(n_outer):
+        i_first = b0 + s * o
+        j0 = min(max(0, -i_first), nb)
+        j1 = max(min(nb, n_inner - i_first), j0)
+        if s != 0:
+            for j in range(0, j0):
+                alive[j] = False
+            for j in range(j1, nb):
+                alive[j] = False
+        par = o & 1
+        rd = (1 - par) * nb * ll + pad
+        wr = par * nb * ll + pad
+        p_row = p0 + o * so + i_first * si
+        for j in range(j0, j1):
+            p = p_row + j * si
+            cb = p * LANES
+            sw = wr + j * ll
+            if not alive[j]:
+                m = _INF
+                for k in range(LANES):
+                    v = np.int16(cf[cb + k])
+                    state[sw + k] = v
+                    if accumulate:
+                        tf[cb + k] += v
+                    else:
+                        tf[cb + k] = v
+                    m = min(m, int(v))
+                alive[j] = True
+            else:
+                q = p - back
+                off = min(max(load_at(lof, p) - load_at(lof, q), -k_max - 1), k_max + 1)
+                pe = load_at(p2_lut, abs(np.int32(load_at(gf, p)) - np.int32(load_at(gf, q))))
+                mq = mins[j]
+                ip = rd + j * ll + off - 1
+                if accumulate:
+                    m = path_step16_add(state, ip, cf, cb, sw, tf, cb, p1, mq + pe, mq)
+                else:
+                    m = path_step16_set(state, ip, cf, cb, sw, tf, cb, p1, mq + pe, mq)
+            mins[j] = m
 
 
 @njit(parallel=True, cache=True)
@@ -225,6 +286,11 @@ def sweep(
     span = abs(s) * (n_outer - 1)
     n_groups = (n_inner + span + group - 1) // group
     base = -span if s > 0 else 0
+    if k_max == LANES:  # one chunk everywhere (a band search on smooth depth)
+        for g in prange(n_groups):
+            _sweep_block1(cf, lof, gf, tf, p1, p2_lut, p0, so, si, n_outer, n_inner, s,
+                          base + g * group, group, accumulate)
+        return
     for g in prange(n_groups):
         _sweep_block(cf, lof, ncf, offs, k_max, gf, tf, p1, p2_lut, p0, so, si, n_outer,
                      n_inner, s, base + g * group, group, accumulate)

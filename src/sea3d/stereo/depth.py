@@ -32,7 +32,7 @@ from sea3d.geometry.camera import Rays
 from sea3d.geometry.triangulate import triangulate_midpoint
 from sea3d.rectify.maps import RectifyMaps, rectify_images
 from sea3d.stereo.engine import EngineConfig, match
-from sea3d.stereo.triangulation import RayTables, triangulate_with_tables
+from sea3d.stereo.triangulation import RayTables, triangulate_frame, triangulate_with_tables
 
 __all__ = [
     "DepthResult",
@@ -164,7 +164,7 @@ def ray_tables(maps: RectifyMaps) -> RayTables:
 
 def disparity_to_points(
     maps: RectifyMaps, disparity_px: np.ndarray, *, max_gap_m: float = 0.01,
-    tables: RayTables | None = None,
+    tables: RayTables | None = None, max_depth_m: float | None = None,
 ) -> tuple[F64, F64, NDArray[np.bool_]]:
     """Metric points of a rectified left disparity map, for any rig.
 
@@ -172,6 +172,7 @@ def disparity_to_points(
     rectified pinhole and rotated into the left camera's own frame (``R_rect_left_left^T``).
     Refractive rigs: the true rays, from the ray tables (``tables``, else
     :func:`ray_tables` of ``maps``), as :func:`triangulate_disparity` computes them per pixel.
+    Points whose depth (float32) exceeds ``max_depth_m`` are left out (None keeps all).
 
     Returns:
         ``points_left`` (N, 3) metres in the left camera frame, ``depth_rect`` (N,) metres along
@@ -189,8 +190,11 @@ def disparity_to_points(
             raise StereoError("these rectification maps carry no rig; build them with "
                               "rectify_rig")
         return triangulate_with_tables(tables if tables is not None else ray_tables(maps), d,
-                                       max_gap_m=max_gap_m)
+                                       max_gap_m=max_gap_m, max_depth_m=max_depth_m)
     depth = disparity_to_depth(d, maps.focal_px, maps.baseline_m)
+    if max_depth_m is not None:
+        with np.errstate(invalid="ignore"):
+            depth[depth > max_depth_m] = np.nan
     mask = np.isfinite(depth)
     v, u = np.nonzero(mask)
     z = depth[v, u].astype(np.float64)
@@ -212,6 +216,7 @@ class DepthResult:
         points_left: (N, 3) float64 metres in the left camera's own frame.
         colors_rgb: (N, 3) uint8 colours of the points (rectified left image).
         rect_left: the rectified left image.
+        rect_right: the rectified right image (None where the caller did not rectify it).
         maps: the rectification used.
         timings_s: seconds per stage (``rectify_s``, ``match_s``, ``depth_s``).
     """
@@ -224,6 +229,7 @@ class DepthResult:
     maps: RectifyMaps
     timings_s: dict[str, float] = field(default_factory=dict)
     confidence: F32 | None = None
+    rect_right: np.ndarray | None = None
 
 
 def compute_depth(
@@ -263,25 +269,27 @@ def compute_depth(
     disp = res.disparity_px
     h, w = disp.shape
     keep = res.confidence >= min_confidence if min_confidence > 0 else np.isfinite(disp)
-    points, z, mask = disparity_to_points(maps, np.where(keep, disp, np.nan), tables=tables)
-    depth: F32 = np.full((h, w), np.nan, np.float32)
-    depth[mask] = z
-    if max_depth_m is not None:
-        with np.errstate(invalid="ignore"):
-            far = depth > max_depth_m
-        keep = ~far[mask]
-        depth[far] = np.nan
-        points = points[keep]
-        mask = mask & ~far
     img = rl if rl.ndim == 3 else np.repeat(rl[..., None], 3, axis=2)
     if img.dtype != np.uint8:
         top = float(img.max()) or 1.0
         img = np.clip(img * (255.0 / top), 0, 255).astype(np.uint8)
-    colors = img[mask]
+    kept = np.where(keep, disp, np.nan)
+    # depth beyond max_depth_m is left out with the triangulation (one pass, no second
+    # compaction of the points); refractive rigs gather depth map and colours in it too
+    if maps.refractive and maps.rig is not None:
+        points, depth, mask, colors = triangulate_frame(
+            tables if tables is not None else ray_tables(maps), kept, img,
+            max_depth_m=max_depth_m)
+    else:
+        points, z, mask = disparity_to_points(maps, kept, tables=tables,
+                                              max_depth_m=max_depth_m)
+        depth = np.full((h, w), np.nan, np.float32)
+        depth[mask] = z
+        colors = img[mask]
     t3 = time.perf_counter()
     timings = {"rectify_s": t1 - t0, "match_s": res.timings_s.get("match_s", t2 - t1),
                "depth_s": t3 - t2}
     return DepthResult(depth_m=depth, disparity_px=disp, points_left=points,
                        colors_rgb=np.ascontiguousarray(colors, dtype=np.uint8), rect_left=rl,
-                       maps=maps, timings_s=timings, confidence=res.confidence)
+                       maps=maps, timings_s=timings, confidence=res.confidence, rect_right=rr)
 

@@ -148,6 +148,16 @@ def _trial_applies(h: int, w: int, num_disp: int, levels: int, config: SgmConfig
             and num_disp > 2 * LANES and min(h, w) >= 64)
 
 
+def _trial_levels(h: int, w: int, num_disp: int) -> int:
+    """Coarser levels of the trial: two where the range a quarter the size still spans a
+    chunk of 16 and the image a quarter the size keeps 32 px a side (a full search at a
+    quarter the size, then a one-chunk band at half the size, instead of a full search at
+    half the size: at 640x360 with 80 disparities, six frames of the simulated dive, the
+    aggregation took 24 ms of CPU a frame against 27 ms with one coarser level, for the same
+    disparities to the bit), else one."""
+    return 2 if -(-num_disp // 4) >= LANES and min(h, w) >= 128 else 1
+
+
 def match_sgm(left: np.ndarray, right: np.ndarray, config: SgmConfig) -> DisparityResult:
     """Match a rectified pair with sea3d's semi-global matcher.
 
@@ -207,7 +217,7 @@ def _match_sgm(left: np.ndarray, right: np.ndarray, config: SgmConfig) -> Dispar
     levels = choose_pyramid_levels(h, w, num_disp, config)
     trial = _trial_applies(h, w, num_disp, levels, config)
     if trial:
-        levels = 1
+        levels = _trial_levels(h, w, num_disp)
     pyramid = [(gl, gr)]
     for _ in range(levels):
         a, b = pyramid[-1]

@@ -30,7 +30,7 @@ from sea3d._typing import F64
 from sea3d.errors import StereoError
 from sea3d.rectify.maps import RectifyMaps
 
-__all__ = ["RayTables", "triangulate_with_tables"]
+__all__ = ["RayTables", "triangulate_frame", "triangulate_with_tables"]
 
 F32 = NDArray[np.float32]
 
@@ -107,9 +107,11 @@ class RayTables:
 
 @njit(parallel=True, cache=True)
 def _triangulate_kernel(disp: F32, lo: F32, ld: F32, ro: F32, rd: F32, rz: F64,
-                        max_gap: float, points: F64, depth: F64) -> None:  # pragma: no cover
+                        max_gap: float, max_depth: float, points: F64, depth: F64,
+                        counts: NDArray[np.int64]) -> None:  # pragma: no cover
     h, w = disp.shape
     for v in prange(h):
+        counts[v] = 0
         for u in range(w):
             d = disp[v, u]
             points[v, u, 0] = np.nan
@@ -169,14 +171,49 @@ def _triangulate_kernel(disp: F32, lo: F32, ld: F32, ro: F32, rd: F32, rz: F64,
             px = 0.5 * (pax + pbx)
             py = 0.5 * (pay + pby)
             pz = 0.5 * (paz + pbz)
+            z = rz[0] * px + rz[1] * py + rz[2] * pz
+            if np.float32(z) > max_depth:
+                continue
             points[v, u, 0] = px
             points[v, u, 1] = py
             points[v, u, 2] = pz
-            depth[v, u] = rz[0] * px + rz[1] * py + rz[2] * pz
+            depth[v, u] = z
+            counts[v] += 1
+
+
+@njit(parallel=True, cache=True)
+def _compact_kernel(points: F64, depth: F64, starts: NDArray[np.int64], image: np.ndarray,
+                    extras: bool, out_points: F64, out_depth: F64, mask: NDArray[np.bool_],
+                    out_colors: np.ndarray, depth_map: F32) -> None:  # pragma: no cover
+    """The valid pixels' points and depths in row-major order (``points[mask]`` without
+    numpy's boolean indexing: 4 ms of CPU at 640x360 against under 1 ms), rows in parallel
+    from their ``starts``; with ``extras`` also their colours from ``image`` (H, W, 3) and
+    the float32 depth map (NaN elsewhere)."""
+    h, w = depth.shape
+    nan = np.float32(np.nan)
+    for v in prange(h):
+        i = starts[v]
+        for u in range(w):
+            z = depth[v, u]
+            if z == z:
+                out_points[i, 0] = points[v, u, 0]
+                out_points[i, 1] = points[v, u, 1]
+                out_points[i, 2] = points[v, u, 2]
+                out_depth[i] = z
+                mask[v, u] = True
+                if extras:
+                    out_colors[i, 0] = image[v, u, 0]
+                    out_colors[i, 1] = image[v, u, 1]
+                    out_colors[i, 2] = image[v, u, 2]
+                    depth_map[v, u] = np.float32(z)
+                i += 1
+            elif extras:
+                depth_map[v, u] = nan
 
 
 def triangulate_with_tables(
-    tables: RayTables, disparity_px: np.ndarray, *, max_gap_m: float = 0.01
+    tables: RayTables, disparity_px: np.ndarray, *, max_gap_m: float = 0.01,
+    max_depth_m: float | None = None,
 ) -> tuple[F64, F64, NDArray[np.bool_]]:
     """Triangulate every valid disparity with the rig's true rays, from the tables.
 
@@ -186,6 +223,8 @@ def triangulate_with_tables(
         tables: :meth:`RayTables.from_maps` of the rectification the disparity lives on.
         disparity_px: (H, W) float in the rectified left view, NaN (or <= 0) invalid.
         max_gap_m: matches whose rays pass farther apart than this are dropped, metres.
+        max_depth_m: matches whose depth (as float32) exceeds this are dropped (None keeps
+            all).
 
     Returns:
         ``points_left`` (N, 3) float64 metres in the left camera frame, ``depth_rect`` (N,)
@@ -195,6 +234,35 @@ def triangulate_with_tables(
     Raises:
         StereoError: a disparity map of another size than the tables.
     """
+    points, depth, mask, _, _ = _triangulate(tables, disparity_px, max_gap_m, max_depth_m, None)
+    return points, depth, mask
+
+
+def triangulate_frame(
+    tables: RayTables, disparity_px: np.ndarray, image: NDArray[np.uint8], *,
+    max_gap_m: float = 0.01, max_depth_m: float | None = None,
+) -> tuple[F64, F32, NDArray[np.bool_], NDArray[np.uint8]]:
+    """:func:`triangulate_with_tables` that also gathers what a depth frame needs, in the
+    same pass: the float32 depth map (H, W) (NaN where no point) and the points' colours from
+    ``image`` (H, W, 3) uint8.
+
+    Returns:
+        ``points_left`` (N, 3), ``depth_m`` (H, W) float32, the (H, W) mask, colours (N, 3).
+
+    Raises:
+        StereoError: a disparity map or image of another size than the tables.
+    """
+    img = np.ascontiguousarray(image, dtype=np.uint8)
+    if img.shape != (*tables.shape, 3):
+        raise StereoError(f"image {img.shape} does not match the ray tables {tables.shape}")
+    points, _, mask, colors, depth_map = _triangulate(tables, disparity_px, max_gap_m,
+                                                      max_depth_m, img)
+    return points, depth_map, mask, colors
+
+
+def _triangulate(tables: RayTables, disparity_px: np.ndarray, max_gap_m: float,
+                 max_depth_m: float | None, image: NDArray[np.uint8] | None
+                 ) -> tuple[F64, F64, NDArray[np.bool_], NDArray[np.uint8], F32]:
     d = np.ascontiguousarray(disparity_px, dtype=np.float32)
     if d.shape != tables.shape:
         h, w = tables.shape
@@ -202,8 +270,21 @@ def triangulate_with_tables(
     h, w = d.shape
     points = np.empty((h, w, 3), np.float64)
     depth = np.empty((h, w), np.float64)
+    counts = np.empty(h, np.int64)
+    far = np.inf if max_depth_m is None else float(max_depth_m)
     _triangulate_kernel(d, tables.left_origins, tables.left_directions, tables.right_origins,
-                        tables.right_directions, tables.rect_z_left, float(max_gap_m), points,
-                        depth)
-    mask = np.isfinite(depth)
-    return points[mask], depth[mask], mask
+                        tables.right_directions, tables.rect_z_left, float(max_gap_m), far,
+                        points, depth, counts)
+    starts = np.zeros(h + 1, np.int64)
+    np.cumsum(counts, out=starts[1:])
+    n = int(starts[-1])
+    out_points = np.empty((n, 3), np.float64)
+    out_depth = np.empty(n, np.float64)
+    mask = np.zeros((h, w), np.bool_)
+    extras = image is not None
+    img = image if image is not None else np.zeros((1, 1, 3), np.uint8)
+    colors = np.empty((n if extras else 0, 3), np.uint8)
+    depth_map = np.empty((h, w) if extras else (0, 0), np.float32)
+    _compact_kernel(points, depth, starts, img, extras, out_points, out_depth, mask, colors,
+                    depth_map)
+    return out_points, out_depth, mask, colors, depth_map
