@@ -13,7 +13,19 @@ with sea3d's half-pixel principal-point convention (the meshes must agree to flo
 and with K as it is (what a user of Open3D gets: Open3D truncates a voxel's projection to find
 its pixel); first, the same effect on an analytic floor seen at 45 degrees.
 
-    python benchmarks/bench_fusion.py [--repeats 3] [--voxel-m 0.01]
+Then floaters on the same real frames (``heldout``): every fifth frame is held out and the
+others are fused by Open3D's plain loop, by sea3d as it was (no carving) and by sea3d with
+free-space carving (:attr:`~sea3d.recon.tsdf.TsdfConfig.carve_free_space`, Kinect depth noise
+``1.6e-3 z^2`` m after Khoshelham and Elberink 2012, Sensors 12:1437, "about 4 cm at 5 m").
+There is no ground-truth mesh: each mesh is rendered (Open3D ray casting) at the held-out
+poses and compared with the held-out Kinect depth, pixels where both have depth: the depth
+difference (median, p90, p99), the pixels where the mesh stands more than 5 cm in front of
+what the held-out frame saw (a surface where the camera sees free space: floaters), the
+held-out pixels the mesh explains within 2 cm (completeness), and the mesh vertices that lie
+more than 5 cm in front of a held-out frame's depth (its 3x3 minimum) where they project.
+CPU milliseconds per frame of each integration loop are printed beside them.
+
+    python benchmarks/bench_fusion.py [--repeats 3] [--voxel-m 0.01] [--skip-speed]
 """
 
 from __future__ import annotations
@@ -21,6 +33,7 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -105,14 +118,113 @@ def half_pixel_floor() -> None:
           f"{1000 * np.median(naive_v[:, 2]):+.2f} mm (Open3D with K as it is)")
 
 
+KINECT_NOISE_PER_M = 1.6e-3
+"""Kinect v1 depth's standard error at 1 m (m), growing with depth squared (Khoshelham and
+Elberink 2012: about 4 cm at 5 m)."""
+
+
+def render_depth(vertices: np.ndarray, triangles: np.ndarray, T_world_cam: np.ndarray,
+                 shape: tuple[int, int]) -> np.ndarray:
+    """Depth (H, W) float32 m of a mesh seen by the pinhole ``K`` at ``T_world_cam`` (pixel
+    centres at integer coordinates), NaN where no triangle is hit."""
+    h, w = shape
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3c.Tensor(vertices.astype(np.float32)),
+                        o3c.Tensor(triangles.astype(np.uint32)))
+    vv, uu = np.mgrid[0:h, 0:w].astype(np.float64)
+    dirs_cam = np.stack([(uu - K[0, 2]) / K[0, 0], (vv - K[1, 2]) / K[1, 1],
+                         np.ones_like(uu)], axis=-1).reshape(-1, 3)
+    dirs = dirs_cam @ T_world_cam[:3, :3].T  # camera z = 1: the ray parameter is the depth
+    rays = np.concatenate([np.broadcast_to(T_world_cam[:3, 3], dirs.shape), dirs], axis=1)
+    t = scene.cast_rays(o3c.Tensor(rays.astype(np.float32)))["t_hit"].numpy()
+    out = np.where(np.isfinite(t), t, np.nan).reshape(h, w).astype(np.float32)
+    return out
+
+
+def heldout_figures(mesh: tuple[np.ndarray, np.ndarray], held: list[tuple[np.ndarray,
+                    np.ndarray]], poses: np.ndarray) -> dict[str, float]:
+    """Depth-reprojection consistency of a mesh with held-out frames (module docstring)."""
+    import cv2
+
+    v, f = mesh
+    errs, front, explained, valid = [], 0, 0, 0
+    seen_through = np.zeros(len(v), bool)
+    for (depth, _), T in zip(held, poses, strict=True):
+        r = render_depth(v, f, T, depth.shape)
+        both = np.isfinite(r) & np.isfinite(depth)
+        e = r[both] - depth[both]
+        errs.append(np.abs(e))
+        front += int((e < -0.05).sum())
+        valid += int(np.isfinite(depth).sum())
+        explained += int((np.abs(e) < 0.02).sum())
+        d_min = cv2.erode(np.nan_to_num(depth, nan=0.0), np.ones((3, 3), np.uint8))
+        pc = (v - T[:3, 3]) @ T[:3, :3]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = np.rint(K[0, 0] * pc[:, 0] / pc[:, 2] + K[0, 2])
+            vv = np.rint(K[1, 1] * pc[:, 1] / pc[:, 2] + K[1, 2])
+        ok = (pc[:, 2] > 0) & (u >= 0) & (u < depth.shape[1]) & (vv >= 0) & (vv < depth.shape[0])
+        dm = np.zeros(len(v), np.float32)
+        dm[ok] = d_min[vv[ok].astype(int), u[ok].astype(int)]
+        seen_through |= ok & (dm > 0) & (dm - pc[:, 2] > 0.05)
+    a = np.concatenate(errs)
+    return {"median_mm": 1000 * float(np.median(a)), "p90_mm": 1000 * float(np.quantile(a, 0.9)),
+            "p99_mm": 1000 * float(np.quantile(a, 0.99)),
+            "in_front_pct": 100 * front / max(len(a), 1),
+            "explained_pct": 100 * explained / max(valid, 1),
+            "vertices": float(len(v)), "seen_through": float(seen_through.sum())}
+
+
+def heldout(images: list[tuple[np.ndarray, np.ndarray]], poses: np.ndarray, voxel_m: float,
+            every: int = 5) -> None:
+    """Floaters on real frames: the module docstring's held-out comparison."""
+    held_idx = np.arange(0, len(images), every)
+    fuse_idx = np.setdiff1d(np.arange(len(images)), held_idx)
+    fused = [images[i] for i in fuse_idx]
+    held = [images[i] for i in held_idx]
+    K_half = K.copy()
+    K_half[:2, 2] += 0.5
+    base = TsdfConfig(voxel_m=voxel_m, min_depth_m=0.0, max_depth_m=4.0)
+    carve = replace(base, carve_free_space=True, depth_noise_per_m=KINECT_NOISE_PER_M)
+    meshes: dict[str, tuple[tuple[np.ndarray, np.ndarray], float]] = {}
+    ref, _, cpu = open3d_direct(fused, poses[fuse_idx], K_half, voxel_m, 4.0)
+    meshes["Open3D VoxelBlockGrid"] = (ref, statistics.median(cpu))
+    for name, cfg in (("sea3d, no carving", base), ("sea3d, carving", carve),
+                      ("sea3d, carving, seen twice", replace(carve, weight_threshold=1.5)),
+                      ("sea3d, no carving, seen twice", replace(base, weight_threshold=1.5))):
+        vol = TsdfVolume(cfg)
+        cpu = []
+        for (depth, color), T in zip(fused, poses[fuse_idx], strict=True):
+            c0 = time.process_time()
+            vol.integrate(depth, color, K, T)
+            cpu.append(1000 * (time.process_time() - c0))
+        m = vol.extract_mesh()
+        meshes[name] = ((m.vertices, m.triangles), statistics.median(cpu[1:]))
+    print(f"\nheld-out depth check: {len(fuse_idx)} frames fused, {len(held_idx)} held out "
+          f"(every {every}th), {1000 * voxel_m:.0f} mm voxels")
+    print(f"{'mesh':32} {'CPU ms/fr':>9} {'|dz| med':>8} {'p90':>6} {'p99':>6} "
+          f"{'in front %':>10} {'explained %':>11} {'vertices':>9} {'seen through':>12}")
+    for name, (mesh, ms) in meshes.items():
+        r = heldout_figures(mesh, held, poses[held_idx])
+        print(f"{name:32} {ms:9.1f} {r['median_mm']:8.2f} {r['p90_mm']:6.1f} "
+              f"{r['p99_mm']:6.1f} {r['in_front_pct']:10.3f} {r['explained_pct']:11.2f} "
+              f"{r['vertices']:9.0f} {r['seen_through']:12.0f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--voxel-m", type=float, default=0.01)
     ap.add_argument("--data", type=Path, default=DATA)
+    ap.add_argument("--skip-speed", action="store_true",
+                    help="only the held-out floater check")
     args = ap.parse_args()
-    half_pixel_floor()
     colors, depths, poses = frames(args.data)
+    if args.skip_speed:
+        images = [(read_depth(d, 1000.0), read_color(c))
+                  for c, d in zip(colors, depths, strict=True)]
+        heldout(images, poses, args.voxel_m)
+        return
+    half_pixel_floor()
     traj = TrajectoryFile(t_ns=np.arange(len(poses), dtype=np.int64), T_world_x=poses,
                           format="tum", timed=False, path=args.data)
     images = [(read_depth(d, 1000.0), read_color(c)) for c, d in zip(colors, depths, strict=True)]
@@ -151,6 +263,7 @@ def main() -> None:
         print(f"sea3d mesh against {name}: accuracy median {1000 * m.accuracy_m.median:.3f} mm, "
               f"p90 {1000 * m.accuracy_m.p90:.3f} mm; completeness median "
               f"{1000 * m.completeness_m.median:.3f} mm, p90 {1000 * m.completeness_m.p90:.3f} mm")
+    heldout(images, poses, args.voxel_m)
 
 
 if __name__ == "__main__":
