@@ -60,6 +60,12 @@ class TsdfConfig:
     weight_threshold: float = 0.5
     """Meshes and point clouds use voxels whose weight (observations) is *above* this
     (Open3D compares strictly): 0.5 uses every voxel seen at least once, 1.5 twice."""
+    hole_margin_px: int = 0
+    """Pixels within this many pixels (Chebyshev distance) of a pixel without depth are not
+    fused: stereo's wrong depth gathers at the borders of what it could not match (on the
+    simulated lake survey, 82 % of the pixels more than 10 cm off the scene lie within 2 px
+    of a hole, 2 % of all pixels) and a depth camera's at its silhouettes. 0 fuses every
+    pixel with depth."""
     carve_free_space: bool = False
     """After each integration, the voxels of the volume that the new frame sees through lose
     one observation (a voxel left with none is emptied): those that hold surface (a signed
@@ -86,6 +92,8 @@ class TsdfConfig:
                              f"{self.max_depth_m}")
         if self.initial_blocks < 1 or self.weight_threshold < 0:
             raise ReconError("initial_blocks must be >= 1 and weight_threshold >= 0")
+        if not 0 <= self.hole_margin_px <= 16:
+            raise ReconError(f"hole_margin_px must be 0..16, got {self.hole_margin_px}")
         if not (self.depth_noise_per_m >= 0 and np.isfinite(self.depth_noise_per_m)):
             raise ReconError(f"depth_noise_per_m must be >= 0, got {self.depth_noise_per_m}")
 
@@ -170,6 +178,11 @@ class TsdfVolume:
         # Invalid and out-of-range depth -> 0, which Open3D skips.
         d = np.nan_to_num(depth, nan=0.0, posinf=0.0, neginf=0.0)
         d[(d < c.min_depth_m) | (d > c.max_depth_m)] = 0.0
+        if c.hole_margin_px > 0:
+            side = 2 * c.hole_margin_px + 1
+            inner = cv2.erode((d > 0).astype(np.uint8), np.ones((side, side), np.uint8),
+                              borderType=cv2.BORDER_CONSTANT, borderValue=1)
+            d[inner == 0] = 0.0
         if not d.any():
             return 0  # Open3D raises when an image touches no block
         R, t = T[:3, :3], T[:3, 3]
