@@ -25,10 +25,26 @@ poses and compared with the held-out Kinect depth, pixels where both have depth:
 difference (median, p90, p99), the pixels where the mesh stands more than 5 cm in front of
 what the held-out frame saw (a surface where the camera sees free space: floaters), the
 held-out pixels the mesh explains within 2 cm (completeness), and the mesh vertices that lie
-more than 5 cm in front of a held-out frame's depth (its 3x3 minimum) where they project.
+more than 5 cm in front of a held-out frame's depth (its 3x3 minimum) where they project
+(margins widen to 3 and 2 standard errors of the depth where those are larger; held-out
+depth beyond the fused range is left out).
+
+Then the same on real stereo (``kitti``): a KITTI odometry excerpt (``$SEA3D_REAL_DATA/
+kitti_seq1``, 51 rectified 1241x376 pairs, ground-truth poses), sea3d's SGM depth of every
+pair (matched pixels, disparity >= 4 px) fused into 5 cm voxels up to 20 m with the
+ground-truth poses, the held-out frames compared with OpenCV SGBM's depth of the same pair
+(an independent matcher), depth noise ``0.25 px / f B``.
 CPU milliseconds per frame of each integration loop are printed beside them.
 
+Last (``--survey FRAMES``, alone): a simulated lake survey (640x360, coastal water, dome
+ports; kept in ``out/bench_fusion/``), sea3d's depth of every frame cached in the virtual
+pinhole as ``sea3d process`` fuses it, fused with all pixels, with carving, with a confidence
+gate, with hole margins of 1 and 2 px; meshes of the voxels seen once and twice; every
+vertex's exact distance to the scene (median, p90, p99, max, count beyond 10 cm) and the
+completeness of the scene samples within 3 cm of the fused depth.
+
     python benchmarks/bench_fusion.py [--repeats 3] [--voxel-m 0.01] [--skip-speed]
+    python benchmarks/bench_fusion.py --survey 300 [--survey-poses T_world_cam.npy]
 """
 
 from __future__ import annotations
@@ -194,7 +210,9 @@ def heldout(images: list[tuple[np.ndarray, np.ndarray]], poses: np.ndarray, voxe
     held_idx = np.arange(0, len(images), every)
     fuse_idx = np.setdiff1d(np.arange(len(images)), held_idx)
     fused = [images[i] for i in fuse_idx]
-    held = [(reference or images)[i] for i in held_idx]
+    # the reference within the fused depth range only: beyond it the mesh has nothing to say
+    held = [(np.where((d > 0) & (d <= max_depth_m), d, np.nan).astype(np.float32), c)
+            for d, c in ((reference or images)[i] for i in held_idx)]
     K_half = K.copy()
     K_half[:2, 2] += 0.5
     base = TsdfConfig(voxel_m=voxel_m, min_depth_m=0.0, max_depth_m=max_depth_m,
@@ -284,6 +302,120 @@ def kitti(root: Path, voxel_m: float = 0.05, max_depth_m: float = 20.0) -> None:
             reference=ref, title=f"KITTI {root.name}, sea3d SGM depth (f B {fB:.0f} px m), "
             "held-out frames' OpenCV SGBM depth")
 
+def survey_depth(session: Path, cache: Path) -> None:
+    """Every frame's fusion depth and confidence in the virtual pinhole (as the per-frame
+    stage of ``sea3d process`` makes it, 0.5-4 m), colours and ground-truth
+    ``T_world_cam``, cached as ``cache/fNNNNN.npz``."""
+    import cv2
+
+    from sea3d.io.rig_file import rig_from_yaml
+    from sea3d.io.session import open_session
+    from sea3d.io.trajectory_files import read_trajectory
+    from sea3d.recon.depth_resample import pinhole_offsets, virtual_pinhole_depth
+    from sea3d.stereo.recipe import DepthConfig, StereoDepth
+
+    if (cache / "T_world_cam.npy").is_file():
+        return
+    cache.mkdir(parents=True, exist_ok=True)
+    with open_session(session) as s:
+        stereo = StereoDepth(rig_from_yaml(s.rig_yaml, "the session's rig"),
+                             DepthConfig(min_depth_m=0.5, max_depth_m=4.0))
+        maps = stereo.maps
+        Ks = maps.P_left[:3, :3].copy()
+        match, stamps = s.match_pairs(), s.stamps("left")
+        gt = read_trajectory(session / "gt" / "poses_left.tum")
+        R4 = np.eye(4)
+        R4[:3, :3] = maps.R_rect_left_left.T
+        poses = []
+        for i in range(len(match)):
+            res = stereo.compute(s.image("left", int(match.left_index[i]), by="index"),
+                                 s.image("right", int(match.right_index[i]), by="index"))
+            pts = np.einsum("ij,kj->ik", res.points_left, maps.R_rect_left_left)
+            depth = virtual_pinhole_depth(res.depth_m, pts, Ks, method="resample",
+                                          focal_baseline_px_m=maps.focal_px * maps.baseline_m)
+            du, dv = pinhole_offsets(res.depth_m, pts, Ks)
+            vv, uu = np.mgrid[0:depth.shape[0], 0:depth.shape[1]].astype(np.float32)
+            mx = np.where(np.isfinite(du), uu - du, -10).astype(np.float32)
+            my = np.where(np.isfinite(dv), vv - dv, -10).astype(np.float32)
+            assert res.confidence is not None
+            conf = cv2.remap(res.confidence.astype(np.float32), mx, my, cv2.INTER_NEAREST,
+                             borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+            rl = res.rect_left
+            col = rl if rl.ndim == 3 else np.repeat(rl[..., None], 3, 2)
+            t = int(stamps[match.left_index[i]])
+            poses.append(gt.T_world_x[int(np.argmin(np.abs(gt.t_ns - t)))] @ R4)
+            np.savez(cache / f"f{i:05d}.npz", depth=depth, conf=conf, color=col, t=t)
+    np.save(cache / "K.npy", Ks)
+    np.save(cache / "fB.npy", np.array([maps.focal_px * maps.baseline_m]))
+    np.save(cache / "T_world_cam.npy", np.stack(poses))
+
+
+def survey(frames_n: int, poses_path: Path | None) -> None:
+    """Floaters on the simulated lake survey: the variants of docs/reconstruction.md
+    (Floaters) fused from the same cached depth, every vertex's distance to the scene."""
+    from scipy.spatial import cKDTree
+
+    from sea3d.cli import main as cli
+    from sea3d.eval.surface import sample_surface
+    from sea3d.io.mesh_files import read_mesh
+
+    base_dir = Path(__file__).resolve().parents[1] / "out" / "bench_fusion"
+    session = base_dir / f"lake_640x360_{frames_n}"
+    if not (session / "session.json").is_file():
+        cli(["-q", "sim", "--scene", "lake", "--frames", str(frames_n), "--size", "640x360",
+             "--water", "coastal", "--format", "folder", "--out", str(session)])
+    cache = base_dir / f"depth_{frames_n}"
+    survey_depth(session, cache)
+    files = sorted(cache.glob("f*.npz"))
+    Ks, fB = np.load(cache / "K.npy"), float(np.load(cache / "fB.npy")[0])
+    T = np.load(poses_path) if poses_path else np.load(cache / "T_world_cam.npy")
+    scene = read_mesh(session / "gt" / "scene.ply")
+    rc = o3d.t.geometry.RaycastingScene()
+    rc.add_triangles(o3c.Tensor(scene.vertices.astype(np.float32)),
+                     o3c.Tensor(scene.triangles.astype(np.uint32)))
+    data = [np.load(f) for f in files]
+    pts = []
+    for fr, Tw in zip(data[::3], T[::3], strict=False):
+        z = fr["depth"][::4, ::4]
+        vv, uu = np.mgrid[0:fr["depth"].shape[0]:4, 0:fr["depth"].shape[1]:4]
+        ok = np.isfinite(z)
+        pc = np.stack([(uu[ok] - Ks[0, 2]) / Ks[0, 0] * z[ok],
+                       (vv[ok] - Ks[1, 2]) / Ks[1, 1] * z[ok], z[ok]], 1)
+        pts.append(pc @ Tw[:3, :3].T + Tw[:3, 3])
+    ref = sample_surface(scene.vertices, scene.triangles, 400_000, np.random.default_rng(0))
+    dd, _ = cKDTree(np.concatenate(pts)).query(ref, k=1, distance_upper_bound=0.03)
+    observed = ref[np.isfinite(dd)]
+    base = TsdfConfig(voxel_m=0.02, min_depth_m=0.5, max_depth_m=4.0, initial_blocks=50_000)
+    carve = replace(base, carve_free_space=True, depth_noise_per_m=SGM_SIGMA_PX / fB)
+    variants = [("all pixels", base, 0.0), ("carving", carve, 0.0),
+                ("confidence >= 0.2", base, 0.2),
+                ("hole margin 1 px", replace(base, hole_margin_px=1), 0.0),
+                ("hole margin 2 px", replace(base, hole_margin_px=2), 0.0)]
+    print(f"\nlake survey, {len(files)} frames 640x360, 2 cm voxels, "
+          f"{'given' if poses_path else 'ground-truth'} poses; {len(observed)} observed "
+          "scene samples")
+    print(f"{'fused':20} {'kept':>5} {'vertices':>9} {'med mm':>7} {'p90':>6} {'p99':>6} "
+          f"{'max':>6} {'>10cm':>6} {'compl med/p90':>14} {'rec 2cm':>7} {'CPU ms/fr':>9}")
+    for name, cfg, cmin in variants:
+        vol = TsdfVolume(cfg)
+        cpu = []
+        for fr, Tw in zip(data, T, strict=False):
+            z = np.where(fr["conf"] >= cmin, fr["depth"], np.nan) if cmin else fr["depth"]
+            c0 = time.process_time()
+            vol.integrate(z, fr["color"], Ks, Tw)
+            cpu.append(1000 * (time.process_time() - c0))
+        for kept, wt in (("once", 0.5), ("twice", 1.5)):
+            m = vol.extract_mesh(wt)
+            dv = rc.compute_distance(o3c.Tensor(m.vertices.astype(np.float32))).numpy()
+            sm = surface_metrics(m.vertices, m.triangles, scene.vertices, scene.triangles,
+                                 samples=200_000, reference_points=observed)
+            rec = dict(zip(sm.thresholds_m, sm.recall, strict=True)).get(0.02, float("nan"))
+            q = 1000 * np.quantile(dv, [0.5, 0.9, 0.99])
+            print(f"{name:20} {kept:>5} {len(dv):9d} {q[0]:7.2f} {q[1]:6.1f} {q[2]:6.1f} "
+                  f"{1000 * dv.max():6.0f} {int((dv > 0.1).sum()):6d} "
+                  f"{1000 * sm.completeness_m.median:6.2f} / {1000 * sm.completeness_m.p90:5.2f}"
+                  f" {100 * rec:7.1f} {statistics.median(cpu):9.1f}")
+
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -292,9 +424,16 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--kitti", type=Path, default=KITTI,
                     help="a KITTI odometry excerpt (image_0, image_1, calib.txt, poses.txt)")
+    ap.add_argument("--survey", type=int, default=0, metavar="FRAMES",
+                    help="only the floaters on a simulated lake survey of FRAMES frames")
+    ap.add_argument("--survey-poses", type=Path, default=None,
+                    help="(N, 4, 4) .npy of T_world_cam for --survey instead of the truth")
     ap.add_argument("--skip-speed", action="store_true",
                     help="only the held-out floater check")
     args = ap.parse_args()
+    if args.survey:
+        survey(args.survey, args.survey_poses)
+        return
     colors, depths, poses = frames(args.data)
     if args.skip_speed:
         images = [(read_depth(d, 1000.0), read_color(c))
