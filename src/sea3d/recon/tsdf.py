@@ -6,6 +6,12 @@ blocks after Niessner et al. 2013). Each integrated depth image adds one observa
 +1) to every voxel of the truncation band in front of and behind its surface; meshes come from
 marching cubes over voxels seen more than ``weight_threshold`` times.
 
+Against floaters (surface fused where one frame's depth was wrong), two options, both off by
+default (docs/reconstruction.md, "Floaters", has the measurements): ``hole_margin_px`` leaves
+out the pixels beside a hole in the depth, and ``carve_free_space`` takes an observation from
+every voxel holding surface that a later frame sees through (a numba pass over the volume's
+blocks in the frame's view, outside those Open3D updates).
+
 Never Open3D's legacy ``ScalableTSDFVolume``: it has been seen to integrate nothing in the
 CPU-only wheels. ``tests/recon`` checks that a volume holds surface after integration.
 
