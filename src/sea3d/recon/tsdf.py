@@ -6,6 +6,12 @@ blocks after Niessner et al. 2013). Each integrated depth image adds one observa
 +1) to every voxel of the truncation band in front of and behind its surface; meshes come from
 marching cubes over voxels seen more than ``weight_threshold`` times.
 
+Against floaters (surface fused where one frame's depth was wrong), two options, both off by
+default (docs/reconstruction.md, "Floaters", has the measurements): ``hole_margin_px`` leaves
+out the pixels beside a hole in the depth, and ``carve_free_space`` takes an observation from
+every voxel holding surface that a later frame sees through (a numba pass over the volume's
+blocks in the frame's view, outside those Open3D updates).
+
 Never Open3D's legacy ``ScalableTSDFVolume``: it has been seen to integrate nothing in the
 CPU-only wheels. ``tests/recon`` checks that a volume holds surface after integration.
 
@@ -26,7 +32,9 @@ import logging
 from dataclasses import dataclass, replace
 from typing import Any
 
+import cv2
 import numpy as np
+from numba import njit, prange
 from numpy.typing import NDArray
 
 from sea3d._typing import F64
@@ -58,6 +66,25 @@ class TsdfConfig:
     weight_threshold: float = 0.5
     """Meshes and point clouds use voxels whose weight (observations) is *above* this
     (Open3D compares strictly): 0.5 uses every voxel seen at least once, 1.5 twice."""
+    hole_margin_px: int = 0
+    """Pixels within this many pixels (Chebyshev distance) of a pixel without depth are not
+    fused: stereo's wrong depth gathers at the borders of what it could not match (on the
+    simulated lake survey, 82 % of the pixels more than 10 cm off the scene lie within 2 px
+    of a hole, 2 % of all pixels) and a depth camera's at its silhouettes. 0 fuses every
+    pixel with depth."""
+    carve_free_space: bool = False
+    """After each integration, the voxels of the volume that the new frame sees through lose
+    one observation (a voxel left with none is emptied): those that hold surface (a signed
+    distance below the truncation) and lie in front of the frame's depth, at every pixel of
+    the 3x3 neighbourhood they project to, by more than the truncation band plus three
+    standard errors of that depth (:attr:`depth_noise_per_m`). Open3D updates only the
+    blocks near the new frame's surface, so without this a floater left by one frame's
+    wrong depth stays however often later frames look through it."""
+    depth_noise_per_m: float = 0.0
+    """The depth's standard error at 1 m, metres, growing with the square of depth
+    (``sigma_z = depth_noise_per_m * z^2``): ``sigma_d / (f B)`` for stereo of disparity
+    noise ``sigma_d`` pixels and focal length times baseline ``f B`` (pixels times metres).
+    Widens the carving margin at range; 0: the truncation band alone."""
 
     def __post_init__(self) -> None:
         if not (self.voxel_m > 0 and np.isfinite(self.voxel_m)):
@@ -71,6 +98,10 @@ class TsdfConfig:
                              f"{self.max_depth_m}")
         if self.initial_blocks < 1 or self.weight_threshold < 0:
             raise ReconError("initial_blocks must be >= 1 and weight_threshold >= 0")
+        if not 0 <= self.hole_margin_px <= 16:
+            raise ReconError(f"hole_margin_px must be 0..16, got {self.hole_margin_px}")
+        if not (self.depth_noise_per_m >= 0 and np.isfinite(self.depth_noise_per_m)):
+            raise ReconError(f"depth_noise_per_m must be >= 0, got {self.depth_noise_per_m}")
 
     @property
     def block_bytes(self) -> int:
@@ -108,6 +139,8 @@ class TsdfVolume:
             device=self._device,
         )
         self.frames = 0
+        self.voxels_carved = 0
+        """Observations taken from voxels by free-space carving, summed over the frames."""
 
     # -- integration --------------------------------------------------------------------
     def integrate(
@@ -151,6 +184,11 @@ class TsdfVolume:
         # Invalid and out-of-range depth -> 0, which Open3D skips.
         d = np.nan_to_num(depth, nan=0.0, posinf=0.0, neginf=0.0)
         d[(d < c.min_depth_m) | (d > c.max_depth_m)] = 0.0
+        if c.hole_margin_px > 0:
+            side = 2 * c.hole_margin_px + 1
+            inner = cv2.erode((d > 0).astype(np.uint8), np.ones((side, side), np.uint8),
+                              borderType=cv2.BORDER_CONSTANT, borderValue=1)
+            d[inner == 0] = 0.0
         if not d.any():
             return 0  # Open3D raises when an image touches no block
         R, t = T[:3, :3], T[:3, 3]
@@ -164,6 +202,8 @@ class TsdfVolume:
         )
         if blocks.shape[0] == 0:
             return 0
+        if c.carve_free_space and self.frames > 0:
+            self.voxels_carved += self._carve(d, K_o3d, R, t, blocks)
         if color_rgb is None:
             self._vbg.integrate(blocks, dimg, Kt, Et, 1.0, c.max_depth_m, c.trunc_voxels)
         else:
@@ -173,6 +213,48 @@ class TsdfVolume:
                                 c.trunc_voxels)
         self.frames += 1
         return int(blocks.shape[0])
+
+    def _carve(self, depth: NDArray[np.float32], K_o3d: F64, R_volume_cam: F64,
+               t_volume_cam: F64, band_blocks: Any) -> int:
+        """Free-space carving of one frame (:attr:`TsdfConfig.carve_free_space`) over the
+        volume's blocks outside the frame's own truncation band (Open3D updates those);
+        returns the observations taken."""
+        c = self.config
+        r = c.block_resolution
+        hm = self._vbg.hashmap()
+        act = hm.active_buf_indices().numpy().astype(np.int64)
+        if len(act) == 0:
+            return 0
+        keys = hm.key_tensor().numpy()[act].astype(np.int64)
+        # Blocks the frame's band touches this frame are left to Open3D's own update.
+        band_buf, band_ok = hm.find(band_blocks)
+        band = band_buf.numpy().astype(np.int64)[band_ok.numpy().astype(bool)]
+        keep = ~np.isin(act, band)
+        act, keys = act[keep], keys[keep]
+        # Blocks whose centre the camera sees within the depth range (plus a block's radius).
+        block_m = r * c.voxel_m
+        centres = (keys + 0.5) * block_m
+        R_cam_volume = R_volume_cam.T
+        pc = (centres - t_volume_cam) @ R_cam_volume.T
+        radius = 0.87 * block_m
+        h, w = depth.shape
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = K_o3d[0, 0] * pc[:, 0] / pc[:, 2] + K_o3d[0, 2]
+            v = K_o3d[1, 1] * pc[:, 1] / pc[:, 2] + K_o3d[1, 2]
+            pad = K_o3d[0, 0] * radius / np.maximum(pc[:, 2], 1e-6)
+        near = (pc[:, 2] > c.min_depth_m - radius) & (pc[:, 2] < c.max_depth_m + radius)
+        seen = near & (u > -pad) & (u < w + pad) & (v > -pad) & (v < h + pad)
+        if not seen.any():
+            return 0
+        # The nearest valid depth around each pixel; a pixel without depth beside it (or
+        # itself) carves nothing: a voxel at a depth edge or a hole is not seen through.
+        d_min = cv2.erode(depth, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT,
+                          borderValue=0.0)
+        tsdf = self._vbg.attribute("tsdf").numpy().reshape(-1, r**3)
+        weight = self._vbg.attribute("weight").numpy().reshape(-1, r**3)
+        return int(_carve_kernel(keys[seen], act[seen], tsdf, weight, R_cam_volume,
+                                 -R_cam_volume @ t_volume_cam, K_o3d, d_min, c.voxel_m, r,
+                                 c.trunc_voxels * c.voxel_m, c.depth_noise_per_m))
 
     # -- state --------------------------------------------------------------------------
     @property
@@ -280,6 +362,53 @@ class TsdfVolume:
         nrm = pc.point.normals.numpy().astype(np.float64) if "normals" in pc.point else (
             np.zeros((len(p), 3)))
         return p, cols, nrm
+
+
+@njit(parallel=True, cache=True)
+def _carve_kernel(keys: Any, bufs: Any, tsdf: Any, weight: Any, R_cam_volume: Any,
+                  t_cam_volume: Any, K_o3d: Any, d_min: Any, voxel_m: float, r: int,
+                  trunc_m: float, noise_per_m: float) -> int:  # pragma: no cover - numba
+    """Take one observation from every voxel of the given blocks that holds surface and lies
+    in front of ``d_min`` (the 3x3 minimum of the frame's depth, 0 without depth) by more
+    than ``trunc_m + 3 noise_per_m d^2``. Voxel ``(x, y, z)`` of block ``k`` sits at
+    ``(k r + (x, y, z)) voxel_m`` (Open3D's layout: flat index ``(z r + y) r + x``); a
+    voxel's pixel is its projection truncated, as Open3D reads it (``K_o3d``)."""
+    h, w = d_min.shape
+    n = len(bufs)
+    taken = np.zeros(n, np.int64)
+    fx, fy, cx, cy = K_o3d[0, 0], K_o3d[1, 1], K_o3d[0, 2], K_o3d[1, 2]
+    for i in prange(n):
+        b = bufs[i]
+        ox, oy, oz = keys[i, 0] * r, keys[i, 1] * r, keys[i, 2] * r
+        for loc in range(r * r * r):
+            wt = weight[b, loc]
+            if wt <= 0.0 or tsdf[b, loc] >= 0.999:
+                continue
+            x = (ox + loc % r) * voxel_m
+            y = (oy + (loc // r) % r) * voxel_m
+            z = (oz + loc // (r * r)) * voxel_m
+            zc = R_cam_volume[2, 0] * x + R_cam_volume[2, 1] * y + R_cam_volume[2, 2] * z \
+                + t_cam_volume[2]
+            if zc <= 0.0:
+                continue
+            xc = R_cam_volume[0, 0] * x + R_cam_volume[0, 1] * y + R_cam_volume[0, 2] * z \
+                + t_cam_volume[0]
+            yc = R_cam_volume[1, 0] * x + R_cam_volume[1, 1] * y + R_cam_volume[1, 2] * z \
+                + t_cam_volume[1]
+            uf = fx * xc / zc + cx
+            vf = fy * yc / zc + cy
+            if uf < 0.0 or vf < 0.0 or uf >= w or vf >= h:
+                continue
+            d = d_min[int(vf), int(uf)]
+            if d <= 0.0 or d - zc <= trunc_m + 3.0 * noise_per_m * d * d:
+                continue
+            if wt <= 1.0:
+                weight[b, loc] = 0.0
+                tsdf[b, loc] = 0.0
+            else:
+                weight[b, loc] = wt - 1.0
+            taken[i] += 1
+    return int(taken.sum())
 
 
 def _to_u8(colors01: NDArray[np.floating]) -> NDArray[np.uint8]:
