@@ -74,10 +74,17 @@ class LiveConfig:
     is still computing goes through the odometry on the seeds a frame without depth gets, and
     its depth is fused when it comes (docs/reconstruction.md: on the 80-frame dive the frames
     waited seconds behind depth for the loop otherwise)."""
+    seed_max_age_s: float = 1.0
+    """Oldest seeds (stamp of the frame, less that of the depth map they come from) the
+    odometry takes; with older ones it waits for the oldest depth in flight (a depth worker
+    starved of CPU: seeds seconds old left 14 of 80 frames IMU-only on a loaded machine).
+    About the worker's depth time on a loaded core of this machine (0.6-1.5 s)."""
 
     def __post_init__(self) -> None:
         if self.depth_in_flight < 1:
             raise ConfigError(f"depth_in_flight must be >= 1, got {self.depth_in_flight}")
+        if not self.seed_max_age_s > 0:
+            raise ConfigError(f"seed_max_age_s must be > 0, got {self.seed_max_age_s}")
         if self.depth_max_backlog is not None and self.depth_max_backlog < 1:
             raise ConfigError(f"depth_max_backlog must be >= 1 or None, got "
                               f"{self.depth_max_backlog}")
@@ -556,21 +563,32 @@ class _Loop:
         self.odo_queue.append(entry)
         self.drain(block=False)
 
-    def _ready(self, head: _Pending, block: bool) -> bool:
-        """Whether the head frame's odometry can run now."""
-        if head.future is None or head.future.done():
-            return True
-        if self.cfg.odometry_waits_for_depth or not self.last_depth:
-            if not block:
-                return False
-            head.future.result()  # nothing to seed from yet (or told to wait): its own
-        return True
+    def _blocker(self, head: _Pending) -> Any:
+        """The depth still computing that the head frame's odometry waits for, or None:
+        its own when there is nothing to seed from yet (or ``odometry_waits_for_depth``);
+        when the seeds are older than ``seed_max_age_s``, the oldest depth in flight."""
+        own = head.future
+        if own is not None and own.done():
+            return None
+        if own is not None and (self.cfg.odometry_waits_for_depth or not self.last_depth):
+            return own
+        age_s = (head.frame.t_ns - self.depth_t) * 1e-9
+        if self.last_depth and age_s <= self.cfg.seed_max_age_s:
+            return None
+        pending = next((p.future for p in self.fuse_queue if not p.future.done()), None)
+        return pending if pending is not None else own
 
     def drain(self, block: bool) -> None:
         """Odometry on every frame it can run on, then fusion of the depth that has come."""
-        while self.odo_queue and self._ready(self.odo_queue[0], block):
-            self._odometry(self.odo_queue.popleft())
+        while self.odo_queue:
             self._fuse(block=False)
+            blocker = self._blocker(self.odo_queue[0])
+            if blocker is not None:
+                if not block:
+                    return
+                blocker.result()
+                continue
+            self._odometry(self.odo_queue.popleft())
         self._fuse(block=block)
 
     def _odometry(self, head: _Pending) -> None:
