@@ -11,6 +11,12 @@ latest depth map as its stereo seeds (the row search refines them), and fusion s
 (``no-depth`` in status.csv). The drops are counted (``depth_dropped``, of which
 ``depth_stale``).
 
+A frame with depth of its own does not hold the odometry: once a depth map exists, its
+odometry runs on seeds as a frame without depth does while its depth computes, and its depth
+is fused when it comes, in time order (``LiveConfig.odometry_waits_for_depth`` for the loop
+before; ``seed_max_age_s``: when the seeds grow older, the odometry waits for the oldest
+depth in flight). The source is read and rectified ahead by a thread of its own.
+
 A frame without depth of its own gets the latest depth map moved to its predicted pose
 (:meth:`~sea3d.pipeline.depth_rate.DepthRate.seed`: constant velocity from the two previous
 tracked frames), so its seeds point at the surface it sees; the unmoved map where nothing
