@@ -479,7 +479,7 @@ class _Prefetch:
 
     def close(self) -> None:
         self._stop.set()
-        self._thread.join(timeout=5)
+        self._thread.join(timeout=1)
 
 
 def run_live(frames: Iterable[LiveFrame], stage: FrameStageConfig, stereo: Any,
