@@ -74,7 +74,7 @@ def one_run(mode: str, session: Path, work: Path, extra: str = "") -> dict:
             "loop_cpu": live["cpu_s_per_frame"], "run_cpu": cpu / max(live["frames"], 1),
             "wall_s": wall, "imu_only": s["frames_imu_only"], "lost": s["frames_lost"],
             "warmup_s": live.get("warmup_s"), "backlog_max": live.get("backlog_max"),
-            "stale": live.get("depth_stale"),
+            "stale": live.get("depth_stale"), "late": live.get("depth_after_odometry"),
             "wait_p50": (live.get("wait_s") or {}).get("p50"),
             "wait_p99": (live.get("wait_s") or {}).get("p99"),
             "depth_p50": (live.get("depth_s") or {}).get("p50"),
@@ -114,7 +114,8 @@ def main() -> None:
             rows.append(r)
             print(_line(r), f"(imu-only {r['imu_only']}, lost {r['lost']}, warm-up "
                   f"{_fmt(r['warmup_s'], '.1f')} s, backlog {r['backlog_max']}, stale "
-                  f"{r['stale']}; wait p50/p99 {_fmt(r['wait_p50'], '.2f')}/"
+                  f"{r['stale']}, odometry before own depth {r['late']}; wait p50/p99 "
+                  f"{_fmt(r['wait_p50'], '.2f')}/"
                   f"{_fmt(r['wait_p99'], '.2f')} s, fused frames' depth p50 "
                   f"{_fmt(r['depth_p50'], '.2f')} s, then to fusion p50 "
                   f"{_fmt(r['hold_p50'], '.2f')} s; {r['stop']})", flush=True)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+from concurrent.futures import Future
 
 import numpy as np
 import pytest
@@ -134,3 +135,109 @@ def test_cli_live_replay(sim_session, tmp_path, capsys):
     assert main(["live", "-o", str(tmp_path / "x"), "--record", str(tmp_path / "r.mcap"),
                  "--left", "0"]) == 2
     assert "--record needs --left and --right" in capsys.readouterr().err
+
+
+class _Lazy(Future):
+    """A depth future of :class:`_Worker`: done after two more odometry steps, or when the
+    loop waits for it (then its depth is ready at once)."""
+
+    def __init__(self, worker, res):
+        super().__init__()
+        self.worker, self.res, self.steps_left = worker, res, 2
+
+    def result(self, timeout=None):
+        if not self.done():
+            self.worker.pending.remove(self)
+            self.set_result(self.res)
+        return super().result(timeout)
+
+
+class _Worker:
+    """The depth worker: the first frame's depth at once (nothing to seed from before it),
+    later ones after the odometry of the two frames that follow."""
+
+    def __init__(self):
+        self.pending, self.submitted = [], 0
+
+    def share(self, obj):
+        return obj
+
+    def submit(self, fn, config, t_ns, left, right, shared):
+        from sea3d.pipeline.frame_stage import FrameResult
+
+        self.submitted += 1
+        res = FrameResult(t_ns=t_ns, status="ok", rect_left=left, rect_right=right,
+                          depth_m=np.full(left.shape, 2.0, np.float32), valid_fraction=1.0)
+        f = _Lazy(self, res)
+        if self.submitted == 1:
+            f.set_result(res)
+        else:
+            self.pending.append(f)
+        return f
+
+    def tick(self):
+        for f in list(self.pending):
+            f.steps_left -= 1
+            if f.steps_left <= 0:
+                self.pending.remove(f)
+                f.set_result(f.res)
+
+
+class _Stages:
+    """The ordered stages, recording what the loop asks of them."""
+
+    K = np.array([[10.0, 0, 4], [0, 10.0, 4], [0, 0, 1]])
+    T_left_rect = np.eye(4)
+
+    def __init__(self, worker):
+        self.worker, self.kf_rect, self.estimates, self.log = worker, {}, [], []
+
+    def step(self, res, imu, *, fuse=True):
+        from types import SimpleNamespace
+
+        from sea3d.odometry.types import TrackingStatus
+
+        assert not fuse  # live fuses a frame once its own depth has come
+        self.log.append(("odometry", res.t_ns, bool(res.seeded)))
+        est = SimpleNamespace(t_ns=res.t_ns, T_world_left=np.eye(4), keyframe_id=None,
+                              anchor_keyframe_id=None, status=TrackingStatus.TRACKING)
+        self.estimates.append(est)
+        self.worker.tick()
+        return est
+
+    def fuse_late(self, index, res, est, T_world_cam=None):
+        assert self.estimates[index] is est
+        self.log.append(("fusion", res.t_ns, False))
+        return "integrated"
+
+
+@pytest.mark.parametrize("waits", [False, True])
+def test_the_odometry_does_not_wait_behind_depth(monkeypatch, waits):
+    """A depth frame's odometry runs on the seeds while its depth computes, and the frames
+    after it go on; its depth is fused when it comes, in time order. With
+    ``odometry_waits_for_depth`` (the loop before) every frame waits behind depth."""
+    from types import SimpleNamespace
+
+    from sea3d.pipeline import live
+    from sea3d.pipeline.live import LiveFrame, run_live
+
+    monkeypatch.setattr(live, "rectify_pair", lambda stereo, left, right: (left, right))
+    image = np.full((8, 8), 100, np.uint8)
+    frames = [LiveFrame(t_ns=i * 100_000_000, left=image, right=image) for i in range(8)]
+    worker = _Worker()
+    stages = _Stages(worker)
+    stats = run_live(frames, None, SimpleNamespace(maps=SimpleNamespace(width=8)), stages,
+                     worker, LiveConfig(odometry_waits_for_depth=waits))
+    odo = [e for e in stages.log if e[0] == "odometry"]
+    fused = [e[1] for e in stages.log if e[0] == "fusion"]
+    assert [e[1] for e in odo] == [f.t_ns for f in frames]  # every frame, in order
+    assert fused == sorted(fused) and len(fused) == stats.fused == worker.submitted
+    assert stats.fused + stats.depth_dropped == len(frames) and stats.tracked == len(frames)
+    t1 = fused[1]  # the second depth frame (the first is fused at once)
+    after = stages.log.index(("odometry", t1 + 100_000_000, True))
+    if waits:  # its own depth, and the next frame after its fusion
+        assert ("odometry", t1, False) in odo and stats.depth_after_odometry == 0
+        assert after > stages.log.index(("fusion", t1, False))
+    else:  # on the seeds, and the next frame before its fusion
+        assert ("odometry", t1, True) in odo and stats.depth_after_odometry == len(fused) - 1
+        assert after < stages.log.index(("fusion", t1, False))

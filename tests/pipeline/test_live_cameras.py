@@ -307,5 +307,18 @@ def test_the_feed_keeps_finished_submap_meshes_on_disk_and_serves_them(monkeypat
         np.testing.assert_array_equal(out["submap-3"].colors_rgb, mesh.colors_rgb)
         ply = feed.mesh_ply()
         assert ply is not None and b"element vertex 50" in ply and b"element face 80" in ply
+        # 10 s later: with the monitor alone it is not read back (the page reads it from
+        # disk); with a Foxglove server it is sent again, for clients that missed it
+        loads = []
+        load = live_publish._Finished.load
+        monkeypatch.setattr(live_publish._Finished, "load",
+                            lambda self: loads.append(1) or load(self))
+        stages = SimpleNamespace(kf_rect={7: T}, fusion=no_active)
+        feed._last_full -= 11.0
+        assert "submap-3" not in feed._mesh_changes(stages) and not loads
+        feed.publisher = SimpleNamespace(clients_seen=lambda: 0)
+        feed._last_full -= 11.0
+        assert "submap-3" in feed._mesh_changes(stages) and loads == [1]
+        feed.publisher = None
     finally:
         feed.close()

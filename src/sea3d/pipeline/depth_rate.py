@@ -221,6 +221,11 @@ class DepthRate:
         if own_depth:
             self._seed_pose = T
 
+    def depth_of(self, T_world_cam: NDArray[np.float64] | None) -> None:
+        """The latest depth map is now that of the frame at ``T_world_cam`` (None: an
+        untrusted pose), for depth that comes after its frame's odometry (live)."""
+        self._seed_pose = None if T_world_cam is None else np.asarray(T_world_cam, np.float64)
+
     def observe_depth(self, depth_m: NDArray[np.float32]) -> None:
         """A fresh depth map (its median depth scales the predicted flow)."""
         z = depth_m[::4, ::4]

@@ -11,6 +11,12 @@ latest depth map as its stereo seeds (the row search refines them), and fusion s
 (``no-depth`` in status.csv). The drops are counted (``depth_dropped``, of which
 ``depth_stale``).
 
+A frame with depth of its own does not hold the odometry: once a depth map exists, its
+odometry runs on seeds as a frame without depth does while its depth computes, and its depth
+is fused when it comes, in time order (``LiveConfig.odometry_waits_for_depth`` for the loop
+before; ``seed_max_age_s``: when the seeds grow older, the odometry waits for the oldest
+depth in flight). The source is read and rectified ahead by a thread of its own.
+
 A frame without depth of its own gets the latest depth map moved to its predicted pose
 (:meth:`~sea3d.pipeline.depth_rate.DepthRate.seed`: constant velocity from the two previous
 tracked frames), so its seeds point at the surface it sees; the unmoved map where nothing
@@ -37,11 +43,13 @@ from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from queue import Full, Queue
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._typing import F64
 from sea3d.errors import ConfigError, SessionError
 from sea3d.odometry.types import ImuChunk, OdometryEstimate
 from sea3d.pipeline.frame_source import SessionFrames, imu_between
@@ -66,10 +74,23 @@ class LiveConfig:
     the first depth frame has been started: there is nothing to seed it from). None: any
     (the default: on a loop that falls behind, 1 fused 3.8 % of the 80-frame dive at p50
     2.5 s instead of 17.5 % at 6.1 s; docs/reconstruction.md)."""
+    odometry_waits_for_depth: bool = False
+    """A frame's odometry waits for its own depth (the loop holds every frame behind it
+    while depth computes). False (the default): once a depth map exists, a frame whose depth
+    is still computing goes through the odometry on the seeds a frame without depth gets, and
+    its depth is fused when it comes (docs/reconstruction.md: on the 80-frame dive the frames
+    waited seconds behind depth for the loop otherwise)."""
+    seed_max_age_s: float = 1.0
+    """Oldest seeds (stamp of the frame, less that of the depth map they come from) the
+    odometry takes; with older ones it waits for the oldest depth in flight (a depth worker
+    starved of CPU: seeds seconds old left 14 of 80 frames IMU-only on a loaded machine).
+    About the worker's depth time on a loaded core of this machine (0.6-1.5 s)."""
 
     def __post_init__(self) -> None:
         if self.depth_in_flight < 1:
             raise ConfigError(f"depth_in_flight must be >= 1, got {self.depth_in_flight}")
+        if not self.seed_max_age_s > 0:
+            raise ConfigError(f"seed_max_age_s must be > 0, got {self.seed_max_age_s}")
         if self.depth_max_backlog is not None and self.depth_max_backlog < 1:
             raise ConfigError(f"depth_max_backlog must be >= 1 or None, got "
                               f"{self.depth_max_backlog}")
@@ -101,6 +122,8 @@ class LiveStats:
     """Of ``depth_dropped``: frames that got no depth because newer ones waited behind them."""
     seeds_moved: int = 0
     """Frames without depth whose seeds were moved to their predicted pose."""
+    depth_after_odometry: int = 0
+    """Frames with depth of their own whose odometry ran on seeds before it came."""
     latency_s: list[float] = field(default_factory=list)
     """Per fused frame: arrival to the end of its fusion step."""
     mesh_latency_s: list[float] = field(default_factory=list)
@@ -126,6 +149,7 @@ class LiveStats:
         return {"frames": self.frames, "tracked": self.tracked, "fused": self.fused,
                 "depth_dropped": self.depth_dropped, "depth_stale": self.depth_stale,
                 "seeds_moved": self.seeds_moved,
+                "depth_after_odometry": self.depth_after_odometry,
                 "fraction_tracked": self.tracked / self.frames if self.frames else 0.0,
                 "fraction_fused": self.fused / self.frames if self.frames else 0.0,
                 "latency_s": pct(self.latency_s), "mesh_latency_s": pct(self.mesh_latency_s),
@@ -149,6 +173,9 @@ class LiveUpdate:
     frame: LiveFrame
     stats: LiveStats
     stages: OrderedStages
+    late: bool = False
+    """The frame's depth was fused after its odometry was handed on (its estimate and
+    images came with an earlier update, ``fused`` False)."""
 
 
 class ReplayFrames:
@@ -395,16 +422,75 @@ class RecorderFrames:
 class _Pending:
     frame: LiveFrame
     arrival: float
+    rect: tuple[NDArray[np.uint8], NDArray[np.uint8]]
     future: Any = None
-    rect: tuple[NDArray[np.uint8], NDArray[np.uint8]] | None = None
     submitted: float = 0.0
     done: list[float] = field(default_factory=list)  # when the worker finished (its callback)
+    est: OdometryEstimate | None = None
+    index: int = -1  # its place in the ordered stages' per-frame lists
+    anchor_rel: tuple[int, F64] | None = None  # (anchor keyframe, T_anchor_cam) at odometry
+
+
+class _Prefetch:
+    """The source read and rectified by a thread of its own, up to ``ahead`` frames before
+    the live loop takes them (decoding and rectification off the loop's thread; cv2 lets the
+    GIL go). ``backlog``: the frames waiting here plus the source's own."""
+
+    def __init__(self, frames: Iterable[LiveFrame], stereo: Any, ahead: int = 4) -> None:
+        self.source = frames
+        self._q: Queue[tuple[LiveFrame, Any] | None] = Queue(maxsize=max(1, ahead))
+        self._stop = threading.Event()
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, args=(stereo,), daemon=True,
+                                        name="sea3d-live-prefetch")
+        self._thread.start()
+
+    def _put(self, item: tuple[LiveFrame, Any] | None) -> bool:
+        while not self._stop.is_set():
+            try:
+                self._q.put(item, timeout=0.1)
+                return True
+            except Full:
+                continue
+        return False
+
+    def _run(self, stereo: Any) -> None:
+        try:
+            for frame in self.source:
+                rect = rectify_pair(stereo, frame.left, frame.right)
+                if not self._put((frame, rect)):
+                    return
+        except BaseException as err:  # handed to the loop's thread
+            self._error = err
+        self._put(None)
+
+    @property
+    def backlog(self) -> int:
+        return self._q.qsize() + int(getattr(self.source, "backlog", 1) or 1)
+
+    def __iter__(self) -> Iterator[tuple[LiveFrame, Any]]:
+        while True:
+            item = self._q.get()
+            if item is None:
+                if self._error is not None:
+                    raise self._error
+                return
+            yield item
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=1)
 
 
 def run_live(frames: Iterable[LiveFrame], stage: FrameStageConfig, stereo: Any,
              stages: OrderedStages, executor: Any, config: LiveConfig | None = None, *,
              on_update: Callable[[LiveUpdate], Any] | None = None) -> LiveStats:
     """Odometry on every frame, depth and fusion on those the depth worker keeps up with.
+
+    The source is read and rectified ahead by a thread (:class:`_Prefetch`). A frame's
+    odometry does not wait for its own depth once a depth map exists
+    (``LiveConfig.odometry_waits_for_depth``): it takes the seeds a frame without depth gets,
+    and its depth is fused when it comes, in time order, at the frame's pose then.
 
     Args:
         frames: the source (:class:`ReplayFrames`, :class:`RecorderFrames`); its
@@ -414,55 +500,156 @@ def run_live(frames: Iterable[LiveFrame], stage: FrameStageConfig, stereo: Any,
         stages: the ordered stages (fed in time order).
         executor: where depth runs (a process pool: the loop must not wait for it).
         config: :class:`LiveConfig`.
-        on_update: called after each frame with a :class:`LiveUpdate` (the hook of
-            :class:`~sea3d.pipeline.live_publish.LiveFeed`); what it raises is logged once
-            and the loop goes on without it.
+        on_update: called after each frame's odometry with a :class:`LiveUpdate` (the hook
+            of :class:`~sea3d.pipeline.live_publish.LiveFeed`), and after each late fusion;
+            what it raises is logged once and the loop goes on without it.
 
     Returns:
         :class:`LiveStats`.
     """
-    from sea3d.pipeline.depth_rate import DepthRate
-
     cfg = config or LiveConfig()
     stats = LiveStats()
-    queue: deque[_Pending] = deque()
-    last_depth: list[NDArray[np.float32]] = []
     c0 = time.process_time()
-    shared = executor.share(stereo)
-    # seeds of a frame without depth: the last depth map moved to its predicted pose
-    seeder = DepthRate("all", K=stages.K, width_px=int(stereo.maps.width), trusted=TRUSTED)
-    hook: list[Callable[[LiveUpdate], Any]] = [on_update] if on_update is not None else []
+    source = _Prefetch(frames, stereo)
+    try:
+        loop = _Loop(stage, stereo, stages, executor, cfg, stats, on_update)
+        for frame, rect in source:
+            loop.take(frame, rect, int(source.backlog))
+        loop.drain(block=True)
+    finally:
+        source.close()
+    stats.stop_reason = str(getattr(frames, "stop_reason", "") or "source ended")
+    stats.cpu_s = time.process_time() - c0
+    return stats
 
-    def drain(block: bool) -> None:
-        while queue:
-            head = queue[0]
-            if head.future is not None and not head.future.done() and not block:
-                return
-            queue.popleft()
-            own = head.future is not None
-            if own:
-                res: FrameResult = head.future.result()
-                if res.status == "ok":
-                    last_depth[:] = [res.depth_m]
-            else:
-                assert head.rect is not None
-                if last_depth:
-                    before = seeder.warped
-                    seed = seeder.seed(last_depth[0])
-                    stats.seeds_moved += seeder.warped - before
-                else:
-                    seed = np.full(head.rect[0].shape[:2], np.nan, np.float32)
-                res = FrameResult(t_ns=head.frame.t_ns, status="ok", rect_left=head.rect[0],
-                                  rect_right=head.rect[1], depth_m=seed, seeded=True,
-                                  valid_fraction=float(np.isfinite(seed).mean()))
-            est = stages.step(res, head.frame.imu, fuse=own)
-            if est is None:
+
+class _Loop:
+    """The live loop's state: frames waiting for their odometry, then for their fusion."""
+
+    def __init__(self, stage: FrameStageConfig, stereo: Any, stages: OrderedStages,
+                 executor: Any, cfg: LiveConfig, stats: LiveStats,
+                 on_update: Callable[[LiveUpdate], Any] | None) -> None:
+        from sea3d.pipeline.depth_rate import DepthRate
+
+        self.stage, self.stages, self.executor, self.cfg, self.stats = (
+            stage, stages, executor, cfg, stats)
+        self.shared = executor.share(stereo)
+        self.odo_queue: deque[_Pending] = deque()  # waiting for the odometry, in order
+        self.fuse_queue: deque[_Pending] = deque()  # odometry done, waiting for their depth
+        self.last_depth: list[NDArray[np.float32]] = []
+        self.depth_t = -1  # stamp of the frame whose depth the seeds come from
+        self.started_depth = False
+        # seeds of a frame without depth: the last depth map moved to its predicted pose
+        self.seeder = DepthRate("all", K=stages.K, width_px=int(stereo.maps.width),
+                                trusted=TRUSTED)
+        self.hook: list[Callable[[LiveUpdate], Any]] = [on_update] if on_update else []
+
+    def take(self, frame: LiveFrame, rect: Any, backlog: int) -> None:
+        """A frame from the source: depth for it if the worker has room, then the loop."""
+        cfg, stats = self.cfg, self.stats
+        taken = time.monotonic()
+        arrival = taken if frame.arrival_s is None else frame.arrival_s
+        stats.frames += 1
+        stats.wait_s.append(max(0.0, taken - arrival))
+        stats.backlog_max = max(stats.backlog_max, backlog)
+        busy = sum(1 for p in (*self.odo_queue, *self.fuse_queue)
+                   if p.future is not None and not p.future.done())
+        stale = (cfg.depth_max_backlog is not None and backlog > cfg.depth_max_backlog
+                 and self.started_depth)
+        entry = _Pending(frame=frame, arrival=arrival, rect=rect)
+        if busy < cfg.depth_in_flight and not stale:
+            self.started_depth = True
+            entry.submitted = time.monotonic()
+            entry.future = self.executor.submit(process_frame, self.stage, frame.t_ns,
+                                                frame.left, frame.right, self.shared)
+            entry.future.add_done_callback(lambda _f, d=entry.done: d.append(time.monotonic()))
+        else:
+            stats.depth_dropped += 1
+            stats.depth_stale += int(busy < cfg.depth_in_flight)
+        self.odo_queue.append(entry)
+        self.drain(block=False)
+
+    def _blocker(self, head: _Pending) -> Any:
+        """The depth still computing that the head frame's odometry waits for, or None:
+        its own when there is nothing to seed from yet (or ``odometry_waits_for_depth``);
+        when the seeds are older than ``seed_max_age_s``, the oldest depth in flight."""
+        own = head.future
+        if own is not None and own.done():
+            return None
+        if own is not None and (self.cfg.odometry_waits_for_depth or not self.last_depth):
+            return own
+        age_s = (head.frame.t_ns - self.depth_t) * 1e-9
+        if self.last_depth and age_s <= self.cfg.seed_max_age_s:
+            return None
+        pending = next((p.future for p in self.fuse_queue if not p.future.done()), None)
+        return pending if pending is not None else own
+
+    def drain(self, block: bool) -> None:
+        """Odometry on every frame it can run on, then fusion of the depth that has come."""
+        while self.odo_queue:
+            self._fuse(block=False)
+            blocker = self._blocker(self.odo_queue[0])
+            if blocker is not None:
+                if not block:
+                    return
+                blocker.result()
                 continue
-            seeder.observe(res.t_ns, est.status,
-                           np.asarray(est.T_world_left) @ stages.T_left_rect,
-                           own_depth=own and res.status == "ok")
-            stats.tracked += int(est.status in TRUSTED)
-            fused = own and stages.fuse_status[-1] == "integrated"
+            self._odometry(self.odo_queue.popleft())
+        self._fuse(block=block)
+
+    def _odometry(self, head: _Pending) -> None:
+        stages, stats, seeder = self.stages, self.stats, self.seeder
+        own = head.future is not None and head.future.done()
+        if own:
+            res: FrameResult = head.future.result()
+            if res.status == "ok":
+                self.last_depth[:] = [res.depth_m]
+                self.depth_t = int(res.t_ns)
+        else:
+            if self.last_depth:
+                before = seeder.warped
+                seed = seeder.seed(self.last_depth[0])
+                if head.future is None:
+                    stats.seeds_moved += seeder.warped - before
+            else:
+                seed = np.full(head.rect[0].shape[:2], np.nan, np.float32)
+            res = FrameResult(t_ns=head.frame.t_ns, status="ok", rect_left=head.rect[0],
+                              rect_right=head.rect[1], depth_m=seed, seeded=True,
+                              valid_fraction=float(np.isfinite(seed).mean()))
+        est = stages.step(res, head.frame.imu, fuse=False)
+        if est is None:
+            return
+        T_cam = np.asarray(est.T_world_left) @ stages.T_left_rect
+        seeder.observe(res.t_ns, est.status, T_cam, own_depth=own and res.status == "ok")
+        stats.tracked += int(est.status in TRUSTED)
+        if head.future is not None:
+            head.est, head.index = est, len(stages.estimates) - 1
+            a = est.anchor_keyframe_id
+            if a is not None and a in stages.kf_rect:
+                head.anchor_rel = (a, np.linalg.inv(stages.kf_rect[a]) @ T_cam)
+            stats.depth_after_odometry += int(not own)
+            self.fuse_queue.append(head)
+        self._publish(head, est, fused=False, late=False)
+
+    def _fuse(self, block: bool) -> None:
+        """Fuse the frames whose depth has come, in time order."""
+        stages, stats = self.stages, self.stats
+        while self.fuse_queue:
+            head = self.fuse_queue[0]
+            if not head.future.done() and not block:
+                return
+            self.fuse_queue.popleft()
+            res: FrameResult = head.future.result()
+            assert head.est is not None
+            if res.status == "ok" and int(res.t_ns) > self.depth_t:  # the seeds' depth now
+                self.last_depth[:] = [res.depth_m]
+                self.depth_t = int(res.t_ns)
+                pose = self._pose_now(head)
+                if pose is None:
+                    pose = np.asarray(head.est.T_world_left) @ stages.T_left_rect
+                self.seeder.depth_of(pose if head.est.status in TRUSTED else None)
+            status = stages.fuse_late(head.index, res, head.est, self._pose_now(head))
+            fused = status == "integrated"
             if fused:
                 stats.fused += 1
                 now = time.monotonic()
@@ -470,43 +657,30 @@ def run_live(frames: Iterable[LiveFrame], stage: FrameStageConfig, stereo: Any,
                 done = head.done[0] if head.done else now
                 stats.depth_s.append(done - head.submitted)
                 stats.hold_s.append(now - done)
-            if hook:
-                try:
-                    hook[0](LiveUpdate(estimate=est, fused=fused, arrival_s=head.arrival,
-                                       frame=head.frame, stats=stats, stages=stages))
-                except Exception as err:  # a viewer never stops the reconstruction
-                    log.warning("live update hook failed, going on without it: %s: %s",
-                                type(err).__name__, err)
-                    hook.clear()
+            if fused:
+                self._publish(head, head.est, fused=True, late=True)
 
-    started_depth = False
-    for frame in frames:
-        taken = time.monotonic()
-        arrival = taken if frame.arrival_s is None else frame.arrival_s
-        stats.frames += 1
-        stats.wait_s.append(max(0.0, taken - arrival))
-        backlog = int(getattr(frames, "backlog", 0) or 0)
-        stats.backlog_max = max(stats.backlog_max, backlog)
-        busy = sum(1 for p in queue if p.future is not None and not p.future.done())
-        stale = (cfg.depth_max_backlog is not None and backlog > cfg.depth_max_backlog
-                 and started_depth)
-        entry = _Pending(frame=frame, arrival=arrival)
-        if busy < cfg.depth_in_flight and not stale:
-            started_depth = True
-            entry.submitted = time.monotonic()
-            entry.future = executor.submit(process_frame, stage, frame.t_ns, frame.left,
-                                           frame.right, shared)
-            entry.future.add_done_callback(lambda _f, d=entry.done: d.append(time.monotonic()))
-        else:
-            stats.depth_dropped += 1
-            stats.depth_stale += int(busy < cfg.depth_in_flight)
-            entry.rect = rectify_pair(stereo, frame.left, frame.right)
-        queue.append(entry)
-        drain(block=False)
-    drain(block=True)
-    stats.stop_reason = str(getattr(frames, "stop_reason", "") or "source ended")
-    stats.cpu_s = time.process_time() - c0
-    return stats
+    def _pose_now(self, head: _Pending) -> F64 | None:
+        """The frame's ``T_world_rect`` now: moved with its anchor keyframe by loop closures
+        since its odometry (None: its estimate's)."""
+        if head.anchor_rel is None:
+            return None
+        a, rel = head.anchor_rel
+        T = self.stages.kf_rect.get(a)
+        return None if T is None else np.asarray(T) @ rel
+
+    def _publish(self, head: _Pending, est: OdometryEstimate, *, fused: bool,
+                 late: bool) -> None:
+        if not self.hook:
+            return
+        try:
+            self.hook[0](LiveUpdate(estimate=est, fused=fused, arrival_s=head.arrival,
+                                    frame=head.frame, stats=self.stats, stages=self.stages,
+                                    late=late))
+        except Exception as err:  # a viewer never stops the reconstruction
+            log.warning("live update hook failed, going on without it: %s: %s",
+                        type(err).__name__, err)
+            self.hook.clear()
 
 
 class _Run:
@@ -559,8 +733,11 @@ class _Run:
                                                   dtype=np.uint8)
         left, right = noise[:, 8:].copy(), noise[:, :-8].copy()  # 8 px of disparity
         try:
-            self.executor.submit(process_frame, self.stage, 0, left, right,
-                                 self.executor.share(self.stereo)).result()
+            first = self.executor.submit(process_frame, self.stage, 0, left, right,
+                                         self.executor.share(self.stereo))
+            import open3d  # noqa: F401  (meanwhile: the TSDF's library, not at the first fusion)
+
+            first.result()
         except BaseException:
             self.executor.close()
             if self.feed is not None:

@@ -8,11 +8,11 @@ and, every ``mesh_interval_s`` while new frames were fused, meshes the active su
 finished submap is meshed once, when it reaches the store); a thread of its own encodes and
 sends. The mesh goes out as ``foxglove.SceneUpdate`` entities, one per submap
 (``submap-N``), on ``/mesh``: the active one each time it changed, a finished one once (and
-again after a loop closure moved it, every ``full_scene_interval_s``, and when a new client
-appears); the trajectory (tracked frames only) on ``/odometry/trajectory``, the last pose on
-``/odometry/pose`` and ``/tf``, the status (JSON ``sea3d.LiveStatus``) on ``/live/status``.
-After the run the merged mesh replaces the submaps (entity ``mesh``) and the status carries
-the stop reason.
+again after a loop closure moved it, and, with a Foxglove server, every
+``full_scene_interval_s`` and when a new client appears); the trajectory (tracked frames
+only) on ``/odometry/trajectory``, the last pose on ``/odometry/pose`` and ``/tf``, the
+status (JSON ``sea3d.LiveStatus``) on ``/live/status``. After the run the merged mesh
+replaces the submaps (entity ``mesh``) and the status carries the stop reason.
 
 The latency from a frame to its mesh update is measured per fused frame, from its arrival to
 the end of the publication of the first mesh that holds it (``LiveStats.mesh_latency_s``).
@@ -217,15 +217,17 @@ class LiveFeed:
         """The hook (see :class:`~sea3d.pipeline.live.LiveUpdate`)."""
         est, stages = u.estimate, u.stages
         self._stats, self._stages = u.stats, stages
-        t = int(est.t_ns)
-        with self._lock:
-            seq = self._frames.get("left", (0, None))[0] + 1
-            self._frames["left"] = (seq, _Frame(t, u.frame.left))
-            self._frames["right"] = (seq, _Frame(t, u.frame.right))
-        if est.status in TRUSTED:
-            self._poses.append((t, np.asarray(est.T_world_left, np.float64)))
-        self._last_status_text = str(est.status.value)
-        if est.loop_closure:
+        late = bool(getattr(u, "late", False))  # a late fusion: its frame was handed on
+        t = int(est.t_ns) if not late or not self._poses else int(self._poses[-1][0])
+        if not late:
+            with self._lock:
+                seq = self._frames.get("left", (0, None))[0] + 1
+                self._frames["left"] = (seq, _Frame(t, u.frame.left))
+                self._frames["right"] = (seq, _Frame(t, u.frame.right))
+            if est.status in TRUSTED:
+                self._poses.append((t, np.asarray(est.T_world_left, np.float64)))
+            self._last_status_text = str(est.status.value)
+        if est.loop_closure and not late:
             with self._lock:
                 self._dirty.update(self._finished)
         if u.fused:
@@ -256,8 +258,11 @@ class LiveFeed:
         now = time.monotonic()
         clients = self.publisher.clients_seen() if self.publisher is not None else 0
         with self._lock:
-            if now - self._last_full >= self.config.full_scene_interval_s or clients != (
-                    self._clients):
+            # every finished submap again only for a Foxglove server's clients (that may
+            # have missed them); the monitor's page reads them from disk at the pose sent
+            if self.publisher is not None and (
+                    now - self._last_full >= self.config.full_scene_interval_s
+                    or clients != self._clients):
                 self._dirty.update(self._finished)
                 self._last_full, self._clients = now, clients
             todo = [(sid, self._finished[sid]) for sid in sorted(self._dirty)]

@@ -103,9 +103,24 @@ class OrderedStages:
         if est.keyframe_id is not None:
             self.kf_rect[est.keyframe_id] = np.asarray(est.T_world_left) @ self.T_left_rect
         self.timer.add("odometry_s", time.perf_counter() - to)
-        if not fuse:
-            self.fuse_status.append("no-depth")
-            return est
+        self.fuse_status.append("no-depth" if not fuse else self._fuse(res, est, None))
+        return est
+
+    def fuse_late(self, index: int, res: FrameResult, est: OdometryEstimate,
+                  T_world_cam: F64 | None = None) -> str:
+        """Fuse frame ``index`` (stepped before with ``fuse=False`` on seeded depth) once its
+        own depth ``res`` has come (live: the odometry did not wait for it), at
+        ``T_world_cam`` (its pose now; None: the estimate's); its statuses are updated.
+        Frames must be fused in time order. Returns the fusion status."""
+        for k, v in res.timings_s.items():
+            self.worker_timings_s[k] = self.worker_timings_s.get(k, 0.0) + v
+        self.frame_status[index] = res.status
+        self.valid_fraction[index] = res.valid_fraction
+        if res.status != "failed":
+            self.fuse_status[index] = self._fuse(res, est, T_world_cam)
+        return self.fuse_status[index]
+
+    def _fuse(self, res: FrameResult, est: OdometryEstimate, T_world_cam: F64 | None) -> str:
         tf = time.perf_counter()
         if res.colour_status:
             self.colour_status[res.colour_status] = (
@@ -116,13 +131,13 @@ class OrderedStages:
         fused = self.fusion.step(
             t_ns=res.t_ns, trusted=est.status in TRUSTED, keyframe_id=est.keyframe_id,
             depth_m=res.fusion_depth_m, color_rgb=res.colors(), K=self.K,
-            T_world_cam=np.asarray(est.T_world_left) @ self.T_left_rect,
+            T_world_cam=(np.asarray(est.T_world_left) @ self.T_left_rect if T_world_cam is None
+                         else T_world_cam),
             keyframe_poses=self.kf_rect)
-        self.fuse_status.append(fused.status)
         for sm in fused.finished:
             self.store.put(sm)
         self.timer.add("fusion_s", time.perf_counter() - tf)
-        return est
+        return str(fused.status)
 
     def finish_fusion(self) -> None:
         """Hand the active submap to the store (after the last frame)."""
