@@ -64,7 +64,7 @@ def test_warped_patches_follow_a_step_that_magnifies_and_turns_them() -> None:
     tex = _texture(rng)
     T0 = np.eye(4)
     T1 = make_T(rotvec_to_R([0.0, 0.0, np.deg2rad(12.0)]), [0.1, 0.0, 1.2])  # 1.43x, 12 deg
-    img0, depth0 = _view(tex, T0)
+    img0, _ = _view(tex, T0)
     img1, _ = _view(tex, T1)
     uv0 = cv2.goodFeaturesToTrack(img0, 80, 0.01, 12, mask=None).reshape(-1, 2).astype(float)
     uv0 = uv0[(np.abs(uv0[:, 0] - K[0, 2]) < 90) & (np.abs(uv0[:, 1] - K[1, 2]) < 70)]

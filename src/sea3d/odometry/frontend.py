@@ -207,12 +207,15 @@ def track_warped(
     levels: int = 2,
     iterations: int = 15,
     min_zncc: float = 0.85,
+    min_warp: float = 0.05,
 ) -> tuple[F64, B]:
     """Track ``prev_uv`` into ``cur`` with each feature's patch first warped by its predicted
     local affine map (:func:`predicted_affine`): the patch is made to look as it should in
     the current view, then its translation is found by inverse-compositional Gauss-Newton on
     zero-mean, unit-norm patches (the exposure may change), coarse to fine over ``levels``
-    levels, from ``guess_uv`` (the predicted projections).
+    levels, from ``guess_uv`` (the predicted projections). Only features whose warp departs
+    from the identity by ``min_warp`` or more (5 %: a scale change or about 3 deg of roll) and
+    whose prediction lies inside the image are searched.
 
     A check of the forward-backward kind needs the warp's inverse; a match is kept instead
     when the alignment converged and the aligned patches' zero-normalised cross-correlation
@@ -230,7 +233,15 @@ def track_warped(
     o = np.stack([ox.ravel(), oy.ravel()], 0)  # (2, W*W) offsets in the current view
     with np.errstate(invalid="ignore"):
         det = affine[:, 0, 0] * affine[:, 1, 1] - affine[:, 0, 1] * affine[:, 1, 0]
-    usable = np.isfinite(det) & (det > 0.1) & (det < 10.0) & np.isfinite(guess_uv).all(1)
+    h, w = cur.shape
+    r = win // 2
+    with np.errstate(invalid="ignore"):
+        # a warp near the identity is what KLT already tried; a patch predicted off the image
+        # has left the view
+        warps = np.abs(affine - np.eye(2)).max(axis=(1, 2)) >= min_warp
+        inside = ((guess_uv[:, 0] >= r) & (guess_uv[:, 0] <= w - 1 - r)
+                  & (guess_uv[:, 1] >= r) & (guess_uv[:, 1] <= h - 1 - r))
+        usable = np.isfinite(det) & (det > 0.1) & (det < 10.0) & warps & inside
     uv = np.where(usable[:, None], guess_uv, prev_uv).astype(np.float64)
     ok = usable.copy()
     if not usable.any():
@@ -239,10 +250,12 @@ def track_warped(
     A_inv = np.linalg.inv(affine[idx])
     src = np.einsum("nij,jk->nik", A_inv, o)  # (M, 2, W*W) offsets in the previous view
     m, ww = idx.size, o.shape[1]
-    pyr_prev, pyr_cur = [prev.astype(np.float32)], [cur.astype(np.float32)]
+    pyr_prev, pyr_cur = [prev], [cur]
     for _ in range(1, levels):
-        pyr_prev.append(np.asarray(cv2.pyrDown(pyr_prev[-1]), np.float32))
-        pyr_cur.append(np.asarray(cv2.pyrDown(pyr_cur[-1]), np.float32))
+        pyr_prev.append(np.asarray(cv2.pyrDown(pyr_prev[-1]), np.uint8))
+        pyr_cur.append(np.asarray(cv2.pyrDown(pyr_cur[-1]), np.uint8))
+    fprev = [a.astype(np.float32) for a in pyr_prev]
+    fcur = [a.astype(np.float32) for a in pyr_cur]
 
     def sample(img: NDArray[np.float32], x: F64, y: F64) -> NDArray[np.float32]:
         out = cv2.remap(img, x.astype(np.float32).reshape(m, ww),
@@ -259,7 +272,7 @@ def track_warped(
     for level in range(levels - 1, -1, -1):
         s = 0.5**level
         c0 = prev_uv[idx] * s
-        T = normed(sample(pyr_prev[level], c0[:, 0:1] + src[:, 0], c0[:, 1:2] + src[:, 1]))
+        T = normed(sample(fprev[level], c0[:, 0:1] + src[:, 0], c0[:, 1:2] + src[:, 1]))
         Tg = T.reshape(m, win, win)
         J = np.stack([np.gradient(Tg, axis=2).reshape(m, ww),
                       np.gradient(Tg, axis=1).reshape(m, ww)], 2)  # (M, W*W, 2)
@@ -271,15 +284,14 @@ def track_warped(
             active = step >= 0.03
             if not active.any():
                 break
-            I = normed(sample(pyr_cur[level], q[:, 0:1] + o[0], q[:, 1:2] + o[1]))
+            I = normed(sample(fcur[level], q[:, 0:1] + o[0], q[:, 1:2] + o[1]))
             d = np.einsum("nij,nj->ni", H_inv, np.einsum("nki,nk->ni", J, I - T))
             d = np.clip(d, -2.0, 2.0)
             q = np.where(active[:, None], q - d, q)
             step = np.where(active, np.linalg.norm(d, axis=1), step)
         p = q / s
-    I = normed(sample(pyr_cur[0], p[:, 0:1] + o[0], p[:, 1:2] + o[1]))
+    I = normed(sample(fcur[0], p[:, 0:1] + o[0], p[:, 1:2] + o[1]))
     zncc = (I * T).sum(axis=1)
-    h, w = cur.shape
     good = (
         (step < 0.1)
         & (zncc >= min_zncc)
