@@ -2,7 +2,10 @@
 
 All of it runs in the rectified images. Features are Shi-Tomasi corners, tracked frame to frame
 by pyramidal Lucas-Kanade (OpenCV) with a forward-backward check; predicted positions (from the
-IMU or a constant-velocity model) seed the search. Each tracked corner is matched into the
+IMU or a constant-velocity model) seed the search. Features that KLT loses are searched once
+more with their patch warped by the local affine map that the predicted motion and the
+landmark's depth give (:func:`track_warped`: a step towards a near point magnifies its patch, a
+roll turns it, and a translational window follows neither). Each tracked corner is matched into the
 rectified right image by Lucas-Kanade seeded with the depth map's disparity, checked backwards,
 on the row and against the depth map; the match is triangulated exactly
 (:meth:`RectifiedStereo.points_from_stereo`). Without a right image (RGB-D mode) the depth alone
