@@ -21,6 +21,11 @@ files). Wall and CPU seconds are per sequence (one run each: the machine is shar
 accuracy does not depend on it). Run:
 
     python benchmarks/bench_real.py [--only chess|euroc|fetched] [--patterns 1 2 5 10 jerk]
+        [--strides 1 2 3]
+
+``--strides`` takes every k-th frame of each fetched KITTI excerpt (at its real stamps: 1.2 m
+per frame at stride 1, 2.4 and 3.6 m at strides 2 and 3, real large inter-frame motion); sea3d
+and the OpenCV baseline run on the same frames in the same run.
 """
 
 from __future__ import annotations
@@ -148,13 +153,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--only", choices=["chess", "euroc", "fetched"])
     p.add_argument("--patterns", nargs="+", default=["1", "2", "5", "10", "jerk", "jump"],
                    help="chess frame steps, or 'jerk', 'jump'")
+    p.add_argument("--strides", nargs="+", type=int, default=[1, 2, 3],
+                   help="KITTI frame strides (every k-th frame)")
     args = p.parse_args(argv)
     if args.only in (None, "chess"):
         bench_chess([p if p in ("jerk", "jump") else int(p) for p in args.patterns])
     if args.only in (None, "euroc"):
         bench_euroc()
     if args.only in (None, "fetched"):
-        bench_fetched()
+        bench_fetched(args.strides)
     return 0
 
 
@@ -167,7 +174,7 @@ def bench_euroc() -> None:
     _stereo_row("EuRoC V1_01 micro (still)", root)
 
 
-def bench_fetched() -> None:
+def bench_fetched(strides: list[int]) -> None:
     found = sorted(REAL.glob("kitti_*")) + sorted(REAL.glob("euroc_*")) if REAL.is_dir() else []
     if not found:
         print(f"fetched sequences: none under {REAL} (SEA3D_REAL_DATA), skipped")
@@ -176,18 +183,20 @@ def bench_fetched() -> None:
 
     for d in found:
         if d.name.startswith("kitti_"):
-            with tempfile.TemporaryDirectory() as td:
-                _stereo_row(d.name, kitti_as_euroc(d, Path(td)))
+            for k in strides:
+                with tempfile.TemporaryDirectory() as td:
+                    _stereo_row(f"{d.name} stride {k}", kitti_as_euroc(d, Path(td), stride=k))
         else:
             _stereo_row(d.name, d)
 
 
-def kitti_as_euroc(src: Path, dst: Path, rate_hz: float = 10.0) -> Path:
+def kitti_as_euroc(src: Path, dst: Path, rate_hz: float = 10.0, stride: int = 1) -> Path:
     """Present a KITTI odometry excerpt (``image_0``/``image_1`` rectified grey pairs,
     ``calib.txt`` with the ``P0``/``P1`` rows, ``poses.txt`` of ``T_world_left`` rows, optional
     ``times.txt``) as an EuRoC folder under ``dst`` (images linked, not copied): the body frame
     is the left camera, no IMU, no distortion, the right camera ``B = -P1[0, 3] / P1[0, 0]`` to
-    the right. Returns the folder for :func:`sea3d.io.euroc.read_euroc`."""
+    the right; ``stride`` keeps every k-th frame (at its own stamp). Returns the folder for
+    :func:`sea3d.io.euroc.read_euroc`."""
     import cv2
     from scipy.spatial.transform import Rotation
 
@@ -205,6 +214,10 @@ def kitti_as_euroc(src: Path, dst: Path, rate_hz: float = 10.0) -> Path:
     times = (np.loadtxt(src / "times.txt")[:n] if (src / "times.txt").is_file()
              else np.arange(n) / rate_hz)
     t_ns = (1_000_000_000 + np.round(np.asarray(times) * 1e9)).astype(np.int64)
+    keep = np.arange(0, n, int(stride))
+    left, right, poses, t_ns = ([left[i] for i in keep], [right[i] for i in keep], poses[keep],
+                                t_ns[keep])
+    n = keep.size
     h, w = cv2.imread(str(left[0]), cv2.IMREAD_GRAYSCALE).shape
     mav0 = dst / "mav0"
     for cam, files, tx in (("cam0", left, 0.0), ("cam1", right, baseline)):
@@ -215,7 +228,7 @@ def kitti_as_euroc(src: Path, dst: Path, rate_hz: float = 10.0) -> Path:
             "#timestamp [ns],filename\n" + "".join(f"{t},{t}.png\n" for t in t_ns))
         T = [1, 0, 0, tx, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]
         (mav0 / cam / "sensor.yaml").write_text(
-            f"T_BS:\n  rows: 4\n  cols: 4\n  data: {T}\nrate_hz: {rate_hz}\n"
+            f"T_BS:\n  rows: 4\n  cols: 4\n  data: {T}\nrate_hz: {rate_hz / stride}\n"
             f"resolution: [{w}, {h}]\ncamera_model: pinhole\n"
             f"intrinsics: {[float(v) for v in (P0[0, 0], P0[1, 1], P0[0, 2], P0[1, 2])]}\n"
             "distortion_model: radial-tangential\ndistortion_coefficients: [0, 0, 0, 0]\n")

@@ -59,6 +59,12 @@ class OdometryConfig:
     """Before a frame is given up (IMU-only or lost), search every landmark of the last
     keyframe from its image, seeded by the predicted pose (IMU or constant velocity), with a
     window and pyramid twice tracking's, and solve PnP RANSAC on them (large motion)."""
+    warped_tracking: bool = True
+    """Search the features that KLT lost once more, each patch warped by the local affine map
+    that the predicted pose and its landmark's depth give, aligned by Gauss-Newton and kept
+    at a zero-normalised cross-correlation of 0.85 (:func:`~sea3d.odometry.frontend.
+    track_warped`): large steps towards near points, and rolls, that defeat a translational
+    window."""
     # ---- keyframes
     keyframe_track_ratio: float = 0.75
     """A keyframe is made when fewer than this fraction of the last keyframe's features track

@@ -2,7 +2,10 @@
 
 All of it runs in the rectified images. Features are Shi-Tomasi corners, tracked frame to frame
 by pyramidal Lucas-Kanade (OpenCV) with a forward-backward check; predicted positions (from the
-IMU or a constant-velocity model) seed the search. Each tracked corner is matched into the
+IMU or a constant-velocity model) seed the search. Features that KLT loses are searched once
+more with their patch warped by the local affine map that the predicted motion and the
+landmark's depth give (:func:`track_warped`: a step towards a near point magnifies its patch, a
+roll turns it, and a translational window follows neither). Each tracked corner is matched into the
 rectified right image by Lucas-Kanade seeded with the depth map's disparity, checked backwards,
 on the row and against the depth map; the match is triangulated exactly
 (:meth:`RectifiedStereo.points_from_stereo`). Without a right image (RGB-D mode) the depth alone
@@ -28,11 +31,13 @@ _NO_DIST = np.zeros(4)  # rectified, virtual-pinhole consistent pixels: no disto
 __all__ = [
     "StereoPoints",
     "detect_corners",
+    "predicted_affine",
     "sample_depth",
     "solve_pnp",
     "stereo_points",
     "to_grey",
     "track_klt",
+    "track_warped",
 ]
 
 B = NDArray[np.bool_]
@@ -167,6 +172,136 @@ def track_klt(
         & (uv[:, 1] >= 2)
         & (uv[:, 1] <= h - 3)
     )
+    return uv, ok
+
+
+def predicted_affine(uv_prev: F64, z_prev: F64, T_cur_prev: F64, K: F64) -> F64:
+    """Local affine maps ``(N, 2, 2)`` from the previous image to the current one at features
+    ``uv_prev`` (pixels) of depth ``z_prev`` (metres, previous camera), for the camera motion
+    ``T_cur_prev`` (4x4): the derivative of the pixel's motion, with the surface taken
+    fronto-parallel in the previous view. A forward step of ``dz`` to a point at depth ``z``
+    scales its neighbourhood by ``z / (z - dz)``; a roll turns it: both defeat a translational
+    Lucas-Kanade window, not this warp. NaN where a point is behind either camera."""
+    Kinv = np.linalg.inv(K)
+    R, t = T_cur_prev[:3, :3], T_cur_prev[:3, 3]
+    out = np.full((uv_prev.shape[0], 2, 2), np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        proj = []
+        for du, dv in ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0)):
+            h = np.stack([uv_prev[:, 0] + du, uv_prev[:, 1] + dv, np.ones(len(uv_prev))], 1)
+            P = (h @ Kinv.T) * z_prev[:, None]
+            Pc = P @ R.T + t
+            q = Pc @ K.T
+            proj.append(np.where(Pc[:, 2:3] > 0, q[:, :2] / q[:, 2:3], np.nan))
+        out[:, :, 0] = proj[1] - proj[0]
+        out[:, :, 1] = proj[2] - proj[0]
+        out[~(z_prev > 0)] = np.nan
+    return out
+
+
+def track_warped(
+    prev: NDArray[np.uint8],
+    cur: NDArray[np.uint8],
+    prev_uv: F64,
+    affine: F64,
+    guess_uv: F64,
+    config: OdometryConfig,
+    *,
+    levels: int = 2,
+    iterations: int = 15,
+    min_zncc: float = 0.85,
+    min_warp: float = 0.05,
+) -> tuple[F64, B]:
+    """Track ``prev_uv`` into ``cur`` with each feature's patch first warped by its predicted
+    local affine map (:func:`predicted_affine`): the patch is made to look as it should in
+    the current view, then its translation is found by inverse-compositional Gauss-Newton on
+    zero-mean, unit-norm patches (the exposure may change), coarse to fine over ``levels``
+    levels, from ``guess_uv`` (the predicted projections). Only features whose warp departs
+    from the identity by ``min_warp`` or more (5 %: a scale change or about 3 deg of roll) and
+    whose prediction lies inside the image are searched.
+
+    A check of the forward-backward kind needs the warp's inverse; a match is kept instead
+    when the alignment converged and the aligned patches' zero-normalised cross-correlation
+    is at least ``min_zncc``.
+
+    Returns:
+        ``uv (N, 2)`` and ``ok (N,)``: converged, correlated, inside the image.
+    """
+    n = prev_uv.shape[0]
+    if n == 0:
+        return np.zeros((0, 2)), np.zeros(0, bool)
+    win = config.klt_window_px
+    offs = np.arange(-(win // 2), win // 2 + 1, dtype=np.float64)
+    ox, oy = np.meshgrid(offs, offs)
+    o = np.stack([ox.ravel(), oy.ravel()], 0)  # (2, W*W) offsets in the current view
+    with np.errstate(invalid="ignore"):
+        det = affine[:, 0, 0] * affine[:, 1, 1] - affine[:, 0, 1] * affine[:, 1, 0]
+    h, w = cur.shape
+    r = win // 2
+    with np.errstate(invalid="ignore"):
+        # a warp near the identity is what KLT already tried; a patch predicted off the image
+        # has left the view
+        warps = np.abs(affine - np.eye(2)).max(axis=(1, 2)) >= min_warp
+        inside = ((guess_uv[:, 0] >= r) & (guess_uv[:, 0] <= w - 1 - r)
+                  & (guess_uv[:, 1] >= r) & (guess_uv[:, 1] <= h - 1 - r))
+        usable = np.isfinite(det) & (det > 0.1) & (det < 10.0) & warps & inside
+    uv = np.where(usable[:, None], guess_uv, prev_uv).astype(np.float64)
+    ok = usable.copy()
+    if not usable.any():
+        return uv, ok
+    idx = np.flatnonzero(usable)
+    A_inv = np.linalg.inv(affine[idx])
+    src = np.einsum("nij,jk->nik", A_inv, o)  # (M, 2, W*W) offsets in the previous view
+    m, ww = idx.size, o.shape[1]
+    pyr_prev, pyr_cur = [prev], [cur]
+    for _ in range(1, levels):
+        pyr_prev.append(np.asarray(cv2.pyrDown(pyr_prev[-1]), np.uint8))
+        pyr_cur.append(np.asarray(cv2.pyrDown(pyr_cur[-1]), np.uint8))
+    fprev = [a.astype(np.float32) for a in pyr_prev]
+    fcur = [a.astype(np.float32) for a in pyr_cur]
+
+    def sample(img: NDArray[np.float32], x: F64, y: F64) -> NDArray[np.float32]:
+        out = cv2.remap(img, x.astype(np.float32).reshape(m, ww),
+                        y.astype(np.float32).reshape(m, ww), cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_REPLICATE)
+        return np.asarray(out, dtype=np.float32)
+
+    def normed(a: NDArray[np.float32]) -> NDArray[np.float32]:
+        z = a - a.mean(axis=1, keepdims=True)
+        return np.asarray(z / (np.linalg.norm(z, axis=1, keepdims=True) + 1e-6), np.float32)
+
+    p = uv[idx].copy()
+    step: F64 = np.full(m, np.inf)
+    for level in range(levels - 1, -1, -1):
+        s = 0.5**level
+        c0 = prev_uv[idx] * s
+        T = normed(sample(fprev[level], c0[:, 0:1] + src[:, 0], c0[:, 1:2] + src[:, 1]))
+        Tg = T.reshape(m, win, win)
+        J = np.stack([np.gradient(Tg, axis=2).reshape(m, ww),
+                      np.gradient(Tg, axis=1).reshape(m, ww)], 2)  # (M, W*W, 2)
+        H = np.einsum("nki,nkj->nij", J, J) + 1e-9 * np.eye(2)
+        H_inv = np.linalg.inv(H)
+        q = p * s
+        step = np.full(m, np.inf)
+        for _ in range(iterations):
+            active = step >= 0.03
+            if not active.any():
+                break
+            I = normed(sample(fcur[level], q[:, 0:1] + o[0], q[:, 1:2] + o[1]))
+            d = np.einsum("nij,nj->ni", H_inv, np.einsum("nki,nk->ni", J, I - T))
+            d = np.clip(d, -2.0, 2.0)
+            q = np.where(active[:, None], q - d, q)
+            step = np.where(active, np.linalg.norm(d, axis=1), step)
+        p = q / s
+    I = normed(sample(fcur[0], p[:, 0:1] + o[0], p[:, 1:2] + o[1]))
+    zncc = (I * T).sum(axis=1)
+    good = (
+        (step < 0.1)
+        & (zncc >= min_zncc)
+        & (p[:, 0] >= 2) & (p[:, 0] <= w - 3) & (p[:, 1] >= 2) & (p[:, 1] <= h - 3)
+    )
+    uv[idx] = p
+    ok[idx] = good
     return uv, ok
 
 

@@ -37,11 +37,13 @@ from sea3d.odometry.config import OdometryConfig
 from sea3d.odometry.frontend import (
     StereoPoints,
     detect_corners,
+    predicted_affine,
     sample_depth,
     solve_pnp,
     stereo_points,
     to_grey,
     track_klt,
+    track_warped,
 )
 from sea3d.odometry.imu import ImuBuffer, gravity_aligned_rotation, preintegration_params
 from sea3d.odometry.loop import (
@@ -735,6 +737,43 @@ class StereoInertialOdometry:
             delta = d
         return seg.last_T_odom @ delta
 
+    def _redetected_pose(
+        self, seg: _Segment, grey: NDArray[np.uint8], depth: NDArray[np.float32]
+    ) -> F64 | None:
+        """``T_odomworld_rect`` of this frame from its ORB features matched to the last
+        keyframe's (every one of its features with a depth: :func:`verify_loop`), or None."""
+        kf = self._keyframes.get(seg.last_kf)
+        if kf is None or kf.place is None or kf.place.descriptors.shape[0] == 0:
+            return None
+        found = verify_loop(self._place(grey, depth), kf.place, kf.id, self.geometry.K,
+                            min_inliers=self.config.min_inliers)
+        if found is None:
+            return None
+        return kf.T_odom @ found.T_cand_query
+
+    def _track_warped(
+        self,
+        seg: _Segment,
+        grey: NDArray[np.uint8],
+        pred: F64,
+        guess: F64,
+        uv: F64,
+        ok: NDArray[np.bool_],
+    ) -> None:
+        """Search the features KLT lost once more, each patch warped by the local affine map
+        that the predicted motion and its landmark's depth give (a step towards a near point
+        magnifies it, a roll turns it); ``uv`` and ``ok`` are updated in place."""
+        assert seg.prev_grey is not None and seg.last_T_odom is not None
+        miss = np.flatnonzero(~ok)
+        T_prev = invert_T(seg.last_T_odom)
+        z_prev = (seg.track_X[miss] @ T_prev[:3, :3].T + T_prev[:3, 3])[:, 2]
+        A = predicted_affine(seg.track_uv[miss], z_prev, invert_T(pred) @ seg.last_T_odom,
+                             self.geometry.K)
+        uv_w, ok_w = track_warped(seg.prev_grey, grey, seg.track_uv[miss], A, guess[miss],
+                                  self.config)
+        uv[miss[ok_w]] = uv_w[ok_w]
+        ok[miss[ok_w]] = True
+
     def _project(self, X_world: F64, T_odom_rect: F64) -> F64:
         T = invert_T(T_odom_rect)
         P = X_world @ T[:3, :3].T + T[:3, 3]
@@ -764,6 +803,9 @@ class StereoInertialOdometry:
         assert seg.prev_grey is not None
         uv, ok = track_klt(seg.prev_grey, grey, seg.track_uv, guess, c)
         info["tracked"] = float(ok.sum())
+        if pred is not None and guess is not None and c.warped_tracking and not ok.all():
+            self._track_warped(seg, grey, pred, guess, uv, ok)
+            info["warped"] = float(ok.sum()) - info["tracked"]
         ids, X = seg.track_ids[ok], seg.track_X[ok]
         uv = uv[ok]
         sp, T_odom, inl = self._solve(seg, t_ns, grey, right, depth, ids, X, uv, pred)
@@ -776,6 +818,21 @@ class StereoInertialOdometry:
                 ids, X, uv, sp, T_odom, inl = found
                 rescued = True
                 info["rescued"] = float(inl.size)
+        if T_odom is None and c.loop_closure:
+            # last: a prior from ORB re-detected against the keyframe's features (all its
+            # stereo points), then the tracks searched again from that prior
+            prior = self._redetected_pose(seg, grey, depth)
+            if prior is not None:
+                guess = self._project(seg.track_X, prior)
+                bad = ~np.isfinite(guess).all(axis=1)
+                guess[bad] = seg.track_uv[bad]
+                uv, ok = track_klt(seg.prev_grey, grey, seg.track_uv, guess, c)
+                if c.warped_tracking and not ok.all():
+                    self._track_warped(seg, grey, prior, guess, uv, ok)
+                ids, X, uv = seg.track_ids[ok], seg.track_X[ok], uv[ok]
+                sp, T_odom, inl = self._solve(seg, t_ns, grey, right, depth, ids, X, uv, prior)
+                if T_odom is not None:
+                    info["redetected"] = float(inl.size)
         if T_odom is None:
             return self._vision_failed(seg, t_ns, grey, right, depth, pred, info)
         info["inliers"] = float(inl.size)
