@@ -219,6 +219,7 @@ class RssRecorder:
             "frames": self.frames, "client_rss_mb": _status_mb("self", "VmRSS"),
             "client_hwm_mb": _status_mb("self", "VmHWM"),
             "workers_rss_mb": sum(_status_mb(k, "VmRSS") for k in _children()),
+            "worker_hwm_mb": max((_status_mb(k, "VmHWM") for k in _children()), default=0.0),
             "out_mb": _du_mb(self.out) if self.out.is_dir() else 0.0})
 
     class _Bar:
@@ -473,11 +474,14 @@ def main() -> None:
     for x in results:
         if x.get("rss_rows"):
             print(f"memory of {x['kind']} (MB) against frames: frames, client RSS, client peak, "
-                  "workers RSS (sum), output folder on disk")
+                  "workers RSS (sum), largest worker's peak, output folder on disk")
             for row in x["rss_rows"]:
                 print(f"  {row['frames']:6d} {row['client_rss_mb']:8.0f} "
                       f"{row['client_hwm_mb']:8.0f} {row['workers_rss_mb']:8.0f} "
-                      f"{row['out_mb']:8.1f}")
+                      f"{row.get('worker_hwm_mb', 0.0):8.0f} {row['out_mb']:8.1f}")
+            print(f"  after the loop: client peak {x['peak_rss_client_mb']:.0f} MB (merge "
+                  f"{x['after_loop_s'].get('merge_s', 0.0):.1f} s, evaluation "
+                  f"{x['after_loop_s'].get('evaluate_s', 0.0):.1f} s)")
     print("CPU s/fr: the whole subprocess (imports, set-up, merge and this script's evaluation "
           "included); run s/fr: the run alone (sea3d's run_process, the paper's chain from "
           "rectification to mesh), libraries imported before; loop s/fr: the frame loop's steady "

@@ -166,6 +166,26 @@ def test_a_moved_merge_in_small_batches_equals_the_whole_merge(monkeypatch):
     np.testing.assert_array_equal(np.sort(again.colors, axis=0), np.sort(whole.colors, axis=0))
 
 
+def test_a_tiled_merge_of_moved_submaps_equals_the_whole_merge():
+    """Each tile reads only the blocks of a submap that can reach it (moved ones: by their
+    moved centres); with tiles far smaller than a submap the mesh is the whole merge's."""
+    store = MemorySubmapStore()
+    kf = _run(_TRUE, _KEYFRAMES, SubmapFusion(FusionConfig(tsdf=TSDF, keyframes_per_submap=2)),
+              store)
+    nudge = np.eye(4)
+    nudge[:3, :3] = rotvec_to_R(np.array([0.02, -0.01, np.deg2rad(2.0)]))
+    nudge[:3, 3] = (0.013, -0.021, 0.007)
+    # anchors are keyframes 0, 2, 4: the middle submap moves, the others stay
+    moved = {k: (nudge @ T if k in (2, 3) else T) for k, T in kf.items()}
+    whole = merge_submaps(store, moved, TSDF, tile_m=None)
+    assert 0 < whole.moved < len(store.ids())
+    tiled = merge_submaps(store, moved, TSDF, tile_m=0.3)
+    assert len(tiled.mesh.triangles) == len(whole.mesh.triangles) > 1000
+    np.testing.assert_allclose(_sorted(tiled.mesh.vertices), _sorted(whole.mesh.vertices),
+                               atol=1e-9)
+    assert tiled.voxels == whole.voxels
+
+
 def test_memory_is_bounded_by_the_active_submap():
     cfg = FusionConfig(tsdf=TSDF, keyframes_per_submap=100, max_blocks=150)
     fusion = SubmapFusion(cfg)

@@ -285,17 +285,42 @@ class SubmapFusion:
 # ------------------------------------------------------------------------------------ merging
 
 
-def _voxel_samples(blocks: VoxelBlocks) -> tuple[NDArray[np.int64], F64, F64, F64]:
-    """Integer voxel coordinates (K, 3), tsdf, weight, colour (K, 3) of the observed voxels."""
+def _voxel_samples(blocks: VoxelBlocks, which: NDArray[np.bool_] | None = None
+                   ) -> tuple[NDArray[np.int64], F64, F64, F64]:
+    """Integer voxel coordinates (K, 3), tsdf, weight, colour (K, 3) of the observed voxels
+    (of the blocks ``which`` selects, or of all)."""
     r = blocks.block_resolution
-    w = blocks.weight.reshape(len(blocks), -1)
+    keys, tsdf, weight, color = blocks.keys, blocks.tsdf, blocks.weight, blocks.color
+    if which is not None:
+        keys, tsdf, weight, color = keys[which], tsdf[which], weight[which], color[which]
+    n = len(keys)
+    w = weight.reshape(n, -1)
     b, loc = np.nonzero(w > 0)
     z, y, x = loc // (r * r), (loc // r) % r, loc % r
-    coords = blocks.keys[b].astype(np.int64) * r + np.stack([x, y, z], axis=1)
+    coords = keys[b].astype(np.int64) * r + np.stack([x, y, z], axis=1)
     return (np.asarray(coords, np.int64),
-            blocks.tsdf.reshape(len(blocks), -1)[b, loc].astype(np.float64),
+            tsdf.reshape(n, -1)[b, loc].astype(np.float64),
             w[b, loc].astype(np.float64),
-            blocks.color.reshape(len(blocks), -1, 3)[b, loc].astype(np.float64))
+            color.reshape(n, -1, 3)[b, loc].astype(np.float64))
+
+
+def _blocks_reaching(blocks: VoxelBlocks, T_world_grid: F64, moved: bool,
+                     m_lo: NDArray[np.int64], m_hi: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """The blocks of a submap whose voxels can reach the world voxels ``[m_lo, m_hi)``: where
+    it was not moved, those that intersect the box; where it was, those whose centre, moved,
+    lies within half the block's diagonal and the splat's one voxel of it. Only blocks that
+    cannot contribute are left out, so the merge reads no more of a submap than a tile needs
+    and its result is unchanged."""
+    r = blocks.block_resolution
+    keys = blocks.keys.astype(np.int64)
+    if not moved:
+        b_lo = keys * r
+        return np.asarray(np.all((b_lo + r > m_lo) & (b_lo < m_hi), axis=1))
+    v = blocks.voxel_m
+    centre = (keys * r + (r - 1) / 2.0) * v
+    q = (centre @ T_world_grid[:3, :3].T + T_world_grid[:3, 3]) / v
+    reach = (r - 1) / 2.0 * np.sqrt(3.0) + 1.5
+    return np.asarray(np.all((q + reach >= m_lo) & (q - reach < m_hi), axis=1))
 
 
 _COMPACT_AT = 4_000_000
@@ -507,23 +532,28 @@ def merge_submaps(
                          normals=np.zeros((0, 3)), submaps=len(ids), moved=0, voxels=0)
     lo_all = np.min([p[2] for p in placed], axis=0)
     hi_all = np.max([p[3] for p in placed], axis=0)
-    tiles = list(_tiles(lo_all, hi_all, tile_m))
+    tiles = list(_tiles(lo_all, hi_all, tile_m, config.voxel_m))
     meshes: list[Mesh] = []
     pts, cols, nrms = [], [], []
     voxels = 0
     v = config.voxel_m
     r = config.block_resolution
-    for t_lo, t_hi in tiles:
-        # Voxels of this tile: integer coordinates in [c_lo, c_hi); one block of margin so
-        # that marching cubes sees the neighbours of the tile's border voxels.
-        c_lo = np.floor(t_lo / v).astype(np.int64)
-        c_hi = np.floor(t_hi / v).astype(np.int64)
+    for c_lo, c_hi in tiles:
+        # Voxels of this tile: integer coordinates in [c_lo, c_hi) (the tiles partition the
+        # voxels); one block of margin so that marching cubes sees the neighbours of the
+        # tile's border voxels.
+        t_lo, t_hi = c_lo * v, c_hi * v
         m_lo, m_hi = c_lo - r, c_hi + r
         acc = _Accumulator(m_lo, m_hi)
         for sid, T_wg, lo, hi, moved in placed:
             if np.any(hi < t_lo - r * v) or np.any(lo > t_hi + r * v):
                 continue
-            coords, tsdf, weight, color = _voxel_samples(store.get(sid).blocks)
+            blocks = store.get(sid).blocks
+            which = _blocks_reaching(blocks, T_wg, moved, m_lo, m_hi)
+            if not which.any():
+                continue
+            coords, tsdf, weight, color = _voxel_samples(blocks, which)
+            del blocks
             if moved:
                 for a in range(0, len(coords), _SPLAT_CHUNK):
                     b = min(a + _SPLAT_CHUNK, len(coords))
@@ -569,19 +599,26 @@ def merge_submaps(
     )
 
 
-def _tiles(lo: F64, hi: F64, tile_m: float | None) -> Iterator[tuple[F64, F64]]:
+def _tiles(lo: F64, hi: F64, tile_m: float | None, voxel_m: float
+           ) -> Iterator[tuple[NDArray[np.int64], NDArray[np.int64]]]:
+    """Boxes of integer voxel coordinates ``[c_lo, c_hi)`` that cover ``[lo, hi]`` (metres):
+    cubes of ``tile_m`` rounded to whole voxels, or one box with a metre to spare. Their
+    corners are whole voxels, so neighbouring tiles share their faces exactly."""
     if tile_m is None:
-        yield lo - 1.0, hi + 1.0
+        yield (np.floor((lo - 1.0) / voxel_m).astype(np.int64),
+               np.floor((hi + 1.0) / voxel_m).astype(np.int64) + 1)
         return
     if not tile_m > 0:
         raise ReconError(f"tile_m must be > 0, got {tile_m}")
-    start = np.asarray(lo, np.float64)
-    n = np.maximum(np.ceil((hi - start) / tile_m).astype(np.int64), 1)
+    edge = max(int(round(tile_m / voxel_m)), 1)
+    start = np.floor(np.asarray(lo, np.float64) / voxel_m).astype(np.int64)
+    stop = np.floor(np.asarray(hi, np.float64) / voxel_m).astype(np.int64) + 1
+    n = np.maximum(-(-(stop - start) // edge), 1)
     for i in range(n[0]):
         for j in range(n[1]):
             for k in range(n[2]):
-                t_lo = start + np.array([i, j, k]) * tile_m
-                yield t_lo, t_lo + tile_m
+                c_lo = start + np.array([i, j, k], np.int64) * edge
+                yield c_lo, c_lo + edge
 
 
 def _crop_mesh(mesh: Mesh, lo: F64, hi: F64) -> Mesh:
