@@ -610,7 +610,7 @@ def _tiles(lo: F64, hi: F64, tile_m: float | None, voxel_m: float
         return
     if not tile_m > 0:
         raise ReconError(f"tile_m must be > 0, got {tile_m}")
-    edge = max(int(round(tile_m / voxel_m)), 1)
+    edge = max(round(tile_m / voxel_m), 1)
     start = np.floor(np.asarray(lo, np.float64) / voxel_m).astype(np.int64)
     stop = np.floor(np.asarray(hi, np.float64) / voxel_m).astype(np.int64) + 1
     n = np.maximum(-(-(stop - start) // edge), 1)
