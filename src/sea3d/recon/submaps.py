@@ -323,8 +323,9 @@ def _blocks_reaching(blocks: VoxelBlocks, T_world_grid: F64, moved: bool,
     return np.asarray(np.all((q + reach >= m_lo) & (q - reach < m_hi), axis=1))
 
 
-_COMPACT_AT = 4_000_000
-"""Entries an :class:`_Accumulator` holds before it sums them (48 bytes each)."""
+_COMPACT_AT = 1_000_000
+"""Entries an :class:`_Accumulator` holds before it sums them (48 bytes each: 48 MB, and
+about as much again while they are summed)."""
 
 
 _QUANTUM = 2.0 ** -28
@@ -398,8 +399,8 @@ class _Accumulator:
         return coords, sw, st / sw, sc / sw[:, None]
 
 
-_SPLAT_CHUNK = 250_000
-"""Voxels of a moved submap splatted at once (8 targets each: about 100 MB of temporaries)."""
+_SPLAT_CHUNK = 100_000
+"""Voxels of a moved submap splatted at once (8 targets each: about 40 MB of temporaries)."""
 
 
 def _splat(coords: NDArray[np.int64], T: F64, voxel_m: float
@@ -487,7 +488,7 @@ def merge_submaps(
     keyframe_poses: dict[int, F64],
     config: TsdfConfig,
     *,
-    tile_m: float | None = 8.0,
+    tile_m: float | None = 4.0,
     progress: Callable[[int], None] | None = None,
 ) -> MergedMap:
     """Fuse every stored submap into one world grid and extract its mesh and surface points.
