@@ -31,7 +31,7 @@ class MapConfig:
     voxels)."""
     cloud_voxel_m: float | None = None
     """Voxel of cloud.ply's downsampling; None: half ``voxel_m``."""
-    merge_tile_m: float | None = 4.0
+    merge_tile_m: float | None = 2.0
     """Edge of the tiles the final merge works through (bounds its memory: what one tile's
     voxels and their sums hold; the mesh is the same whatever the tiles)."""
     min_observations: int = 2
