@@ -206,10 +206,15 @@ def _du_mb(folder: Path) -> float:
 class RssRecorder:
     """A progress factory for ``run_process`` that samples memory every ``every`` frames of
     the odometry bar: the client's resident and peak memory, the local workers' resident
-    memory (summed), and the output folder's size on disk (MB)."""
+    memory (summed) and the largest one's peak, and the output folder's size on disk (MB).
+    Each row is also appended to ``log`` (JSON lines) as it is taken, so a long run that is
+    stopped keeps its figures so far."""
 
-    def __init__(self, every: int, out: Path) -> None:
+    def __init__(self, every: int, out: Path, log: Path | None = None) -> None:
         self.every, self.out, self.frames, self.rows = every, out, 0, []
+        self.log, self.t0 = log, time.perf_counter()
+        if log is not None:
+            log.write_text("")
 
     def __call__(self, stage: str, total: int) -> RssRecorder._Bar:
         return RssRecorder._Bar(self if stage == "odometry" else None)
@@ -219,7 +224,14 @@ class RssRecorder:
             "frames": self.frames, "client_rss_mb": _status_mb("self", "VmRSS"),
             "client_hwm_mb": _status_mb("self", "VmHWM"),
             "workers_rss_mb": sum(_status_mb(k, "VmRSS") for k in _children()),
-            "out_mb": _du_mb(self.out) if self.out.is_dir() else 0.0})
+            "worker_hwm_mb": max((_status_mb(k, "VmHWM") for k in _children()), default=0.0),
+            "out_mb": _du_mb(self.out) if self.out.is_dir() else 0.0,
+            "wall_s": time.perf_counter() - self.t0,
+            "cpu_client_s": _cpu(resource.RUSAGE_SELF),
+            "cpu_workers_s": sum(_proc_cpu_s(k) for k in _children())})
+        if self.log is not None:
+            with self.log.open("a") as f:
+                f.write(json.dumps(self.rows[-1]) + "\n")
 
     class _Bar:
         def __init__(self, rec: RssRecorder | None) -> None:
@@ -295,7 +307,8 @@ class LoopCpu:
 
 
 def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
-            fresh: bool, rss_every: int = 0, min_observations: int = 2) -> dict:
+            fresh: bool, rss_every: int = 0, min_observations: int = 2,
+            max_frames: int | None = None) -> dict:
     """Process once in this process and return the figures (run in a subprocess)."""
     from sea3d.pipeline.process import (
         ExecutorConfig,
@@ -307,7 +320,7 @@ def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
     from sea3d.stereo.recipe import DepthConfig
 
     if kind == "paper":
-        return paper_run(session, None)
+        return paper_run(session, max_frames)
     kind, _, depth_rate = kind.partition("-")
     use_gt = odometry == "gt"
     poses = session / "gt" / "poses_left.tum" if use_gt else None
@@ -331,8 +344,10 @@ def one_run(kind: str, session: Path, out: Path, odometry: str, integrate: str,
                            map=MapConfig(integrate=integrate, min_observations=min_observations),
                            report=False,
                            depth=DepthConfig(min_depth_m=0.5, max_depth_m=4.0),
-                           executor=ExecutorConfig(**ex), depth_rate=depth_rate or "all")
-    rec = RssRecorder(rss_every, out) if rss_every > 0 else None
+                           executor=ExecutorConfig(**ex), depth_rate=depth_rate or "all",
+                           max_frames=max_frames)
+    rec = (RssRecorder(rss_every, out, out.parent / f"rss_{out.name}.jsonl")
+           if rss_every > 0 else None)
     loop_cpu = LoopCpu(rec)
     # the libraries both chains use, imported before either is timed (paper_run's too)
     import cv2  # noqa: F401
@@ -409,19 +424,25 @@ def main() -> None:
     ap.add_argument("--cached", action="store_true",
                     help="reuse each run's cached per-frame results (odometry, fusion and the "
                     "merge only)")
+    ap.add_argument("--session", help="process the first --frames frames of this existing "
+                    "session (a longer simulated survey) instead of simulating one")
     ap.add_argument("--one", help=argparse.SUPPRESS)
     ap.add_argument("--no-fresh", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     base = ROOT / "out" / "bench_process"
     session = base / f"lake_{args.size}_{args.frames}"
+    if args.session is not None:  # the first --frames frames of a longer survey
+        session = Path(args.session)
     if args.one:
         policy = args.integrate if args.integrate != "both" else "trusted"
         r = one_run(args.one, session, base / f"run_{args.one}_{args.frames}", args.odometry,
                     policy, fresh=not args.no_fresh, rss_every=args.rss_every,
-                    min_observations=args.min_observations)
+                    min_observations=args.min_observations,
+                    max_frames=args.frames if args.session is not None else None)
         print("RESULT " + json.dumps(r))
         return
-    simulate(session, args.frames, args.size)
+    if args.session is None:
+        simulate(session, args.frames, args.size)
     print(f"lake, {args.frames} frames at {args.size}, coastal water, dome ports; each run in a "
           "fresh process, per-frame results recomputed")
     print(f"{'run':10} {'fps':>6} {'loop s':>7} {'wall s':>7} {'CPU s':>7} {'client MB':>10} "
@@ -435,6 +456,8 @@ def main() -> None:
                    "--size", args.size, "--odometry", args.odometry, "--integrate", policy,
                    "--rss-every", str(args.rss_every),
                    "--min-observations", str(args.min_observations)]
+            if args.session is not None:
+                cmd += ["--session", str(args.session)]
             if i > 0 or args.cached:
                 cmd.append("--no-fresh")
             proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
@@ -473,11 +496,14 @@ def main() -> None:
     for x in results:
         if x.get("rss_rows"):
             print(f"memory of {x['kind']} (MB) against frames: frames, client RSS, client peak, "
-                  "workers RSS (sum), output folder on disk")
+                  "workers RSS (sum), largest worker's peak, output folder on disk")
             for row in x["rss_rows"]:
                 print(f"  {row['frames']:6d} {row['client_rss_mb']:8.0f} "
                       f"{row['client_hwm_mb']:8.0f} {row['workers_rss_mb']:8.0f} "
-                      f"{row['out_mb']:8.1f}")
+                      f"{row.get('worker_hwm_mb', 0.0):8.0f} {row['out_mb']:8.1f}")
+            print(f"  after the loop: client peak {x['peak_rss_client_mb']:.0f} MB (merge "
+                  f"{x['after_loop_s'].get('merge_s', 0.0):.1f} s, evaluation "
+                  f"{x['after_loop_s'].get('evaluate_s', 0.0):.1f} s)")
     print("CPU s/fr: the whole subprocess (imports, set-up, merge and this script's evaluation "
           "included); run s/fr: the run alone (sea3d's run_process, the paper's chain from "
           "rectification to mesh), libraries imported before; loop s/fr: the frame loop's steady "

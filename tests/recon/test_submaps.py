@@ -166,6 +166,52 @@ def test_a_moved_merge_in_small_batches_equals_the_whole_merge(monkeypatch):
     np.testing.assert_array_equal(np.sort(again.colors, axis=0), np.sort(whole.colors, axis=0))
 
 
+def test_a_tiled_merge_of_moved_submaps_equals_the_whole_merge():
+    """Each tile reads only the blocks of a submap that can reach it (moved ones: by their
+    moved centres); with tiles far smaller than a submap the mesh is the whole merge's."""
+    store = MemorySubmapStore()
+    kf = _run(_TRUE, _KEYFRAMES, SubmapFusion(FusionConfig(tsdf=TSDF, keyframes_per_submap=2)),
+              store)
+    nudge = np.eye(4)
+    nudge[:3, :3] = rotvec_to_R(np.array([0.02, -0.01, np.deg2rad(2.0)]))
+    nudge[:3, 3] = (0.013, -0.021, 0.007)
+    # anchors are keyframes 0, 2, 4: the middle submap moves, the others stay
+    moved = {k: (nudge @ T if k in (2, 3) else T) for k, T in kf.items()}
+    whole = merge_submaps(store, moved, TSDF, tile_m=None)
+    assert 0 < whole.moved < len(store.ids())
+    tiled = merge_submaps(store, moved, TSDF, tile_m=0.3)
+    assert len(tiled.mesh.triangles) == len(whole.mesh.triangles) > 1000
+    np.testing.assert_allclose(_sorted(tiled.mesh.vertices), _sorted(whole.mesh.vertices),
+                               atol=1e-9)
+    assert tiled.voxels == whole.voxels
+
+
+def test_dense_and_sparse_tile_sums_give_the_same_merge(monkeypatch):
+    """A small tile's voxels are summed in dense arrays, a large one's in sorted batches:
+    fixed-point summands make the two bit-identical (moved submaps included)."""
+    import sea3d.recon.submaps as submaps
+
+    store = MemorySubmapStore()
+    kf = _run(_TRUE, _KEYFRAMES, SubmapFusion(FusionConfig(tsdf=TSDF, keyframes_per_submap=2)),
+              store)
+    nudge = np.eye(4)
+    nudge[:3, :3] = rotvec_to_R(np.array([0.0, 0.0, np.deg2rad(1.0)]))
+    nudge[:3, 3] = (0.013, 0.0, 0.0)
+    moved = {k: (nudge @ T if k in (2, 3) else T) for k, T in kf.items()}
+    monkeypatch.setattr(submaps, "_DENSE_AT", 10**9)
+    dense = merge_submaps(store, moved, TSDF, tile_m=0.6)
+    monkeypatch.setattr(submaps, "_DENSE_AT", 0)
+    monkeypatch.setattr(submaps, "_COMPACT_AT", 5000)
+    sparse = merge_submaps(store, moved, TSDF, tile_m=0.6)
+    assert dense.voxels == sparse.voxels and dense.moved == 1
+    assert len(dense.mesh.triangles) == len(sparse.mesh.triangles) > 1000
+    np.testing.assert_array_equal(_sorted(dense.mesh.vertices), _sorted(sparse.mesh.vertices))
+    # the points come in Open3D's hash-map order: compare them sorted, colours with them
+    a, b = np.lexsort(dense.points.T[::-1]), np.lexsort(sparse.points.T[::-1])
+    np.testing.assert_array_equal(dense.points[a], sparse.points[b])
+    np.testing.assert_array_equal(dense.colors[a], sparse.colors[b])
+
+
 def test_memory_is_bounded_by_the_active_submap():
     cfg = FusionConfig(tsdf=TSDF, keyframes_per_submap=100, max_blocks=150)
     fusion = SubmapFusion(cfg)
@@ -219,6 +265,41 @@ def test_disk_store_round_trip_and_damage(tmp_path):
         store.get(1)
     with pytest.raises(ReconError, match="anchor keyframe"):
         merge_submaps(store, {}, TSDF)
+
+
+def test_a_merge_from_chunks_on_disk_equals_the_merge_in_memory(tmp_path, monkeypatch):
+    """On disk a submap's blocks are stored in chunks and each tile reads only the chunks
+    that reach it; with chunks of 64 blocks and small tiles, moved and unmoved submaps, the
+    mesh and the voxel count are those of the merge from memory."""
+    import sea3d.pipeline.submap_store as submap_store
+
+    monkeypatch.setattr(submap_store, "CHUNK_BLOCKS", 64)
+    mem = MemorySubmapStore()
+    kf = _run(_TRUE, _KEYFRAMES, SubmapFusion(FusionConfig(tsdf=TSDF, keyframes_per_submap=2)),
+              mem)
+    disk = DiskSubmapStore(tmp_path / "submaps")
+    for sid in mem.ids():
+        disk.put(mem.get(sid))
+    chunks = list((tmp_path / "submaps").glob("*.c*.s3c"))
+    assert len(chunks) > 3 * len(mem.ids())  # several chunks per submap
+    assert disk.ids() == mem.ids()
+    back, keys = disk.head(1)
+    assert len(back.blocks) == 0 and len(keys) == len(mem.get(1).blocks)
+    nudge = np.eye(4)
+    nudge[:3, :3] = rotvec_to_R(np.array([0.0, 0.01, np.deg2rad(1.5)]))
+    nudge[:3, 3] = (0.011, 0.0, -0.006)
+    moved = {k: (nudge @ T if k in (2, 3) else T) for k, T in kf.items()}
+    want = merge_submaps(mem, moved, TSDF, tile_m=None)
+    got = merge_submaps(disk, moved, TSDF, tile_m=0.3)
+    assert got.moved == want.moved == 1 and got.voxels == want.voxels
+    assert len(got.mesh.triangles) == len(want.mesh.triangles) > 1000
+    np.testing.assert_allclose(_sorted(got.mesh.vertices), _sorted(want.mesh.vertices),
+                               atol=1e-9)
+    whole = disk.get(1)  # read back whole: the same blocks, in key order
+    ref = mem.get(1).blocks
+    order = np.lexsort(ref.keys.T[::-1])
+    np.testing.assert_array_equal(whole.blocks.keys, ref.keys[order])
+    np.testing.assert_array_equal(whole.blocks.tsdf, ref.tsdf[order])
 
 
 def test_a_surface_seen_once_is_dropped_when_two_observations_are_required():

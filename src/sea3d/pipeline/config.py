@@ -31,8 +31,9 @@ class MapConfig:
     voxels)."""
     cloud_voxel_m: float | None = None
     """Voxel of cloud.ply's downsampling; None: half ``voxel_m``."""
-    merge_tile_m: float | None = 8.0
-    """Edge of the tiles the final merge works through (bounds its memory)."""
+    merge_tile_m: float | None = 2.0
+    """Edge of the tiles the final merge works through (bounds its memory: what one tile's
+    voxels and their sums hold; the mesh is the same whatever the tiles)."""
     min_observations: int = 2
     """Mesh and cloud keep the voxels fused from at least this many depth frames (summed over
     the submaps): a surface seen once, the floater one frame's wrong depth leaves, is dropped;

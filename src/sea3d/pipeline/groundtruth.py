@@ -28,6 +28,7 @@ def observed_surface_points(
     max_depth_m: float,
     frame_stride: int = 5,
     pixel_stride: int = 4,
+    max_frames: int = 200,
 ) -> NDArray[np.float64]:
     """World points of the surface the left camera saw, from ground-truth depth maps.
 
@@ -40,6 +41,11 @@ def observed_surface_points(
         t_ns, T_world_left: (N,) stamps and (N, 4, 4) true poses of the frames to use.
         max_depth_m: farther points are left out (what the reconstruction could not see).
         frame_stride, pixel_stride: subsampling.
+        max_frames: at most this many depth maps are read (the frame stride grows past
+            ``frame_stride`` for longer runs), so the points stay bounded whatever the
+            length of the dive: a long survey over the same ground sees the same surface
+            again, and the surface metrics draw a fixed number of samples from these
+            points anyway (200,000, :func:`~sea3d.eval.surface.surface_metrics`).
 
     Returns:
         (M, 3) float64 world points (empty when no depth map was found).
@@ -48,7 +54,8 @@ def observed_surface_points(
     v, u = np.mgrid[0:camera.height:pixel_stride, 0:camera.width:pixel_stride]
     uv = np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64)
     rays = camera.unproject(uv)
-    for k in range(0, len(t_ns), frame_stride):
+    stride = max(int(frame_stride), -(-len(t_ns) // max(int(max_frames), 1)))
+    for k in range(0, len(t_ns), stride):
         p = gt_depth_path(depth_dir, int(t_ns[k]))
         if not p.is_file():
             continue

@@ -288,18 +288,65 @@ class SubmapFusion:
 def _voxel_samples(blocks: VoxelBlocks) -> tuple[NDArray[np.int64], F64, F64, F64]:
     """Integer voxel coordinates (K, 3), tsdf, weight, colour (K, 3) of the observed voxels."""
     r = blocks.block_resolution
-    w = blocks.weight.reshape(len(blocks), -1)
+    keys, tsdf, weight, color = blocks.keys, blocks.tsdf, blocks.weight, blocks.color
+    n = len(keys)
+    w = weight.reshape(n, -1)
     b, loc = np.nonzero(w > 0)
     z, y, x = loc // (r * r), (loc // r) % r, loc % r
-    coords = blocks.keys[b].astype(np.int64) * r + np.stack([x, y, z], axis=1)
+    coords = keys[b].astype(np.int64) * r + np.stack([x, y, z], axis=1)
     return (np.asarray(coords, np.int64),
-            blocks.tsdf.reshape(len(blocks), -1)[b, loc].astype(np.float64),
+            tsdf.reshape(n, -1)[b, loc].astype(np.float64),
             w[b, loc].astype(np.float64),
-            blocks.color.reshape(len(blocks), -1, 3)[b, loc].astype(np.float64))
+            color.reshape(n, -1, 3)[b, loc].astype(np.float64))
 
 
-_COMPACT_AT = 4_000_000
-"""Entries an :class:`_Accumulator` holds before it sums them (48 bytes each)."""
+def _head(store: SubmapStore, sid: int) -> tuple[Submap, NDArray[np.int32]]:
+    """A stored submap (its voxels left out where the store can) and its blocks' keys."""
+    head = getattr(store, "head", None)
+    if head is not None:
+        sm, keys = head(sid)
+        return sm, np.asarray(keys)
+    sm = store.get(sid)
+    return sm, sm.blocks.keys
+
+
+def _reaching(store: SubmapStore, sid: int, r: int, voxel_m: float, T_world_grid: F64,
+              moved: bool, m_lo: NDArray[np.int64], m_hi: NDArray[np.int64]) -> VoxelBlocks:
+    """The blocks of submap ``sid`` that can reach the world voxels ``[m_lo, m_hi)``
+    (:func:`_blocks_reaching`), read alone where the store can (by chunks on disk)."""
+    def select(keys: NDArray[np.int32]) -> NDArray[np.bool_]:
+        return _blocks_reaching(keys, r, voxel_m, T_world_grid, moved, m_lo, m_hi)
+
+    part = getattr(store, "blocks_of", None)
+    if part is not None:
+        return part(sid, select)
+    b = store.get(sid).blocks
+    which = select(b.keys)
+    return VoxelBlocks(keys=b.keys[which], tsdf=b.tsdf[which], weight=b.weight[which],
+                       color=b.color[which], voxel_m=b.voxel_m, trunc_voxels=b.trunc_voxels)
+
+
+def _blocks_reaching(keys_: NDArray[np.int32], r: int, v: float, T_world_grid: F64,
+                     moved: bool, m_lo: NDArray[np.int64], m_hi: NDArray[np.int64]
+                     ) -> NDArray[np.bool_]:
+    """The blocks of a submap whose voxels can reach the world voxels ``[m_lo, m_hi)``: where
+    it was not moved, those that intersect the box; where it was, those whose centre, moved,
+    lies within half the block's diagonal and the splat's one voxel of it. Only blocks that
+    cannot contribute are left out, so the merge reads no more of a submap than a tile needs
+    and its result is unchanged."""
+    keys = np.asarray(keys_, np.int64).reshape(-1, 3)
+    if not moved:
+        b_lo = keys * r
+        return np.asarray(np.all((b_lo + r > m_lo) & (b_lo < m_hi), axis=1))
+    centre = (keys * r + (r - 1) / 2.0) * v
+    q = (centre @ T_world_grid[:3, :3].T + T_world_grid[:3, 3]) / v
+    reach = (r - 1) / 2.0 * np.sqrt(3.0) + 1.5
+    return np.asarray(np.all((q + reach >= m_lo) & (q - reach < m_hi), axis=1))
+
+
+_COMPACT_AT = 1_000_000
+"""Entries an :class:`_Accumulator` holds before it sums them (48 bytes each: 48 MB, and
+about as much again while they are summed)."""
 
 
 _QUANTUM = 2.0 ** -28
@@ -316,25 +363,51 @@ def _fixed(x: F64) -> F64:
     return np.round(np.asarray(x, np.float64) / _QUANTUM) * _QUANTUM
 
 
+_DENSE_AT = 2_500_000
+"""Boxes of at most this many voxels are summed in dense arrays (41 bytes a voxel: about
+100 MB at most; a 2 m tile at 2 cm voxels, with its margin, is 1.56 million): no batches to
+sort, and memory fixed by the box, however many submaps overlap it."""
+
+
 class _Accumulator:
     """Weighted sums per voxel of a box of a world grid, voxels keyed by a linear index.
 
-    Parts are summed into one (unique keys) once they hold ``compact_at`` entries, so memory
+    A box of at most ``dense_at`` voxels is summed in dense arrays. A larger one keeps parts
+    and sums them into one (unique keys) once they hold ``compact_at`` entries, so memory
     stays at about the box's observed voxels plus one batch, however many submaps overlap it
-    and however many splats a moved submap adds (8 per voxel).
+    and however many splats a moved submap adds (8 per voxel). Every summand is fixed-point
+    (:data:`_QUANTUM`), so both give the same sums to the bit.
     """
 
     def __init__(self, lo: NDArray[np.int64], hi: NDArray[np.int64], *,
-                 compact_at: int | None = None) -> None:
+                 compact_at: int | None = None, dense_at: int | None = None) -> None:
         self.lo = np.asarray(lo, np.int64)
         self.dims = np.asarray(hi, np.int64) - self.lo
         self.parts: list[tuple[NDArray[np.int64], F64, F64, F64]] = []
         self.compact_at = int(_COMPACT_AT if compact_at is None else compact_at)
         self._entries = 0
         self._compacted = 0
+        self._n = int(np.prod(self.dims))
+        self.dense = self._n <= int(_DENSE_AT if dense_at is None else dense_at)
+        self._seen: NDArray[np.bool_] | None = None
+        self._sums_dense: F64 | None = None  # (5, n): weight, weight x tsdf, weight x RGB
+
+    def _add_dense(self, key: NDArray[np.int64], w: F64, wt: F64, wc: F64) -> None:
+        if self._seen is None or self._sums_dense is None:
+            self._seen = np.zeros(self._n, bool)
+            self._sums_dense = np.zeros((5, self._n), np.float64)
+        self._seen[key] = True
+        acc = self._sums_dense
+        for row, x in enumerate((w, wt, wc[:, 0], wc[:, 1], wc[:, 2])):
+            acc[row] += np.bincount(key, weights=x, minlength=self._n)
 
     def add(self, coords: NDArray[np.int64], tsdf: F64, weight: F64, color: F64) -> None:
-        if len(coords):
+        if len(coords) and self.dense:
+            c = coords - self.lo
+            key = (c[:, 0] * self.dims[1] + c[:, 1]) * self.dims[2] + c[:, 2]
+            self._add_dense(key, _fixed(weight), _fixed(weight * tsdf),
+                            _fixed(weight[:, None] * color))
+        elif len(coords):
             c = coords - self.lo
             key = (c[:, 0] * self.dims[1] + c[:, 1]) * self.dims[2] + c[:, 2]
             self.parts.append((key, _fixed(weight), _fixed(weight * tsdf),
@@ -362,9 +435,15 @@ class _Accumulator:
 
     def reduce(self) -> tuple[NDArray[np.int64], F64, F64, F64]:
         """Unique voxel coordinates with summed weight, tsdf mean and colour mean."""
-        if not self.parts:
+        if self.dense and self._seen is not None and self._sums_dense is not None:
+            uniq = np.flatnonzero(self._seen).astype(np.int64)  # ascending, as np.unique
+            acc = self._sums_dense
+            sw, st, sc = acc[0, uniq], acc[1, uniq], np.ascontiguousarray(acc[2:, uniq].T)
+            self._seen = self._sums_dense = None
+        elif not self.parts:
             return np.zeros((0, 3), np.int64), np.zeros(0), np.zeros(0), np.zeros((0, 3))
-        uniq, sw, st, sc = self._sums()
+        else:
+            uniq, sw, st, sc = self._sums()
         self._entries = self._compacted = 0
         z = uniq % self.dims[2]
         y = (uniq // self.dims[2]) % self.dims[1]
@@ -373,8 +452,8 @@ class _Accumulator:
         return coords, sw, st / sw, sc / sw[:, None]
 
 
-_SPLAT_CHUNK = 250_000
-"""Voxels of a moved submap splatted at once (8 targets each: about 100 MB of temporaries)."""
+_SPLAT_CHUNK = 100_000
+"""Voxels of a moved submap splatted at once (8 targets each: about 40 MB of temporaries)."""
 
 
 def _splat(coords: NDArray[np.int64], T: F64, voxel_m: float
@@ -426,11 +505,11 @@ def _to_blocks(coords: NDArray[np.int64], weight: F64, tsdf: F64, color: F64,
                        voxel_m=config.voxel_m, trunc_voxels=config.trunc_voxels)
 
 
-def _submap_bounds(sm: Submap, T_world_grid: F64) -> tuple[F64, F64]:
-    r = sm.blocks.block_resolution
-    keys = sm.blocks.keys.astype(np.float64)
-    lo = keys.min(axis=0) * r * sm.blocks.voxel_m
-    hi = (keys.max(axis=0) + 1) * r * sm.blocks.voxel_m
+def _submap_bounds(keys_: NDArray[np.int32], r: int, voxel_m: float, T_world_grid: F64
+                   ) -> tuple[F64, F64]:
+    keys = np.asarray(keys_, np.float64)
+    lo = keys.min(axis=0) * r * voxel_m
+    hi = (keys.max(axis=0) + 1) * r * voxel_m
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
                         for z in (lo[2], hi[2])])
     cw = corners @ T_world_grid[:3, :3].T + T_world_grid[:3, 3]
@@ -462,7 +541,7 @@ def merge_submaps(
     keyframe_poses: dict[int, F64],
     config: TsdfConfig,
     *,
-    tile_m: float | None = 8.0,
+    tile_m: float | None = 2.0,
     progress: Callable[[int], None] | None = None,
 ) -> MergedMap:
     """Fuse every stored submap into one world grid and extract its mesh and surface points.
@@ -485,9 +564,9 @@ def merge_submaps(
     ids = store.ids()
     placed: list[tuple[int, F64, F64, F64, bool]] = []
     for sid in ids:
-        sm = store.get(sid)
+        sm, keys = _head(store, sid)
         if sm.blocks.voxel_m != config.voxel_m or (
-            len(sm.blocks) and sm.blocks.block_resolution != config.block_resolution
+            len(keys) and sm.blocks.block_resolution != config.block_resolution
         ):
             raise ReconError(f"submap {sid} has another voxel layout than the merge's config")
         T_wa = keyframe_poses.get(sm.anchor_keyframe_id)
@@ -496,8 +575,8 @@ def merge_submaps(
                              "pose")
         T_wg = np.asarray(T_wa, np.float64) @ sm.T_anchor_grid
         moved = not np.allclose(T_wg, np.eye(4), atol=_IDENTITY_TOL)
-        if len(sm.blocks):
-            lo, hi = _submap_bounds(sm, T_wg)
+        if len(keys):
+            lo, hi = _submap_bounds(keys, sm.blocks.block_resolution, sm.blocks.voxel_m, T_wg)
             placed.append((sid, T_wg, lo, hi, moved))
         if progress is not None:
             progress(1)
@@ -507,23 +586,27 @@ def merge_submaps(
                          normals=np.zeros((0, 3)), submaps=len(ids), moved=0, voxels=0)
     lo_all = np.min([p[2] for p in placed], axis=0)
     hi_all = np.max([p[3] for p in placed], axis=0)
-    tiles = list(_tiles(lo_all, hi_all, tile_m))
+    tiles = list(_tiles(lo_all, hi_all, tile_m, config.voxel_m))
     meshes: list[Mesh] = []
     pts, cols, nrms = [], [], []
     voxels = 0
     v = config.voxel_m
     r = config.block_resolution
-    for t_lo, t_hi in tiles:
-        # Voxels of this tile: integer coordinates in [c_lo, c_hi); one block of margin so
-        # that marching cubes sees the neighbours of the tile's border voxels.
-        c_lo = np.floor(t_lo / v).astype(np.int64)
-        c_hi = np.floor(t_hi / v).astype(np.int64)
+    for c_lo, c_hi in tiles:
+        # Voxels of this tile: integer coordinates in [c_lo, c_hi) (the tiles partition the
+        # voxels); one block of margin so that marching cubes sees the neighbours of the
+        # tile's border voxels.
+        t_lo, t_hi = (c_lo * v).astype(np.float64), (c_hi * v).astype(np.float64)
         m_lo, m_hi = c_lo - r, c_hi + r
         acc = _Accumulator(m_lo, m_hi)
         for sid, T_wg, lo, hi, moved in placed:
             if np.any(hi < t_lo - r * v) or np.any(lo > t_hi + r * v):
                 continue
-            coords, tsdf, weight, color = _voxel_samples(store.get(sid).blocks)
+            blocks = _reaching(store, sid, r, v, T_wg, moved, m_lo, m_hi)
+            if not len(blocks):
+                continue
+            coords, tsdf, weight, color = _voxel_samples(blocks)
+            del blocks
             if moved:
                 for a in range(0, len(coords), _SPLAT_CHUNK):
                     b = min(a + _SPLAT_CHUNK, len(coords))
@@ -569,19 +652,26 @@ def merge_submaps(
     )
 
 
-def _tiles(lo: F64, hi: F64, tile_m: float | None) -> Iterator[tuple[F64, F64]]:
+def _tiles(lo: F64, hi: F64, tile_m: float | None, voxel_m: float
+           ) -> Iterator[tuple[NDArray[np.int64], NDArray[np.int64]]]:
+    """Boxes of integer voxel coordinates ``[c_lo, c_hi)`` that cover ``[lo, hi]`` (metres):
+    cubes of ``tile_m`` rounded to whole voxels, or one box with a metre to spare. Their
+    corners are whole voxels, so neighbouring tiles share their faces exactly."""
     if tile_m is None:
-        yield lo - 1.0, hi + 1.0
+        yield (np.floor((lo - 1.0) / voxel_m).astype(np.int64),
+               np.floor((hi + 1.0) / voxel_m).astype(np.int64) + 1)
         return
     if not tile_m > 0:
         raise ReconError(f"tile_m must be > 0, got {tile_m}")
-    start = np.asarray(lo, np.float64)
-    n = np.maximum(np.ceil((hi - start) / tile_m).astype(np.int64), 1)
+    edge = max(round(tile_m / voxel_m), 1)
+    start = np.floor(np.asarray(lo, np.float64) / voxel_m).astype(np.int64)
+    stop = np.floor(np.asarray(hi, np.float64) / voxel_m).astype(np.int64) + 1
+    n = np.maximum(-(-(stop - start) // edge), 1)
     for i in range(n[0]):
         for j in range(n[1]):
             for k in range(n[2]):
-                t_lo = start + np.array([i, j, k]) * tile_m
-                yield t_lo, t_lo + tile_m
+                c_lo = start + np.array([i, j, k], np.int64) * edge
+                yield c_lo, c_lo + edge
 
 
 def _crop_mesh(mesh: Mesh, lo: F64, hi: F64) -> Mesh:
