@@ -15,6 +15,12 @@
    ``kitti_<seq>/`` (KITTI odometry layout: ``image_0``, ``image_1``, ``calib.txt``,
    ``times.txt``, ``poses.txt``) and ``euroc_<name>/`` (EuRoC layout with
    ``state_groundtruth_estimate0``), each beside the OpenCV baseline.
+4. **Trajectory files as real tools write them** (``--only files``): ``$SEA3D_REAL_DATA/evo_v102/``
+   holds evo's test files for EuRoC V1_02 (an open VIO's estimate ``V102.txt`` with 4 repeated
+   stamps, and ``V102_groundtruth.csv``; from github.com/MichaelGrupp/evo ``test/data/``, kept out
+   of this repository). ``sea3d eval trajectory`` on them, beside evo's figures quoted in issue
+   21 (evo is GPL: not run here, its figures are only compared): the ATE with the repeats kept
+   and paired as evo pairs them, and with the first pose of each stamp kept.
 
 ATE from :func:`sea3d.eval.trajectory.evaluate_trajectory` (equal to evo's on the stored
 files). Wall and CPU seconds are per sequence (one run each: the machine is shared and loaded;
@@ -150,7 +156,7 @@ def bench_chess(patterns: list) -> list[dict]:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--only", choices=["chess", "euroc", "fetched"])
+    p.add_argument("--only", choices=["chess", "euroc", "fetched", "files"])
     p.add_argument("--patterns", nargs="+", default=["1", "2", "5", "10", "jerk", "jump"],
                    help="chess frame steps, or 'jerk', 'jump'")
     p.add_argument("--strides", nargs="+", type=int, default=[1, 2, 3],
@@ -162,7 +168,36 @@ def main(argv: list[str] | None = None) -> int:
         bench_euroc()
     if args.only in (None, "fetched"):
         bench_fetched(args.strides)
+    if args.only in (None, "files"):
+        bench_files()
     return 0
+
+
+# evo's ATE RMSE (SE3) on evo's own V1_02 test files, as issue 21 quotes it (evo 1.x, default
+# association: 0.01 s): the repeats kept, and the first pose of each repeated stamp kept
+EVO_V102_ATE_M = {"keep": 0.091727, "first": 0.091747}
+
+
+def bench_files() -> None:
+    """``eval trajectory``'s reading and pairing on real files beside evo's figures."""
+    import logging
+
+    from sea3d.eval.trajectory import evaluate_trajectory
+    from sea3d.io.trajectory_files import read_trajectory
+
+    d = REAL / "evo_v102"
+    if not (d / "V102.txt").is_file():
+        print(f"trajectory files: {d} missing, skipped")
+        return
+    logging.getLogger("sea3d.io.trajectory_files").setLevel(logging.ERROR)
+    print("EuRoC V1_02, an open VIO's estimate (evo's test files): ATE RMSE m, SE3")
+    for rule in ("keep", "first"):
+        est = read_trajectory(d / "V102.txt", duplicates=rule)
+        ref = read_trajectory(d / "V102_groundtruth.csv", duplicates=rule)
+        m = evaluate_trajectory(est.t_ns, est.T_world_x, ref.t_ns, ref.T_world_x)
+        evo = EVO_V102_ATE_M[rule]
+        print(f"  repeats {rule:5s}  {m.ate_rmse_m:.6f} ({m.matched} pairs)  evo {evo:.6f}  "
+              f"difference {m.ate_rmse_m - evo:+.1e} m")
 
 
 # ------------------------------------------------------------------------------ EuRoC / KITTI

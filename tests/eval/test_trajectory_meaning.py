@@ -2,6 +2,7 @@
 too still or too straight for the rotation error or the RPE to mean anything (issue 21)."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -80,6 +81,33 @@ def test_cli_repeated_stamps_are_counted_and_the_first_kept(tmp_path, rng, capsy
     assert d["duplicates_kept"] == {"estimate": 4, "reference": 0}
     assert d["matched"] == n and d["ate_rmse_m"] == pytest.approx(0.0, abs=1e-8)
     assert "4 pose(s) repeat an earlier stamp; kept" in cap.err
+
+
+def test_cli_says_each_repair_once(tmp_path):
+    """Run as a user runs it (its own process, its own log handler): the repeated stamps are
+    reported in one line, not once by the reader's log and again by the command."""
+    import os
+    import subprocess
+    import sys
+
+    n = 40
+    t = np.arange(n, dtype=np.int64) * 50_000_000
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, 0, 3] = np.linspace(0, 3, n)
+    T[:, 1, 3] = np.sin(np.linspace(0, 3, n))
+    write_tum(tmp_path / "gt.tum", t, T)
+    lines = (tmp_path / "gt.tum").read_text().splitlines()
+    (tmp_path / "est.tum").write_text("\n".join(lines + [lines[5], lines[20]]) + "\n")
+    src = str(Path(__file__).resolve().parents[2] / "src")
+    env = {**os.environ, "PYTHONPATH": src + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    out = subprocess.run(
+        [sys.executable, "-m", "sea3d", "eval", "trajectory", str(tmp_path / "est.tum"),
+         str(tmp_path / "gt.tum")],
+        capture_output=True, text=True, env=env, check=False,
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stderr.count("repeat an earlier stamp") == 1, out.stderr
+    assert "2 pose(s) repeat an earlier stamp; kept" in out.stderr
 
 
 def _kabsch_ate(P, Q):

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import glob
 import json
+import logging
 import sys
 from pathlib import Path
 from typing import Any
@@ -165,11 +166,18 @@ def _cmd_eval_trajectory(args: argparse.Namespace) -> int:
     from sea3d.eval.trajectory import evaluate_trajectory
     from sea3d.io.trajectory_files import read_trajectory
 
-    # repeated stamps are kept and paired as evo pairs them (evo's figure on such files)
-    est = read_trajectory(args.estimate, args.est_format, kitti_times=args.est_times,
-                          duplicates="keep")
-    ref = read_trajectory(args.ground_truth, args.gt_format, kitti_times=args.gt_times,
-                          duplicates="keep")
+    # repeated stamps are kept and paired as evo pairs them (evo's figure on such files).
+    # The reader's own warnings are held back: its notes say the same, printed once below.
+    reader_log = logging.getLogger("sea3d.io.trajectory_files")
+    level = reader_log.level
+    reader_log.setLevel(logging.ERROR)
+    try:
+        est = read_trajectory(args.estimate, args.est_format, kitti_times=args.est_times,
+                              duplicates="keep")
+        ref = read_trajectory(args.ground_truth, args.gt_format, kitti_times=args.gt_times,
+                              duplicates="keep")
+    finally:
+        reader_log.setLevel(level)
     for note in est.notes + ref.notes:
         print(f"sea3d: warning: {note}", file=sys.stderr)
     by_index = not (est.timed and ref.timed)
