@@ -227,7 +227,7 @@ def test_the_odometry_does_not_wait_behind_depth(monkeypatch, waits):
     worker = _Worker()
     stages = _Stages(worker)
     stats = run_live(frames, None, SimpleNamespace(maps=SimpleNamespace(width=8)), stages,
-                     worker, LiveConfig(odometry_waits_for_depth=waits))
+                     worker, LiveConfig(odometry_waits_for_depth=waits, depth_pick="in-order"))
     odo = [e for e in stages.log if e[0] == "odometry"]
     fused = [e[1] for e in stages.log if e[0] == "fusion"]
     assert [e[1] for e in odo] == [f.t_ns for f in frames]  # every frame, in order
