@@ -18,7 +18,7 @@ odometry, rectification of dropped frames, fusion, meshing) and the whole run's 
 times and latencies depend on the load; say so when quoting them.
 
     python benchmarks/bench_live.py [--frames 80] [--size 640x360] [--runs replay,cameras]
-        [--repeat 3] [--src before=OTHER/src,after=src] [--extra '--depth-pick in-order']
+        [--repeat 3] [--src 'before=OTHER/src,after=src,lag1=src|--depth-max-lag 1']
 
 ``--src`` interleaves builds in one run (each mode, then each build, repeated). Besides the
 latencies, the load-independent figures: CPU per frame of the loop's thread and of its
@@ -131,11 +131,16 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "bench_live")
     ap.add_argument("--extra", default="", help="more arguments for sea3d live, e.g. "
                     "'--depth-pick in-order' (the policy before newest-first)")
-    ap.add_argument("--src", default="", help="builds to interleave, LABEL=SRC_DIR,...: each "
-                    "run's sea3d from that src folder (default: this checkout's)")
+    ap.add_argument("--src", default="", help="builds to interleave, LABEL=SRC_DIR[|ARGS],...: "
+                    "each run's sea3d from that src folder, with more arguments ARGS (default: "
+                    "this checkout's)")
     args = ap.parse_args()
-    builds = [(f"-{b.split('=', 1)[0]}", Path(b.split("=", 1)[1]).resolve())
-              for b in args.src.split(",") if b] or [("", ROOT / "src")]
+    builds = []  # (label, src, extra arguments of that build's runs)
+    for b in (b for b in args.src.split(",") if b):
+        label, rest = b.split("=", 1)
+        src, _, more = rest.partition("|")
+        builds.append((f"-{label}", Path(src).resolve(), f"{args.extra} {more}".strip()))
+    builds = builds or [("", ROOT / "src", args.extra)]
     session = args.out / f"session_{args.frames}_{args.size}"
     simulate(session, args.frames, args.size)
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
@@ -143,8 +148,8 @@ def main() -> None:
           "runCPU  wall")
     rows = []
     for _ in range(args.repeat):
-        for mode, (label, src) in ((m, b) for m in args.runs.split(",") for b in builds):
-            r = one_run(mode, session, args.out / f"run_{mode}", args.extra, src, label)
+        for mode, (label, src, extra) in ((m, b) for m in args.runs.split(",") for b in builds):
+            r = one_run(mode, session, args.out / f"run_{mode}", extra, src, label)
             rows.append(r)
             print(_line(r), f"(imu-only {r['imu_only']}, lost {r['lost']}, warm-up "
                   f"{_fmt(r['warmup_s'], '.1f')} s, backlog {r['backlog_max']}, stale "
@@ -159,7 +164,7 @@ def main() -> None:
                   f"{_fmt(r['depth_cpu'], '.3f')} ({r['depth_frames']} depth frames); "
                   f"load {os.getloadavg()[0]:.1f}; {r['stop']})", flush=True)
     print("medians:")
-    for mode in (m + label for m in args.runs.split(",") for label, _ in builds):
+    for mode in (m + label for m in args.runs.split(",") for label, _, _ in builds):
         mine = [r for r in rows if r["mode"] == mode]
         med = {"mode": mode}
         for key in mine[0]:

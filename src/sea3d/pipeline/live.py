@@ -67,22 +67,24 @@ class LiveConfig:
 
     depth_in_flight: int = 1
     """Depth frames computing at once; a frame arriving when that many are busy gets none."""
-    depth_pick: str = "newest"
-    """Which frames get depth. ``newest`` (the default): depth starts as a frame is read,
-    before the loop takes it, so the worker, whenever it has room, gets the newest frame
-    (a frame the loop is still behind on is never given depth ahead of newer ones) and its
-    depth is ready when the odometry reaches the frame. ``in-order``: when the loop takes
-    the frame (before: when the loop fell behind, the worker computed frames seconds old and
-    their fusion waited for it; docs/reconstruction.md)."""
+    depth_pick: str = "in-order"
+    """Which frames get depth. ``in-order`` (the default): a frame gets depth when the loop
+    takes it, if the worker has room. ``newest``: depth starts as a frame is read, before
+    the loop takes it (the read-ahead then reads every frame as it arrives, up to
+    ``read_ahead_mb``), so the worker, whenever it has room, gets the newest frame and its
+    depth is ready when the odometry reaches it. Not the default: on the 80-frame dive the
+    eager read-ahead thread slowed the loop it runs beside (docs/reconstruction.md)."""
     depth_max_lag_s: float | None = None
     """A frame gets no depth while the oldest frame waiting for the live loop (itself
     included) arrived more than this many seconds ago: its fusion would come at least that
     late, and the worker's core is left to the odometry (counted in ``depth_stale``). None:
     any lag (the default; docs/reconstruction.md)."""
+    read_ahead: int = 4
+    """Frames the read-ahead thread holds for the loop at most (``in-order``; as before)."""
     read_ahead_mb: float = 256.0
-    """Images (raw and rectified) the read-ahead thread holds for the loop at most; at least
-    one frame. With ``depth_pick="newest"`` the newest frame is read as it arrives only while
-    this has room."""
+    """With ``depth_pick="newest"``: images (raw and rectified) the read-ahead thread holds
+    for the loop at most (at least one frame); the newest frame is read as it arrives only
+    while this has room."""
     depth_max_backlog: int | None = None
     """A frame gets depth only while at most this many frames, itself included, wait in the
     source for the live loop (the source's ``backlog``): an older one is stale (not before
@@ -115,6 +117,8 @@ class LiveConfig:
         if self.depth_max_lag_s is not None and not self.depth_max_lag_s > 0:
             raise ConfigError(f"depth_max_lag_s must be > 0 or None, got "
                               f"{self.depth_max_lag_s}")
+        if self.read_ahead < 1:
+            raise ConfigError(f"read_ahead must be >= 1, got {self.read_ahead}")
         if not self.read_ahead_mb > 0:
             raise ConfigError(f"read_ahead_mb must be > 0, got {self.read_ahead_mb}")
 
@@ -498,17 +502,18 @@ def _nbytes(frame: LiveFrame, rect: Any) -> int:
 class _Prefetch:
     """The source read and rectified by a thread of its own, ahead of the live loop (decoding
     and rectification off the loop's thread; cv2 lets the GIL go), holding at most
-    ``max_bytes`` of images (at least one frame). ``start_depth(frame, lag_s, backlog)``, if
-    given, is called in that thread as each frame is read, before it is rectified, with the
-    age of the oldest frame waiting for the loop (itself included) and the frames waiting
-    (itself included): the depth it starts goes with the frame. ``backlog``: the frames
-    waiting here plus the source's own."""
+    ``max_bytes`` of images and ``max_frames`` frames (at least one frame).
+    ``start_depth(frame, lag_s, backlog)``, if given, is called in that thread as each frame
+    is read, before it is rectified, with the age of the oldest frame waiting for the loop
+    (itself included) and the frames waiting (itself included): the depth it starts goes
+    with the frame. ``backlog``: the frames waiting here plus the source's own."""
 
     def __init__(self, frames: Iterable[LiveFrame], stereo: Any, *, max_bytes: float,
+                 max_frames: int | None = None,
                  start_depth: Callable[[LiveFrame, float, int], _Depth | None] | None = None
                  ) -> None:
         self.source = frames
-        self.max_bytes = float(max_bytes)
+        self.max_bytes, self.max_frames = float(max_bytes), max_frames
         self.start_depth = start_depth
         self._items: deque[tuple[LiveFrame, Any, _Depth | None, int] | None] = deque()
         self._bytes = 0
@@ -524,7 +529,9 @@ class _Prefetch:
         with self._cv:
             size = item[3] if item is not None else 0
             while (not self._stop and self._items and item is not None
-                   and self._bytes + size > self.max_bytes):
+                   and (self._bytes + size > self.max_bytes
+                        or (self.max_frames is not None
+                            and len(self._items) >= self.max_frames))):
                 self._cv.wait(0.1)
             if self._stop:
                 return False
@@ -616,8 +623,10 @@ def run_live(frames: Iterable[LiveFrame], stage: FrameStageConfig, stereo: Any,
     stats = LiveStats()
     c0, t0 = time.process_time(), time.thread_time()
     loop = _Loop(stage, stereo, stages, executor, cfg, stats, on_update)
+    newest = cfg.depth_pick == "newest"
     source = _Prefetch(frames, stereo, max_bytes=cfg.read_ahead_mb * 1e6,
-                       start_depth=loop.start_depth if cfg.depth_pick == "newest" else None)
+                       max_frames=None if newest else cfg.read_ahead,
+                       start_depth=loop.start_depth if newest else None)
     try:
         for frame, rect, depth in source:
             loop.take(frame, rect, int(source.backlog), depth)
