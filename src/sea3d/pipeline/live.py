@@ -16,6 +16,9 @@ odometry runs on seeds as a frame without depth does while its depth computes, a
 is fused when it comes, in time order (``LiveConfig.odometry_waits_for_depth`` for the loop
 before; ``seed_max_age_s``: when the seeds grow older, the odometry waits for the oldest
 depth in flight). The source is read and rectified ahead by a thread of its own.
+``LiveConfig.depth_pick="newest"`` starts depth there, as each frame is read (the worker
+gets the newest frame whenever it has room), ``depth_max_lag_s`` drops depth that would be
+fused late (both options, not the default: docs/reconstruction.md).
 
 A frame without depth of its own gets the latest depth map moved to its predicted pose
 (:meth:`~sea3d.pipeline.depth_rate.DepthRate.seed`: constant velocity from the two previous
