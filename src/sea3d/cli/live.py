@@ -91,11 +91,12 @@ def _cmd_live(args: argparse.Namespace) -> int:
         print(json.dumps(summary, indent=2, default=str))
         return 0
     info = summary["live"]
-    lat = info["latency_s"]
+    lat, pose = info["latency_s"], info["pose_latency_s"]
     print(f"{stats.frames} frames: {info['fraction_tracked']:.0%} tracked, "
           f"{info['fraction_fused']:.0%} fused ({stats.depth_dropped} depth frames dropped to "
-          f"keep up); latency p50 {lat['p50'] or 0:.2f} s, p99 {lat['p99'] or 0:.2f} s; "
-          f"{info['stop_reason']}; outputs in {args.output}")
+          f"keep up); frame to fusion (fused frames) p50 {lat['p50'] or 0:.2f} s, p99 "
+          f"{lat['p99'] or 0:.2f} s; frame to pose (every frame) p50 {pose['p50'] or 0:.2f} s, "
+          f"p99 {pose['p99'] or 0:.2f} s; {info['stop_reason']}; outputs in {args.output}")
     return 0
 
 
