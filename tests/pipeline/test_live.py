@@ -60,6 +60,14 @@ def test_replay_tracks_every_frame_and_fuses_what_it_keeps_up_with(sim_session, 
         assert d > 0 and h >= 0 and d + h <= lat + 1e-6
     assert 0 <= stats.depth_stale <= stats.depth_dropped == live["depth_dropped"]
     assert live["stop_reason"] == "replay ended"
+    # every frame's pose latency; the worker's CPU for each depth frame, once; the loop's
+    # CPU split into its thread and the read-ahead's
+    assert len(stats.pose_latency_s) == FRAMES and min(stats.pose_latency_s) > 0
+    assert stats.depth_frames + stats.depth_dropped == FRAMES
+    assert len(stats.depth_cpu_s) == stats.depth_frames and min(stats.depth_cpu_s) > 0
+    assert live["depth_cpu_s_per_depth_frame"] == pytest.approx(np.mean(stats.depth_cpu_s))
+    assert 0 < stats.loop_thread_cpu_s and 0 < stats.read_cpu_s
+    assert stats.loop_thread_cpu_s + stats.read_cpu_s <= stats.cpu_s + 0.05
     # a frame without depth says so, and its seeds are the last depth map moved to its
     # predicted pose (from the second tracked frame on: constant velocity needs two)
     assert sum(r["depth"] == "seeded" for r in rows) == stats.depth_dropped
@@ -227,7 +235,7 @@ def test_the_odometry_does_not_wait_behind_depth(monkeypatch, waits):
     worker = _Worker()
     stages = _Stages(worker)
     stats = run_live(frames, None, SimpleNamespace(maps=SimpleNamespace(width=8)), stages,
-                     worker, LiveConfig(odometry_waits_for_depth=waits))
+                     worker, LiveConfig(odometry_waits_for_depth=waits, depth_pick="in-order"))
     odo = [e for e in stages.log if e[0] == "odometry"]
     fused = [e[1] for e in stages.log if e[0] == "fusion"]
     assert [e[1] for e in odo] == [f.t_ns for f in frames]  # every frame, in order
@@ -241,3 +249,131 @@ def test_the_odometry_does_not_wait_behind_depth(monkeypatch, waits):
     else:  # on the seeds, and the next frame before its fusion
         assert ("odometry", t1, True) in odo and stats.depth_after_odometry == len(fused) - 1
         assert after < stages.log.index(("fusion", t1, False))
+
+
+class _Manual(Future):
+    """A depth future the test finishes."""
+
+
+class _ManualWorker:
+    def __init__(self):
+        self.futures, self.t_ns = [], []
+
+    def share(self, obj):
+        return obj
+
+    def submit(self, fn, config, t_ns, left, right, shared):
+        f = _Manual()
+        self.futures.append(f)
+        self.t_ns.append(t_ns)
+        return f
+
+
+def _loop(worker, **cfg):
+    from types import SimpleNamespace
+
+    from sea3d.pipeline.live import LiveStats, _Loop
+
+    stats = LiveStats()
+    stages = SimpleNamespace(K=np.eye(3))
+    loop = _Loop(None, SimpleNamespace(maps=SimpleNamespace(width=8)), stages, worker,
+                 LiveConfig(**cfg), stats, None)
+    return loop, stats
+
+
+def _wait_for(cond, timeout=10.0):
+    import time
+
+    end = time.monotonic() + timeout
+    while not cond():
+        assert time.monotonic() < end, "timed out"
+        time.sleep(0.005)
+
+
+def test_newest_first_gives_the_worker_the_newest_frame_read(monkeypatch):
+    """Depth starts as frames are read, not when the loop takes them: while the loop has
+    taken none of six frames, the worker gets frame 0, is busy through frames 1-3 (dropped,
+    not stale), and once it is free gets frame 4, the newest read, though frames 1-3 still
+    wait for the loop (in order it would have got frame 1, seconds old on a loop that
+    falls behind). The read-ahead passes each frame its waiting count and the oldest's age."""
+    import time
+
+    from sea3d.pipeline import live
+    from sea3d.pipeline.live import LiveFrame, _Prefetch
+
+    monkeypatch.setattr(live, "rectify_pair", lambda stereo, left, right: (left, right))
+    worker = _ManualWorker()
+    loop, stats = _loop(worker, depth_pick="newest")
+    seen = []
+
+    def start_depth(frame, lag_s, backlog):
+        seen.append((frame.t_ns, backlog, lag_s))
+        return loop.start_depth(frame, lag_s, backlog)
+
+    image = np.zeros((4, 4), np.uint8)
+    t0 = time.monotonic() - 5.0  # frame 0 arrived 5 s ago
+
+    def frames():
+        for k in range(6):
+            if k == 4:
+                worker.futures[0].set_result(None)  # the worker is free again
+            yield LiveFrame(t_ns=k, left=image, right=image, arrival_s=t0 + 0.1 * k)
+
+    pre = _Prefetch(frames(), None, max_bytes=1e9, start_depth=start_depth)
+    try:
+        _wait_for(lambda: len(seen) == 6)
+        assert worker.t_ns == [0, 4]
+        assert stats.depth_frames == 2 and stats.depth_dropped == 4 and stats.depth_stale == 0
+        assert [b for _, b, _ in seen] == [1, 2, 3, 4, 5, 6]  # nothing taken by the loop yet
+        assert all(4.9 < lag < 60 for _, _, lag in seen)  # frame 0's age: it still waits
+        taken = [(f.t_ns, d is not None) for f, _, d in pre]
+    finally:
+        pre.close()
+    assert taken == [(0, True), (1, False), (2, False), (3, False), (4, True), (5, False)]
+
+
+def test_depth_max_lag_drops_depth_that_would_be_fused_late():
+    """With ``depth_max_lag_s`` a frame gets no depth while the oldest frame waiting for the
+    loop is older than that (stale, counted), except before the first depth frame (nothing
+    to seed from); a busy worker is a drop that is not stale."""
+    worker = _ManualWorker()
+    loop, stats = _loop(worker, depth_max_lag_s=2.0)
+    frame = __import__("sea3d.pipeline.live", fromlist=["LiveFrame"]).LiveFrame
+    image = np.zeros((4, 4), np.uint8)
+    assert loop.start_depth(frame(t_ns=0, left=image, right=image), 9.0, 1) is not None
+    assert loop.start_depth(frame(t_ns=1, left=image, right=image), 0.1, 1) is None  # busy
+    assert (stats.depth_dropped, stats.depth_stale) == (1, 0)
+    worker.futures[0].set_result(None)
+    assert loop.start_depth(frame(t_ns=2, left=image, right=image), 2.5, 1) is None  # late
+    assert (stats.depth_dropped, stats.depth_stale) == (2, 1)
+    assert loop.start_depth(frame(t_ns=3, left=image, right=image), 1.5, 1) is not None
+    assert worker.t_ns == [0, 3] and stats.depth_frames == 2
+
+
+def test_the_read_ahead_holds_at_most_its_bytes():
+    """With room for one frame, the read-ahead reads the next only once the loop took one."""
+    from sea3d.pipeline import live
+    from sea3d.pipeline.live import LiveFrame, _Prefetch
+
+    image = np.zeros((10, 10), np.uint8)  # 100 bytes; a frame with its rectified pair: 400
+    read = []
+
+    def frames():
+        for k in range(4):
+            read.append(k)
+            yield LiveFrame(t_ns=k, left=image, right=image)
+
+    real = live.rectify_pair
+    live.rectify_pair = lambda stereo, left, right: (left, right)
+    try:
+        pre = _Prefetch(frames(), None, max_bytes=500)
+        it = iter(pre)
+        _wait_for(lambda: len(read) == 2)  # the second is read, and waits for room
+        import time
+
+        time.sleep(0.2)
+        assert read == [0, 1] and pre.backlog == 2  # one held, one in the source
+        assert [f.t_ns for f, _, _ in it] == [0, 1, 2, 3]
+        pre.close()
+    finally:
+        live.rectify_pair = real

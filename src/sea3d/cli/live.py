@@ -50,7 +50,8 @@ def _cmd_live(args: argparse.Namespace) -> int:
                            poses=PoseConfig(poses_path=args.poses, use_imu=not args.no_imu),
                            max_frames=args.max_frames, report=False)
     live = LiveConfig(depth_in_flight=args.depth_in_flight,
-                      depth_max_backlog=args.depth_max_backlog or None)  # 0: any
+                      depth_max_backlog=args.depth_max_backlog or None,  # 0: any
+                      depth_pick=args.depth_pick, depth_max_lag_s=args.depth_max_lag_s or None)
     recorder = _recorder(args) if args.record is not None else None
     servers: list[Any] = []
     rig_yaml = recorder.config.rig_yaml if recorder is not None else None
@@ -90,11 +91,12 @@ def _cmd_live(args: argparse.Namespace) -> int:
         print(json.dumps(summary, indent=2, default=str))
         return 0
     info = summary["live"]
-    lat = info["latency_s"]
+    lat, pose = info["latency_s"], info["pose_latency_s"]
     print(f"{stats.frames} frames: {info['fraction_tracked']:.0%} tracked, "
           f"{info['fraction_fused']:.0%} fused ({stats.depth_dropped} depth frames dropped to "
-          f"keep up); latency p50 {lat['p50'] or 0:.2f} s, p99 {lat['p99'] or 0:.2f} s; "
-          f"{info['stop_reason']}; outputs in {args.output}")
+          f"keep up); frame to fusion (fused frames) p50 {lat['p50'] or 0:.2f} s, p99 "
+          f"{lat['p99'] or 0:.2f} s; frame to pose (every frame) p50 {pose['p50'] or 0:.2f} s, "
+          f"p99 {pose['p99'] or 0:.2f} s; {info['stop_reason']}; outputs in {args.output}")
     return 0
 
 
@@ -127,6 +129,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     config_option(p, LiveConfig, "depth_max_backlog", type=int, metavar="N",
                   help="a frame gets depth only while at most N frames, itself included, "
                   "wait for the live loop (older ones are stale); 0: any", shown="any")
+    config_option(p, LiveConfig, "depth_pick", choices=("newest", "in-order"),
+                  help="newest: depth starts as a frame is read, for the newest whenever the "
+                  "worker has room; in-order: when the live loop takes the frame")
+    config_option(p, LiveConfig, "depth_max_lag_s", "--depth-max-lag", type=float, metavar="S",
+                  help="no depth while the oldest frame waiting for the live loop arrived "
+                  "more than S seconds ago (its fusion would be that late); 0: any lag",
+                  shown="any")
     p.add_argument("--foxglove", metavar="HOST:PORT", help="publish the images, mesh, "
                    "trajectory and status on a Foxglove WebSocket server")
     p.add_argument("--monitor", metavar="HOST:PORT", help="serve the monitor page (with the "

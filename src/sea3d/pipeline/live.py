@@ -16,6 +16,9 @@ odometry runs on seeds as a frame without depth does while its depth computes, a
 is fused when it comes, in time order (``LiveConfig.odometry_waits_for_depth`` for the loop
 before; ``seed_max_age_s``: when the seeds grow older, the odometry waits for the oldest
 depth in flight). The source is read and rectified ahead by a thread of its own.
+``LiveConfig.depth_pick="newest"`` starts depth there, as each frame is read (the worker
+gets the newest frame whenever it has room), ``depth_max_lag_s`` drops depth that would be
+fused late (both options, not the default: docs/reconstruction.md).
 
 A frame without depth of its own gets the latest depth map moved to its predicted pose
 (:meth:`~sea3d.pipeline.depth_rate.DepthRate.seed`: constant velocity from the two previous
@@ -41,9 +44,8 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from queue import Full, Queue
 from typing import Any
 
 import numpy as np
@@ -68,6 +70,24 @@ class LiveConfig:
 
     depth_in_flight: int = 1
     """Depth frames computing at once; a frame arriving when that many are busy gets none."""
+    depth_pick: str = "in-order"
+    """Which frames get depth. ``in-order`` (the default): a frame gets depth when the loop
+    takes it, if the worker has room. ``newest``: depth starts as a frame is read, before
+    the loop takes it (the read-ahead then reads every frame as it arrives, up to
+    ``read_ahead_mb``), so the worker, whenever it has room, gets the newest frame and its
+    depth is ready when the odometry reaches it. Not the default: on the 80-frame dive the
+    eager read-ahead thread slowed the loop it runs beside (docs/reconstruction.md)."""
+    depth_max_lag_s: float | None = None
+    """A frame gets no depth while the oldest frame waiting for the live loop (itself
+    included) arrived more than this many seconds ago: its fusion would come at least that
+    late, and the worker's core is left to the odometry (counted in ``depth_stale``). None:
+    any lag (the default; docs/reconstruction.md)."""
+    read_ahead: int = 4
+    """Frames the read-ahead thread holds for the loop at most (``in-order``; as before)."""
+    read_ahead_mb: float = 256.0
+    """With ``depth_pick="newest"``: images (raw and rectified) the read-ahead thread holds
+    for the loop at most (at least one frame); the newest frame is read as it arrives only
+    while this has room."""
     depth_max_backlog: int | None = None
     """A frame gets depth only while at most this many frames, itself included, wait in the
     source for the live loop (the source's ``backlog``): an older one is stale (not before
@@ -94,6 +114,16 @@ class LiveConfig:
         if self.depth_max_backlog is not None and self.depth_max_backlog < 1:
             raise ConfigError(f"depth_max_backlog must be >= 1 or None, got "
                               f"{self.depth_max_backlog}")
+        if self.depth_pick not in ("newest", "in-order"):
+            raise ConfigError(f"depth_pick must be 'newest' or 'in-order', got "
+                              f"{self.depth_pick!r}")
+        if self.depth_max_lag_s is not None and not self.depth_max_lag_s > 0:
+            raise ConfigError(f"depth_max_lag_s must be > 0 or None, got "
+                              f"{self.depth_max_lag_s}")
+        if self.read_ahead < 1:
+            raise ConfigError(f"read_ahead must be >= 1, got {self.read_ahead}")
+        if not self.read_ahead_mb > 0:
+            raise ConfigError(f"read_ahead_mb must be > 0, got {self.read_ahead_mb}")
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -137,8 +167,19 @@ class LiveStats:
     hold_s: list[float] = field(default_factory=list)
     """Per fused frame: depth done to the end of its fusion (odometry of the frames before it,
     its own odometry and fusion)."""
+    pose_latency_s: list[float] = field(default_factory=list)
+    """Per frame with an estimate: arrival to the end of its odometry (the pose published)."""
+    depth_frames: int = 0
+    """Frames whose depth was started on the worker."""
+    depth_cpu_s: list[float] = field(default_factory=list)
+    """Per depth frame: the worker's CPU seconds for it (its process, all threads)."""
     stop_reason: str = ""
     cpu_s: float = 0.0
+    """The live loop's process over the run (all its threads; not the depth worker)."""
+    loop_thread_cpu_s: float = 0.0
+    """Of ``cpu_s``: the loop's own thread (odometry, seeds, fusion, the update hook)."""
+    read_cpu_s: float = 0.0
+    """Of ``cpu_s``: the read-ahead thread (reading, decoding, rectifying)."""
 
     def as_dict(self) -> dict[str, Any]:
         def pct(values: list[float]) -> dict[str, float | None]:
@@ -146,6 +187,7 @@ class LiveStats:
             return {"p50": float(np.percentile(a, 50)) if a.size else None,
                     "p99": float(np.percentile(a, 99)) if a.size else None}
 
+        n = max(self.frames, 1)
         return {"frames": self.frames, "tracked": self.tracked, "fused": self.fused,
                 "depth_dropped": self.depth_dropped, "depth_stale": self.depth_stale,
                 "seeds_moved": self.seeds_moved,
@@ -155,8 +197,14 @@ class LiveStats:
                 "latency_s": pct(self.latency_s), "mesh_latency_s": pct(self.mesh_latency_s),
                 "wait_s": pct(self.wait_s), "depth_s": pct(self.depth_s),
                 "hold_s": pct(self.hold_s),
+                "pose_latency_s": pct(self.pose_latency_s),
                 "backlog_max": self.backlog_max,
-                "cpu_s_per_frame": self.cpu_s / self.frames if self.frames else 0.0,
+                "depth_frames": self.depth_frames,
+                "cpu_s_per_frame": self.cpu_s / n,
+                "loop_thread_cpu_s_per_frame": self.loop_thread_cpu_s / n,
+                "read_cpu_s_per_frame": self.read_cpu_s / n,
+                "depth_cpu_s_per_depth_frame": (float(np.mean(self.depth_cpu_s))
+                                                if self.depth_cpu_s else None),
                 "stop_reason": self.stop_reason}
 
 
@@ -419,6 +467,15 @@ class RecorderFrames:
 
 
 @dataclass(eq=False)
+class _Depth:
+    """A depth frame started on the worker."""
+
+    future: Any
+    submitted: float
+    done: list[float] = field(default_factory=list)  # when the worker finished (its callback)
+
+
+@dataclass(eq=False)
 class _Pending:
     frame: LiveFrame
     arrival: float
@@ -431,54 +488,112 @@ class _Pending:
     anchor_rel: tuple[int, F64] | None = None  # (anchor keyframe, T_anchor_cam) at odometry
 
 
-class _Prefetch:
-    """The source read and rectified by a thread of its own, up to ``ahead`` frames before
-    the live loop takes them (decoding and rectification off the loop's thread; cv2 lets the
-    GIL go). ``backlog``: the frames waiting here plus the source's own."""
+def _depth_frame(config: FrameStageConfig, t_ns: int, left: NDArray[Any], right: NDArray[Any],
+                 geometry: Any = None) -> FrameResult:
+    """:func:`~sea3d.pipeline.frame_stage.process_frame` on the worker, with the worker's CPU
+    for it in ``timings_s["worker_cpu_s"]`` (taken out by the loop before the stages see it)."""
+    c0 = time.process_time()
+    res = process_frame(config, t_ns, left, right, geometry)
+    res.timings_s["worker_cpu_s"] = time.process_time() - c0
+    return res
 
-    def __init__(self, frames: Iterable[LiveFrame], stereo: Any, ahead: int = 4) -> None:
+
+def _nbytes(frame: LiveFrame, rect: Any) -> int:
+    return int(frame.left.nbytes + frame.right.nbytes + sum(int(r.nbytes) for r in rect))
+
+
+class _Prefetch:
+    """The source read and rectified by a thread of its own, ahead of the live loop (decoding
+    and rectification off the loop's thread; cv2 lets the GIL go), holding at most
+    ``max_bytes`` of images and ``max_frames`` frames (at least one frame).
+    ``start_depth(frame, lag_s, backlog)``, if given, is called in that thread as each frame
+    is read, before it is rectified, with the age of the oldest frame waiting for the loop
+    (itself included) and the frames waiting (itself included): the depth it starts goes
+    with the frame. ``backlog``: the frames waiting here plus the source's own."""
+
+    def __init__(self, frames: Iterable[LiveFrame], stereo: Any, *, max_bytes: float,
+                 max_frames: int | None = None,
+                 start_depth: Callable[[LiveFrame, float, int], _Depth | None] | None = None
+                 ) -> None:
         self.source = frames
-        self._q: Queue[tuple[LiveFrame, Any] | None] = Queue(maxsize=max(1, ahead))
-        self._stop = threading.Event()
+        self.max_bytes, self.max_frames = float(max_bytes), max_frames
+        self.start_depth = start_depth
+        self._items: deque[tuple[LiveFrame, Any, _Depth | None, int] | None] = deque()
+        self._bytes = 0
+        self._cv = threading.Condition()
+        self._stop = False
         self._error: BaseException | None = None
+        self.cpu_s = 0.0
         self._thread = threading.Thread(target=self._run, args=(stereo,), daemon=True,
                                         name="sea3d-live-prefetch")
         self._thread.start()
 
-    def _put(self, item: tuple[LiveFrame, Any] | None) -> bool:
-        while not self._stop.is_set():
-            try:
-                self._q.put(item, timeout=0.1)
-                return True
-            except Full:
-                continue
-        return False
+    def _put(self, item: tuple[LiveFrame, Any, _Depth | None, int] | None) -> bool:
+        with self._cv:
+            size = item[3] if item is not None else 0
+            while (not self._stop and self._items and item is not None
+                   and (self._bytes + size > self.max_bytes
+                        or (self.max_frames is not None
+                            and len(self._items) >= self.max_frames))):
+                self._cv.wait(0.1)
+            if self._stop:
+                return False
+            self._items.append(item)
+            self._bytes += size
+            self._cv.notify_all()
+            return True
+
+    def _waiting(self, frame: LiveFrame) -> tuple[float, int]:
+        """(age of the oldest frame waiting for the loop, frames waiting), both counting
+        ``frame``."""
+        now = time.monotonic()
+        with self._cv:
+            first = next((it[0] for it in self._items if it is not None), frame)
+            n = sum(1 for it in self._items if it is not None)
+        arrival = first.arrival_s if first.arrival_s is not None else now
+        return max(0.0, now - arrival), n + int(getattr(self.source, "backlog", 1) or 1)
 
     def _run(self, stereo: Any) -> None:
+        c0 = time.thread_time()
         try:
             for frame in self.source:
+                depth = None
+                if self.start_depth is not None:
+                    depth = self.start_depth(frame, *self._waiting(frame))
                 rect = rectify_pair(stereo, frame.left, frame.right)
-                if not self._put((frame, rect)):
+                if not self._put((frame, rect, depth, _nbytes(frame, rect))):
                     return
         except BaseException as err:  # handed to the loop's thread
             self._error = err
+        finally:
+            self.cpu_s = time.thread_time() - c0
         self._put(None)
 
     @property
     def backlog(self) -> int:
-        return self._q.qsize() + int(getattr(self.source, "backlog", 1) or 1)
+        with self._cv:
+            n = sum(1 for it in self._items if it is not None)
+        return n + int(getattr(self.source, "backlog", 1) or 1)
 
-    def __iter__(self) -> Iterator[tuple[LiveFrame, Any]]:
+    def __iter__(self) -> Iterator[tuple[LiveFrame, Any, _Depth | None]]:
         while True:
-            item = self._q.get()
+            with self._cv:
+                while not self._items:
+                    self._cv.wait(0.5)
+                item = self._items.popleft()
+                if item is not None:
+                    self._bytes -= item[3]
+                self._cv.notify_all()
             if item is None:
                 if self._error is not None:
                     raise self._error
                 return
-            yield item
+            yield item[0], item[1], item[2]
 
     def close(self) -> None:
-        self._stop.set()
+        with self._cv:
+            self._stop = True
+            self._cv.notify_all()
         self._thread.join(timeout=1)
 
 
@@ -509,17 +624,22 @@ def run_live(frames: Iterable[LiveFrame], stage: FrameStageConfig, stereo: Any,
     """
     cfg = config or LiveConfig()
     stats = LiveStats()
-    c0 = time.process_time()
-    source = _Prefetch(frames, stereo)
+    c0, t0 = time.process_time(), time.thread_time()
+    loop = _Loop(stage, stereo, stages, executor, cfg, stats, on_update)
+    newest = cfg.depth_pick == "newest"
+    source = _Prefetch(frames, stereo, max_bytes=cfg.read_ahead_mb * 1e6,
+                       max_frames=None if newest else cfg.read_ahead,
+                       start_depth=loop.start_depth if newest else None)
     try:
-        loop = _Loop(stage, stereo, stages, executor, cfg, stats, on_update)
-        for frame, rect in source:
-            loop.take(frame, rect, int(source.backlog))
+        for frame, rect, depth in source:
+            loop.take(frame, rect, int(source.backlog), depth)
         loop.drain(block=True)
     finally:
         source.close()
     stats.stop_reason = str(getattr(frames, "stop_reason", "") or "source ended")
     stats.cpu_s = time.process_time() - c0
+    stats.loop_thread_cpu_s = time.thread_time() - t0
+    stats.read_cpu_s = source.cpu_s
     return stats
 
 
@@ -539,33 +659,58 @@ class _Loop:
         self.last_depth: list[NDArray[np.float32]] = []
         self.depth_t = -1  # stamp of the frame whose depth the seeds come from
         self.started_depth = False
+        self._lock = threading.Lock()
+        self._in_flight = 0  # depth frames started and not finished
         # seeds of a frame without depth: the last depth map moved to its predicted pose
         self.seeder = DepthRate("all", K=stages.K, width_px=int(stereo.maps.width),
                                 trusted=TRUSTED)
         self.hook: list[Callable[[LiveUpdate], Any]] = [on_update] if on_update else []
 
-    def take(self, frame: LiveFrame, rect: Any, backlog: int) -> None:
-        """A frame from the source: depth for it if the worker has room, then the loop."""
+    def start_depth(self, frame: LiveFrame, lag_s: float, backlog: int) -> _Depth | None:
+        """Depth for ``frame`` if the worker has room and the frame is not stale (see
+        :class:`LiveConfig`), else None and the drop counted. ``lag_s``: the age of the
+        oldest frame waiting for the loop; ``backlog``: the frames waiting; both counting
+        this one. Called by the read-ahead thread (``depth_pick="newest"``) or the loop's."""
         cfg, stats = self.cfg, self.stats
+        with self._lock:
+            busy = self._in_flight
+        stale = self.started_depth and (
+            (cfg.depth_max_backlog is not None and backlog > cfg.depth_max_backlog)
+            or (cfg.depth_max_lag_s is not None and lag_s > cfg.depth_max_lag_s))
+        if busy >= cfg.depth_in_flight or stale:
+            stats.depth_dropped += 1
+            stats.depth_stale += int(busy < cfg.depth_in_flight)
+            return None
+        self.started_depth = True
+        stats.depth_frames += 1
+        with self._lock:
+            self._in_flight += 1
+        depth = _Depth(future=None, submitted=time.monotonic())
+        depth.future = self.executor.submit(_depth_frame, self.stage, frame.t_ns, frame.left,
+                                            frame.right, self.shared)
+        depth.future.add_done_callback(lambda _f, d=depth.done: self._finished(d))
+        return depth
+
+    def _finished(self, done: list[float]) -> None:
+        done.append(time.monotonic())
+        with self._lock:
+            self._in_flight -= 1
+
+    def take(self, frame: LiveFrame, rect: Any, backlog: int,
+             depth: _Depth | None = None) -> None:
+        """A frame from the source (with the depth started for it as it was read, or, with
+        ``depth_pick="in-order"``, depth for it now if the worker has room), then the loop."""
+        stats = self.stats
         taken = time.monotonic()
         arrival = taken if frame.arrival_s is None else frame.arrival_s
         stats.frames += 1
         stats.wait_s.append(max(0.0, taken - arrival))
         stats.backlog_max = max(stats.backlog_max, backlog)
-        busy = sum(1 for p in (*self.odo_queue, *self.fuse_queue)
-                   if p.future is not None and not p.future.done())
-        stale = (cfg.depth_max_backlog is not None and backlog > cfg.depth_max_backlog
-                 and self.started_depth)
+        if self.cfg.depth_pick == "in-order":
+            depth = self.start_depth(frame, max(0.0, taken - arrival), backlog)
         entry = _Pending(frame=frame, arrival=arrival, rect=rect)
-        if busy < cfg.depth_in_flight and not stale:
-            self.started_depth = True
-            entry.submitted = time.monotonic()
-            entry.future = self.executor.submit(process_frame, self.stage, frame.t_ns,
-                                                frame.left, frame.right, self.shared)
-            entry.future.add_done_callback(lambda _f, d=entry.done: d.append(time.monotonic()))
-        else:
-            stats.depth_dropped += 1
-            stats.depth_stale += int(busy < cfg.depth_in_flight)
+        if depth is not None:
+            entry.future, entry.submitted, entry.done = depth.future, depth.submitted, depth.done
         self.odo_queue.append(entry)
         self.drain(block=False)
 
@@ -601,10 +746,11 @@ class _Loop:
         stages, stats, seeder = self.stages, self.stats, self.seeder
         own = head.future is not None and head.future.done()
         if own:
-            res: FrameResult = head.future.result()
+            res: FrameResult = self._result(head)
             if res.status == "ok":
                 self.last_depth[:] = [res.depth_m]
                 self.depth_t = int(res.t_ns)
+            res = replace(res, timings_s={})  # the worker's timings are counted at fusion
         else:
             if self.last_depth:
                 before = seeder.warped
@@ -619,6 +765,7 @@ class _Loop:
         est = stages.step(res, head.frame.imu, fuse=False)
         if est is None:
             return
+        stats.pose_latency_s.append(time.monotonic() - head.arrival)
         T_cam = np.asarray(est.T_world_left) @ stages.T_left_rect
         seeder.observe(res.t_ns, est.status, T_cam, own_depth=own and res.status == "ok")
         stats.tracked += int(est.status in TRUSTED)
@@ -639,7 +786,7 @@ class _Loop:
             if not head.future.done() and not block:
                 return
             self.fuse_queue.popleft()
-            res: FrameResult = head.future.result()
+            res: FrameResult = self._result(head)
             assert head.est is not None
             if res.status == "ok" and int(res.t_ns) > self.depth_t:  # the seeds' depth now
                 self.last_depth[:] = [res.depth_m]
@@ -659,6 +806,15 @@ class _Loop:
                 stats.hold_s.append(now - done)
             if fused:
                 self._publish(head, head.est, fused=True, late=True)
+
+    def _result(self, head: _Pending) -> FrameResult:
+        """The frame's depth result (waiting for it); the worker's CPU for it, once, into
+        the stats."""
+        res: FrameResult = head.future.result()
+        cpu = res.timings_s.pop("worker_cpu_s", None)
+        if cpu is not None:
+            self.stats.depth_cpu_s.append(float(cpu))
+        return res
 
     def _pose_now(self, head: _Pending) -> F64 | None:
         """The frame's ``T_world_rect`` now: moved with its anchor keyframe by loop closures
@@ -737,6 +893,10 @@ class _Run:
                                          self.executor.share(self.stereo))
             import open3d  # noqa: F401  (meanwhile: the TSDF's library, not at the first fusion)
 
+            from sea3d.pipeline.depth_rate import warp_depth
+
+            # the seeds' kernel loaded (numba's cache) now, not in the loop at the first seed
+            warp_depth(np.ones((2, 2), np.float32), np.eye(3), np.eye(4))
             first.result()
         except BaseException:
             self.executor.close()
