@@ -905,7 +905,7 @@ class StereoInertialOdometry:
                 if not be.has_landmark(j):
                     keep[i] = False
                 continue
-            if be.has_landmark(j):
+            if be.has_landmark(j) and not be.expiring(j, t_ns * 1e-9):
                 obs.append((j, sp_meas[i]))
             else:  # marginalised while tracked: a fresh landmark takes its place
                 nj = self._next_landmark
