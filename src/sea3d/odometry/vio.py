@@ -557,23 +557,28 @@ class StereoInertialOdometry:
     ) -> tuple[StereoPoints | None, F64 | None, NDArray[np.int64]]:
         """The frame's pose by PnP against the tracked pixels' landmarks ``X``: ``(stereo
         points of the pixels or None, T_odomworld_rect or None, inlier indices)``; the pose is
-        None when PnP fails or disagrees with the IMU's prediction. The stereo points are
-        matched here only where the pinhole correction of a refractive rig needs them (no
-        prediction); otherwise a keyframe matches its inliers alone (:meth:`_track`)."""
+        None when PnP fails or disagrees with the IMU's prediction. A refractive rig matches
+        the stereo points here, for its pinhole correction; a pinhole rig needs none before
+        PnP, and a keyframe matches its inliers alone (:meth:`_track`)."""
         c = self.config
         sp: StereoPoints | None = None
         if not self.geometry.refractive:
             uv_c = uv
-        elif pred is not None:
-            # pixels consistent with the virtual pinhole, from the landmark's predicted depth
-            T = invert_T(pred)
-            z = (X @ T[:3, :3].T + T[:3, 3])[:, 2]
-            Pm, okm = self.geometry.points_from_depth(uv, z)
-            Pm[~okm] = np.nan
-            uv_c = self._corrected_uv(uv, Pm)
         else:
             sp = stereo_points(grey, right, depth, uv, self.geometry, c)
-            uv_c = self._corrected_uv(uv, sp.points_rect)
+            # pixels consistent with the virtual pinhole: from the stereo point, else from the
+            # landmark's predicted depth (the landmark's depth alone tried instead of the
+            # stereo point: 0.81 deg RMS orientation error on the lake dive against 0.29)
+            P_for_corr = sp.points_rect.copy()
+            if pred is not None:
+                miss = ~sp.ok
+                if miss.any():
+                    T = invert_T(pred)
+                    z = (X[miss] @ T[:3, :3].T + T[:3, 3])[:, 2]
+                    Pm, okm = self.geometry.points_from_depth(uv[miss], z)
+                    Pm[~okm] = np.nan
+                    P_for_corr[miss] = Pm
+            uv_c = self._corrected_uv(uv, P_for_corr)
         T_rw_guess = invert_T(pred) if pred is not None else None
         T_rect_world, inl = solve_pnp(X, uv_c, self.geometry.K, T_rw_guess, c)
         if T_rect_world is None:
