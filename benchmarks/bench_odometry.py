@@ -537,7 +537,8 @@ def run_alone(obs_path: Path, gt_path: Path, stages: bool) -> dict:
     m = evaluate_trajectory(t, T, gt.t_ns, gt.T_world_x, align="se3", max_diff_s=0.005,
                             rpe_deltas_m=[])
     r = {"src": str(Path(sea3d.__file__).parents[1]), "frames": n, "cpu_ms": 1e3 * cpu / n,
-         "ate_mm": 1e3 * m.ate_rmse_m, "keyframes": odo.keyframe_count, "lost": odo.frames_lost,
+         "ate_mm": 1e3 * m.ate_rmse_m, "rot_deg": m.ate_rotation_deg.rmse,
+         "keyframes": odo.keyframe_count, "lost": odo.frames_lost,
          "loops": odo.loop_closures}
     if prof is not None:
         st = pstats.Stats(prof).stats  # type: ignore[attr-defined]
@@ -576,15 +577,16 @@ def bench_alone(args: argparse.Namespace) -> None:
     print(f"odometry alone over {session} ({runs[trees[0][0]][0]['frames']} frames, cached "
           f"observations {obs}); {args.repeat} runs each, interleaved; load average "
           f"{os.getloadavg()[0]:.1f}")
-    print(f"  {'tree':<28}{'CPU ms/frame (median, runs)':<40}{'ATE mm':>8}{'kf':>5}"
-          f"{'lost':>5}{'loops':>6}")
+    print(f"  {'tree':<28}{'CPU ms/frame (median, runs)':<40}{'ATE mm':>8}{'rot deg':>8}"
+          f"{'kf':>5}{'lost':>5}{'loops':>6}")
     for label, _ in trees:
         rs = runs[label]
         cpus = [r["cpu_ms"] for r in rs]
         ates = sorted({round(r["ate_mm"], 4) for r in rs})
         print(f"  {label:<28}{statistics.median(cpus):>7.1f}  "
               f"({', '.join(f'{c:.1f}' for c in cpus)}){'':<8}"
-              f"{'/'.join(f'{a:.3f}' for a in ates):>10}{rs[0]['keyframes']:>5}"
+              f"{'/'.join(f'{a:.3f}' for a in ates):>10}{rs[0]['rot_deg']:>8.2f}"
+              f"{rs[0]['keyframes']:>5}"
               f"{rs[0]['lost']:>5}{rs[0]['loops']:>6}   [{rs[0]['src']}]")
     if args.stages:
         print("  CPU ms per frame by stage (cProfile, one run each; its overhead falls in "
