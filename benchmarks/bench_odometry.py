@@ -24,6 +24,20 @@ first, with ``nice``):
 
     nice python benchmarks/odometry_sessions.py
     nice python benchmarks/bench_odometry.py [--cache /tmp/sea3d_cache/odometry] [--only NAME]
+
+4. **The odometry alone on any recorded session** (``--session DIR``, e.g. bench_process's
+   80-frame lake dive): the frames' observations (rectified pair, depth from the rig's default
+   :class:`~sea3d.odometry.observe.Observer`, the IMU chunk), as ``sea3d odometry`` makes them,
+   are computed once and cached (``--obs-cache``); then the odometry alone runs over them
+   ``--repeat`` times, each in a fresh process: CPU ms per frame (median), ATE against the
+   session's ``gt/poses_left.tum`` (or ``--gt``), and with ``--stages`` the CPU ms per frame of
+   each stage (cProfile, in one more run: KLT, right-image matching, PnP, the smoother, corner
+   detection, loop-closure ORB, the rest). ``--compare SRC`` runs another source tree (e.g. the
+   main branch's ``src``) in the same way, interleaved with this one (``ours, ref, ours, ...``),
+   for a before/after on one machine under one load::
+
+       python benchmarks/bench_odometry.py --session out/bench_process/lake_640x360_80 \
+           --repeat 3 --stages --compare /work/main/src
 """
 
 from __future__ import annotations
@@ -446,6 +460,143 @@ def bench_euroc(args: argparse.Namespace) -> None:
               f"{cpu * 1e3:>8.1f}")
 
 
+# ------------------------------------------------------------------------------ odometry alone
+STAGES = {
+    "KLT": ("frontend.py", ("track_klt", "track_warped")),
+    "right match": ("frontend.py", ("stereo_points",)),
+    "PnP": ("frontend.py", ("solve_pnp",)),
+    "smoother": ("backend.py", ("add_keyframe",)),
+    "corners": ("frontend.py", ("detect_corners",)),
+    "loop ORB": ("vio.py", ("_loop_closure", "_redetected_pose")),
+}
+
+
+def cache_observations(session: Path, obs_cache: Path) -> Path:
+    """The observations ``sea3d odometry`` feeds its odometry, computed once into a pickle."""
+    import pickle
+
+    out = obs_cache / f"{session.resolve().name}.pkl"
+    if out.is_file():
+        return out
+    from sea3d.odometry.config import OdometryConfig
+    from sea3d.odometry.observe import Observer, imu_chunks
+    from sea3d.pipeline.odometry import imu_decision, open_stereo_source
+    from sea3d.stereo.recipe import StereoDepth
+
+    src = open_stereo_source(session, None, imu=True)
+    try:
+        imu_ok, _ = imu_decision(src, True, None, OdometryConfig().imu_max_clock_offset_s)
+        stereo = StereoDepth(src.rig, None)
+        observer = Observer(stereo)
+        n = src.t_ns.size
+        chunks: list = [None] * n
+        if imu_ok and src.rig.imu is not None:
+            off = round(src.rig.imu.time_offset_s * 1e9)
+            chunks = imu_chunks(src.t_ns + off, src.imu_t_ns, src.accel_mps2, src.gyro_radps)
+        obs = []
+        for i in range(n):
+            left, right = src.load(i)
+            obs.append(observer.observe(int(src.t_ns[i]), left, right, chunks[i]))
+    finally:
+        src.close()
+    obs_cache.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_suffix(".partial")
+    with open(tmp, "wb") as f:
+        pickle.dump({"obs": obs, "rig": src.rig, "maps": stereo.maps, "imu": imu_ok}, f,
+                    protocol=4)
+    tmp.replace(out)
+    return out
+
+
+def run_alone(obs_path: Path, gt_path: Path, stages: bool) -> dict:
+    """One run of the odometry alone over cached observations (in this process)."""
+    import cProfile
+    import pickle
+    import pstats
+
+    import sea3d
+    from sea3d.eval.trajectory import evaluate_trajectory
+    from sea3d.io.trajectory_files import read_trajectory
+    from sea3d.odometry import create_odometry
+
+    with open(obs_path, "rb") as f:
+        d = pickle.load(f)
+    gt = read_trajectory(gt_path)
+    odo = create_odometry(d["rig"], d["maps"], use_imu=d["imu"])
+    prof = cProfile.Profile(timer=time.process_time) if stages else None
+    c0 = time.process_time()
+    if prof is not None:
+        prof.enable()
+    for obs in d["obs"]:
+        odo.step(obs)
+    if prof is not None:
+        prof.disable()
+    cpu = time.process_time() - c0
+    n = len(d["obs"])
+    t, T = odo.trajectory()
+    m = evaluate_trajectory(t, T, gt.t_ns, gt.T_world_x, align="se3", max_diff_s=0.005,
+                            rpe_deltas_m=[])
+    r = {"src": str(Path(sea3d.__file__).parents[1]), "frames": n, "cpu_ms": 1e3 * cpu / n,
+         "ate_mm": 1e3 * m.ate_rmse_m, "rot_deg": m.ate_rotation_deg.rmse,
+         "keyframes": odo.keyframe_count, "lost": odo.frames_lost,
+         "loops": odo.loop_closures}
+    if prof is not None:
+        st = pstats.Stats(prof).stats  # type: ignore[attr-defined]
+        cum = {(Path(k[0]).name, k[2]): v[3] for k, v in st.items()}
+        total = sum(v for (f, fn), v in cum.items() if f == "vio.py" and fn == "step")
+        split = {name: sum(cum.get((f, fn), 0.0) for fn in fns)
+                 for name, (f, fns) in STAGES.items()}
+        split["rest"] = total - sum(split.values())
+        r["stages_ms"] = {k: 1e3 * v / n for k, v in split.items()}
+        r["profiled_total_ms"] = 1e3 * total / n
+    return r
+
+
+def bench_alone(args: argparse.Namespace) -> None:
+    session = Path(args.session)
+    gt = Path(args.gt) if args.gt else session / "gt" / "poses_left.tum"
+    obs = cache_observations(session, args.obs_cache)
+    trees: list[tuple[str, str | None]] = [("this tree", None)]
+    if args.compare:
+        trees.append((f"--compare {args.compare}", args.compare))
+
+    def child(tree: str | None, stages: bool) -> dict:
+        env = dict(os.environ)
+        if tree is not None:
+            env["PYTHONPATH"] = tree
+        cmd = [sys.executable, __file__, "--child-alone", str(obs), "--gt", str(gt)]
+        if stages:
+            cmd.append("--stages")
+        out = subprocess.run(cmd, check=True, capture_output=True, text=True, env=env)
+        return json.loads(out.stdout.strip().splitlines()[-1])
+
+    runs: dict[str, list[dict]] = {label: [] for label, _ in trees}
+    for _ in range(args.repeat):
+        for label, tree in trees:
+            runs[label].append(child(tree, False))
+    print(f"odometry alone over {session} ({runs[trees[0][0]][0]['frames']} frames, cached "
+          f"observations {obs}); {args.repeat} runs each, interleaved; load average "
+          f"{os.getloadavg()[0]:.1f}")
+    print(f"  {'tree':<28}{'CPU ms/frame (median, runs)':<40}{'ATE mm':>8}{'rot deg':>8}"
+          f"{'kf':>5}{'lost':>5}{'loops':>6}")
+    for label, _ in trees:
+        rs = runs[label]
+        cpus = [r["cpu_ms"] for r in rs]
+        ates = sorted({round(r["ate_mm"], 4) for r in rs})
+        print(f"  {label:<28}{statistics.median(cpus):>7.1f}  "
+              f"({', '.join(f'{c:.1f}' for c in cpus)}){'':<8}"
+              f"{'/'.join(f'{a:.3f}' for a in ates):>10}{rs[0]['rot_deg']:>8.2f}"
+              f"{rs[0]['keyframes']:>5}"
+              f"{rs[0]['lost']:>5}{rs[0]['loops']:>6}   [{rs[0]['src']}]")
+    if args.stages:
+        print("  CPU ms per frame by stage (cProfile, one run each; its overhead falls in "
+              "the rest):")
+        for label, tree in trees:
+            r = child(tree, True)
+            parts = "  ".join(f"{k} {v:.1f}" for k, v in r["stages_ms"].items())
+            print(f"    {label:<26} total {r['profiled_total_ms']:.1f}: {parts}")
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
@@ -454,8 +605,21 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--frames", type=int, help="use only the first frames of each dive")
     p.add_argument("--repeat", type=int, default=3, help="timing repeats (7-Scenes)")
     p.add_argument("--no-reference", action="store_true", help="skip Open3D on the dives")
+    p.add_argument("--session", help="the odometry alone on this recorded session (section 4)")
+    p.add_argument("--gt", help="ground truth of --session (default SESSION/gt/poses_left.tum)")
+    p.add_argument("--obs-cache", type=Path, default=DEFAULT_CACHE / "observations",
+                   help="where --session's observations are cached")
+    p.add_argument("--compare", help="another source tree (its src/) run beside this one")
+    p.add_argument("--stages", action="store_true", help="CPU per stage of --session")
     p.add_argument("--child", help=argparse.SUPPRESS)
+    p.add_argument("--child-alone", type=Path, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
+    if args.child_alone:
+        print(json.dumps(run_alone(args.child_alone, Path(args.gt), args.stages)))
+        return 0
+    if args.session:
+        bench_alone(args)
+        return 0
     if args.child:
         if args.child == "open3d":
             r = run_open3d(args.cache, args.only, args.engine, args.frames)

@@ -121,6 +121,7 @@ class SmootherBackend:
         self.times_s: dict[int, float] = {}
         self.estimate = gtsam.Values()
         self.landmarks_in_window: set[int] = set()
+        self._first_seen_s: dict[int, float] = {}
 
     @property
     def inertial(self) -> bool:
@@ -250,8 +251,11 @@ class SmootherBackend:
             Xj = np.asarray(X, dtype=np.float64)
             values.insert(_L(j), Xj)
             graph.add(gtsam.PriorFactorPoint3(_L(j), Xj, lm_prior))
-        for j, _ in observations:
+        # a landmark keeps the stamp of the keyframe that first saw it, so it leaves the window
+        # with that keyframe (see ``expiring``)
+        for j in new_landmarks:
             stamps[_L(j)] = t_s
+            self._first_seen_s[j] = t_s
         self._stereo_factors(graph, k, observations)
         if self.failed:
             raise SmootherFailure("the smoother failed before; its segment must end")
@@ -277,8 +281,19 @@ class SmootherBackend:
         for q in list(self.times_s):
             if q not in self.keyframes and q != k:
                 del self.times_s[q]
+        if len(self._first_seen_s) > 4 * max(self.estimate.size(), 1):
+            self._first_seen_s = {
+                j: s for j, s in self._first_seen_s.items() if self.estimate.exists(_L(j))
+            }
 
     # ------------------------------------------------------------------ reading the window
+    def expiring(self, j: int, t_s: float) -> bool:
+        """True when landmark ``j`` leaves the window at a keyframe at ``t_s`` (the keyframe
+        that first saw it falls out of the lag): the front end then observes a fresh landmark
+        in its place."""
+        first = self._first_seen_s.get(j)
+        return first is None or first <= t_s - self.lag_s + 1e-6
+
     def has_landmark(self, j: int) -> bool:
         """True when landmark ``j`` is still a variable of the window."""
         return bool(self.estimate.exists(_L(j)))
