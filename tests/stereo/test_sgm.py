@@ -299,3 +299,22 @@ def test_band_offsets_are_the_prefix_sums_of_the_band_widths() -> None:
         got = band_offsets(nch)
         assert got.dtype == np.int64
         np.testing.assert_array_equal(got, want)
+
+
+def test_vertical_slope_is_the_least_squares_row_slope_of_the_valid_pixels() -> None:
+    from sea3d.stereo.sgm import _vertical_slope
+
+    h, w = 40, 30
+    yy = np.arange(h, dtype=np.float32)[:, None] * np.ones((1, w), np.float32)
+    disp = (10.0 + 0.25 * yy).astype(np.float32)  # 0.25 px per row
+    disp[::4, ::3] = np.nan
+    disp[10:30, 5:25] = np.nan  # a hole larger than the 13 x 9 window
+    gy = _vertical_slope(disp, 6, 4)
+    assert gy.dtype == np.float32 and gy.shape == (h, w)
+    # away from the borders (the window zero-padded there is still exact for a plane)
+    inner = gy[8:-8, 6:-6]
+    ok = np.isfinite(inner)
+    assert ok.mean() > 0.5
+    np.testing.assert_allclose(inner[ok], 0.25, atol=1e-3)
+    # the middle of the hole sees no valid pixel at all
+    assert np.isnan(gy[20, 15])
