@@ -252,3 +252,69 @@ def test_coarse_trial_keeps_the_band_on_smooth_depth_and_searches_in_full_at_ste
     assert res.timings_s["pyramid_levels"] == 0  # depth steps: searched in full after all
     off = match(left, right, SgmConfig(max_disparity_px=79, trial_step_fraction=0.0))
     assert off.timings_s["pyramid_levels"] == 0 and "trial_step_fraction" not in off.timings_s
+
+
+def _census_reference(img: np.ndarray, half_h: int, half_w: int) -> np.ndarray:
+    """Census signatures the plain way: neighbours in row-major order (centre skipped), the
+    first 32 shifted into the low word (the first one most significant), the rest into the
+    high word; borders replicate."""
+    h, w = img.shape
+    pad = np.pad(img, ((half_h, half_h), (half_w, half_w)), mode="edge")
+    lo = np.zeros((h, w), np.uint64)
+    hi = np.zeros((h, w), np.uint64)
+    n = 0
+    for dy in range(2 * half_h + 1):
+        for dx in range(2 * half_w + 1):
+            if dy == half_h and dx == half_w:
+                continue
+            bit = (pad[dy:dy + h, dx:dx + w] < img).astype(np.uint64)
+            if n < 32:
+                lo = (lo << np.uint64(1)) | bit
+            else:
+                hi = (hi << np.uint64(1)) | bit
+            n += 1
+    return (hi << np.uint64(32)) | (lo & np.uint64(0xFFFFFFFF))
+
+
+@pytest.mark.parametrize(("half_h", "half_w"), [(3, 4), (1, 1), (2, 6)])
+def test_census_transform_matches_the_plain_definition_bit_for_bit(half_h: int,
+                                                                   half_w: int) -> None:
+    from sea3d.stereo._sgm_kernels import census_transform
+
+    rng = np.random.default_rng(3)
+    # ties (quantised values) and a narrow image, so the replicated borders meet
+    img = np.round(rng.random((23, 11)) * 8).astype(np.float32)
+    got = census_transform(img, half_h, half_w)
+    assert got.dtype == np.uint64
+    np.testing.assert_array_equal(got, _census_reference(img, half_h, half_w))
+
+
+def test_band_offsets_are_the_prefix_sums_of_the_band_widths() -> None:
+    from sea3d.stereo._sgm_kernels import band_offsets
+
+    rng = np.random.default_rng(4)
+    for nch in (np.ones((5, 7), np.int32), np.full((3, 4), 3, np.int32),
+                rng.integers(1, 4, (6, 9)).astype(np.int32)):
+        want = np.concatenate([[0], np.cumsum(nch.ravel().astype(np.int64) * 16)])
+        got = band_offsets(nch)
+        assert got.dtype == np.int64
+        np.testing.assert_array_equal(got, want)
+
+
+def test_vertical_slope_is_the_least_squares_row_slope_of_the_valid_pixels() -> None:
+    from sea3d.stereo.sgm import _vertical_slope
+
+    h, w = 40, 30
+    yy = np.arange(h, dtype=np.float32)[:, None] * np.ones((1, w), np.float32)
+    disp = (10.0 + 0.25 * yy).astype(np.float32)  # 0.25 px per row
+    disp[::4, ::3] = np.nan
+    disp[10:30, 5:25] = np.nan  # a hole larger than the 13 x 9 window
+    gy = _vertical_slope(disp, 6, 4)
+    assert gy.dtype == np.float32 and gy.shape == (h, w)
+    # away from the borders (the window zero-padded there is still exact for a plane)
+    inner = gy[8:-8, 6:-6]
+    ok = np.isfinite(inner)
+    assert ok.mean() > 0.5
+    np.testing.assert_allclose(inner[ok], 0.25, atol=1e-3)
+    # the middle of the hole sees no valid pixel at all
+    assert np.isnan(gy[20, 15])

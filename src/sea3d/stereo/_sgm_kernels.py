@@ -54,12 +54,17 @@ def census_transform(img: np.ndarray, half_h: int, half_w: int) -> np.ndarray:
 
     ``img`` (H, W) float32; window (2*half_h+1) x (2*half_w+1) <= 65 pixels; borders replicate.
     Returns (H, W) uint64. The loops run along rows (vectorised), filling two 32-bit halves; the
-    bit order is the same for both images, which is all the Hamming distance needs.
+    bit order is the same for both images, which is all the Hamming distance needs. Each window
+    row is copied once into a padded row (a contiguous copy plus the replicated ends) and every
+    neighbour's bits are formed from a contiguous slice of it, so the inner loops vectorise
+    without per-pixel clamping (measured: 2.2 ms against 5.6 ms per 640x360 image, one thread,
+    the same bits).
     """
     h, w = img.shape
     pw = w + 2 * half_w
     out = np.empty((h, w), np.uint64)
     one = np.uint32(1)
+    zero = np.uint32(0)
     for y in prange(h):
         centre = img[y]
         padded = np.empty(pw, np.float32)
@@ -68,17 +73,20 @@ def census_transform(img: np.ndarray, half_h: int, half_w: int) -> np.ndarray:
         n = 0
         for dy in range(-half_h, half_h + 1):
             row = img[min(max(y + dy, 0), h - 1)]
-            for x in range(pw):
-                padded[x] = row[min(max(x - half_w, 0), w - 1)]
+            padded[half_w:half_w + w] = row
+            for x in range(half_w):
+                padded[x] = row[0]
+                padded[half_w + w + x] = row[w - 1]
             for dx in range(2 * half_w + 1):
                 if dy == 0 and dx == half_w:
                     continue
+                src = padded[dx:dx + w]
                 if n < 32:
                     for x in range(w):
-                        lo32[x] = (lo32[x] << one) | np.uint32(padded[x + dx] < centre[x])
+                        lo32[x] = (lo32[x] << one) | (one if src[x] < centre[x] else zero)
                 else:
                     for x in range(w):
-                        hi32[x] = (hi32[x] << one) | np.uint32(padded[x + dx] < centre[x])
+                        hi32[x] = (hi32[x] << one) | (one if src[x] < centre[x] else zero)
                 n += 1
         for x in range(w):
             out[y, x] = (np.uint64(hi32[x]) << np.uint64(32)) | np.uint64(lo32[x])
@@ -88,8 +96,14 @@ def census_transform(img: np.ndarray, half_h: int, half_w: int) -> np.ndarray:
 def band_offsets(nch: np.ndarray) -> np.ndarray:
     """Start of each pixel's band in the packed volumes: (H*W + 1,) int64 prefix sums of
     ``16 * nch``."""
-    offs = np.zeros(nch.size + 1, np.int64)
-    np.cumsum(nch.ravel().astype(np.int64) * LANES, out=offs[1:])
+    flat = nch.ravel()
+    n0 = int(flat[0]) if flat.size else 0
+    if flat.size and int(flat.min()) == n0 == int(flat.max()):
+        # one band width everywhere (a full search, or a band search on smooth depth): the
+        # prefix sums are a ramp (measured at 640x360, one chunk: 0.27 ms against 1.1 ms)
+        return np.arange(flat.size + 1, dtype=np.int64) * np.int64(LANES * n0)
+    offs = np.zeros(flat.size + 1, np.int64)
+    np.cumsum(flat.astype(np.int64) * LANES, out=offs[1:])
     return offs
 
 
@@ -532,6 +546,47 @@ def band_from_coarse(
             lo[y, x] = max(min(c_start[yc, xc], top - n * LANES + 1), 0)
             nch[y, x] = n
     return lo, nch, none
+
+
+@njit(parallel=True, cache=True)
+def valid_and_zeroed(disp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The validity mask of ``disp`` (1 where finite, float32) and ``disp`` with 0 where not
+    finite: one pass instead of numpy's four."""
+    h, w = disp.shape
+    v = np.empty((h, w), np.float32)
+    d = np.empty((h, w), np.float32)
+    for y in prange(h):
+        for x in range(w):
+            e = disp[y, x]
+            if e - e == 0:
+                v[y, x] = 1.0
+                d[y, x] = e
+            else:
+                v[y, x] = 0.0
+                d[y, x] = 0.0
+    return v, d
+
+
+@njit(parallel=True, cache=True)
+def slope_from_sums(s1: np.ndarray, sj: np.ndarray, sjj: np.ndarray, sd: np.ndarray,
+                    sjd: np.ndarray) -> np.ndarray:
+    """Least-squares slope ``(s1 sjd - sj sd) / (s1 sjj - sj^2)`` from the window sums (NaN
+    where the determinant is at most 1e-3), float32 operation by operation as numpy does them
+    (one pass instead of seven)."""
+    h, w = s1.shape
+    out = np.empty((h, w), np.float32)
+    nan = np.float32(np.nan)
+    for y in prange(h):
+        for x in range(w):
+            a = s1[y, x]
+            b = sj[y, x]
+            den = np.float32(a * sjj[y, x]) - np.float32(b * b)
+            if den > np.float32(1e-3):
+                num = np.float32(a * sjd[y, x]) - np.float32(b * sd[y, x])
+                out[y, x] = num / den
+            else:
+                out[y, x] = nan
+    return out
 
 
 @njit(parallel=True, cache=True)

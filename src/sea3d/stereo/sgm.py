@@ -190,8 +190,7 @@ def _vertical_slope(disp: NDArray[np.float32], half_h: int, half_w: int) -> NDAr
     tilt the alignment refinement lets its window follow. Measured steadier than central
     differences of a median-filtered map (fronto-parallel planes at 3-5 m: 0.39/0.61 %
     against 0.57/0.82 % depth error) at the same accuracy on receding sea floors."""
-    v = np.isfinite(disp).astype(np.float32)
-    d = np.where(v > 0, disp, 0.0).astype(np.float32)
+    v, d = K.valid_and_zeroed(disp)
     ramp = np.arange(-half_h, half_h + 1, dtype=np.float32)
     ones_y = np.ones(2 * half_h + 1, np.float32)
     ones_x = np.ones(2 * half_w + 1, np.float32)
@@ -200,11 +199,7 @@ def _vertical_slope(disp: NDArray[np.float32], half_h: int, half_w: int) -> NDAr
                                           borderType=cv2.BORDER_CONSTANT))
     s1, sj, sjj = f(v, ones_y), f(v, ramp), f(v, ramp * ramp)
     sd, sjd = f(d, ones_y), f(d, ramp)
-    den = s1 * sjj - sj * sj
-    with np.errstate(all="ignore"):
-        gy = (s1 * sjd - sj * sd) / den
-    gy[~(den > 1e-3)] = np.nan
-    out: NDArray[np.float32] = gy.astype(np.float32)
+    out: NDArray[np.float32] = K.slope_from_sums(s1, sj, sjj, sd, sjd)
     return out
 
 
