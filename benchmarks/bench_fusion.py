@@ -45,6 +45,15 @@ completeness of the scene samples within 3 cm of the fused depth.
 
     python benchmarks/bench_fusion.py [--repeats 3] [--voxel-m 0.01] [--skip-speed]
     python benchmarks/bench_fusion.py --survey 300 [--survey-poses T_world_cam.npy]
+
+With ``--confidence`` the floater rows are the plain ones, the 2 px hole margin and the
+matcher's confidence as a gate (``TsdfConfig.min_confidence`` 0.2) and as weights
+(``confidence_full`` 0.5 and 1); with ``--skip-speed --confidence``, KITTI alone (Kinect
+depth has no matcher confidence). The survey prints Open3D's plain loop on the same depth
+first.
+
+    python benchmarks/bench_fusion.py --survey 150 --confidence
+    python benchmarks/bench_fusion.py --skip-speed --confidence
 """
 
 from __future__ import annotations
