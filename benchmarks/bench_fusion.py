@@ -45,6 +45,15 @@ completeness of the scene samples within 3 cm of the fused depth.
 
     python benchmarks/bench_fusion.py [--repeats 3] [--voxel-m 0.01] [--skip-speed]
     python benchmarks/bench_fusion.py --survey 300 [--survey-poses T_world_cam.npy]
+
+With ``--confidence`` the floater rows are the plain ones, the 2 px hole margin and the
+matcher's confidence as a gate (``TsdfConfig.min_confidence`` 0.2) and as weights
+(``confidence_full`` 0.5 and 1); with ``--skip-speed --confidence``, KITTI alone (Kinect
+depth has no matcher confidence). The survey prints Open3D's plain loop on the same depth
+first.
+
+    python benchmarks/bench_fusion.py --survey 150 --confidence
+    python benchmarks/bench_fusion.py --skip-speed --confidence
 """
 
 from __future__ import annotations
@@ -95,13 +104,13 @@ def sea3d_direct(images: list[tuple[np.ndarray, np.ndarray]], poses: np.ndarray,
 
 
 def open3d_direct(images: list[tuple[np.ndarray, np.ndarray]], poses: np.ndarray,
-                  K_o3d: np.ndarray, voxel_m: float, max_depth_m: float
-                  ) -> tuple[np.ndarray, list[float], list[float]]:
+                  K_o3d: np.ndarray, voxel_m: float, max_depth_m: float,
+                  block_count: int = 4096) -> tuple[np.ndarray, list[float], list[float]]:
     vbg = o3d.t.geometry.VoxelBlockGrid(
         attr_names=("tsdf", "weight", "color"),
         attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
         attr_channels=((1), (1), (3)), voxel_size=voxel_m, block_resolution=8,
-        block_count=4096, device=o3c.Device("CPU:0"))
+        block_count=block_count, device=o3c.Device("CPU:0"))
     Kt = o3c.Tensor(K_o3d)
     wall, cpu = [], []
     for (depth, color), T in zip(images, poses, strict=True):
@@ -204,9 +213,13 @@ def heldout(images: list[tuple[np.ndarray, np.ndarray]], poses: np.ndarray, voxe
             every: int = 5, *, K: np.ndarray = K, max_depth_m: float = 4.0,
             noise_per_m: float = KINECT_NOISE_PER_M,
             reference: list[tuple[np.ndarray, np.ndarray]] | None = None,
-            title: str = "7-Scenes chess, Kinect depth") -> None:
+            title: str = "7-Scenes chess, Kinect depth",
+            confidences: list[np.ndarray] | None = None, only_confidence: bool = False) -> None:
     """Floaters on real frames: the module docstring's held-out comparison (``reference``:
-    the held-out frames' depth to compare with, default their own in ``images``)."""
+    the held-out frames' depth to compare with, default their own in ``images``;
+    ``confidences``: the matcher's confidence of each frame's depth, for the
+    confidence-gated and -weighted rows; ``only_confidence``: those rows and the plain ones
+    only)."""
     held_idx = np.arange(0, len(images), every)
     fuse_idx = np.setdiff1d(np.arange(len(images)), held_idx)
     fused = [images[i] for i in fuse_idx]
@@ -221,18 +234,25 @@ def heldout(images: list[tuple[np.ndarray, np.ndarray]], poses: np.ndarray, voxe
     meshes: dict[str, tuple[tuple[np.ndarray, np.ndarray], float]] = {}
     ref, _, cpu = open3d_direct(fused, poses[fuse_idx], K_half, voxel_m, max_depth_m)
     meshes["Open3D VoxelBlockGrid"] = (ref, statistics.median(cpu))
-    variants = [("sea3d, seen once", base), ("carving", carve),
-                ("hole margin 1 px", replace(base, hole_margin_px=1)),
-                ("hole margin 2 px", replace(base, hole_margin_px=2)),
-                ("hole margin 2 px + carving", replace(carve, hole_margin_px=2))]
+    variants = [("sea3d, seen once", base)]
+    if not only_confidence:
+        variants += [("carving", carve),
+                     ("hole margin 1 px", replace(base, hole_margin_px=1)),
+                     ("hole margin 2 px", replace(base, hole_margin_px=2)),
+                     ("hole margin 2 px + carving", replace(carve, hole_margin_px=2))]
+    if confidences is not None:
+        variants += [("confidence >= 0.2", replace(base, min_confidence=0.2)),
+                     ("weighted, full at 0.5", replace(base, confidence_full=0.5)),
+                     ("weighted, full at 1", replace(base, confidence_full=1.0))]
     variants += [(f"{n}, seen twice" if n != "sea3d, seen once" else "sea3d, seen twice",
                   replace(c, weight_threshold=1.5)) for n, c in variants]
     for name, cfg in variants:
         vol = TsdfVolume(cfg)
         cpu = []
-        for (depth, color), T in zip(fused, poses[fuse_idx], strict=True):
+        for i, ((depth, color), T) in enumerate(zip(fused, poses[fuse_idx], strict=True)):
+            conf = None if confidences is None else confidences[fuse_idx[i]]
             c0 = time.process_time()
-            vol.integrate(depth, color, K, T)
+            vol.integrate(depth, color, K, T, confidence=conf)
             cpu.append(1000 * (time.process_time() - c0))
         m = vol.extract_mesh()
         meshes[name] = ((m.vertices, m.triangles), statistics.median(cpu[1:]))
@@ -254,10 +274,11 @@ SGM_SIGMA_PX = 0.25
 
 def kitti_frames(root: Path) -> tuple[list[tuple[np.ndarray, np.ndarray]],
                                       list[tuple[np.ndarray, np.ndarray]], np.ndarray,
-                                      np.ndarray, float]:
+                                      np.ndarray, float, list[np.ndarray]]:
     """KITTI odometry excerpt: sea3d SGM depth (matched pixels only, as ``sea3d process``
     fuses) and OpenCV SGBM depth (the independent reference for held-out frames) of every
-    rectified pair, poses ``T_world_left``, K and ``f B`` (px m)."""
+    rectified pair, poses ``T_world_left``, K, ``f B`` (px m) and SGM's confidence of each
+    pair."""
     import cv2
 
     from sea3d.stereo.sgm import match_sgm
@@ -271,7 +292,7 @@ def kitti_frames(root: Path) -> tuple[list[tuple[np.ndarray, np.ndarray]],
     poses = np.loadtxt(root / "poses.txt").reshape(-1, 3, 4)
     T = np.tile(np.eye(4), (len(poses), 1, 1))
     T[:, :3, :] = poses
-    ours, ref = [], []
+    ours, ref, confs = [], [], []
     sgbm = cv2.StereoSGBM_create(minDisparity=0, numDisparities=128, blockSize=5,
                                  P1=8 * 25, P2=32 * 25, uniquenessRatio=10,
                                  speckleWindowSize=100, speckleRange=2,
@@ -283,23 +304,26 @@ def kitti_frames(root: Path) -> tuple[list[tuple[np.ndarray, np.ndarray]],
         right = cv2.imread(str(rp), cv2.IMREAD_GRAYSCALE)
         res = match_sgm(left, right, SgmConfig(max_disparity_px=127))
         d = np.where(res.confidence > 0, res.disparity_px, np.nan)
+        confs.append(res.confidence.astype(np.float32))
         col = np.repeat(left[..., None], 3, axis=2)
         with np.errstate(divide="ignore", invalid="ignore"):
             ours.append((np.where(d >= 4, fB / d, np.nan).astype(np.float32), col))
             dr = sgbm.compute(left, right).astype(np.float32) / 16.0
             ref.append((np.where(dr >= 4, fB / dr, np.nan).astype(np.float32), col))
-    return ours, ref, T[: len(ours)], Kk, fB
+    return ours, ref, T[: len(ours)], Kk, fB, confs
 
 
-def kitti(root: Path, voxel_m: float = 0.05, max_depth_m: float = 20.0) -> None:
+def kitti(root: Path, voxel_m: float = 0.05, max_depth_m: float = 20.0,
+          only_confidence: bool = False) -> None:
     """The held-out check on real stereo: KITTI's rectified pairs, sea3d's SGM depth fused
     with the ground-truth poses, held-out frames compared with OpenCV SGBM's depth."""
     if not (root / "calib.txt").is_file():
         print(f"\nno KITTI excerpt at {root}: real-stereo check skipped")
         return
-    ours, ref, T, Kk, fB = kitti_frames(root)
+    ours, ref, T, Kk, fB, confs = kitti_frames(root)
     heldout(ours, T, voxel_m, K=Kk, max_depth_m=max_depth_m, noise_per_m=SGM_SIGMA_PX / fB,
-            reference=ref, title=f"KITTI {root.name}, sea3d SGM depth (f B {fB:.0f} px m), "
+            reference=ref, confidences=confs, only_confidence=only_confidence,
+            title=f"KITTI {root.name}, sea3d SGM depth (f B {fB:.0f} px m), "
             "held-out frames' OpenCV SGBM depth")
 
 def survey_depth(session: Path, cache: Path) -> None:
@@ -350,7 +374,7 @@ def survey_depth(session: Path, cache: Path) -> None:
     np.save(cache / "T_world_cam.npy", np.stack(poses))
 
 
-def survey(frames_n: int, poses_path: Path | None) -> None:
+def survey(frames_n: int, poses_path: Path | None, only_confidence: bool = False) -> None:
     """Floaters on the simulated lake survey: the variants of docs/reconstruction.md
     (Floaters) fused from the same cached depth, every vertex's distance to the scene."""
     from scipy.spatial import cKDTree
@@ -387,22 +411,39 @@ def survey(frames_n: int, poses_path: Path | None) -> None:
     observed = ref[np.isfinite(dd)]
     base = TsdfConfig(voxel_m=0.02, min_depth_m=0.5, max_depth_m=4.0, initial_blocks=50_000)
     carve = replace(base, carve_free_space=True, depth_noise_per_m=SGM_SIGMA_PX / fB)
-    variants = [("all pixels", base, 0.0), ("carving", carve, 0.0),
-                ("confidence >= 0.2", base, 0.2),
-                ("hole margin 1 px", replace(base, hole_margin_px=1), 0.0),
-                ("hole margin 2 px", replace(base, hole_margin_px=2), 0.0)]
+    variants = [("all pixels", base, 0.0)]
+    if not only_confidence:
+        variants += [("carving", carve, 0.0),
+                     ("hole margin 1 px", replace(base, hole_margin_px=1), 0.0)]
+    variants += [("hole margin 2 px", replace(base, hole_margin_px=2), 0.0),
+                 ("confidence >= 0.2", replace(base, min_confidence=0.2), 0.0),
+                 ("weighted, full at 0.5", replace(base, confidence_full=0.5), 0.0),
+                 ("weighted, full at 1", replace(base, confidence_full=1.0), 0.0),
+                 ("weighted 0.5 + margin 2", replace(base, confidence_full=0.5,
+                                                     hole_margin_px=2), 0.0)]
     print(f"\nlake survey, {len(files)} frames 640x360, 2 cm voxels, "
           f"{'given' if poses_path else 'ground-truth'} poses; {len(observed)} observed "
           "scene samples")
     print(f"{'fused':20} {'kept':>5} {'vertices':>9} {'med mm':>7} {'p90':>6} {'p99':>6} "
           f"{'max':>6} {'>10cm':>6} {'compl med/p90':>14} {'rec 2cm':>7} {'CPU ms/fr':>9}")
+    K_half = Ks.copy()
+    K_half[:2, 2] += 0.5
+    o3d_in = [(np.where((fr["depth"] >= 0.5) & (fr["depth"] <= 4.0), fr["depth"], np.nan)
+               .astype(np.float32), fr["color"]) for fr in data]
+    ref_mesh, _, ref_cpu = open3d_direct(o3d_in, T[: len(o3d_in)], K_half, 0.02, 4.0,
+                                         block_count=50_000)
+    dv = rc.compute_distance(o3c.Tensor(ref_mesh[0].astype(np.float32))).numpy()
+    q = 1000 * np.quantile(dv, [0.5, 0.9, 0.99])
+    print(f"{'Open3D VoxelBlockGrid':20} {'once':>5} {len(dv):9d} {q[0]:7.2f} {q[1]:6.1f} "
+          f"{q[2]:6.1f} {1000 * dv.max():6.0f} {int((dv > 0.1).sum()):6d} {'':>14} {'':>7} "
+          f"{statistics.median(ref_cpu):9.1f}")
     for name, cfg, cmin in variants:
         vol = TsdfVolume(cfg)
         cpu = []
         for fr, Tw in zip(data, T, strict=False):
             z = np.where(fr["conf"] >= cmin, fr["depth"], np.nan) if cmin else fr["depth"]
             c0 = time.process_time()
-            vol.integrate(z, fr["color"], Ks, Tw)
+            vol.integrate(z, fr["color"], Ks, Tw, confidence=fr["conf"])
             cpu.append(1000 * (time.process_time() - c0))
         for kept, wt in (("once", 0.5), ("twice", 1.5)):
             m = vol.extract_mesh(wt)
@@ -430,9 +471,15 @@ def main() -> None:
                     help="(N, 4, 4) .npy of T_world_cam for --survey instead of the truth")
     ap.add_argument("--skip-speed", action="store_true",
                     help="only the held-out floater check")
+    ap.add_argument("--confidence", action="store_true",
+                    help="floater rows: the plain ones and the confidence-gated and -weighted "
+                    "ones only (with --skip-speed: KITTI alone, 7-Scenes has no confidence)")
     args = ap.parse_args()
     if args.survey:
-        survey(args.survey, args.survey_poses)
+        survey(args.survey, args.survey_poses, args.confidence)
+        return
+    if args.skip_speed and args.confidence:
+        kitti(args.kitti, only_confidence=True)
         return
     colors, depths, poses = frames(args.data)
     if args.skip_speed:

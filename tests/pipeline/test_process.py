@@ -321,3 +321,69 @@ def test_mesh_in_the_ground_truths_frame_and_eval_surface_agree(first_run, sim_s
         assert abs(d["accuracy_m"]["median"] - want) < 0.001
     page = (out / "report.html").read_text()
     assert "results.mcap" in page and "mesh_gt_frame.ply" in page
+
+
+def test_cli_floater_options_reach_fusion(sim_session, first_run, tmp_path, capsys):
+    """``--hole-margin-px``, ``--carve-free-space``, ``--fusion-min-confidence``,
+    ``--fusion-confidence-full`` and ``--min-observations`` reach the fusion's TSDF (the summary
+    says so) and change the mesh: the margin leaves out the pixels beside holes."""
+    poses = str(_gt_dir(sim_session) / "poses_left.tum")
+    meshes, summaries = [], []
+    for i, extra in enumerate(([], ["--hole-margin-px", "2", "--carve-free-space",
+                                    "--fusion-min-confidence", "0.1",
+                                    "--fusion-confidence-full", "0.5",
+                                    "--min-observations", "1"])):
+        out = _with_cache(first_run[0], tmp_path / f"cli{i}")
+        assert main(["process", str(sim_session), "-o", str(out), "--poses", poses,
+                     "--workers", "0", "--json", *extra]) == 0
+        summaries.append(json.loads(capsys.readouterr().out))
+        meshes.append(read_mesh(out / "mesh.ply"))
+    plain, opts = summaries
+    assert plain["frames_from_cache"] == opts["frames_from_cache"] == 30
+    noise = plain["fusion"].pop("depth_noise_per_m")
+    assert plain["fusion"] == {"min_observations": 2, "hole_margin_px": 0,
+                               "carve_free_space": False, "min_confidence": 0.0,
+                               "confidence_full": None}
+    f = opts["fusion"]
+    assert (f["min_observations"], f["hole_margin_px"], f["carve_free_space"],
+            f["min_confidence"], f["confidence_full"]) == (1, 2, True, 0.1, 0.5)
+    # the carving margin's noise from the rig: 0.25 px over f B (f B of the 320x180 dome
+    # rig: about 19 px m)
+    assert 0.25 / 30 < f["depth_noise_per_m"] < 0.25 / 10 and f["depth_noise_per_m"] == noise
+    assert len(meshes[1].vertices) != len(meshes[0].vertices)
+    code = main(["process", str(sim_session), "-o", str(tmp_path / "bad"), "--poses", poses,
+                 "--workers", "0", "--hole-margin-px", "40"])
+    err = capsys.readouterr().err
+    assert code == 2 and "hole_margin_px must be 0..16" in err and err.count("\n") == 1
+
+
+def test_cache_entries_are_compact_and_old_ones_still_read(first_run, tmp_path):
+    """Entries hold float16 depth and uint8 confidence (in 16 levels); an entry written
+    before (float32 depth, no confidence) reads back as float32 and fuses whole."""
+    from sea3d.io.result_cache import write_entry
+    from sea3d.pipeline.frame_stage import FrameResult
+
+    cache = FrameCache(first_run[0] / "cache", {})
+    t = sorted(cache.stamps())[5]
+    got = cache.get(t)
+    assert got is not None
+    arrays, meta = got
+    assert arrays["depth_m"].dtype == np.float16 and arrays["fusion_depth_m"].dtype == np.float16
+    conf = arrays["fusion_confidence"]
+    assert conf.dtype == np.uint8 and set(np.unique(conf)) <= set(range(0, 256, 17))
+    fused = np.isfinite(arrays["fusion_depth_m"])
+    assert (conf[~fused] == 0).all() and np.median(conf[fused]) > 100
+    res = FrameResult.from_cache(t, arrays, meta)
+    assert res.depth_m.dtype == np.float32 and res.fusion_depth_m.dtype == np.float32
+    # float16's step: 2^-11 of the depth at most
+    again = res.to_cache()[0]
+    np.testing.assert_array_equal(again["depth_m"], arrays["depth_m"])
+    # an entry as written before this format: float32 depth, no confidence
+    old = {k: (v.astype(np.float32) if v.dtype == np.float16 else v)
+           for k, v in arrays.items() if k != "fusion_confidence"}
+    write_entry(tmp_path / "old.s3c", old, meta)
+    from sea3d.io.result_cache import read_entry
+
+    res_old = FrameResult.from_cache(t, *read_entry(tmp_path / "old.s3c"))
+    assert res_old.fusion_confidence.size == 0 and res_old.fusion_depth_m.dtype == np.float32
+    np.testing.assert_array_equal(res_old.fusion_depth_m, res.fusion_depth_m)

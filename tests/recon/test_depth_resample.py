@@ -6,7 +6,11 @@ import pytest
 
 from sea3d.errors import ReconError
 from sea3d.geometry.se3 import look_at, transform_points
-from sea3d.recon.depth_resample import pinhole_offsets, virtual_pinhole_depth
+from sea3d.recon.depth_resample import (
+    pinhole_offsets,
+    virtual_pinhole_depth,
+    virtual_pinhole_depth_confidence,
+)
 
 H, W, F = 90, 120, 100.0
 K = np.array([[F, 0.0, (W - 1) / 2], [0.0, F, (H - 1) / 2], [0.0, 0.0, 1.0]])
@@ -154,3 +158,32 @@ def test_refractive_depth_lands_on_the_scene_only_after_resampling(dome_frame):
     # Measured at 640x360: median 0.40 -> 0.03 mm, 90th percentile 0.90 -> 0.11 mm.
     assert np.median(after) < np.median(before) / 3
     assert np.percentile(after, 90) < np.percentile(before, 90) / 3
+
+
+def test_confidence_follows_the_depth_onto_the_pinhole_grid():
+    # Offsets of a whole pixel to the right: fusion pixel u reads the depth (and so the
+    # confidence) of rectified pixel u - 1. Confidence here is a ramp in u, so the fusion
+    # grid's confidence is the ramp one pixel back, as uint8 (255 = 1).
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    pts = _plane_points(u + 1.0, v, a=0.0)
+    depth = pts[..., 2].astype(np.float32)
+    conf = ((u + 1) / W).astype(np.float32)  # no unmatched pixel (0) to fall back from
+    fused, c8 = virtual_pinhole_depth_confidence(depth, pts.reshape(-1, 3), K, conf)
+    np.testing.assert_array_equal(fused, virtual_pinhole_depth(depth, pts.reshape(-1, 3), K))
+    assert c8.dtype == np.uint8
+    expect = np.zeros_like(conf, np.float64)
+    expect[:, 1:] = np.rint(255 * conf[:, :-1].astype(np.float64))
+    ok = np.isfinite(fused)
+    ok[:, 0] = False  # reads its own pixel at the border
+    assert ok.mean() > 0.95
+    np.testing.assert_array_equal(c8[ok], expect[ok])
+    assert (c8[~np.isfinite(fused)] == 0).all()
+    # no confidence: every pixel with depth fully confident; without offsets ("none"), the
+    # pixel's own
+    _, ones = virtual_pinhole_depth_confidence(depth, pts.reshape(-1, 3), K, None)
+    assert (ones[ok] == 255).all()
+    _, own = virtual_pinhole_depth_confidence(depth, pts.reshape(-1, 3), K, conf,
+                                              method="none")
+    np.testing.assert_array_equal(own, np.rint(255 * conf.astype(np.float64)))
+    with pytest.raises(ReconError, match="confidence"):
+        virtual_pinhole_depth_confidence(depth, pts.reshape(-1, 3), K, conf[:, :5])

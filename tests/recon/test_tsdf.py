@@ -226,3 +226,85 @@ def test_hole_margin_leaves_out_the_wrong_depth_around_a_hole():
     assert on_floor[1] >= 0.95 * on_floor[0]
     with pytest.raises(ReconError, match="hole_margin_px"):
         TsdfConfig(hole_margin_px=-1)
+
+
+# -- confidence ------------------------------------------------------------------------------
+
+def _floor_twice(cfg, conf_a, conf_b, *, dz=0.01):
+    """The floor seen from above at 1.2 m, twice: once at its true depth with confidence
+    ``conf_a``, once ``dz`` too far with ``conf_b``; the mesh's median height."""
+    T = look_at((0.0, 0.0, 1.2), (0.0, 0.0, 0.0), up=(0, 1, 0))
+    d, c = render(T, box=False)
+    vol = TsdfVolume(cfg)
+    vol.integrate(d, c, K, T, confidence=np.full(d.shape, conf_a, np.float32))
+    vol.integrate(d + np.float32(dz), c, K, T, confidence=np.full(d.shape, conf_b, np.uint8)
+                  if isinstance(conf_b, int) else np.full(d.shape, conf_b, np.float32))
+    m = vol.extract_mesh(0.0)
+    return vol, float(np.median(m.vertices[:, 2]))
+
+
+def test_confidence_weights_each_observation():
+    # Two views of the floor, the second 1 cm too far: with weights 0.8 and 0.2 the
+    # surface sits at 0.2 of the way (2 mm below the floor), unweighted at half (5 mm).
+    # Depth along the camera's z is height below it: a farther depth is a lower floor.
+    cfg = TsdfConfig(voxel_m=VOXEL_M, confidence_full=1.0)
+    vol, z = _floor_twice(cfg, 0.8, 0.2)
+    assert z == pytest.approx(-0.002, abs=0.0005)
+    blocks = vol.export_blocks()
+    w = blocks.weight[blocks.weight > 0]
+    np.testing.assert_allclose(np.median(w), 1.0, atol=1e-5)  # 0.8 + 0.2
+    plain, zp = _floor_twice(TsdfConfig(voxel_m=VOXEL_M), 0.8, 0.2)
+    assert zp == pytest.approx(-0.005, abs=0.0005)
+    bp = plain.export_blocks()
+    assert np.median(bp.weight[bp.weight > 0]) == 2.0  # unit weights without confidence_full
+
+
+def test_confidence_full_caps_weights_at_one_and_reads_uint8():
+    # Full at 0.5: confidence 0.9 weighs 1, uint8 64 (0.25) weighs half.
+    cfg = TsdfConfig(voxel_m=VOXEL_M, confidence_full=0.5)
+    vol, z = _floor_twice(cfg, 0.9, 64)
+    w = vol.export_blocks().weight
+    assert np.median(w[w > 0]) == pytest.approx(1.0 + (64 / 255) / 0.5, abs=1e-5)
+    # the observation of weight 0.502 pulls the surface a third of the 1 cm
+    assert z == pytest.approx(-0.01 * 0.502 / 1.502, abs=0.0005)
+
+
+def test_weighting_drops_a_low_confidence_surface_seen_once():
+    # With confidence_full 0.5 a view at confidence 0.3 weighs 0.6: two of them (1.2) stay
+    # below the "seen twice" threshold (1.5), two confident views (2.0) pass it.
+    T = look_at((0.0, 0.0, 1.2), (0.0, 0.0, 0.0), up=(0, 1, 0))
+    d, c = render(T, box=False)
+    counts = []
+    for conf in (0.3, 0.9):
+        vol = TsdfVolume(TsdfConfig(voxel_m=VOXEL_M, confidence_full=0.5,
+                                    weight_threshold=1.5))
+        for _ in range(2):
+            vol.integrate(d, c, K, T, confidence=np.full(d.shape, conf, np.float32))
+        counts.append(len(vol.extract_mesh().vertices))
+    assert counts[0] == 0 and counts[1] > 1000
+
+
+def test_min_confidence_leaves_out_unconfident_pixels():
+    T = look_at((0.0, 0.0, 1.2), (0.0, 0.0, 0.0), up=(0, 1, 0))
+    d, c = render(T, box=False)
+    conf = np.ones(d.shape, np.float32)
+    conf[:, : d.shape[1] // 2] = 0.1  # the left half of the image unconfident
+    meshes = {}
+    for cmin in (0.0, 0.2):
+        vol = TsdfVolume(TsdfConfig(voxel_m=VOXEL_M, min_confidence=cmin))
+        vol.integrate(d, c, K, T, confidence=conf)
+        meshes[cmin] = vol.extract_mesh().vertices
+    # the camera looks down with image x along world x: the left half is x < 0
+    assert (meshes[0.0][:, 0] < -0.05).sum() > 500
+    assert (meshes[0.2][:, 0] < -0.05).sum() == 0
+    assert (meshes[0.2][:, 0] > 0.05).sum() >= 0.95 * (meshes[0.0][:, 0] > 0.05).sum()
+    # no confidence given: every pixel fused
+    vol = TsdfVolume(TsdfConfig(voxel_m=VOXEL_M, min_confidence=0.2))
+    vol.integrate(d, c, K, T)
+    assert len(vol.extract_mesh().vertices) == len(meshes[0.0])
+    with pytest.raises(ReconError, match="confidence"):
+        vol.integrate(d, c, K, T, confidence=conf[:, :10])
+    with pytest.raises(ReconError, match="min_confidence"):
+        TsdfConfig(min_confidence=1.0)
+    with pytest.raises(ReconError, match="confidence_full"):
+        TsdfConfig(confidence_full=0.0)

@@ -43,7 +43,12 @@ def _cmd_process(args: argparse.Namespace) -> int:
         rig_path=args.rig,
         size_px=args.size,
         depth=depth_config(args),
-        map=MapConfig(voxel_m=args.voxel_m, integrate=args.integrate),
+        map=MapConfig(voxel_m=args.voxel_m, integrate=args.integrate,
+                      min_observations=args.min_observations,
+                      hole_margin_px=args.hole_margin_px,
+                      carve_free_space=args.carve_free_space,
+                      min_confidence=args.fusion_min_confidence,
+                      confidence_full=args.fusion_confidence_full),
         poses=PoseConfig(use_imu=not args.no_imu, poses_path=args.poses),
         colours=ColourConfig(
             enhance=process_enhance_hook(args.enhance) if args.enhance else None,
@@ -288,6 +293,23 @@ def register(sub: Any) -> None:
     add_depth_range(p, near="nearest depth resolved", far="farthest depth fused")
     config_option(p, MapConfig, "integrate", choices=["trusted", "keyframes"],
                   help="fuse every frame with a trusted pose or keyframes only")
+    config_option(p, MapConfig, "min_observations", type=int, metavar="N",
+                  help="mesh and cloud keep the voxels fused from at least N depth frames "
+                  "(1: every voxel seen; 2 drops the surfaces one frame's wrong depth leaves)")
+    config_option(p, MapConfig, "hole_margin_px", type=int, metavar="N",
+                  help="do not fuse depth pixels within N px of a pixel without depth "
+                  "(fewer floaters, less surface beside wide holes; 0 fuses every pixel)")
+    config_option(p, MapConfig, "carve_free_space", action="store_true", shown="off",
+                  help="each frame takes an observation from the voxels of its submap that "
+                  "it sees through (free-space carving; costs about 20 ms a frame)")
+    config_option(p, MapConfig, "min_confidence", "--fusion-min-confidence",
+                  dest="fusion_min_confidence", type=float, metavar="C",
+                  help="do not fuse depth pixels of matching confidence below C (0..1; the "
+                  "odometry still gets them)")
+    config_option(p, MapConfig, "confidence_full", "--fusion-confidence-full",
+                  dest="fusion_confidence_full", type=float, metavar="C",
+                  help="weight each depth pixel's observation by min(1, confidence / C) "
+                  "(default: every observation weighs 1)")
     p.add_argument("--fresh", action="store_true",
                    help="discard cached per-frame results in OUT instead of resuming")
     p.add_argument("--enhance-method", "--enhance", dest="enhance", metavar="METHOD",

@@ -16,6 +16,11 @@ if TYPE_CHECKING:
 __all__ = ["RESTORE_COLOURS", "ColourConfig", "ExecutorConfig", "MapConfig", "PoseConfig"]
 
 
+DISPARITY_NOISE_PX = 0.25
+"""Sub-pixel SGM's disparity noise, pixels (the planner's figure,
+:class:`sea3d.stereo.planning.PlanConfig`): the carving margin's standard error."""
+
+
 @dataclass(frozen=True, kw_only=True)
 class MapConfig:
     """How the depth maps become a map: fusion into TSDF submaps, then the merge."""
@@ -38,27 +43,56 @@ class MapConfig:
     """Mesh and cloud keep the voxels fused from at least this many depth frames (summed over
     the submaps): a surface seen once, the floater one frame's wrong depth leaves, is dropped;
     1 keeps every voxel seen."""
+    hole_margin_px: int = 0
+    """Depth pixels within this many pixels of a pixel without depth are not fused (where
+    stereo's wrong depth gathers; it also loses true surface beside wide holes: 0 fuses every
+    pixel with depth; docs/reconstruction.md, Floaters)."""
+    carve_free_space: bool = False
+    """Each frame takes an observation from the voxels of its submap that it sees through
+    (by more than the truncation plus three standard errors of 0.25 px of disparity)."""
+    min_confidence: float = 0.0
+    """Depth pixels whose matching confidence is below this are not fused; 0 fuses every
+    pixel with depth."""
+    confidence_full: float | None = None
+    """Weight each depth pixel's observation by ``min(1, confidence / confidence_full)``
+    (the voxel counts of ``min_observations`` then count confident observations); None:
+    every observation weighs 1."""
 
     def __post_init__(self) -> None:
         if not self.voxel_m > 0:
             raise ConfigError(f"voxel_m must be > 0, got {self.voxel_m}")
         if self.min_observations < 1:
             raise ConfigError(f"min_observations must be >= 1, got {self.min_observations}")
+        if not 0 <= self.hole_margin_px <= 16:
+            raise ConfigError(f"hole_margin_px must be 0..16, got {self.hole_margin_px}")
+        if not 0 <= self.min_confidence < 1:
+            raise ConfigError(f"min_confidence must be in [0, 1), got {self.min_confidence}")
+        if self.confidence_full is not None and not 0 < self.confidence_full <= 1:
+            raise ConfigError(f"confidence_full must be in (0, 1], got {self.confidence_full}")
 
     def fusion(self, depth_range_m: tuple[float, float], *,
-               min_observations: int | None = None) -> FusionConfig:
+               min_observations: int | None = None,
+               focal_baseline_px_m: float | None = None) -> FusionConfig:
         """The fusion stage's configuration (its TSDF over the stereo depth's range);
         ``min_observations`` overrides the field (``live`` keeps voxels seen once: it fuses
-        only the depth frames it keeps up with)."""
+        only the depth frames it keeps up with); ``focal_baseline_px_m``, the rectified
+        rig's ``f B``, sizes the carving margin (None: the truncation band alone)."""
         n_obs = self.min_observations if min_observations is None else min_observations
         if n_obs < 1:
             raise ConfigError(f"min_observations must be >= 1, got {n_obs}")
         from sea3d.recon.submaps import FusionConfig
         from sea3d.recon.tsdf import TsdfConfig
 
+        noise_per_m = (0.0 if not focal_baseline_px_m or focal_baseline_px_m <= 0
+                       else DISPARITY_NOISE_PX / focal_baseline_px_m)
         return FusionConfig(tsdf=TsdfConfig(voxel_m=self.voxel_m, min_depth_m=depth_range_m[0],
                                             max_depth_m=depth_range_m[1],
-                                            weight_threshold=n_obs - 0.5),
+                                            weight_threshold=n_obs - 0.5,
+                                            hole_margin_px=self.hole_margin_px,
+                                            carve_free_space=self.carve_free_space,
+                                            depth_noise_per_m=noise_per_m,
+                                            min_confidence=self.min_confidence,
+                                            confidence_full=self.confidence_full),
                             integrate=self.integrate,
                             keyframes_per_submap=self.keyframes_per_submap,
                             max_blocks=self.max_submap_blocks)

@@ -133,7 +133,8 @@ class OrderedStages:
             depth_m=res.fusion_depth_m, color_rgb=res.colors(), K=self.K,
             T_world_cam=(np.asarray(est.T_world_left) @ self.T_left_rect if T_world_cam is None
                          else T_world_cam),
-            keyframe_poses=self.kf_rect)
+            keyframe_poses=self.kf_rect,
+            confidence=res.fusion_confidence if res.fusion_confidence.size else None)
         for sm in fused.finished:
             self.store.put(sm)
         self.timer.add("fusion_s", time.perf_counter() - tf)

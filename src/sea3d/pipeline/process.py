@@ -128,9 +128,10 @@ class ProcessConfig:
             threads=max(1, (os.cpu_count() or 1) // max(1, n_local))
             if ex.scheduler is None else None)
 
-    def fusion(self, depth_range_m: tuple[float, float]) -> FusionConfig:
+    def fusion(self, depth_range_m: tuple[float, float],
+               focal_baseline_px_m: float | None = None) -> FusionConfig:
         """The fusion stage's configuration (:meth:`MapConfig.fusion`)."""
-        return self.map.fusion(depth_range_m)
+        return self.map.fusion(depth_range_m, focal_baseline_px_m=focal_baseline_px_m)
 
     def __post_init__(self) -> None:
         for name, cls in (("depth", DepthConfig), ("map", MapConfig), ("poses", PoseConfig),
@@ -340,7 +341,8 @@ def run_process(
             odo, odometry_name, imu_used, imu_note = _odometry(config, stereo, source,
                                                                odometry)
             cache = _frame_cache(out, stage_cfg, session_path, config.fresh)
-            fusion_cfg = config.fusion(stereo.depth_range_m)
+            fusion_cfg = config.fusion(stereo.depth_range_m,
+                                       stereo.maps.focal_px * stereo.maps.baseline_m)
             store = DiskSubmapStore(out / "submaps")
             store.clear()
             stages = OrderedStages(odo, SubmapFusion(fusion_cfg), store, stereo.maps,
@@ -435,6 +437,13 @@ def _finish(session_path: Path, out: Path, config: ProcessConfig, stages: Ordere
                           "per_frame": stages.colour_frames}
     if colours is not None:
         summary["colours"]["water_model"] = colours.summary()
+    tc = fusion_cfg.tsdf
+    summary["fusion"] = {"min_observations": config.map.min_observations,
+                         "hole_margin_px": tc.hole_margin_px,
+                         "carve_free_space": tc.carve_free_space,
+                         "depth_noise_per_m": tc.depth_noise_per_m,
+                         "min_confidence": tc.min_confidence,
+                         "confidence_full": tc.confidence_full}
     computed = len(stages.estimates) - depth.from_cache
     if config.colours.restore_colours != "none":
         summary["colours"]["per_frame_s"] = _per_frame_costs(

@@ -27,7 +27,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field, replace
-from typing import Literal, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -199,6 +199,7 @@ class SubmapFusion:
         K: F64,
         T_world_cam: F64,
         keyframe_poses: dict[int, F64],
+        confidence: NDArray[Any] | None = None,
     ) -> FusionStep:
         """Integrate one frame (or say why not).
 
@@ -215,6 +216,9 @@ class SubmapFusion:
                 ``T_world_left @ R_rect_left_left^T`` as a 4x4).
             keyframe_poses: the odometry's current keyframe poses ``T_world_cam`` by id (only
                 the active anchor's is read).
+            confidence: (H, W) the matcher's confidence of each depth pixel (uint8 255 = 1,
+                or float in [0, 1]) for :attr:`~sea3d.recon.tsdf.TsdfConfig.min_confidence`
+                and ``confidence_full``; None: fully confident.
 
         Returns:
             :class:`FusionStep`; its ``finished`` submaps belong to the caller now.
@@ -258,7 +262,7 @@ class SubmapFusion:
             raise ReconError(f"keyframe_poses lacks the active anchor keyframe {self._anchor_id}")
         T_world_grid = np.asarray(T_world_anchor, np.float64) @ self._T_anchor_grid
         T_grid_cam = invert_T(T_world_grid) @ np.asarray(T_world_cam, np.float64)
-        touched = self._active.integrate(depth_m, color_rgb, K, T_grid_cam)
+        touched = self._active.integrate(depth_m, color_rgb, K, T_grid_cam, confidence)
         self.frames_integrated += 1
         self.peak_memory_bytes = max(self.peak_memory_bytes, self._active.memory_bytes)
         return FusionStep(status="integrated", submap_id=self._active_id,

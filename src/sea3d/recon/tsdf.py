@@ -10,7 +10,10 @@ Against floaters (surface fused where one frame's depth was wrong), two options,
 default (docs/reconstruction.md, "Floaters", has the measurements): ``hole_margin_px`` leaves
 out the pixels beside a hole in the depth, and ``carve_free_space`` takes an observation from
 every voxel holding surface that a later frame sees through (a numba pass over the volume's
-blocks in the frame's view, outside those Open3D updates).
+blocks in the frame's view, outside those Open3D updates). With the matcher's confidence of
+each pixel, ``min_confidence`` leaves out the pixels below it and ``confidence_full`` weights
+each observation by it (Open3D integrates with unit weights; a numba pass over the frame's
+band turns its update into the weighted one).
 
 Never Open3D's legacy ``ScalableTSDFVolume``: it has been seen to integrate nothing in the
 CPU-only wheels. ``tests/recon`` checks that a volume holds surface after integration.
@@ -85,6 +88,15 @@ class TsdfConfig:
     (``sigma_z = depth_noise_per_m * z^2``): ``sigma_d / (f B)`` for stereo of disparity
     noise ``sigma_d`` pixels and focal length times baseline ``f B`` (pixels times metres).
     Widens the carving margin at range; 0: the truncation band alone."""
+    min_confidence: float = 0.0
+    """Pixels whose matching confidence (given to :meth:`TsdfVolume.integrate`) is below this
+    are not fused; 0 fuses every pixel with depth. Frames given without a confidence are
+    fused whole."""
+    confidence_full: float | None = None
+    """Weight each pixel's observation by its matching confidence ``c``: it adds
+    ``min(1, c / confidence_full)`` to its voxels' weights instead of 1 (so the weight
+    thresholds count confident observations: with 0.5, a pixel of confidence 0.25 counts
+    half). None: every observation weighs 1 (Open3D's integration as it is)."""
 
     def __post_init__(self) -> None:
         if not (self.voxel_m > 0 and np.isfinite(self.voxel_m)):
@@ -102,6 +114,16 @@ class TsdfConfig:
             raise ReconError(f"hole_margin_px must be 0..16, got {self.hole_margin_px}")
         if not (self.depth_noise_per_m >= 0 and np.isfinite(self.depth_noise_per_m)):
             raise ReconError(f"depth_noise_per_m must be >= 0, got {self.depth_noise_per_m}")
+        if not 0 <= self.min_confidence < 1:
+            raise ReconError(f"min_confidence must be in [0, 1), got {self.min_confidence}")
+        if self.confidence_full is not None and not 0 < self.confidence_full <= 1:
+            raise ReconError(f"confidence_full must be in (0, 1] or None, got "
+                             f"{self.confidence_full}")
+
+    @property
+    def uses_confidence(self) -> bool:
+        """Whether integration reads the pixels' confidence."""
+        return self.min_confidence > 0 or self.confidence_full is not None
 
     @property
     def block_bytes(self) -> int:
@@ -149,6 +171,7 @@ class TsdfVolume:
         color_rgb: NDArray[np.uint8] | None,
         K: F64,
         T_volume_cam: F64,
+        confidence: NDArray[Any] | None = None,
     ) -> int:
         """Fuse one depth image (and its colours) seen from ``T_volume_cam``.
 
@@ -157,6 +180,9 @@ class TsdfVolume:
             color_rgb: (H, W, 3) uint8 RGB registered to the depth, or None (depth only).
             K: (3, 3) pinhole intrinsics of the depth image, pixels.
             T_volume_cam: (4, 4) pose of the camera in the volume's frame.
+            confidence: (H, W) matching confidence of each depth pixel, float in [0, 1] or
+                uint8 (255 = 1), read by :attr:`TsdfConfig.min_confidence` and
+                :attr:`TsdfConfig.confidence_full`; None: every pixel fully confident.
 
         Returns:
             Number of voxel blocks the image touched (0 when it held no valid depth).
@@ -189,6 +215,16 @@ class TsdfVolume:
             inner = cv2.erode((d > 0).astype(np.uint8), np.ones((side, side), np.uint8),
                               borderType=cv2.BORDER_CONSTANT, borderValue=1)
             d[inner == 0] = 0.0
+        weights: NDArray[np.float32] | None = None
+        if confidence is not None and c.uses_confidence:
+            conf = _confidence01(confidence, depth.shape)
+            if c.min_confidence > 0:
+                d[conf < c.min_confidence] = 0.0
+            if c.confidence_full is not None:
+                weights = np.minimum(conf * np.float32(1.0 / c.confidence_full), np.float32(1.0))
+                d[weights <= 0] = 0.0
+                if bool((weights[d > 0] >= 1.0).all()):
+                    weights = None  # every observation weighs 1: Open3D's update as it is
         if not d.any():
             return 0  # Open3D raises when an image touches no block
         R, t = T[:3, :3], T[:3, 3]
@@ -204,6 +240,7 @@ class TsdfVolume:
             return 0
         if c.carve_free_space and self.frames > 0:
             self.voxels_carved += self._carve(d, K_o3d, R, t, blocks)
+        before = None if weights is None else self._snapshot(blocks)
         if color_rgb is None:
             self._vbg.integrate(blocks, dimg, Kt, Et, 1.0, c.max_depth_m, c.trunc_voxels)
         else:
@@ -211,8 +248,42 @@ class TsdfVolume:
             cimg = o3d.t.geometry.Image(o3c.Tensor(col))
             self._vbg.integrate(blocks, dimg, cimg, Kt, Kt, Et, 1.0, c.max_depth_m,
                                 c.trunc_voxels)
+        if before is not None and weights is not None:
+            self._reweight(before, weights, K_o3d, R, t)
         self.frames += 1
         return int(blocks.shape[0])
+
+    def _snapshot(self, band_blocks: Any) -> tuple[Any, ...]:
+        """The frame's band blocks (activated now, as Open3D's integration would) and a copy
+        of their voxels before the integration, for :meth:`_reweight`."""
+        r = self.config.block_resolution
+        hm = self._vbg.hashmap()
+        hm.activate(band_blocks)
+        buf, ok = hm.find(band_blocks)
+        sel = ok.numpy().astype(bool)
+        bufs = buf.numpy().astype(np.int64)[sel]
+        keys = band_blocks.numpy().astype(np.int64)[sel]
+        tsdf = self._vbg.attribute("tsdf").numpy().reshape(-1, r**3)
+        weight = self._vbg.attribute("weight").numpy().reshape(-1, r**3)
+        color = self._vbg.attribute("color").numpy().reshape(-1, r**3, 3)
+        return keys, bufs, tsdf[bufs], weight[bufs], color[bufs]
+
+    def _reweight(self, before: tuple[Any, ...], weights: NDArray[np.float32], K_o3d: F64,
+                  R_volume_cam: F64, t_volume_cam: F64) -> None:
+        """Turn Open3D's unit-weight update of the band's voxels into one of weight ``w`` of
+        the pixel each voxel read (:attr:`TsdfConfig.confidence_full`): the observation is
+        recovered from the voxel before and after (``s = v' (W + 1) - v W``) and averaged in
+        again with weight ``w``."""
+        c = self.config
+        r = c.block_resolution
+        keys, bufs, t0, w0, c0 = before
+        R_cam_volume = R_volume_cam.T
+        _reweight_kernel(keys, bufs, t0, w0, c0,
+                         self._vbg.attribute("tsdf").numpy().reshape(-1, r**3),
+                         self._vbg.attribute("weight").numpy().reshape(-1, r**3),
+                         self._vbg.attribute("color").numpy().reshape(-1, r**3, 3),
+                         R_cam_volume, -R_cam_volume @ t_volume_cam, K_o3d,
+                         np.ascontiguousarray(weights, np.float32), c.voxel_m, r)
 
     def _carve(self, depth: NDArray[np.float32], K_o3d: F64, R_volume_cam: F64,
                t_volume_cam: F64, band_blocks: Any) -> int:
@@ -409,6 +480,65 @@ def _carve_kernel(keys: Any, bufs: Any, tsdf: Any, weight: Any, R_cam_volume: An
                 weight[b, loc] = wt - 1.0
             taken[i] += 1
     return int(taken.sum())
+
+
+@njit(parallel=True, cache=True)
+def _reweight_kernel(keys: Any, bufs: Any, t0: Any, w0: Any, c0: Any, tsdf: Any, weight: Any,
+                     color: Any, R_cam_volume: Any, t_cam_volume: Any, K_o3d: Any,
+                     wimg: Any, voxel_m: float, r: int) -> None:  # pragma: no cover - numba
+    """:meth:`TsdfVolume._reweight` over the band's blocks: every voxel whose weight the
+    integration raised (by 1) gets the observation weighted by ``wimg`` at its pixel (the
+    projection truncated, as Open3D reads it; voxel layout as in :func:`_carve_kernel`)."""
+    h, w = wimg.shape
+    fx, fy, cx, cy = K_o3d[0, 0], K_o3d[1, 1], K_o3d[0, 2], K_o3d[1, 2]
+    for i in prange(len(bufs)):
+        b = bufs[i]
+        ox, oy, oz = keys[i, 0] * r, keys[i, 1] * r, keys[i, 2] * r
+        for loc in range(r * r * r):
+            wo = w0[i, loc]
+            wn = weight[b, loc]
+            if wn == wo:
+                continue
+            x = (ox + loc % r) * voxel_m
+            y = (oy + (loc // r) % r) * voxel_m
+            z = (oz + loc // (r * r)) * voxel_m
+            zc = R_cam_volume[2, 0] * x + R_cam_volume[2, 1] * y + R_cam_volume[2, 2] * z \
+                + t_cam_volume[2]
+            xc = R_cam_volume[0, 0] * x + R_cam_volume[0, 1] * y + R_cam_volume[0, 2] * z \
+                + t_cam_volume[0]
+            yc = R_cam_volume[1, 0] * x + R_cam_volume[1, 1] * y + R_cam_volume[1, 2] * z \
+                + t_cam_volume[1]
+            wt = 1.0
+            if zc > 0.0:
+                uf = fx * xc / zc + cx
+                vf = fy * yc / zc + cy
+                if 0.0 <= uf < w and 0.0 <= vf < h:
+                    wt = wimg[int(vf), int(uf)]
+            if wt >= 1.0:
+                continue
+            n = wn - wo  # 1: Open3D's unit update
+            s = (tsdf[b, loc] * wn - t0[i, loc] * wo) / n
+            total = wo + wt
+            if wt <= 0.0 or total <= 0.0:
+                tsdf[b, loc] = t0[i, loc]
+                weight[b, loc] = wo
+                for k in range(3):
+                    color[b, loc, k] = c0[i, loc, k]
+                continue
+            tsdf[b, loc] = (t0[i, loc] * wo + wt * s) / total
+            weight[b, loc] = total
+            for k in range(3):
+                ck = (color[b, loc, k] * wn - c0[i, loc, k] * wo) / n
+                color[b, loc, k] = (c0[i, loc, k] * wo + wt * ck) / total
+
+
+def _confidence01(confidence: NDArray[Any], shape: tuple[int, ...]) -> NDArray[np.float32]:
+    conf = np.asarray(confidence)
+    if conf.shape != shape:
+        raise ReconError(f"confidence {conf.shape} does not match depth {shape}")
+    if conf.dtype == np.uint8:
+        return conf.astype(np.float32) * np.float32(1.0 / 255.0)
+    return np.nan_to_num(conf.astype(np.float32, copy=False), nan=0.0)
 
 
 def _to_u8(colors01: NDArray[np.floating]) -> NDArray[np.uint8]:
