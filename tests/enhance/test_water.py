@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from sea3d.enhance import SeathruConfig, ciede2000_after_gain, seathru
+from sea3d.enhance._image import srgb_to_linear
 from sea3d.enhance.water import (
     LIMITS,
     WaterFitConfig,
@@ -263,7 +264,8 @@ def test_a_beta_d_below_any_natural_water_is_named_and_raised_to_the_floor() -> 
     planted = Water(name="planted", beta_D_per_m=truth,
                     beta_B_per_m=(0.45, 0.25, 0.30), B_inf_rgb=(0.04, 0.20, 0.17))
     frames = _frames_in(planted, np.random.default_rng(3))
-    model = fit_water_model(frames)
+    floor_cfg = WaterFitConfig(below_floor="floor")
+    model = fit_water_model(frames, floor_cfg)
     assert model.status == "attenuation-floor" and model.has_attenuation
     floor = 0.5 * PURE_WATER_KD_PER_M[0]
     named = [c for c in model.checks if c.startswith("beta_D_per_m[R]")]
@@ -272,11 +274,41 @@ def test_a_beta_d_below_any_natural_water_is_named_and_raised_to_the_floor() -> 
     assert model.beta_D_per_m[0] == pytest.approx(floor)
     np.testing.assert_allclose(model.beta_D_per_m[1:], truth[1:], atol=BETA_D_TOL_PER_M)
     for img, z in frames:
-        res = restore(img, z, model)
+        res = restore(img, z, model, floor_cfg)
         assert res.status == "attenuation-floor"
         _not_empty(res.image)
     # Range in other units: no floor in 1/m applies; the same fit is ok there.
     assert fit_water_model(frames, WaterFitConfig(metric_range=False)).status == "ok"
+
+
+def test_by_default_a_beta_d_below_any_natural_water_inverts_nothing_and_only_balances() -> None:
+    from sea3d.enhance.water import PURE_WATER_KD_PER_M
+    from sea3d.sim.optics import Water
+
+    # The same planted red 0.05 1/m: by default the fit is taken as unable to tell the
+    # direct signal from the backscatter, so neither is used: the frame is white-balanced.
+    planted = Water(name="planted", beta_D_per_m=(0.05, 0.20, 0.29),
+                    beta_B_per_m=(0.45, 0.25, 0.30), B_inf_rgb=(0.04, 0.20, 0.17))
+    frames = _frames_in(planted, np.random.default_rng(3))
+    model = fit_water_model(frames)
+    assert model.status == "backscatter-unidentified"
+    assert not model.has_attenuation and not model.has_backscatter
+    assert model.beta_D_per_m == (0.0, 0.0, 0.0) and model.B_inf_rgb == (0.0, 0.0, 0.0)
+    floor = 0.5 * PURE_WATER_KD_PER_M[0]
+    named = [c for c in model.checks if c.startswith("beta_D_per_m[R]")]
+    assert named and f"{floor:.3f}" in named[0], model.checks
+    assert any("not inverted" in c for c in model.checks), model.checks
+    img, z = frames[0]
+    res = restore(img, z, model)
+    assert res.status == "backscatter-unidentified"
+    _not_empty(res.image)
+    # White balance only: every pixel is the input times the same three gains (to 8-bit
+    # rounding), whatever its range; an inversion would scale near and far pixels apart.
+    lin_in = srgb_to_linear(img.astype(np.float32) / 255.0)
+    lin_out = srgb_to_linear(res.image.astype(np.float32) / 255.0)
+    ok = (lin_in > 0.05) & (lin_out < 0.95)
+    scale = np.asarray(model.wb_gains) * model.exposure_gain
+    np.testing.assert_allclose(lin_out[ok], (lin_in * scale)[ok], rtol=0.03, atol=2e-3)
 
 
 def test_a_beta_d_at_its_upper_limit_drops_the_attenuation_and_keeps_the_backscatter(

@@ -30,13 +30,17 @@ range :data:`PURE_WATER_KD_PER_M`); a failed check is reported by name in ``chec
 the fit fall back in stated steps, each with its status:
 
 - ``ok``: everything fitted, no fatal check;
-- ``attenuation-floor``: some channel's ``beta_D`` came out below what any natural water has
-  (or at 0): raised to that floor, the other channels and the backscatter kept;
+- some channel's ``beta_D`` came out below what any natural water has (or at 0): the fit
+  could not see the direct signal under the backscatter, so the water is not inverted
+  (``backscatter-unidentified``, below); with ``WaterFitConfig.below_floor="floor"`` those
+  channels are raised to that floor instead, the other channels and the backscatter kept
+  (``attenuation-floor``);
 - ``attenuation-unidentified``: ``beta_D`` not identified (range span too narrow, too few
   bins, a ``beta_D`` at its upper limit or outside it): beta_D is not used; the backscatter is
   the joint fit's where that was plausible, else the dark-pixel envelope's; the restoration
   removes backscatter, then white-balances;
-- ``backscatter-unidentified``: no usable dark pixels across range either: white balance only
+- ``backscatter-unidentified``: no usable dark pixels across range either, or a ``beta_D`` below
+  the natural-water floor (above): white balance only
   (grey world on the pooled frames);
 - a model that cannot be fitted at all (no frame with range) raises :class:`EnhanceError`
   naming the parameter and why.
@@ -135,6 +139,14 @@ class WaterFitConfig:
     grey world where not (the default before the real board frames: it leaves the light's
     cast on a real neutral target, ``docs/enhance.md``)."""
 
+    below_floor: Literal["white-balance", "floor"] = "white-balance"
+    """A fitted ``beta_D`` below what any natural water has (metric range): ``white-balance``
+    (default) does not invert the water at all (status ``backscatter-unidentified``: the fit
+    could not tell the direct signal from the backscatter, so neither fitted term is
+    trusted); ``floor`` raises those channels to the floor and keeps the backscatter fitted
+    again with it (``attenuation-floor``, the default before the simulated dives' per-term
+    breakdown, ``docs/enhance.md``)."""
+
     metric_range: bool = True
     """The range is in metres: the fitted ``beta_D`` is then also checked against what any
     natural water has (:data:`PURE_WATER_KD_PER_M`). False for range in other units (a
@@ -148,6 +160,9 @@ class WaterFitConfig:
             raise EnhanceError(f"holes must be inpaint or mask, got {self.holes!r}")
         if self.white_balance not in ("auto", "locus", "grey-world", "none"):
             raise EnhanceError(f"unknown white balance {self.white_balance!r}")
+        if self.below_floor not in ("white-balance", "floor"):
+            raise EnhanceError(f"below_floor must be white-balance or floor, got "
+                               f"{self.below_floor!r}")
         if not self.max_gain >= 1:
             raise EnhanceError(f"max_gain must be >= 1, got {self.max_gain}")
 
@@ -473,6 +488,15 @@ def _fit_ladder(
     back_ok = not any(c.startswith(("B_inf", "beta_B")) for c in fatal)
     low = [("pure water" in c) or (c.startswith("beta_D") and "lower limit" in c)
            for c in fatal]
+    if config.metric_range and all(low) and config.below_floor == "white-balance":
+        # Where the fit finds less attenuation than pure water it could not see the direct
+        # signal under the backscatter (on the simulated dives that reach this the direct
+        # signal is 1-9 % of the pixel and the joint backscatter is off by 1.3-46 times it):
+        # neither term is trusted, the dive gets its white balance only.
+        return b_inf, beta_b, beta_d, "backscatter-unidentified", checks + [
+            "beta_D below the natural-water floor: the direct signal cannot be told from the "
+            "backscatter; the water is not inverted (white balance only)"
+        ], False
     if config.metric_range and all(low):
         floor = 0.5 * np.asarray(PURE_WATER_KD_PER_M)
         raised = np.maximum(beta_d, floor)
