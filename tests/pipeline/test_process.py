@@ -358,8 +358,9 @@ def test_cli_floater_options_reach_fusion(sim_session, first_run, tmp_path, caps
 
 
 def test_cache_entries_are_compact_and_old_ones_still_read(first_run, tmp_path):
-    """Entries hold float16 depth and uint8 confidence (in 16 levels); an entry written
-    before (float32 depth, no confidence) reads back as float32 and fuses whole."""
+    """Entries hold float32 depth (exact: a resumed run equals a fresh one) and uint8
+    confidence in 16 levels; an entry written before (no confidence) reads back and fuses
+    whole, and a float16 entry reads back as float32."""
     from sea3d.io.result_cache import write_entry
     from sea3d.pipeline.frame_stage import FrameResult
 
@@ -368,19 +369,24 @@ def test_cache_entries_are_compact_and_old_ones_still_read(first_run, tmp_path):
     got = cache.get(t)
     assert got is not None
     arrays, meta = got
-    assert arrays["depth_m"].dtype == np.float16 and arrays["fusion_depth_m"].dtype == np.float16
+    assert arrays["depth_m"].dtype == np.float32 and arrays["fusion_depth_m"].dtype == np.float32
     conf = arrays["fusion_confidence"]
     assert conf.dtype == np.uint8 and set(np.unique(conf)) <= set(range(0, 256, 17))
     fused = np.isfinite(arrays["fusion_depth_m"])
     assert (conf[~fused] == 0).all() and np.median(conf[fused]) > 100
     res = FrameResult.from_cache(t, arrays, meta)
     assert res.depth_m.dtype == np.float32 and res.fusion_depth_m.dtype == np.float32
-    # float16's step: 2^-11 of the depth at most
     again = res.to_cache()[0]
     np.testing.assert_array_equal(again["depth_m"], arrays["depth_m"])
+    np.testing.assert_array_equal(again["fusion_confidence"], conf)
+    half = {k: (v.astype(np.float16) if k.endswith("depth_m") else v) for k, v in arrays.items()}
+    write_entry(tmp_path / "half.s3c", half, meta)
+    from sea3d.io.result_cache import read_entry as _read
+
+    res_half = FrameResult.from_cache(t, *_read(tmp_path / "half.s3c"))
+    assert res_half.fusion_depth_m.dtype == np.float32
     # an entry as written before this format: float32 depth, no confidence
-    old = {k: (v.astype(np.float32) if v.dtype == np.float16 else v)
-           for k, v in arrays.items() if k != "fusion_confidence"}
+    old = {k: v for k, v in arrays.items() if k != "fusion_confidence"}
     write_entry(tmp_path / "old.s3c", old, meta)
     from sea3d.io.result_cache import read_entry
 

@@ -161,15 +161,17 @@ class FrameResult:
     def to_cache(self) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
         """Arrays and metadata for :class:`sea3d.io.result_cache.FrameCache`.
 
-        Compact (:data:`CACHE_DEPTH_DTYPE`): both depth maps as float16 (a relative step of
-        2^-11, 1 mm at 2 m, against stereo's own noise of ``0.25 px z^2 / f B``: 26 mm at
-        2 m for the paper's dome rig), the confidence as uint8 in 16 levels (the fusion
-        weights need no finer): half the bytes to compress and write of float32 depth.
-        :meth:`from_cache` reads these and the float32 entries written before."""
+        Exact: both depth maps as float32 (:data:`CACHE_DEPTH_DTYPE`) and the confidence
+        as the uint8 in 16 levels the frame stage already made, so a run resumed from the
+        cache fuses, tracks and fits its water model on what a fresh run had. (float16
+        depth, tried: 31 % smaller entries, but a resumed run's water model and cloud
+        differed from the fresh run's: ``tests/enhance/test_process_colours.py``.)
+        :meth:`from_cache` reads these, float16 entries and the entries without confidence
+        written before."""
         arrays: dict[str, NDArray[Any]] = {
             "rect_left": self.rect_left, "rect_right": self.rect_right,
-            "depth_m": self.depth_m.astype(CACHE_DEPTH_DTYPE),
-            "fusion_depth_m": self.fusion_depth_m.astype(CACHE_DEPTH_DTYPE),
+            "depth_m": np.asarray(self.depth_m, CACHE_DEPTH_DTYPE),
+            "fusion_depth_m": np.asarray(self.fusion_depth_m, CACHE_DEPTH_DTYPE),
         }
         meta: dict[str, Any] = {
             "status": self.status, "message": self.message,
@@ -198,8 +200,8 @@ class FrameResult:
                    colour_status=str(meta.get("colour_status", "")))
 
 
-CACHE_DEPTH_DTYPE = np.float16
-"""How :meth:`FrameResult.to_cache` stores depth (float32 before; both are read)."""
+CACHE_DEPTH_DTYPE = np.float32
+"""How :meth:`FrameResult.to_cache` stores depth (float16 and float32 entries are read)."""
 
 
 def _coarse_confidence(conf: NDArray[np.uint8]) -> NDArray[np.uint8]:
@@ -390,7 +392,8 @@ def process_frame(config: FrameStageConfig, t_ns: int, left: NDArray[Any],
         rect_right=np.ascontiguousarray(rect_right, np.uint8),
         depth_m=res.depth_m,
         fusion_depth_m=fusion,
-        fusion_confidence=fusion_conf,
+        # in the 16 levels the cache keeps, so a resumed run weights as a fresh one
+        fusion_confidence=_coarse_confidence(fusion_conf),
         valid_fraction=valid,
         timings_s=timings,
         color_left=colors,
