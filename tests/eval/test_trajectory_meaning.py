@@ -58,14 +58,19 @@ def test_cli_still_path_marks_the_figures(tmp_path, rng, capsys):
     assert "sea3d: warning:" in cap.err and "means nothing" in cap.err
 
 
-def test_cli_repeated_stamps_are_counted_and_the_first_kept(tmp_path, rng, capsys):
-    n = 60
+def _wavy_reference(tmp_path, n):
+    """A 20 Hz reference along a wave, written to ``gt.tum``; returns the file's lines."""
     t = np.arange(n, dtype=np.int64) * 50_000_000
     T = np.tile(np.eye(4), (n, 1, 1))
     T[:, 0, 3] = np.linspace(0, 3, n)
     T[:, 1, 3] = np.sin(np.linspace(0, 3, n))
     write_tum(tmp_path / "gt.tum", t, T)
-    lines = (tmp_path / "gt.tum").read_text().splitlines()
+    return (tmp_path / "gt.tum").read_text().splitlines()
+
+
+def test_cli_repeated_stamps_are_counted_and_the_first_kept(tmp_path, rng, capsys):
+    n = 60
+    lines = _wavy_reference(tmp_path, n)
     # an estimator that writes a stamp twice (re-initialisation): the second pose is far off
     est_lines = list(lines)
     for k in (10, 30, 31, 50):
@@ -90,13 +95,7 @@ def test_cli_says_each_repair_once(tmp_path):
     import subprocess
     import sys
 
-    n = 40
-    t = np.arange(n, dtype=np.int64) * 50_000_000
-    T = np.tile(np.eye(4), (n, 1, 1))
-    T[:, 0, 3] = np.linspace(0, 3, n)
-    T[:, 1, 3] = np.sin(np.linspace(0, 3, n))
-    write_tum(tmp_path / "gt.tum", t, T)
-    lines = (tmp_path / "gt.tum").read_text().splitlines()
+    lines = _wavy_reference(tmp_path, 40)
     (tmp_path / "est.tum").write_text("\n".join(lines + [lines[5], lines[20]]) + "\n")
     src = str(Path(__file__).resolve().parents[2] / "src")
     env = {**os.environ, "PYTHONPATH": src + os.pathsep + os.environ.get("PYTHONPATH", "")}
