@@ -698,9 +698,11 @@ def calibrate_port_rig(air_rig: StereoRig, left_port: DomePort | FlatPort,
 
     Args:
         air_rig: the in-air calibration (pinhole cameras; port cameras give their pinholes).
-        left_port, right_port: port geometry and indices (their centres / normals and
-            distances are starting values).
-        left, right: in-water detections, ``left[i]`` taken with ``right[i]``.
+        left_port: the left port's geometry and indices (its centre / normal and distance
+            are starting values).
+        right_port: the right port's, likewise.
+        left: in-water detections of the left camera, ``left[i]`` taken with ``right[i]``.
+        right: in-water detections of the right camera.
         config: settings.
 
     Returns:

@@ -780,9 +780,10 @@ def calibrate_stereo(left: Sequence[Detection], right: Sequence[Detection],
     """Calibrate a stereo pair from board detections.
 
     Args:
-        left, right: one :class:`~sea3d.calib.targets.Detection` per image, in pair order
+        left: one :class:`~sea3d.calib.targets.Detection` per left image, in pair order
             (``left[i]`` and ``right[i]`` were taken together); names (``Detection.name``) are
             used in messages.
+        right: one per right image, likewise.
         config: settings; defaults to :class:`StereoCalibConfig()`.
 
     Returns:

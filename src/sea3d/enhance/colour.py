@@ -310,7 +310,9 @@ def shades_of_grey(
     Args:
         image: ``(H, W, 3)`` RGB.
         p: Minkowski exponent (6 is their recommended value; 1 = grey world).
-        encoding, max_gain, saturation_level: as :func:`grey_world`.
+        encoding: as :func:`grey_world`.
+        max_gain: as :func:`grey_world`.
+        saturation_level: as :func:`grey_world`.
 
     Raises:
         EnhanceError: a one-channel image, ``p < 1``.
@@ -341,7 +343,9 @@ def red_compensation(
         alpha: strength of the red compensation (1 in the paper).
         blue_alpha: strength of the blue compensation (Eq. 5; 0 = off, the paper's default
             outside turbid water).
-        encoding, max_gain, saturation_level: as :func:`grey_world`.
+        encoding: as :func:`grey_world`.
+        max_gain: as :func:`grey_world`.
+        saturation_level: as :func:`grey_world`.
 
     Raises:
         EnhanceError: a one-channel image, negative strengths.
@@ -375,11 +379,14 @@ def white_balance_pair(
     gains (and red compensation) applied to both.
 
     Args:
-        left, right: ``(H, W, 3)`` RGB images of the same dtype.
+        left: ``(H, W, 3)`` RGB image.
+        right: ``(H, W, 3)`` RGB image of the same dtype.
         method: ``grey-world``, ``shades-of-grey`` or ``red-comp``.
         p: Minkowski exponent for shades of grey (default 6).
         alpha: red compensation strength for ``red-comp``.
-        encoding, max_gain, saturation_level: as :func:`grey_world`.
+        encoding: as :func:`grey_world`.
+        max_gain: as :func:`grey_world`.
+        saturation_level: as :func:`grey_world`.
 
     Returns:
         ``(left, right)`` balanced, same dtypes.

@@ -120,7 +120,8 @@ def ciede2000(image: object, reference: object, mask: object | None = None) -> f
     """Mean CIEDE2000 colour difference (scikit-image) over the masked pixels.
 
     Args:
-        image, reference: ``(H, W, 3)`` sRGB images of the same size.
+        image: ``(H, W, 3)`` sRGB image.
+        reference: ``(H, W, 3)`` sRGB image of the same size.
         mask: ``(H, W)`` bool pixels to count, or None for all.
 
     Raises:

@@ -284,7 +284,10 @@ def depth_to_range(
 
     Args:
         depth_m: ``(H, W)`` float depth, metres, NaN invalid (e.g. rectified stereo depth).
-        fx_px, fy_px, cx_px, cy_px: the pinhole of that grid (rectified intrinsics).
+        fx_px: the focal length along u of that grid's pinhole (rectified intrinsics).
+        fy_px: its focal length along v.
+        cx_px: its principal point's u.
+        cy_px: its principal point's v.
 
     Raises:
         EnhanceError: a non-2-D map or non-positive focal lengths.

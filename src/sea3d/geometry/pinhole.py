@@ -49,9 +49,12 @@ class PinholeCamera:
     """A pinhole camera with optional OpenCV distortion; implements :class:`CameraModel`.
 
     Args:
-        fx, fy: focal lengths in pixels (> 0).
-        cx, cy: principal point in pixels.
-        width, height: image size in pixels (> 0).
+        fx: focal length along u in pixels (> 0).
+        fy: focal length along v in pixels (> 0).
+        cx: principal point's u in pixels.
+        cy: principal point's v in pixels.
+        width: image width in pixels (> 0).
+        height: image height in pixels (> 0).
         dist: distortion coefficients in OpenCV's order; length 0, 4, 5, 8, 12 or 14.
 
     Raises:

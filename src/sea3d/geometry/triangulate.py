@@ -19,7 +19,8 @@ def triangulate_midpoint(rays_a: Rays, rays_b: Rays) -> tuple[FloatArray, FloatA
     between them is a quality measure (0 for rays that truly intersect).
 
     Args:
-        rays_a, rays_b: :class:`Rays` of equal length N in one frame (metres, unit directions).
+        rays_a: :class:`Rays` of length N in one frame (metres, unit directions).
+        rays_b: :class:`Rays` of the same length N in the same frame.
 
     Returns:
         ``points`` ``(N, 3)`` metres and ``gap_m`` ``(N,)``. Rows are NaN where the rays are

@@ -29,7 +29,8 @@ def refract(
     Args:
         incident: ``(N, D)`` unit incident directions (D = 2 or 3).
         normal: ``(N, D)`` or ``(D,)`` unit surface normals facing the incident side.
-        n_incident, n_refracted: refractive indices on either side (> 0).
+        n_incident: refractive index on the incident side (> 0).
+        n_refracted: refractive index on the far side (> 0).
 
     Returns:
         ``directions`` ``(N, D)`` unit refracted directions and ``ok`` ``(N,)`` bool. Where

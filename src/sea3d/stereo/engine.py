@@ -17,7 +17,8 @@ def match(left: np.ndarray, right: np.ndarray, config: EngineConfig) -> Disparit
     """Match a rectified pair with the engine that ``config`` selects.
 
     Args:
-        left, right: ``(H, W)`` or ``(H, W, 3)`` RGB images of equal shape, rectified.
+        left: ``(H, W)`` or ``(H, W, 3)`` RGB image, rectified.
+        right: the right image, rectified, of the same shape.
         config: :class:`SgmConfig` (sea3d's SGM) or :class:`OpenCVSgbmConfig` (reference).
 
     Returns:
