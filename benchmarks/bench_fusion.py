@@ -375,7 +375,7 @@ def survey_depth(session: Path, cache: Path) -> None:
 
 
 def survey(frames_n: int, poses_path: Path | None, only_confidence: bool = False) -> None:
-    """Floaters on the simulated lake survey: the variants of docs/reconstruction.md
+    """Floaters on the simulated lake survey: the variants of benchmarks/results/fusion.md
     (Floaters) fused from the same cached depth, every vertex's distance to the scene."""
     from scipy.spatial import cKDTree
 

@@ -10,7 +10,7 @@ or OpenCV's buffers).
 
 Run: ``PYTHONPATH=src python benchmarks/bench_stereo.py [--repeats 5]``;
 ``--middlebury ../shared/data/stereo_gt``, ``--refraction`` and ``--underwater`` print the
-accuracy tables of docs/depth.md instead.
+accuracy tables of benchmarks/results/stereo.md instead.
 """
 
 from __future__ import annotations

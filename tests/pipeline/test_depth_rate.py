@@ -158,7 +158,7 @@ def test_auto_depth_rate_computes_fewer_depth_maps_and_tracks_every_frame(auto_r
     """Fewer depth maps; every frame still gets a pose, tracked (its seeds warped from the
     last depth frame), and the frames without depth are not fused. (The mesh's budget is
     checked with true poses below: with the odometry's poses the mesh of this short dive is
-    already at it with depth on every frame, 8.6 mm median in docs/reconstruction.md.)"""
+    already at it with depth on every frame, 8.6 mm median in docs/evaluation.md.)"""
     out, res = auto_run
     s = res.summary
     assert s["depth_rate"] == "auto" and s["frames"] == FRAMES

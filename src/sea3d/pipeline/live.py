@@ -18,7 +18,7 @@ before; ``seed_max_age_s``: when the seeds grow older, the odometry waits for th
 depth in flight). The source is read and rectified ahead by a thread of its own.
 ``LiveConfig.depth_pick="newest"`` starts depth there, as each frame is read (the worker
 gets the newest frame whenever it has room), ``depth_max_lag_s`` drops depth that would be
-fused late (both options, not the default: docs/reconstruction.md).
+fused late (both options, not the default: docs/live.md, benchmarks/results/live.md).
 
 A frame without depth of its own gets the latest depth map moved to its predicted pose
 (:meth:`~sea3d.pipeline.depth_rate.DepthRate.seed`: constant velocity from the two previous
@@ -76,12 +76,12 @@ class LiveConfig:
     the loop takes it (the read-ahead then reads every frame as it arrives, up to
     ``read_ahead_mb``), so the worker, whenever it has room, gets the newest frame and its
     depth is ready when the odometry reaches it. Not the default: on the 80-frame dive the
-    eager read-ahead thread slowed the loop it runs beside (docs/reconstruction.md)."""
+    eager read-ahead thread slowed the loop it runs beside (benchmarks/results/live.md)."""
     depth_max_lag_s: float | None = None
     """A frame gets no depth while the oldest frame waiting for the live loop (itself
     included) arrived more than this many seconds ago: its fusion would come at least that
     late, and the worker's core is left to the odometry (counted in ``depth_stale``). None:
-    any lag (the default; docs/reconstruction.md)."""
+    any lag (the default; benchmarks/results/live.md)."""
     read_ahead: int = 4
     """Frames the read-ahead thread holds for the loop at most (``in-order``; as before)."""
     read_ahead_mb: float = 256.0
@@ -93,12 +93,12 @@ class LiveConfig:
     source for the live loop (the source's ``backlog``): an older one is stale (not before
     the first depth frame has been started: there is nothing to seed it from). None: any
     (the default: on a loop that falls behind, 1 fused 3.8 % of the 80-frame dive at p50
-    2.5 s instead of 17.5 % at 6.1 s; docs/reconstruction.md)."""
+    2.5 s instead of 17.5 % at 6.1 s; benchmarks/results/live.md)."""
     odometry_waits_for_depth: bool = False
     """A frame's odometry waits for its own depth (the loop holds every frame behind it
     while depth computes). False (the default): once a depth map exists, a frame whose depth
     is still computing goes through the odometry on the seeds a frame without depth gets, and
-    its depth is fused when it comes (docs/reconstruction.md: on the 80-frame dive the frames
+    its depth is fused when it comes (benchmarks/results/live.md: on the 80-frame dive the frames
     waited seconds behind depth for the loop otherwise)."""
     seed_max_age_s: float = 1.0
     """Oldest seeds (stamp of the frame, less that of the depth map they come from) the

@@ -7,7 +7,7 @@ blocks after Niessner et al. 2013). Each integrated depth image adds one observa
 marching cubes over voxels seen more than ``weight_threshold`` times.
 
 Against floaters (surface fused where one frame's depth was wrong), two options, both off by
-default (docs/reconstruction.md, "Floaters", has the measurements): ``hole_margin_px`` leaves
+default (benchmarks/results/fusion.md, "Floaters", has the measurements): ``hole_margin_px`` leaves
 out the pixels beside a hole in the depth, and ``carve_free_space`` takes an observation from
 every voxel holding surface that a later frame sees through (a numba pass over the volume's
 blocks in the frame's view, outside those Open3D updates). With the matcher's confidence of
