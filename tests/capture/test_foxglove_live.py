@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 import pytest
 
+from _textures import smooth_noise, stretch
 from foxglove_client import FoxgloveClient
 from sea3d.capture.foxglove_live import FoxgloveBridge, FoxgloveConfig, FoxglovePublisher
 from sea3d.capture.monitor import SessionPlayer
@@ -40,13 +41,6 @@ def _rig() -> StereoRig:
     return StereoRig(left=pin, right=pin, T_left_right=T)
 
 
-def _texture(rng: np.random.Generator, w: int) -> np.ndarray:
-    noise = rng.random((H, w)).astype(np.float32)
-    img = cv2.GaussianBlur(noise, (0, 0), 1.5)
-    img = (img - img.min()) / (img.max() - img.min()) * 255
-    return np.repeat(img[..., None], 3, axis=2).astype(np.uint8)
-
-
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
     rng = np.random.default_rng(0)
@@ -61,7 +55,8 @@ def session(tmp_path_factory):
                 imu_k += 1
             if k % 2 == 0:
                 w.write_sonar(t, 1.5 + 0.01 * k, 0.9)
-            big = _texture(rng, W + D)
+            grey = stretch(smooth_noise(rng, (H, W + D), 1.5)) * 255
+            big = np.repeat(grey[..., None], 3, axis=2).astype(np.uint8)
             left, right = big[:, :W].copy(), big[:, D:].copy()
             w.write_stereo(t, left, right)
             frames.append(left)

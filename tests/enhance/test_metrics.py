@@ -27,12 +27,12 @@ GAIN_REL_TOL = 0.01
 RED_LAB = (53.2408, 80.0925, 67.2032)
 
 
-def _texture(rng: np.random.Generator, h: int = 64, w: int = 96) -> np.ndarray:
+def _random_rgb(rng: np.random.Generator, h: int = 64, w: int = 96) -> np.ndarray:
     return rng.uniform(0.1, 0.9, size=(h, w, 3)).astype(np.float32)
 
 
 def test_identical_images_score_perfectly(rng: np.random.Generator) -> None:
-    img = _texture(rng)
+    img = _random_rgb(rng)
     m = compare_to_reference(img, img)
     assert m.ssim == pytest.approx(1.0, abs=1e-6)
     assert m.ciede2000 == pytest.approx(0.0, abs=1e-6)
@@ -42,13 +42,13 @@ def test_identical_images_score_perfectly(rng: np.random.Generator) -> None:
 
 
 def test_psnr_of_a_constant_offset_is_known(rng: np.random.Generator) -> None:
-    ref = _texture(rng) * 0.8
+    ref = _random_rgb(rng) * 0.8
     m = compare_to_reference(ref + 0.1, ref)
     assert m.psnr_db == pytest.approx(20.0, abs=1e-3)  # 20 log10(1 / 0.1)
 
 
 def test_exposure_gain_is_found_and_forgiven(rng: np.random.Generator) -> None:
-    ref = _texture(rng)
+    ref = _random_rgb(rng)
     darker = linear_to_srgb(srgb_to_linear(ref) * np.float32(0.5))
     assert ciede2000(darker, ref) > 5.0
     de, gain = ciede2000_after_gain(darker, ref)
@@ -58,7 +58,7 @@ def test_exposure_gain_is_found_and_forgiven(rng: np.random.Generator) -> None:
 def test_diagonal_gain_forgives_a_white_balance_but_a_global_gain_does_not(
     rng: np.random.Generator,
 ) -> None:
-    ref = _texture(rng) * 0.7
+    ref = _random_rgb(rng) * 0.7
     tinted = linear_to_srgb(srgb_to_linear(ref) * np.float32([0.5, 1.0, 1.3]))
     de_global, _ = ciede2000_after_gain(tinted, ref)
     de_diag, gains = ciede2000_after_diagonal_gain(tinted, ref)
@@ -68,7 +68,7 @@ def test_diagonal_gain_forgives_a_white_balance_but_a_global_gain_does_not(
 
 
 def test_masks_select_pixels_and_bad_shapes_are_refused(rng: np.random.Generator) -> None:
-    ref = _texture(rng)
+    ref = _random_rgb(rng)
     out = ref.copy()
     out[:, :10] = 0.0
     mask = np.zeros(ref.shape[:2], dtype=bool)
@@ -130,7 +130,7 @@ def test_uiconm_of_uniform_blocks_is_the_plip_entropy_of_one_block() -> None:
 
 def test_no_reference_scores_reward_over_saturation(rng: np.random.Generator) -> None:
     """Why UIQM and UCIQE are never used alone: pushing chroma far past any truth raises them."""
-    base = np.clip(0.45 + 0.1 * (_texture(rng) - 0.5), 0, 1)
+    base = np.clip(0.45 + 0.1 * (_random_rgb(rng) - 0.5), 0, 1)
     grey_part = base.mean(axis=2, keepdims=True)
     oversat = np.clip(grey_part + 4.0 * (base - grey_part), 0, 1).astype(np.float32)
     assert uciqe(oversat).uciqe > uciqe(base).uciqe

@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 import pytest
 
+from _textures import smooth_noise, stretch
 from sea3d.cli import main
 from sea3d.errors import OdometryError
 from sea3d.eval.sonar import (
@@ -71,13 +72,6 @@ def _hit(origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     return num / (dirs @ _NORMAL)
 
 
-def _texture() -> np.ndarray:
-    rng = np.random.default_rng(7)
-    tex = cv2.GaussianBlur(rng.random((1400, 1400)).astype(np.float32), (0, 0), 2.5)
-    tex = (tex - tex.min()) / (tex.max() - tex.min())
-    return (tex * 220 + 20).astype(np.float32)
-
-
 _TEX_M_PER_PX = 0.005  # 5 mm texels over a 7 m square from (-1, -3.5)
 
 
@@ -105,7 +99,8 @@ def _true_range(T_world_left: np.ndarray, rig: StereoRig) -> float:
 @pytest.fixture(scope="module")
 def world(tmp_path_factory):
     rig = _rig()
-    tex = _texture()
+    tex = (stretch(smooth_noise(np.random.default_rng(7), (1400, 1400), 2.5)) * 220
+           + 20).astype(np.float32)
     t_ns, T_wl = _poses()
     root = tmp_path_factory.mktemp("seafloor")
     session = root / "dive.mcap"

@@ -7,6 +7,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from _textures import smooth_noise
 from sea3d.geometry.se3 import make_T, rotvec_to_R
 from sea3d.odometry import OdometryConfig, TrackingStatus
 from sea3d.odometry.frontend import predicted_affine, track_klt, track_warped
@@ -28,11 +29,11 @@ WRONG_WARP_KEPT_MAX = 0.25
 APPROACH_TOL_M = 0.05
 
 
-def _texture(rng: np.random.Generator, size: int = 1024) -> np.ndarray:
+def _blobs(rng: np.random.Generator, size: int = 1024) -> np.ndarray:
     """Blobs at several scales (corners for Shi-Tomasi), uint8."""
     img = np.zeros((size, size), np.float32)
     for s in (3, 7, 15):
-        img += cv2.GaussianBlur(rng.uniform(0, 1, (size, size)).astype(np.float32), (0, 0), s) * s
+        img += smooth_noise(rng, (size, size), s) * s
     img -= img.min()
     return np.asarray(255 * img / img.max(), np.uint8)
 
@@ -61,7 +62,7 @@ def _project(T_cam_wall: np.ndarray, P: np.ndarray) -> np.ndarray:
 
 def test_warped_patches_follow_a_step_that_magnifies_and_turns_them() -> None:
     rng = np.random.default_rng(0)
-    tex = _texture(rng)
+    tex = _blobs(rng)
     T0 = np.eye(4)
     T1 = make_T(rotvec_to_R([0.0, 0.0, np.deg2rad(12.0)]), [0.1, 0.0, 1.2])  # 1.43x, 12 deg
     img0, _ = _view(tex, T0)
@@ -95,7 +96,7 @@ def test_odometry_keeps_tracking_a_fast_approach_to_a_wall() -> None:
     (``warped_tracking=False``) the last is lost (36 of 243 features tracked, no pose), where
     the warped search keeps 109 inliers."""
     rng = np.random.default_rng(1)
-    tex = _texture(rng)
+    tex = _blobs(rng)
     g = RectifiedStereo.pinhole(K[0, 0], K[1, 1], K[0, 2], K[1, 2], W, H, 0.1)
     t_s = [0.0, 0.1, 0.6, 1.1, 1.6, 2.1]
     poses = [make_T(rotvec_to_R([0.0, 0.0, np.deg2rad(36.0) * t]), [0.0, 0.0, 1.2 * t])

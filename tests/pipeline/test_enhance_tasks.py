@@ -4,10 +4,10 @@ by ground-truth geometry."""
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import pytest
 
+from _textures import smooth_noise, stretch
 from sea3d.enhance import enhance_pair
 from sea3d.errors import EnhanceError
 from sea3d.eval import disparity_metrics
@@ -27,16 +27,15 @@ WRONG_POSE_SHARE_MAX = 0.05
 DISPARITY_PX = 5  # the random-dot pair's true disparity
 
 
-def _texture(rng: np.random.Generator, h: int = H, w: int = W) -> np.ndarray:
-    noise = rng.random((h, w, 3)).astype(np.float32)
-    img = cv2.GaussianBlur(noise, (0, 0), 1.5)
-    img = (img - img.min()) / (img.max() - img.min())
-    return (img * np.array([60, 200, 180]) + 10).astype(np.uint8)  # blue-green, like water
+def _water_texture(rng: np.random.Generator, h: int = H, w: int = W) -> np.ndarray:
+    """Smooth noise in blue-green, like water; uint8 RGB."""
+    return (stretch(smooth_noise(rng, (h, w, 3), 1.5)) * np.array([60, 200, 180])
+            + 10).astype(np.uint8)
 
 
 def test_feature_matches_are_judged_by_the_true_geometry(rng: np.random.Generator) -> None:
     cam = PinholeCamera(fx=F_PX, fy=F_PX, cx=(W - 1) / 2, cy=(H - 1) / 2, width=W, height=H)
-    a = _texture(rng)
+    a = _water_texture(rng)
     b = np.roll(a, -SHIFT_PX, axis=1)
     depth = np.full((H, W), Z_M, np.float32)
     depth[:, W - SHIFT_PX - 4 :] = np.nan  # the wrapped columns have no true correspondence
@@ -59,7 +58,7 @@ def test_feature_matches_are_judged_by_the_true_geometry(rng: np.random.Generato
 
 
 def test_stereo_with_and_without_each_method(rng: np.random.Generator) -> None:
-    left = _texture(rng, 96, 128)
+    left = _water_texture(rng, 96, 128)
     right = np.roll(left, -DISPARITY_PX, axis=1)
     gt = np.full(left.shape[:2], float(DISPARITY_PX), np.float32)
     gt[:, :24] = np.nan  # left of the search range's reach, and the wrapped border

@@ -13,9 +13,9 @@ import cv2
 import numpy as np
 import pytest
 
+from _textures import grain_over_blobs, textured_plane_view
 from sea3d.errors import RectifyError, StereoError
 from sea3d.geometry import PinholeCamera
-from sea3d.geometry.camera import CameraModel
 from sea3d.geometry.rig import StereoRig
 from sea3d.geometry.se3 import make_T, rotvec_to_R
 from sea3d.io.depth_files import read_depth_png_mm, write_depth_png_mm, write_ply
@@ -96,37 +96,12 @@ def test_rectify_bad_input() -> None:
         disparity_to_depth(np.ones((2, 2)), 0.0, 0.1)
 
 
-def _render(cam: CameraModel, T_left_cam: np.ndarray, depth_m: float, tex: np.ndarray,
-            half_extent_m: float) -> np.ndarray:
-    """Ray-cast a camera's image of the textured plane z = depth_m (left frame)."""
-    h, w = cam.height, cam.width
-    uu, vv = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    rays = cam.unproject(np.column_stack([uu.ravel(), vv.ravel()]))
-    o = rays.origins @ T_left_cam[:3, :3].T + T_left_cam[:3, 3]
-    dvec = rays.directions @ T_left_cam[:3, :3].T
-    s = (depth_m - o[:, 2]) / dvec[:, 2]
-    x = o[:, 0] + s * dvec[:, 0]
-    y = o[:, 1] + s * dvec[:, 1]
-    n = tex.shape[0]
-    map_x = ((x / half_extent_m + 1) * 0.5 * (n - 1)).reshape(h, w).astype(np.float32)
-    map_y = ((y / half_extent_m + 1) * 0.5 * (n - 1)).reshape(h, w).astype(np.float32)
-    img = cv2.remap(tex, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
-    return np.clip(img, 0, 255).astype(np.uint8)
-
-
-def _texture(rng: np.random.Generator, n: int = 1024) -> np.ndarray:
-    base = cv2.GaussianBlur(rng.random((n, n)).astype(np.float32), (0, 0), 1.5)
-    base = (base - base.min()) / np.ptp(base)
-    coarse = cv2.resize(rng.random((n // 32, n // 32)).astype(np.float32), (n, n))
-    return (255 * (0.7 * base + 0.3 * coarse)).astype(np.float32)
-
-
 def _plane_depth_error(rig: StereoRig, depth_m: float, maps: object, rng: np.random.Generator,
                        pinhole_baseline: bool = False) -> tuple[float, float]:
-    tex = _texture(rng)
+    tex = grain_over_blobs(rng)
     half = 1.2 * depth_m
-    left = _render(rig.left, np.eye(4), depth_m, tex, half)
-    right = _render(rig.right, rig.T_left_right, depth_m, tex, half)
+    left = textured_plane_view(rig.left, np.eye(4), depth_m, tex, half)
+    right = textured_plane_view(rig.right, rig.T_left_right, depth_m, tex, half)
     cfg = SgmConfig(max_disparity_px=max_disparity_for_depth(maps, 0.8))  # type: ignore[arg-type]
     res = compute_depth(maps, left, right, cfg)  # type: ignore[arg-type]
     z = res.depth_m

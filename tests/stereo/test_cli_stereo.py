@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -10,22 +9,13 @@ import cv2
 import numpy as np
 import pytest
 
+from _textures import grain_over_blobs, textured_plane_view
 from sea3d.cli import main
 from sea3d.io.depth_files import read_depth_png_mm, read_disparity
 from sea3d.io.rig_file import save_rig
 from sea3d.refraction.presets import paper_rig
 
-_HERE = Path(__file__).resolve().parent
 PLANE_DEPTH_REL = 0.01
-
-
-def _helpers():  # type: ignore[no-untyped-def]
-    path = _HERE.parent / "rectify" / "test_rectify.py"
-    spec = importlib.util.spec_from_file_location("_rect", path)
-    assert spec and spec.loader
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def _shifted_pair(tmp_path: Path, rng: np.random.Generator) -> tuple[Path, Path]:
@@ -69,13 +59,12 @@ def test_stereo_cli_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]
 
 def test_depth_cli_dome_rig_png_and_ply(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     rng = np.random.default_rng(0)
-    h = _helpers()
     rig = paper_rig(port="dome", size_px=(480, 270))
     save_rig(rig, tmp_path / "rig.yaml")
-    tex = h._texture(rng)
+    tex = grain_over_blobs(rng)
     z0 = 2.0
-    left = h._render(rig.left, np.eye(4), z0, tex, 1.2 * z0)
-    right = h._render(rig.right, rig.T_left_right, z0, tex, 1.2 * z0)
+    left = textured_plane_view(rig.left, np.eye(4), z0, tex, 1.2 * z0)
+    right = textured_plane_view(rig.right, rig.T_left_right, z0, tex, 1.2 * z0)
     cv2.imwrite(str(tmp_path / "L.png"), left)
     cv2.imwrite(str(tmp_path / "R.png"), right)
     args = ["depth", "--rig", str(tmp_path / "rig.yaml"), "--left", str(tmp_path / "L.png"),

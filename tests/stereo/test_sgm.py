@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
+from _textures import coarse_noise, smooth_noise
 from sea3d.errors import ConfigError, StereoError
 from sea3d.stereo import OpenCVSgbmConfig, SgmConfig, make_config, match
 from sea3d.stereo.sgm import choose_pyramid_levels
@@ -17,12 +18,10 @@ BAD_1PX_MAX_PERCENT = 3.0
 MIN_DENSITY = 0.85
 
 
-def _texture(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
-    """Band-limited random texture, float32 0-255."""
-    base = rng.random((h, w)).astype(np.float32) * 255
-    fine = cv2.GaussianBlur(base, (0, 0), 1.2)
-    coarse = cv2.resize(rng.random((h // 8, w // 8)).astype(np.float32) * 255, (w, h))
-    return (0.7 * fine + 0.3 * coarse).astype(np.float32)
+def _band_limited(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
+    """Band-limited random texture: fine grain over 8 px blobs, float32 0-255."""
+    fine = smooth_noise(rng, (h, w), 1.2, scale=255)
+    return (0.7 * fine + 0.3 * coarse_noise(rng, (h, w), 8, scale=255)).astype(np.float32)
 
 
 def _slanted_pair(
@@ -33,7 +32,7 @@ def _slanted_pair(
 
     The right image is sampled from the texture at ``u - d(u)`` with ``d = d0 + slope * u``.
     """
-    tex = _texture(rng, h, w + 64)
+    tex = _band_limited(rng, h, w + 64)
     u = np.arange(w, dtype=np.float32)
     d_true = np.tile(d0 + slope * u, (h, 1)).astype(np.float32)
     # left(u) = tex(u + 32); right(u_r) = left(u_r + d) -> sample tex at u_r + d + 32
@@ -213,7 +212,7 @@ def _stepped_pair(rng: np.random.Generator, h: int = 160, w: int = 320
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A plane at 20 px with vertical bars at 60 px every 16 columns: a depth step in every
     coarse band window."""
-    tex = _texture(rng, h, w + 128)
+    tex = _band_limited(rng, h, w + 128)
     d_true = np.full((h, w), 20.0, np.float32)
     bars = (np.arange(w) // 8) % 2 == 1
     d_true[:, bars] = 60.0
