@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -30,9 +31,10 @@ def test_too_few_images(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> N
     assert "matches no image files" in err
 
 
-def test_mixed_sizes_name_the_odd_file(sim_session: Path, tmp_path: Path,
+def test_mixed_sizes_name_the_odd_file(orbit_session: Callable[..., Path], tmp_path: Path,
                                        capsys: pytest.CaptureFixture[str]) -> None:
-    files = sorted((sim_session / "left").glob("*.png"))[:4]
+    session = orbit_session()
+    files = sorted((session / "left").glob("*.png"))[:4]
     for f in files:
         shutil.copy(f, tmp_path / f.name)
     odd = tmp_path / files[2].name
@@ -55,14 +57,15 @@ def test_no_overlap_is_an_error_and_keeps_the_summary(
     assert '"status": "failed"' in (out / "summary.json").read_text()
 
 
-def test_stereo_needs_a_right_camera_and_a_rig(sim_session: Path, tmp_path: Path,
+def test_stereo_needs_a_right_camera_and_a_rig(orbit_session: Callable[..., Path], tmp_path: Path,
                                                capsys: pytest.CaptureFixture[str]) -> None:
+    session = orbit_session()
     mono = tmp_path / "mono"
-    shutil.copytree(sim_session / "left", mono / "left")
-    shutil.copy(sim_session / "rig.yaml", mono / "rig.yaml")
+    shutil.copytree(session / "left", mono / "left")
+    shutil.copy(session / "rig.yaml", mono / "rig.yaml")
     err = _err(capsys, ["sfm", str(mono), "--camera", "stereo", "-o", str(tmp_path / "o")])
     assert str(mono) in err and "no right camera" in err
-    err = _err(capsys, ["sfm", str(sim_session / "left" / "*.png"), "--camera", "stereo",
+    err = _err(capsys, ["sfm", str(session / "left" / "*.png"), "--camera", "stereo",
                         "-o", str(tmp_path / "o")])
     assert "image glob" in err and "session" in err
     frames = [SfmFrame(name=str(i), t_s=float(i), left=np.zeros((9, 9), np.uint8),
@@ -83,14 +86,14 @@ def test_config_is_validated() -> None:
 def test_pose_priors_must_be_a_stamped_trajectory(tmp_path: Path,
                                                   capsys: pytest.CaptureFixture[str]) -> None:
     # the priors are read before the input is opened, so any input will do
-    sim_session = tmp_path
+    session = tmp_path
     kitti = tmp_path / "poses.txt"  # KITTI: 12 values a line, no stamps
     kitti.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n" * 3)
     out = str(tmp_path / "o")
-    err = _err(capsys, ["sfm", str(sim_session), "-o", out, "--pose-priors", str(kitti)])
+    err = _err(capsys, ["sfm", str(session), "-o", out, "--pose-priors", str(kitti)])
     assert str(kitti) in err and "--pose-priors-times" in err
     bad = tmp_path / "bad.tum"
     bad.write_text("0.0 1 2 3 0 0 0\n")
-    err = _err(capsys, ["sfm", str(sim_session), "-o", out, "--pose-priors", str(bad),
+    err = _err(capsys, ["sfm", str(session), "-o", out, "--pose-priors", str(bad),
                         "--pose-priors-format", "tum"])
     assert str(bad) in err and "expected 8" in err

@@ -10,6 +10,7 @@ leave room for the machine's thread timing changing COLMAP's choices, not for a 
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -47,12 +48,13 @@ def _gt_positions(session: Path, t_s: np.ndarray) -> np.ndarray:
 
 
 def test_stereo_session_gives_a_metric_model_and_all_files(
-    sim_session: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    orbit_session: Callable[..., Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     import pycolmap
 
+    session = orbit_session()
     out = tmp_path / "out"
-    assert main(["sfm", str(sim_session), "--camera", "stereo", "-o", str(out), "--json"]) == 0
+    assert main(["sfm", str(session), "--camera", "stereo", "-o", str(out), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary == json.loads((out / "summary.json").read_text())
     for key in ("images", "registered", "points3d", "mean_reprojection_error_px", "metric",
@@ -68,7 +70,7 @@ def test_stereo_session_gives_a_metric_model_and_all_files(
     assert summary["virtual_pinhole"]["left"]["max_px"] < 0.01
     t, T = read_tum(out / "trajectory.tum")
     np.testing.assert_allclose(t, np.arange(10) * 0.1, atol=1e-9)  # the session's seconds
-    gt = _gt_positions(sim_session, t)
+    gt = _gt_positions(session, t)
     _, scale = ate_rmse(T[:, :3, 3], gt, with_scale=True)
     assert abs(scale - 1.0) < STEREO_SCALE_REL
     ate_se3, _ = ate_rmse(T[:, :3, 3], gt, with_scale=False)
@@ -84,10 +86,11 @@ def test_stereo_session_gives_a_metric_model_and_all_files(
 
 
 def test_monocular_with_pose_priors_lands_in_the_priors_world(
-    sim_session: Path, tmp_path: Path
+    orbit_session: Callable[..., Path], tmp_path: Path
 ) -> None:
+    session = orbit_session()
     # the priors as a EuRoC CSV (stamps in ns, quaternion w first): any trajectory file works
-    tr = read_trajectory(sim_session / "gt" / "poses_left.tum")
+    tr = read_trajectory(session / "gt" / "poses_left.tum")
     euroc = tmp_path / "priors.csv"
     rows = ["#timestamp [ns],p_x,p_y,p_z,q_w,q_x,q_y,q_z"]
     for t_ns, T in zip(tr.t_ns, tr.T_world_x, strict=True):
@@ -95,27 +98,31 @@ def test_monocular_with_pose_priors_lands_in_the_priors_world(
         rows.append(",".join([str(int(t_ns))] + [f"{v:.9f}" for v in (*T[:3, 3], *q)]))
     euroc.write_text("\n".join(rows) + "\n")
     out = tmp_path / "out"
-    assert main(["-q", "sfm", str(sim_session), "-o", str(out), "--pose-priors",
+    assert main(["-q", "sfm", str(session), "-o", str(out), "--pose-priors",
                  str(euroc)]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["metric"] is True and summary["metric_source"] == "pose_priors"
     t, T = read_tum(out / "trajectory.tum")
-    err = np.linalg.norm(T[:, :3, 3] - _gt_positions(sim_session, t), axis=1)
+    err = np.linalg.norm(T[:, :3, 3] - _gt_positions(session, t), axis=1)
     assert len(t) == 10 and float(err.max()) < PRIOR_POSITION_M
 
 
-def test_image_glob_is_self_calibrated_and_indexed(sim_session_wide: Path, tmp_path: Path) -> None:
-    # A clip that turns enough for the focal length to be observable (see conftest.WIDE_FPS).
+def test_image_glob_is_self_calibrated_and_indexed(
+    orbit_session: Callable[..., Path], tmp_path: Path
+) -> None:
+    # A clip that turns enough for the focal length to be observable: the orbit at 4 Hz, 2.5 s
+    # of it (see conftest).
+    session = orbit_session(fps=4.0)
     out = tmp_path / "out"
-    pattern = str(sim_session_wide / "left" / "*.png")
+    pattern = str(session / "left" / "*.png")
     assert main(["-q", "sfm", pattern, "-o", str(out), "--matcher", "exhaustive"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["metric"] is False and summary["intrinsics"] == "self-calibrated"
     assert summary["registered"] == 10
     t, T = read_tum(out / "trajectory.tum")
     np.testing.assert_array_equal(t, np.arange(10.0))  # 0-based index in sorted order
-    t_gt, _ = read_tum(sim_session_wide / "gt" / "poses_left.tum")
-    gt = _gt_positions(sim_session_wide, t_gt[t.astype(int)])  # frame index -> its stamp
+    t_gt, _ = read_tum(session / "gt" / "poses_left.tum")
+    gt = _gt_positions(session, t_gt[t.astype(int)])  # frame index -> its stamp
     ate, _ = ate_rmse(T[:, :3, 3], gt, with_scale=True)
     assert ate < SELFCAL_ATE_M
     # the self-calibrated focal length is near the dome camera's virtual pinhole: a least-squares
@@ -125,15 +132,16 @@ def test_image_glob_is_self_calibrated_and_indexed(sim_session_wide: Path, tmp_p
 
 
 def test_imu_scale_is_reported_and_applied_only_when_trustworthy(
-    sim_session: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    orbit_session: Callable[..., Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
+    session = orbit_session()
     # One second of a slow orbit: far too little acceleration for the IMU to fix the scale;
     # the run must say so and leave the model up to scale.
     out = tmp_path / "out"
-    assert main(["-q", "sfm", str(sim_session), "-o", str(out), "--imu-scale",
-                 "--imu-extrinsics", str(sim_session / "gt" / "sim.json")]) == 0
+    assert main(["-q", "sfm", str(session), "-o", str(out), "--imu-scale",
+                 "--imu-extrinsics", str(session / "gt" / "sim.json")]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["imu_scale"]["status"] in ("weak", "failed")
     assert summary["imu_scale"]["applied"] is False and summary["metric"] is False
-    assert main(["sfm", str(sim_session), "-o", str(out), "--imu-scale"]) == 2
+    assert main(["sfm", str(session), "-o", str(out), "--imu-scale"]) == 2
     assert "--imu-extrinsics" in capsys.readouterr().err

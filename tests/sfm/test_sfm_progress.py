@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -16,8 +17,11 @@ def test_sequential_pair_count_matches_colmaps_rule() -> None:
     assert _sequential_pairs(1, 10) == 0
 
 
-def test_extract_and_match_report_progress_to_the_end(sim_session: Path, tmp_path: Path) -> None:
-    paths = sorted((sim_session / "left").glob("*.png"))
+def test_extract_and_match_report_progress_to_the_end(
+    orbit_session: Callable[..., Path], tmp_path: Path
+) -> None:
+    session = orbit_session()
+    paths = sorted((session / "left").glob("*.png"))
     frames = [SfmFrame(name=f"{i:03d}", t_s=float(i), left=cv2.imread(str(p)), source=str(p))
               for i, p in enumerate(paths)]
     calls: list[tuple[str, int, int]] = []
