@@ -21,6 +21,7 @@ __all__ = [
     "ConfigError",
     "CsvError",
     "EnhanceError",
+    "ExecutorError",
     "GeometryError",
     "MonoDepthError",
     "OdometryError",
@@ -110,6 +111,11 @@ class StereoError(Sea3dError, ValueError):
 
 class EnhanceError(Sea3dError, ValueError):
     """Image enhancement input is invalid."""
+
+
+class ExecutorError(Sea3dError):
+    """The workers of the per-frame stage were lost: a local worker process that died on
+    every try, or a Dask cluster that cannot be reached or lost what it was computing."""
 
 
 class OdometryError(Sea3dError):

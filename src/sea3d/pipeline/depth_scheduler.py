@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from sea3d.errors import SessionError
+from sea3d.errors import ExecutorError, SessionError
 from sea3d.pipeline.frame_source import FramePair, SessionFrames
 from sea3d.pipeline.frame_stage import FrameResult, FrameStageConfig, process_frame
 
@@ -127,7 +127,17 @@ class DepthScheduler:
     def _collect(self, ready: dict[int, FrameResult | None]) -> None:
         self.executor.wait_first(self._pending.values())
         for t_done in [k for k, f in self._pending.items() if f.done()]:
-            res = self._pending.pop(t_done).result()
+            try:
+                res = self._pending.pop(t_done).result()
+            except ExecutorError as err:
+                lost = sorted([t_done] + [
+                    t for t, f in self._pending.items()
+                    if f.done() and not f.cancelled() and isinstance(f.exception(),
+                                                                      ExecutorError)])
+                raise ExecutorError(
+                    f"frames t_ns={', '.join(map(str, lost))} were not computed: {err}; a "
+                    "rerun into the same folder resumes from the frames cached so far"
+                ) from err
             tw = time.perf_counter()
             self.cache.put(t_done, *res.to_cache())
             self.timer.add("cache_write_s", time.perf_counter() - tw)

@@ -16,18 +16,22 @@ time order, whatever order they finish in.
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import logging
 import multiprocessing
 import os
+import signal
 import sys
 import threading
 import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor
 from concurrent.futures import wait as cf_wait
+from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Protocol
 
-from sea3d.errors import ConfigError
+from sea3d.errors import ConfigError, ExecutorError
 
 __all__ = ["DaskExecutor", "Executor", "InlineExecutor", "ProcessExecutor", "make_executor"]
 
@@ -83,6 +87,12 @@ class InlineExecutor:
 
 
 PARENT_POLL_S = 0.5
+WATCH_POLL_S = 0.2
+"""Seconds between two checks that every local worker process is still alive."""
+MAX_TRIES = 3
+"""Times one call is started before the run gives up on it (its worker died every time)."""
+CLOSE_GRACE_S = 10.0
+"""Seconds ``close`` waits for the local workers to end by themselves before killing them."""
 
 
 def _die_with_parent(parent_pid: int) -> None:
@@ -120,8 +130,39 @@ def _init_worker(
         fn(*args)
 
 
+def _signal_name(exitcode: int | None) -> str:
+    """``exit 1``, ``signal SIGKILL`` ... for a process's ``exitcode``."""
+    if exitcode is None:
+        return "no exit code"
+    if exitcode < 0:
+        try:
+            return f"signal {signal.Signals(-exitcode).name}"
+        except ValueError:
+            return f"signal {-exitcode}"
+    return f"exit {exitcode}"
+
+
+class _Call:
+    """One submitted call: what to run again if its worker dies, and the caller's future."""
+
+    __slots__ = ("args", "fn", "inner", "outer", "tries")
+
+    def __init__(self, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
+        self.fn, self.args = fn, args
+        self.outer: Future[Any] = Future()
+        self.inner: Future[Any] | None = None
+        self.tries = 0
+
+
 class ProcessExecutor:
-    """A pool of ``workers`` local processes (spawned).
+    """A pool of ``workers`` local processes (spawned) that outlives the death of a worker.
+
+    A worker that dies (the out-of-memory killer, a crash in native code, ``kill -9``) is
+    noticed within :data:`WATCH_POLL_S`: every worker of the pool is stopped, a fresh pool
+    starts, and the calls that were in flight are started again there. A call that has been
+    in flight at :data:`MAX_TRIES` deaths fails with :class:`~sea3d.errors.ExecutorError`
+    (what is in flight dies with the worker that runs it, so a call that kills its worker
+    every time is given up on, never retried forever).
 
     Args:
         workers: number of processes (>= 1).
@@ -135,16 +176,112 @@ class ProcessExecutor:
         if workers < 1:
             raise ConfigError(f"workers must be >= 1 for a process pool, got {workers}")
         self.workers = workers
-        threads = max(1, (os.cpu_count() or 1) // workers)
-        self._pool = ProcessPoolExecutor(
-            max_workers=workers,
+        self.restarts = 0
+        """Pools started again after a worker died."""
+        self._threads = max(1, (os.cpu_count() or 1) // workers)
+        self._setup = setup
+        self._lock = threading.RLock()
+        self._calls: dict[int, _Call] = {}  # by id(outer), while not done
+        self._closed = False
+        self._wake = threading.Event()
+        self._pool = self._new_pool()
+        self._watch = threading.Thread(target=self._watch_workers, name="sea3d-worker-watch",
+                                       daemon=True)
+        self._watch.start()
+
+    def _new_pool(self) -> ProcessPoolExecutor:
+        return ProcessPoolExecutor(
+            max_workers=self.workers,
             mp_context=multiprocessing.get_context("spawn"),
             initializer=_init_worker,
-            initargs=(threads, setup, os.getpid()),
+            initargs=(self._threads, self._setup, os.getpid()),
         )
 
     def submit(self, fn: Callable[..., Any], *args: Any) -> Future[Any]:
-        return self._pool.submit(fn, *args)
+        call = _Call(fn, args)
+        call.outer.add_done_callback(self._on_outer_done)
+        with self._lock:
+            if self._closed:
+                raise RuntimeError("submit after close")
+            self._calls[id(call.outer)] = call
+            self._start(call)
+        return call.outer
+
+    def _start(self, call: _Call) -> None:
+        """Hand ``call`` to the current pool (lock held); a pool already broken is replaced
+        first."""
+        call.tries += 1
+        try:
+            inner = self._pool.submit(call.fn, *call.args)
+        except BrokenProcessPool:
+            call.tries -= 1  # it never ran
+            self._recover()  # starts this call again with the others in flight
+            return
+        call.inner = inner
+        inner.add_done_callback(functools.partial(self._on_inner_done, call))
+
+    def _on_inner_done(self, call: _Call, inner: Future[Any]) -> None:
+        with self._lock:
+            if call.inner is not inner or call.outer.done():
+                return  # a call started again elsewhere, or cancelled
+            if inner.cancelled():
+                call.outer.cancel()
+                return
+            err = inner.exception()
+            if isinstance(err, BrokenProcessPool):
+                self._wake.set()  # the watcher starts it again (or gives up on it)
+                return
+            if err is not None:
+                call.outer.set_exception(err)
+            else:
+                call.outer.set_result(inner.result())
+
+    def _on_outer_done(self, outer: Future[Any]) -> None:
+        with self._lock:
+            call = self._calls.pop(id(outer), None)
+        if call is not None and outer.cancelled() and call.inner is not None:
+            call.inner.cancel()
+
+    def _dead_worker(self) -> str | None:
+        """``pid 123 (signal SIGKILL)`` of a worker of the current pool that ended, or None
+        (one the pool did not stop itself with SIGTERM, after another died, if any)."""
+        ended = [(pid, proc.exitcode) for pid, proc
+                 in list((getattr(self._pool, "_processes", None) or {}).items())
+                 if proc.exitcode is not None]
+        ended.sort(key=lambda e: e[1] == -signal.SIGTERM)
+        return f"pid {ended[0][0]}, {_signal_name(ended[0][1])}" if ended else None
+
+    def _watch_workers(self) -> None:
+        while True:
+            self._wake.wait(WATCH_POLL_S)
+            self._wake.clear()
+            with self._lock:
+                if self._closed:
+                    return
+                broken = getattr(self._pool, "_broken", False)
+                dead = self._dead_worker()
+                if dead is not None or broken:
+                    self._recover(dead or "it ended")
+
+    def _recover(self, cause: str = "it ended") -> None:
+        """Stop the current pool's workers, start a fresh pool and start again there every
+        call in flight; fail those that were in flight :data:`MAX_TRIES` times (lock held)."""
+        log.warning("a worker process died (%s); restarting the workers", cause)
+        lost = [c for c in self._calls.values() if not c.outer.done()]
+        for c in lost:
+            c.inner = None  # what the old pool says of them now is not heard
+        _stop_pool(self._pool, kill=True)
+        self.restarts += 1
+        self._pool = self._new_pool()
+        if any(c.tries >= MAX_TRIES for c in lost):
+            err = ExecutorError(
+                f"a worker process died ({cause}) each of the {MAX_TRIES} times this call "
+                "was being computed (the out-of-memory killer ends a worker with SIGKILL)")
+            for c in lost:
+                c.outer.set_exception(err)
+            return
+        for c in lost:
+            self._start(c)
 
     def share(self, obj: Any) -> Any:
         return None  # the set-up gave it to every worker
@@ -153,7 +290,53 @@ class ProcessExecutor:
         cf_wait(list(futures), return_when=FIRST_COMPLETED)
 
     def close(self) -> None:
-        self._pool.shutdown(wait=True, cancel_futures=True)
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            pool, calls = self._pool, list(self._calls.values())
+        for c in calls:
+            c.outer.cancel()
+        self._wake.set()
+        self._watch.join()
+        _stop_pool(pool, kill=False)
+
+
+def _stop_pool(pool: ProcessPoolExecutor, *, kill: bool) -> None:
+    """Shut ``pool`` down without waiting forever: its workers are killed at once (``kill``,
+    without waiting for the pool's threads) or after :data:`CLOSE_GRACE_S` if they have not
+    ended by then.
+
+    Two ways a pool whose worker died never ends by itself (the interpreter's exit waits
+    for it): its clean-up joins every worker, and a worker it started while breaking never
+    gets its stop request; and a worker killed while sending a result leaves half a message
+    that the pool's thread waits to read to the end, forever, since this process holds the
+    pipe's other end too. So the workers get SIGKILL and that end is closed: the read sees
+    the end of the pipe. ``pool``'s futures still pending fail with ``BrokenProcessPool`` or
+    are cancelled."""
+    # the pool's own objects, kept: shutdown drops its references to them
+    procs = getattr(pool, "_processes", None) or {}  # a dict that may still grow
+    manager = getattr(pool, "_executor_manager_thread", None)
+    results = getattr(pool, "_result_queue", None)
+
+    def kill_all() -> None:
+        for proc in list(procs.values()):
+            with contextlib.suppress(OSError, ValueError, AttributeError):
+                proc.kill()
+        writer = getattr(results, "_writer", None)  # workers write results, never we
+        if writer is not None:
+            with contextlib.suppress(OSError):
+                writer.close()
+
+    if kill:
+        kill_all()
+    pool.shutdown(wait=False, cancel_futures=True)
+    if kill or manager is None:
+        return  # (the manager thread may be waiting for the caller's lock: not joined)
+    manager.join(CLOSE_GRACE_S)
+    while manager.is_alive():
+        kill_all()
+        manager.join(WATCH_POLL_S)
 
 
 class DaskExecutor:
