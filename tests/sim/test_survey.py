@@ -205,13 +205,10 @@ def test_cli_one_frame_survey_with_imu_noise_writes_one_of_each(tmp_path: Path, 
 def test_cli_refuses_a_run_the_disk_cannot_hold_and_cleans_up_a_failed_start(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
 ) -> None:
-    import shutil
-
     import sea3d.sim.survey as survey
 
     out = tmp_path / "big.mcap"
-    usage = shutil.disk_usage(tmp_path)
-    monkeypatch.setattr(shutil, "disk_usage", lambda _p: usage._replace(free=10_000_000))
+    monkeypatch.setattr(survey, "disk_free_bytes", lambda _p: 10_000_000)
     assert sea3d_main(["sim", "--frames", "300", "--out", str(out)]) == 2
     assert "the run needs about 3.1 GB but" in capsys.readouterr().err
     assert not out.exists()

@@ -649,7 +649,7 @@ class SessionPlayer:
 
     def stats(self) -> dict[str, Any]:
         """Figures in the recorder's layout: frames shown, fps, unpaired as drops, disk free."""
-        from sea3d.capture.recorder import disk_free_bytes
+        from sea3d.io.disk_space import disk_free_bytes
 
         rec = self._recent[-10:]
         fps = (len(rec) - 1) / (rec[-1] - rec[0]) if len(rec) >= 2 and rec[-1] > rec[0] else 0.0

@@ -23,7 +23,6 @@ import collections
 import logging
 import os
 import queue
-import shutil
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -34,9 +33,10 @@ from typing import Any
 
 from sea3d.capture.sources import ImageFrame, Source
 from sea3d.errors import CaptureError, ConfigError, SessionError
+from sea3d.io.disk_space import disk_free_bytes
 from sea3d.io.session import ImuSample, SessionWriteError, SessionWriter, SonarSample
 
-__all__ = ["RecordSummary", "Recorder", "RecorderConfig", "disk_free_bytes"]
+__all__ = ["RecordSummary", "Recorder", "RecorderConfig"]
 
 _log = logging.getLogger(__name__)
 
@@ -44,14 +44,6 @@ _STREAMS = ("left", "right", "imu", "sonar")
 _SAMPLE_DRAIN_S = 2.0
 """Wall seconds the IMU and echosounder may take, once the cameras have ended, to deliver the
 samples stamped within the last frame's time."""
-
-
-def disk_free_bytes(path: str | os.PathLike[str]) -> int:
-    """Free bytes on the file system that holds ``path`` (or its nearest existing parent)."""
-    p = Path(path).resolve()
-    while not p.exists():
-        p = p.parent
-    return int(shutil.disk_usage(p).free)
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -43,6 +43,7 @@ from sea3d.errors import SimulationError
 from sea3d.geometry.camera import CameraModel
 from sea3d.geometry.rig import ImuSpec, SonarSpec, StereoRig
 from sea3d.geometry.se3 import invert_T
+from sea3d.io.disk_space import disk_free_bytes
 from sea3d.io.ground_truth import GroundTruth, write_calibration_truth, write_gt_depth
 from sea3d.io.image_files import image_writer
 from sea3d.io.trajectory_files import write_tum
@@ -508,15 +509,13 @@ def check_disk_room(targets: Iterable[Path], need_bytes: float) -> None:
     Raises:
         SimulationError: too little free space, naming the place and both sizes.
     """
-    import shutil
-
     from sea3d._text import size_text
 
     for target in set(targets):
         probe = Path(target)
         while not probe.exists() and probe != probe.parent:
             probe = probe.parent
-        free = shutil.disk_usage(probe).free
+        free = disk_free_bytes(probe)
         if need_bytes * 1.1 > free:
             raise SimulationError(
                 f"the run needs about {size_text(need_bytes)} but {probe} has "

@@ -57,11 +57,6 @@ def record_bytes(record: Any) -> bytes:
     return bytes(builder.end())
 
 
-def disk_free_bytes(path: Path) -> int:
-    st = os.statvfs(path)
-    return int(st.f_bavail) * int(st.f_frsize)
-
-
 # ----------------------------------------------------------------------------- writer
 
 

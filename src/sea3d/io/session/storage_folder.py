@@ -36,6 +36,7 @@ import numpy as np
 
 from sea3d.errors import SessionError
 from sea3d.io._atomic import atomic_write, is_temp_name
+from sea3d.io.disk_space import disk_free_bytes
 from sea3d.io.session.common import (
     ImuSeries,
     SessionWriteError,
@@ -167,8 +168,7 @@ class FolderSessionWriter:
     def _check(self, size: int) -> None:
         if self.broken is not None:
             raise SessionWriteError(self.broken, kept=self._kept())
-        st = os.statvfs(self.path)
-        free = int(st.f_bavail) * int(st.f_frsize)
+        free = disk_free_bytes(self.path)
         if free - size - 65536 < self.min_free_bytes:  # room for session.json at close
             if self.min_free_bytes > 0:
                 self.broken = (

@@ -46,13 +46,13 @@ from pathlib import Path
 import numpy as np
 
 from sea3d.errors import ReserveReached, SessionError
+from sea3d.io.disk_space import disk_free_bytes
 from sea3d.io.session.common import (
     SessionWriteError,
 )
 from sea3d.io.session.mcap_chunks import (
     ChunkedMcap,
     FdWriter,
-    disk_free_bytes,
 )
 from sea3d.io.session.mcap_reader import DamagedChunk, McapSessionReader
 from sea3d.io.session.ros_messages import (
