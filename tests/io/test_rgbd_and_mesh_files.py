@@ -38,6 +38,10 @@ def test_natural_order():
 
     names = ["f10.png", "f2.png", "f1.png"]
     assert sorted(names, key=lambda n: natural_key(Path(n))) == ["f1.png", "f2.png", "f10.png"]
+    # Frames of several folders (7-Scenes' seq-01, seq-02, ...) stay folder by folder.
+    paths = [Path(p) for p in ("seq-2/f1.png", "seq-10/f0.png", "seq-2/f0.png", "seq-10/f2.png")]
+    assert sorted(paths, key=natural_key) == [
+        Path(p) for p in ("seq-2/f0.png", "seq-2/f1.png", "seq-10/f0.png", "seq-10/f2.png")]
 
 
 def test_mesh_and_cloud_round_trip(tmp_path, rng):

@@ -11,7 +11,6 @@ depth).
 from __future__ import annotations
 
 import os
-import re
 from pathlib import Path
 from typing import Any
 
@@ -20,13 +19,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.errors import ReconError
+from sea3d.io.image_files import natural_key
 
 __all__ = ["natural_key", "read_color", "read_depth"]
-
-
-def natural_key(path: Path) -> list[Any]:
-    """Sort key that orders ``frame2`` before ``frame10`` (numbers compared as numbers)."""
-    return [int(p) if p.isdigit() else p for p in re.split(r"(\d+)", Path(path).name)]
 
 
 def read_color(path: str | os.PathLike[str]) -> NDArray[np.uint8]:
