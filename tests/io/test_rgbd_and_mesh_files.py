@@ -21,8 +21,12 @@ def test_depth_scales_and_invalid_pixels(tmp_path):
     np.save(tmp_path / "d.npy", f)
     zf = read_depth(tmp_path / "d.npy")
     assert zf[0, 0] == 1.5 and np.isnan(zf[0, 1]) and np.isnan(zf[1, 1])
-    with pytest.raises(ReconError, match="does not exist"):
+    with pytest.raises(ReconError, match="not found"):
         read_depth(tmp_path / "nope.png")
+    # integer .npy with the frames' scale; negative values are invalid like in float depth
+    np.save(tmp_path / "i.npy", np.array([[5000, -5000], [0, 2500]], np.int32))
+    zi = read_depth(tmp_path / "i.npy", 5000.0)
+    assert zi[0, 0] == 1.0 and zi[1, 1] == 0.5 and np.isnan(zi[0, 1]) and np.isnan(zi[1, 0])
 
 
 def test_colour_is_rgb(tmp_path):

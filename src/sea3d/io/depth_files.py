@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Literal
@@ -411,27 +412,41 @@ def read_depth_png_mm(path: str | Path) -> NDArray[np.float32]:
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None or img.dtype != np.uint16 or img.ndim != 2:
         raise StereoError(f"{path}: expected a 16-bit one-channel PNG of millimetres")
-    z = img.astype(np.float32) / np.float32(1000.0)
-    z[img == 0] = np.nan
-    return z
+    return _metres_from_integer(img, 1000.0)
 
 
-def read_depth(path: str | Path) -> NDArray[np.float32]:
+_DEPTH_IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
+
+
+def read_depth(
+    path: str | os.PathLike[str], depth_scale: float | None = None
+) -> NDArray[np.float32]:
     """Read a depth (or range) map in metres, NaN where invalid.
 
-    Formats: float ``.npy``, ``.tif``/``.tiff`` and ``.pfm`` in metres (NaN, inf and values
-    <= 0 invalid); 16-bit ``.png`` (and 16-bit TIFF) in **millimetres** with 0 invalid, as
-    :func:`write_depth_png_mm` writes them.
+    Formats: float ``.npy``, ``.tif``/``.tiff`` and ``.pfm`` (and any float image OpenCV
+    reads) in metres; integer images (16-bit ``.png`` as :func:`write_depth_png_mm` writes
+    them, and as Kinect, RealSense, OAK-D and 7-Scenes do; 16-bit TIFF, PGM) hold
+    ``metres * depth_scale`` with 0 invalid. NaN, inf and values <= 0 are invalid. 8-bit
+    images are refused: 256 levels are no metric depth (they are a picture of depth, or a
+    colour image given as depth).
+
+    Args:
+        path: the depth file.
+        depth_scale: integer depth units per metre (1000 for millimetres, 5000 for the TUM
+            RGB-D benchmark). None: integer images are millimetres, and an integer ``.npy`` is
+            refused (its unit is unknown); a number applies to integer depth of any format.
 
     Returns:
         ``(H, W)`` float32 metres.
 
     Raises:
         StereoError: a missing or unreadable file, an unknown suffix, more than one channel, an
-            integer ``.npy`` (its unit is unknown), or an 8-bit image (8 bits cannot hold
-            millimetres: it is a picture of depth, not depth).
+            integer ``.npy`` without ``depth_scale``, 8-bit depth, or a ``depth_scale`` that is
+            not > 0.
     """
     p = Path(path)
+    if depth_scale is not None and not depth_scale > 0:
+        raise StereoError(f"depth_scale must be > 0, got {depth_scale}")
     if not p.is_file():
         raise StereoError(f"depth file not found: {p}")
     suffix = p.suffix.lower()
@@ -443,41 +458,44 @@ def read_depth(path: str | Path) -> NDArray[np.float32]:
             d = np.load(p, allow_pickle=False)
         except (OSError, ValueError) as err:
             raise StereoError(f"cannot read {p}: {err}") from err
-        if d.dtype.kind != "f":
+        if d.dtype.kind != "f" and depth_scale is None:
             raise StereoError(
                 f"{p}: depth .npy holds {d.dtype}; expected float metres (NaN invalid)"
             )
-    elif suffix in (".png", ".tif", ".tiff"):
-        img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise StereoError(f"cannot read image {p}")
-        if img.dtype == np.uint8:
-            raise StereoError(
-                f"{p}: an 8-bit image cannot hold depth in millimetres (it is a picture of "
-                "depth, not depth); give a 16-bit PNG of millimetres or float32 .npy/.tiff "
-                "metres"
-            )
-        if img.dtype == np.uint16:
-            if img.ndim != 2:
-                raise StereoError(f"{p}: expected a one-channel 16-bit depth image")
-            d = img.astype(np.float32) / np.float32(1000.0)
-            d[img == 0] = np.nan
-        elif img.dtype.kind == "f":
-            d = img
-        else:
-            raise StereoError(f"{p}: unsupported depth image type {img.dtype}")
     else:
+        img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        if img is None and suffix in _DEPTH_IMAGE_SUFFIXES:
+            raise StereoError(f"cannot read image {p}")
+        if img is None:
+            raise StereoError(
+                f"unknown depth file type {suffix!r} ({p}); use .npy/.tiff (float m) or .png "
+                "(uint16 mm)"
+            )
+        d = img
+    if d.dtype.itemsize == 1:
         raise StereoError(
-            f"unknown depth file type {suffix!r} ({p}); use .npy/.tiff (float m) or .png "
-            "(uint16 mm)"
+            f"{p}: 8-bit depth ({d.dtype}) holds only 256 levels and is no metric depth (it is "
+            "a picture of depth); give a 16-bit PNG of millimetres (or of 1/depth_scale m) or "
+            "float32 .npy/.tiff metres"
         )
-    d = np.asarray(d, dtype=np.float32)
     if d.ndim != 2:
         raise StereoError(f"{p}: expected a one-channel (H, W) depth map, got shape {d.shape}")
-    d = d.copy()
+    if d.dtype.kind in "ui":
+        d = _metres_from_integer(d, 1000.0 if depth_scale is None else depth_scale)
+    elif d.dtype.kind != "f":
+        raise StereoError(f"{p}: unsupported depth type {d.dtype}")
+    d = np.array(d, dtype=np.float32)
     with np.errstate(invalid="ignore"):
         d[~np.isfinite(d) | (d <= 0)] = np.nan
     return d
+
+
+def _metres_from_integer(img: np.ndarray, units_per_m: float) -> NDArray[np.float32]:
+    """Integer depth ``img`` in units of ``1 / units_per_m`` metres as float32 metres, NaN
+    where 0."""
+    z = img.astype(np.float32) / np.float32(units_per_m)
+    z[img == 0] = np.nan
+    return z
 
 
 def write_depth(path: str | Path, depth_m: np.ndarray, grid: DepthGrid | None = None) -> None:
