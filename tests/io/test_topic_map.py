@@ -23,7 +23,7 @@ from sea3d.io.topic_map import (
     MappedBag,
     TopicMap,
     camera_from_info,
-    decode_image,
+    image_from_message,
     parse_topic_args,
 )
 
@@ -220,16 +220,16 @@ def test_zed_layout_in_sqlite_with_32fc1_depth_and_overrides(tmp_path, capsys):
 def test_image_decoding_known_answers():
     rgb = np.arange(2 * 3 * 3, dtype=np.uint8).reshape(2, 3, 3)
     bgr = _image(0, rgb[..., ::-1].copy(), "bgr8")
-    np.testing.assert_array_equal(decode_image(bgr, "t", depth=False), rgb)
+    np.testing.assert_array_equal(image_from_message(bgr, "t", depth=False), rgb)
     mono16 = np.array([[1, 65535]], np.uint16)
     np.testing.assert_array_equal(
-        decode_image(_image(0, mono16, "mono16"), "t", depth=False), mono16
+        image_from_message(_image(0, mono16, "mono16"), "t", depth=False), mono16
     )
     mm = np.array([[0, 1234]], np.uint16)
-    got = decode_image(_image(0, mm, "16UC1"), "t", depth=True)
+    got = image_from_message(_image(0, mm, "16UC1"), "t", depth=True)
     assert np.isnan(got[0, 0]) and got[0, 1] == pytest.approx(1.234)
     with pytest.raises(SessionError, match="encoding 'yuv422' is not supported"):
-        decode_image(_image(0, rgb, "yuv422"), "t", depth=False)
+        image_from_message(_image(0, rgb, "yuv422"), "t", depth=False)
 
 
 def test_compressed_depth_formats():
@@ -244,7 +244,7 @@ def test_compressed_depth_formats():
         format="16UC1; compressedDepth png",
         data=np.concatenate([head, png]),
     )
-    got = decode_image(msg16, "t", depth=True)
+    got = image_from_message(msg16, "t", depth=True)
     assert np.isnan(got[0, 0]) and got[1, 0] == pytest.approx(2.5)
     # 32FC1: inverse depth quantised as q = a / z + b (a = 100, b = 1000 here)
     a, b = 100.0, 1000.0
@@ -258,7 +258,7 @@ def test_compressed_depth_formats():
         header=_header(0, "d"), format="32FC1; compressedDepth png",
         data=np.concatenate([head, cv2.imencode(".png", q)[1].reshape(-1)]),
     )  # fmt: skip
-    got = decode_image(msg32, "t", depth=True)
+    got = image_from_message(msg32, "t", depth=True)
     assert got[0, 0] == pytest.approx(2.0, rel=1e-3) and np.isnan(got[0, 1])
 
 

@@ -41,6 +41,8 @@ import numpy as np
 
 from sea3d.errors import SessionError
 from sea3d.geometry.pinhole import PinholeCamera
+from sea3d.io.session.common import decode_image
+from sea3d.io.session.ros_messages import raw_image_array
 
 __all__ = [
     "PRESETS",
@@ -177,21 +179,7 @@ def _stamp(msg: Any, fallback: int) -> int:
     return t if t > 0 else int(fallback)
 
 
-_RAW = {
-    "mono8": (1, np.uint8),
-    "8uc1": (1, np.uint8),
-    "rgb8": (3, np.uint8),
-    "bgr8": (3, np.uint8),
-    "8uc3": (3, np.uint8),
-    "rgba8": (4, np.uint8),
-    "bgra8": (4, np.uint8),
-    "mono16": (1, np.uint16),
-    "16uc1": (1, np.uint16),
-    "32fc1": (1, np.float32),
-}
-
-
-def decode_image(msg: Any, where: str, *, depth: bool) -> np.ndarray:
+def image_from_message(msg: Any, where: str, *, depth: bool) -> np.ndarray:
     """A ``sensor_msgs/Image`` or ``CompressedImage`` as an array: RGB (or grey) for images,
     float32 metres with NaN invalid for depth (``depth=True``).
 
@@ -199,29 +187,10 @@ def decode_image(msg: Any, where: str, *, depth: bool) -> np.ndarray:
         SessionError: an encoding sea3d does not read, or damaged data (``where`` named).
     """
     if hasattr(msg, "format"):
-        img = _decode_compressed(msg, where, depth=depth)
-    else:
-        enc = str(msg.encoding).lower()
-        if enc not in _RAW:
-            raise SessionError(f"{where}: image encoding {msg.encoding!r} is not supported")
-        ch, dtype = _RAW[enc]
-        h, w, step = int(msg.height), int(msg.width), int(msg.step)
-        raw = np.asarray(msg.data, dtype=np.uint8)
-        item = np.dtype(dtype).itemsize
-        if raw.size < h * step or step < w * ch * item:
-            raise SessionError(
-                f"{where}: {raw.size} bytes of image data, expected {h} rows of {step}"
-            )
-        stored = np.dtype(dtype).newbyteorder(">" if msg.is_bigendian else "<")
-        rows = np.ascontiguousarray(raw[: h * step].reshape(h, step)[:, : w * ch * item])
-        img = rows.view(stored).astype(dtype)
-        img = img.reshape(h, w, ch) if ch > 1 else img.reshape(h, w)
-        if enc.startswith("bgr"):
-            img = np.ascontiguousarray(img[..., [2, 1, 0]] if ch == 3 else img[..., [2, 1, 0, 3]])
-        if ch == 4:
-            img = np.ascontiguousarray(img[..., :3])
-        if depth:
-            img = _to_metres(img, enc, where)
+        return _decode_compressed(msg, where, depth=depth)
+    img = raw_image_array(msg, where)
+    if depth:
+        img = _to_metres(img, str(msg.encoding).lower(), where)
     return img
 
 
@@ -257,18 +226,8 @@ def _decode_compressed(msg: Any, where: str, *, depth: bool) -> np.ndarray:
             z[q == 0] = np.nan
             return _to_metres(z.astype(np.float32), "32fc1", where)
         return _to_metres(img.astype(np.uint16), "16uc1", where)
-    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
-    if img is None:
-        raise SessionError(
-            f"{where}: {fmt or 'compressed'} data does not decode ({data.size} bytes)"
-        )
-    if depth:
-        return _to_metres(img, fmt, where)
-    if img.ndim == 3 and img.shape[2] == 4:
-        return np.asarray(cv2.cvtColor(img, cv2.COLOR_BGRA2RGB))
-    if img.ndim == 3:
-        return np.asarray(cv2.cvtColor(img, cv2.COLOR_BGR2RGB))
-    return np.asarray(img)
+    img = decode_image(data, where)
+    return _to_metres(img, fmt, where) if depth else img
 
 
 def camera_from_info(msg: Any, where: str) -> BagCamera:
@@ -380,7 +339,7 @@ class MappedBag:
         for t, msg in self.messages(role, limit=limit):
             where = f"{self.path} topic {topic} t_ns={t}"
             try:
-                yield t, decode_image(msg, where, depth=role == "depth")
+                yield t, image_from_message(msg, where, depth=role == "depth")
             except SessionError as err:
                 _log.warning("%s; skipped", err)
 

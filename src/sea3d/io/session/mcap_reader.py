@@ -63,6 +63,7 @@ from sea3d.io.session.ros_messages import (
     RIG_ATTACHMENT,
     STREAM_OF_TOPIC,
     TOPICS,
+    raw_image_array,
     typestore,
 )
 
@@ -741,38 +742,7 @@ class McapSessionReader(SessionReader):
         return encode_image(self._raw_to_array(msg, stream, index), "png"), "png"
 
     def _raw_to_array(self, msg: Any, stream: str, index: int) -> np.ndarray:
-        enc = str(msg.encoding).lower()
-        table = {
-            "mono8": (1, np.uint8),
-            "8uc1": (1, np.uint8),
-            "rgb8": (3, np.uint8),
-            "bgr8": (3, np.uint8),
-            "8uc3": (3, np.uint8),
-            "mono16": (1, np.uint16),
-            "16uc1": (1, np.uint16),
-            "rgb16": (3, np.uint16),
-            "bgr16": (3, np.uint16),
-        }
-        if enc not in table:
-            raise SessionError(
-                f"{self._record_name(stream, index)}: unsupported image encoding {enc!r}"
-            )
-        ch, dtype = table[enc]
-        stored = np.dtype(dtype).newbyteorder(">" if msg.is_bigendian else "<")
-        itemsize = np.dtype(dtype).itemsize
-        h, w, step = int(msg.height), int(msg.width), int(msg.step)
-        raw = np.asarray(msg.data, dtype=np.uint8)
-        if h <= 0 or w <= 0 or raw.size < h * step or step < w * ch * itemsize:
-            raise SessionError(
-                f"{self._record_name(stream, index)}: image data is {raw.size} bytes, "
-                f"expected {h} rows of {step}"
-            )
-        rows = raw[: h * step].reshape(h, step)[:, : w * ch * itemsize]
-        img = np.ascontiguousarray(rows).view(stored).astype(dtype)
-        img = img.reshape(h, w, ch) if ch == 3 else img.reshape(h, w)
-        if enc.startswith("bgr"):
-            img = np.ascontiguousarray(img[:, :, ::-1])
-        return img
+        return raw_image_array(msg, self._record_name(stream, index))
 
     def _read_image(self, stream: str, index: int) -> np.ndarray:
         msg = self._decode(stream, index)

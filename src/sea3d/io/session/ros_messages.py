@@ -1,6 +1,7 @@
 """ROS 2 messages of a sea3d MCAP session: topics, the rosbags type store, and the CDR of
 each record (camera image and info, IMU, range) built from sea3d's values (the serialised
-bytes, as the memoryview rosbags returns: no copy of an image)."""
+bytes, as the memoryview rosbags returns: no copy of an image); and the pixels of a raw
+``sensor_msgs/Image`` read back, for sessions and other tools' bags alike."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from sea3d.errors import SessionError
 from sea3d.io.session.common import check_rig_yaml
 
 TOPICS = {
@@ -161,3 +163,54 @@ def float32_cdr(ts: Any, value: np.float32) -> memoryview:
     """``std_msgs/Float32`` (the echosounder's confidence)."""
     msg = ts.types["std_msgs/msg/Float32"](data=float(value))
     return ts.serialize_cdr(msg, "std_msgs/msg/Float32")
+
+
+RAW_IMAGE_ENCODINGS: dict[str, tuple[int, type[np.generic]]] = {
+    "mono8": (1, np.uint8),
+    "8uc1": (1, np.uint8),
+    "rgb8": (3, np.uint8),
+    "bgr8": (3, np.uint8),
+    "8uc3": (3, np.uint8),
+    "rgba8": (4, np.uint8),
+    "bgra8": (4, np.uint8),
+    "mono16": (1, np.uint16),
+    "16uc1": (1, np.uint16),
+    "rgb16": (3, np.uint16),
+    "bgr16": (3, np.uint16),
+    "32fc1": (1, np.float32),
+}
+"""The raw ``sensor_msgs/Image`` encodings sea3d reads (lower case): channels and dtype."""
+
+
+def raw_image_array(msg: Any, where: str) -> np.ndarray:
+    """The pixels of a raw ``sensor_msgs/Image``: ``(H, W)`` or ``(H, W, 3)`` in the
+    encoding's dtype (uint8, uint16 or float32), native byte order, channels RGB (``bgr*``
+    reordered, the alpha of ``rgba8``/``bgra8`` dropped); row padding (``step``) is skipped.
+
+    Args:
+        msg: the deserialised message (``encoding``, ``height``, ``width``, ``step``,
+            ``is_bigendian``, ``data``).
+        where: the record, for error messages.
+
+    Raises:
+        SessionError: an encoding not in :data:`RAW_IMAGE_ENCODINGS`, an empty image, or
+            data shorter than its rows (``where`` named).
+    """
+    enc = str(msg.encoding).lower()
+    if enc not in RAW_IMAGE_ENCODINGS:
+        raise SessionError(f"{where}: image encoding {msg.encoding!r} is not supported")
+    ch, dtype = RAW_IMAGE_ENCODINGS[enc]
+    item = np.dtype(dtype).itemsize
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    raw = np.asarray(msg.data, dtype=np.uint8)
+    if h <= 0 or w <= 0 or raw.size < h * step or step < w * ch * item:
+        raise SessionError(f"{where}: image data is {raw.size} bytes, expected {h} rows of {step}")
+    stored = np.dtype(dtype).newbyteorder(">" if msg.is_bigendian else "<")
+    rows = np.ascontiguousarray(raw[: h * step].reshape(h, step)[:, : w * ch * item])
+    img = rows.view(stored).astype(dtype)
+    img = img.reshape(h, w, ch) if ch > 1 else img.reshape(h, w)
+    if enc.startswith("bgr"):
+        img = np.ascontiguousarray(img[..., [2, 1, 0]] if ch == 3 else img[..., [2, 1, 0, 3]])
+    if ch == 4:
+        img = np.ascontiguousarray(img[..., :3])
+    return img
