@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -94,3 +95,109 @@ def test_process_on_separate_scheduler_and_worker_processes(sim_session, dask_pr
         assert ea is not None and eb is not None
         np.testing.assert_array_equal(ea[0]["depth_m"], eb[0]["depth_m"])
     assert Path(tmp_path / "dask" / "trajectory.tum").is_file()
+
+
+CLI = "import sys; from sea3d.cli import main; sys.exit(main())"
+GUARD_S = 120.0  # a run that has not ended by then hangs
+
+
+def _cli_in_child(*argv: str) -> subprocess.CompletedProcess[str]:
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    return subprocess.run([sys.executable, "-c", CLI, *argv], capture_output=True, text=True,
+                          env=env, timeout=GUARD_S, check=False)
+
+
+def test_a_scheduler_port_that_is_not_dask_fails_in_one_line(sim_session, tmp_path):
+    port = _free_port()
+    web = subprocess.Popen([sys.executable, "-m", "http.server", str(port), "--bind",
+                            "127.0.0.1"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                           cwd=tmp_path)
+    try:
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while True:  # until it listens
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1).close()
+                break
+            except OSError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.1)
+        got = _cli_in_child("process", str(sim_session), "-o", str(tmp_path / "out"),
+                            "--scheduler", f"tcp://127.0.0.1:{port}")
+    finally:
+        _stop(web)
+    assert got.returncode == 2
+    assert got.stderr.count("\n") == 1, got.stderr
+    assert f"cannot reach the Dask scheduler tcp://127.0.0.1:{port}: no Dask scheduler " \
+           "answered there within 5 s" in got.stderr
+
+
+def test_a_scheduler_port_that_accepts_and_never_answers_fails_in_time():
+    pytest.importorskip("distributed")
+    from sea3d.errors import ConfigError
+    from sea3d.pipeline.executors import DaskExecutor
+
+    with socket.socket() as silent:  # the kernel accepts; nobody ever reads or writes
+        silent.bind(("127.0.0.1", 0))
+        silent.listen(8)
+        address = f"tcp://127.0.0.1:{silent.getsockname()[1]}"
+        with pytest.raises(ConfigError, match=r"no Dask scheduler answered there within 1 s"):
+            DaskExecutor(address, timeout_s=1.0)
+
+
+def test_a_scheduler_that_is_not_an_address_is_one_line(sim_session, tmp_path, capsys):
+    pytest.importorskip("distributed")
+    assert main(["process", str(sim_session), "-o", str(tmp_path / "out"),
+                 "--scheduler", "notanaddress"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    assert "'notanaddress' is not a Dask scheduler address of the form tcp://HOST:PORT" in err
+
+
+def _sum_later(values, seconds):
+    time.sleep(seconds)
+    return float(values.sum())
+
+
+@pytest.mark.cluster
+def test_calls_of_a_lost_dask_worker_are_submitted_again(dask_processes):
+    import cloudpickle
+
+    from sea3d.pipeline.executors import DaskExecutor
+
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the workers cannot import us
+    ex = DaskExecutor(dask_processes)
+    try:
+        values = np.ones(100_000)  # scattered straight to the worker, lost with it
+        futures = [ex.submit(_sum_later, values, 2.0) for _ in range(3)]
+        time.sleep(1.0)
+        for pid in ex.client.run(os.getpid).values():  # its nanny starts a fresh worker
+            os.kill(pid, signal.SIGKILL)
+        assert [f.result(timeout=GUARD_S) for f in futures] == [100_000.0] * 3
+        assert ex.resubmitted >= 1
+    finally:
+        ex.close()
+
+
+@pytest.mark.cluster
+def test_a_cluster_left_without_workers_ends_in_one_error(dask_processes):
+    import cloudpickle
+
+    from sea3d.errors import ExecutorError
+    from sea3d.pipeline.executors import DaskExecutor
+
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    ex = DaskExecutor(dask_processes, no_worker_timeout_s=2.0)
+    try:
+        pids = list(ex.client.run(os.getpid).values())
+        nannies = [int(p) for p in subprocess.run(
+            ["ps", "-o", "ppid=", "-p", ",".join(map(str, pids))], capture_output=True,
+            text=True, check=True).stdout.split()]
+        for pid in nannies + pids:
+            os.kill(pid, signal.SIGKILL)
+        with pytest.raises(ExecutorError, match=r"had no worker for 2 s"):
+            fut = ex.submit(_sum_later, np.ones(100_000), 0.0)
+            ex.wait_first([fut])
+            fut.result(timeout=GUARD_S)
+    finally:
+        ex.close()

@@ -150,7 +150,7 @@ class _Call:
     def __init__(self, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
         self.fn, self.args = fn, args
         self.outer: Future[Any] = Future()
-        self.inner: Future[Any] | None = None
+        self.inner: Any = None  # the pool's future (None: not started, or given up)
         self.tries = 0
 
 
@@ -339,29 +339,96 @@ def _stop_pool(pool: ProcessPoolExecutor, *, kill: bool) -> None:
         manager.join(WATCH_POLL_S)
 
 
+CONNECT_TIMEOUT_S = 5.0
+"""Seconds a Dask scheduler has to accept the connection and answer Dask's handshake."""
+NO_WORKER_TIMEOUT_S = 120.0
+"""Seconds a run waits while its Dask cluster has no worker (or no scheduler) at all."""
+RETRY_PAUSE_S = 1.0
+"""Seconds between two tries to hand a call to a Dask cluster that refused it."""
+
+
+def _check_scheduler(address: str, timeout_s: float) -> None:
+    """Connect to ``address``, do Dask's handshake and ask the scheduler who it is, all within
+    ``timeout_s``: a port that is not Dask's, or that accepts and never answers, would
+    otherwise keep ``distributed.Client`` waiting forever.
+
+    Raises:
+        ConfigError: not an address, nothing listening, or no Dask scheduler answering.
+    """
+    import asyncio
+
+    from distributed.comm import connect
+
+    async def ask() -> Any:
+        comm = await connect(address, timeout=timeout_s)
+        try:
+            await comm.write({"op": "identity", "reply": True})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    try:
+        ident = asyncio.run(asyncio.wait_for(ask(), timeout_s))
+    except ValueError as err:
+        raise ConfigError(f"{address!r} is not a Dask scheduler address of the form "
+                          f"tcp://HOST:PORT ({err})") from err
+    except TimeoutError as err:
+        raise ConfigError(f"cannot reach the Dask scheduler {address}: no Dask scheduler "
+                          f"answered there within {timeout_s:g} s (nothing listening, or "
+                          "not Dask)") from err
+    except (OSError, EOFError) as err:
+        raise ConfigError(f"cannot reach the Dask scheduler {address}: {err}") from err
+    except Exception as err:  # a reply that is not Dask's protocol
+        raise ConfigError(f"cannot reach the Dask scheduler {address}: what answered there "
+                          f"is not a Dask scheduler ({type(err).__name__}: {err})") from err
+    if not isinstance(ident, dict) or ident.get("type") != "Scheduler":
+        raise ConfigError(f"cannot reach the Dask scheduler {address}: what answered there "
+                          f"is not a Dask scheduler ({str(ident)[:80]!r})")
+
+
+class _Shared:
+    """``DaskExecutor.share``'s handle: the object, and its copies on the workers (sent
+    again when the workers that held them are gone)."""
+
+    def __init__(self, obj: Any, future: Any) -> None:
+        self.obj, self.future = obj, future
+
+
 class DaskExecutor:
     """The per-frame stage on a Dask ``distributed`` cluster.
+
+    A call whose worker is lost (killed, or stopped cleanly with the call's scattered arrays
+    on it) is submitted again, arrays scattered again, up to :data:`MAX_TRIES` times; Dask's
+    own retries cover a call whose worker died while running it (after which it raises
+    ``KilledWorker``). Whatever the cluster cannot do in the end reaches the caller as an
+    :class:`~sea3d.errors.ExecutorError`, never a Dask exception; a cluster without any
+    worker (or without its scheduler) for ``no_worker_timeout_s`` ends the wait.
 
     Args:
         scheduler: ``tcp://HOST:PORT`` of a running scheduler, or a ``distributed.Client``
             (which the caller keeps and closes).
+        timeout_s: seconds to connect and hear the scheduler's handshake.
+        no_worker_timeout_s: see above.
 
     Raises:
-        ConfigError: the scheduler cannot be reached.
+        ConfigError: not a scheduler address, or no Dask scheduler answers there in time.
     """
 
     name = "dask"
 
-    def __init__(self, scheduler: str | Any, *, timeout_s: float = 5.0) -> None:
+    def __init__(self, scheduler: str | Any, *, timeout_s: float = CONNECT_TIMEOUT_S,
+                 no_worker_timeout_s: float = NO_WORKER_TIMEOUT_S) -> None:
         import distributed
 
         self._own = isinstance(scheduler, str)
+        self.no_worker_timeout_s = no_worker_timeout_s
         self.client: Any
         if self._own:
+            _check_scheduler(scheduler, timeout_s)
             try:
                 self.client = distributed.Client(scheduler, timeout=timeout_s,
                                                  set_as_default=False)
-            except (OSError, TimeoutError) as err:
+            except (OSError, TimeoutError, ValueError) as err:
                 raise ConfigError(f"cannot reach the Dask scheduler {scheduler}: {err}") from err
         else:
             self.client = scheduler
@@ -369,36 +436,132 @@ class DaskExecutor:
         info = self.client.scheduler_info()
         self.workers = len(info.get("workers", {}))
         self.address = str(getattr(getattr(self.client, "scheduler", None), "address", "?"))
+        self.resubmitted = 0
+        """Calls submitted again after their worker was lost."""
         if self.workers == 0:
-            log.warning("the Dask cluster at %s has no workers yet; frames wait for one",
-                        self.address)
+            log.warning("the Dask cluster at %s has no workers yet; frames wait for one "
+                        "(at most %g s)", self.address, no_worker_timeout_s)
 
-    def submit(self, fn: Callable[..., Any], *args: Any) -> Any:
+    def _args(self, args: tuple[Any, ...]) -> tuple[Any, ...]:
+        """``args`` as sent: shared objects as their (re-sent if lost) copies on the workers,
+        big arrays scattered straight to a worker (not through the scheduler)."""
         import numpy as np
 
-        # Arrays go to a worker directly (not through the scheduler), then the call follows.
+        out = list(args)
+        for i, a in enumerate(args):
+            if isinstance(a, _Shared):
+                if a.future.status != "finished":  # the workers that held it are gone
+                    a.future = self.client.scatter(a.obj, broadcast=True,
+                                                   timeout=self.no_worker_timeout_s)
+                out[i] = a.future
         big = [i for i, a in enumerate(args) if isinstance(a, np.ndarray) and a.nbytes > 1 << 16]
         if big:
-            scattered = self.client.scatter([args[i] for i in big], direct=True)
-            args = tuple(
-                scattered[big.index(i)] if i in big else a for i, a in enumerate(args)
-            )
-        return self.client.submit(fn, *args, pure=False)
+            scattered = self.client.scatter([args[i] for i in big], direct=True,
+                                            timeout=self.no_worker_timeout_s)
+            for i, f in zip(big, scattered, strict=True):
+                out[i] = f
+        return tuple(out)
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> Future[Any]:
+        call = _Call(fn, args)
+        call.outer.add_done_callback(functools.partial(self._cancel_inner, call))
+        self._start(call)
+        return call.outer
+
+    def _start(self, call: _Call) -> None:
+        while True:
+            call.tries += 1
+            try:
+                inner = self.client.submit(call.fn, *self._args(call.args), pure=False)
+                break
+            except Exception as err:  # scatter or submit failed: a worker gone, say
+                timed_out = isinstance(err, TimeoutError | self._distributed.TimeoutError)
+                if timed_out or call.tries >= MAX_TRIES:
+                    call.outer.set_exception(self._error(err))
+                    return
+                log.warning("the Dask cluster at %s did not take a call (%s: %s); trying "
+                            "again", self.address, type(err).__name__, err)
+                time.sleep(RETRY_PAUSE_S)  # for the scheduler to notice a lost worker
+        call.inner = inner
+        inner.add_done_callback(functools.partial(self._on_inner_done, call))
+
+    def _error(self, err: BaseException, what: str = "") -> ExecutorError:
+        if isinstance(err, TimeoutError | self._distributed.TimeoutError):
+            return ExecutorError(f"the Dask cluster at {self.address} had no worker for "
+                                 f"{self.no_worker_timeout_s:g} s")
+        return ExecutorError(f"the Dask cluster at {self.address} {what or 'failed'} "
+                             f"({type(err).__name__}: {err})")
+
+    def _on_inner_done(self, call: _Call, inner: Any) -> None:
+        """(Dask's callback thread.)"""
+        if call.inner is not inner or call.outer.done():
+            return
+        status = inner.status
+        err: BaseException | None = None
+        if status == "finished":
+            try:
+                call.outer.set_result(inner.result())
+                return
+            except BaseException as got:  # its result could not be fetched (worker lost)
+                err = got
+        elif status == "error":
+            err = inner.exception()
+            if not isinstance(err, self._distributed.KilledWorker):
+                call.outer.set_exception(err)  # the call's own error
+                return
+            call.outer.set_exception(self._error(
+                err, "lost the workers that ran this call each time Dask tried it"))
+            return
+        # cancelled or lost: its worker (with its arrays) is gone, or it never got one
+        if call.tries >= MAX_TRIES:
+            call.outer.set_exception(self._error(
+                err or RuntimeError(f"status {status}"),
+                f"lost this call's worker each of the {MAX_TRIES} times it was submitted"))
+            return
+        log.warning("a Dask worker was lost with a call (%s); submitting it again", status)
+        self.resubmitted += 1
+        self._start(call)
+
+    @staticmethod
+    def _cancel_inner(call: _Call, outer: Future[Any]) -> None:
+        if outer.cancelled() and call.inner is not None:
+            with contextlib.suppress(Exception):  # a cluster already gone
+                call.inner.cancel()
 
     def share(self, obj: Any) -> Any:
-        return self.client.scatter(obj, broadcast=True)
+        try:
+            return _Shared(obj, self.client.scatter(obj, broadcast=True,
+                                                    timeout=self.no_worker_timeout_s))
+        except Exception as err:
+            raise self._error(err) from err
 
     def wait_first(self, futures: Iterable[Any]) -> None:
         fs = list(futures)
-        if fs:
-            # distributed.wait looks for a default client: a Client made with
-            # set_as_default=False (ours, for a --scheduler address) is not one.
-            with self.client.as_current():
-                self._distributed.wait(fs, return_when="FIRST_COMPLETED")
+        without_workers_since: float | None = None
+        while fs:
+            done, _ = cf_wait(fs, timeout=1.0, return_when=FIRST_COMPLETED)
+            if done:
+                return
+            try:
+                running = self.client.status == "running"
+                n = len(self.client.scheduler_info().get("workers", {})) if running else 0
+            except Exception:  # the scheduler is gone: as good as no workers
+                n = 0
+            if n:
+                without_workers_since = None
+                continue
+            now = time.monotonic()
+            without_workers_since = without_workers_since or now
+            if now - without_workers_since > self.no_worker_timeout_s:
+                raise ExecutorError(
+                    f"the Dask cluster at {self.address} has had no worker "
+                    f"{'' if running else 'and no scheduler '}for "
+                    f"{self.no_worker_timeout_s:g} s; {len(fs)} calls wait")
 
     def close(self) -> None:
         if self._own:
-            self.client.close()
+            with contextlib.suppress(Exception):
+                self.client.close(timeout=CONNECT_TIMEOUT_S)
 
 
 def make_executor(
