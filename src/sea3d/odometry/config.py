@@ -133,6 +133,14 @@ class OdometryConfig:
     """Keyframes on each side of a loop candidate (its segment, placed by the odometry) whose
     features join the candidate's in the geometric check (a local map, as ORB-SLAM checks a
     loop against the candidate's covisible keyframes): 0, the candidate alone."""
+    loop_min_spread: float = 0.15
+    """A loop's PnP inliers must span at least this fraction of the view's width and height (a
+    pose fitted to a small patch of the view is not determined)."""
+    loop_max_chi2: float = 22.46
+    """A verified loop moves the pose graph only when its squared Mahalanobis distance from the
+    graph's prediction (loop covariance plus the graph's marginal covariance of the relative
+    pose) is at most this, and, after the solve, its distance from the optimised poses under
+    its own covariance too (22.46: chi-square, 6 degrees of freedom, p = 0.999)."""
     loop_cooldown_keyframes: int = 3
     """Keyframes after an accepted loop before the next search."""
     pose_graph_rotation_sigma_rad: float = 0.001

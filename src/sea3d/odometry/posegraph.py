@@ -9,6 +9,12 @@ the fixed deviations alone. The first segment's first keyframe is held
 (the world's gauge); every later segment's first keyframe has only a loose prior, so segments
 started after a tracking loss float until a loop joins them. Solved by gtsam's
 Levenberg-Marquardt whenever a loop is added.
+
+A loop is a guarded edit (:meth:`PoseGraph.loop_chi2`): before it moves anything, its measured
+relative pose is compared with the one the graph predicts, by the Mahalanobis distance under
+the sum of the loop's covariance and the graph's marginal covariance of the relative pose
+(gtsam's ``Marginals``); after the solve, the loop must agree with the optimised poses within
+its own covariance. Either test failing leaves the graph as it was.
 """
 
 from __future__ import annotations
@@ -77,31 +83,81 @@ class PoseGraph:
         """Cauchy-robust loop edge noise: the fixed deviations, plus the loop's covariance."""
         import gtsam
 
-        floor = np.r_[[self.loop_rotation_sigma_rad] * 3, [self.loop_translation_sigma_m] * 3]
-        base: Any = gtsam.noiseModel.Diagonal.Sigmas(floor)
-        if lp.covariance is not None:
-            cov = 0.5 * (lp.covariance + lp.covariance.T) + np.diag(floor**2)
-            base = gtsam.noiseModel.Gaussian.Covariance(cov)
+        base: Any = gtsam.noiseModel.Gaussian.Covariance(self.loop_covariance(lp))
         return gtsam.noiseModel.Robust.Create(
             gtsam.noiseModel.mEstimator.Cauchy.Create(self.loop_kernel), base
         )
 
-    def optimise(
+    def loop_covariance(self, lp: _Loop) -> F64:
+        """(6, 6) Gaussian covariance of a loop edge (its own covariance plus the floor)."""
+        floor = np.r_[[self.loop_rotation_sigma_rad] * 3, [self.loop_translation_sigma_m] * 3]
+        if lp.covariance is None:
+            return np.diag(floor**2)
+        return 0.5 * (lp.covariance + lp.covariance.T) + np.diag(floor**2)
+
+    def loop_chi2(
+        self,
+        a: int,
+        b: int,
+        T_a_b: F64,
+        covariance: F64 | None,
+        odometry: dict[int, F64],
+        segments: dict[int, int],
+        poses: dict[int, F64],
+        *,
+        marginal: bool = True,
+    ) -> float | None:
+        """Squared Mahalanobis distance of a loop measurement from the graph's poses.
+
+        With ``e = Log(T_pred^-1 T_a_b)`` (gtsam's Pose3 tangent in ``b``), ``T_pred =
+        poses[a]^-1 poses[b]`` and ``S`` the loop's covariance (:meth:`loop_covariance`) plus,
+        when ``marginal``, the covariance of ``T_pred`` from the graph's joint marginal of ``a``
+        and ``b`` (transported into ``b``: ``J = [-Ad(T_pred^-1), I]``), the distance is
+        ``e^T S^-1 e``: chi-square with 6 degrees of freedom when the loop and the graph agree.
+        Keyframes of segments that no loop has joined yet are tied only by their loose priors,
+        so such a loop is never judged against them.
+
+        Args:
+            a, b: keyframe ids of the loop (``T_a_b`` maps ``b`` into ``a``).
+            T_a_b: 4x4 measured relative pose.
+            covariance: (6, 6) its covariance, or None.
+            odometry, segments: as for :meth:`optimise`.
+            poses: per keyframe its ``T_world_rect`` (the current solution, or the optimised).
+            marginal: add the graph's uncertainty of the predicted relative pose (before the
+                solve); False judges the loop by its own covariance alone (after the solve).
+
+        Returns:
+            The squared distance (inf when the covariance is singular), or None when the graph
+            cannot predict the relative pose (its marginal is indeterminate: a segment tied to
+            the rest by nothing but its loose prior).
+        """
+        import gtsam
+
+        T_pred = np.linalg.inv(poses[a]) @ poses[b]
+        e = np.asarray(gtsam.Pose3.Logmap(gtsam.Pose3(np.linalg.inv(T_pred) @ T_a_b)))
+        S = self.loop_covariance(_Loop(a, b, T_a_b, covariance))
+        if marginal:
+            graph, values = self._build(odometry, segments, poses)
+            try:
+                marg = gtsam.Marginals(graph, values)
+                jm = marg.jointMarginalCovariance(gtsam.KeyVector([a, b]))
+            except RuntimeError:  # gtsam's IndeterminateLinearSystemException
+                return None
+            cov = np.block([[jm.at(a, a), jm.at(a, b)], [jm.at(b, a), jm.at(b, b)]])
+            J = np.hstack([-np.asarray(gtsam.Pose3(T_pred).inverse().AdjointMap()), np.eye(6)])
+            S = S + J @ cov @ J.T
+        try:
+            return float(e @ np.linalg.solve(S, e))
+        except np.linalg.LinAlgError:
+            return float("inf")
+
+    def _build(
         self,
         odometry: dict[int, F64],
         segments: dict[int, int],
         initial: dict[int, F64],
-    ) -> dict[int, F64]:
-        """Solve the graph.
-
-        Args:
-            odometry: per keyframe its pose in its segment's odometry frame (4x4).
-            segments: per keyframe its segment.
-            initial: per keyframe the current corrected pose (the starting point).
-
-        Returns:
-            Per keyframe the optimised ``T_world_rect``.
-        """
+    ) -> tuple[Any, Any]:
+        """The factor graph and its starting values (see :meth:`optimise`)."""
         import gtsam
 
         graph = gtsam.NonlinearFactorGraph()
@@ -127,6 +183,28 @@ class PoseGraph:
             if lp.a in odometry and lp.b in odometry:
                 noise = self._loop_noise(lp)
                 graph.add(gtsam.BetweenFactorPose3(lp.a, lp.b, gtsam.Pose3(lp.T_a_b), noise))
+        return graph, values
+
+    def optimise(
+        self,
+        odometry: dict[int, F64],
+        segments: dict[int, int],
+        initial: dict[int, F64],
+    ) -> dict[int, F64]:
+        """Solve the graph.
+
+        Args:
+            odometry: per keyframe its pose in its segment's odometry frame (4x4).
+            segments: per keyframe its segment.
+            initial: per keyframe the current corrected pose (the starting point).
+
+        Returns:
+            Per keyframe the optimised ``T_world_rect``.
+        """
+        import gtsam
+
+        graph, values = self._build(odometry, segments, initial)
+        ids = sorted(odometry)
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(50)
         result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()

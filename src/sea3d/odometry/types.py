@@ -25,6 +25,7 @@ from sea3d._typing import F64
 __all__ = [
     "FrameObservation",
     "ImuChunk",
+    "LoopChecks",
     "Odometry",
     "OdometryEstimate",
     "TrackingStatus",
@@ -44,6 +45,42 @@ class TrackingStatus(enum.StrEnum):
     """No trustworthy pose; a new segment starts at the next frame that tracks."""
     RELOCALISED = "relocalised"
     """A new segment was joined to an earlier one by a loop closure or relocalisation."""
+
+
+@dataclass(kw_only=True)
+class LoopChecks:
+    """What became of the loop candidates of a run (counters, updated as it goes).
+
+    Attributes:
+        candidates: keyframes proposed by place recognition (or, for a segment not yet
+            joined, the other segments' last keyframes) and checked geometrically.
+        verified: candidates whose geometry held (:func:`~sea3d.odometry.loop.verify_loop`).
+        accepted: loops added to the pose graph (closures and re-links).
+        rejected_odometry: verified loops whose relative pose disagreed with the pose graph's
+            prediction before anything moved (chi-square test).
+        rejected_graph: loops undone after the solve, because the optimised graph still
+            disagreed with them.
+        rejected_solver: loops undone because the pose graph optimisation failed.
+    """
+
+    candidates: int = 0
+    verified: int = 0
+    accepted: int = 0
+    rejected_odometry: int = 0
+    rejected_graph: int = 0
+    rejected_solver: int = 0
+
+    def as_dict(self) -> dict[str, int]:
+        """The counters by name (for summaries)."""
+        return {
+            "candidates": self.candidates,
+            "verified": self.verified,
+            "accepted": self.accepted,
+            "rejected_geometry": self.candidates - self.verified,
+            "rejected_odometry": self.rejected_odometry,
+            "rejected_graph": self.rejected_graph,
+            "rejected_solver": self.rejected_solver,
+        }
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -55,7 +55,7 @@ from sea3d.odometry.loop import (
 )
 from sea3d.odometry.posegraph import PoseGraph
 from sea3d.odometry.stereo_geometry import RectifiedStereo
-from sea3d.odometry.types import FrameObservation, OdometryEstimate, TrackingStatus
+from sea3d.odometry.types import FrameObservation, LoopChecks, OdometryEstimate, TrackingStatus
 
 __all__ = ["StereoInertialOdometry"]
 
@@ -178,6 +178,7 @@ class StereoInertialOdometry:
         self._clahe = cv2.createCLAHE(clipLimit=3.0, tileGridSize=(8, 8))
         self.loop_closures = 0
         self.relinks = 0
+        self.loop_checks = LoopChecks()
         self._last_relink = False
         self.frames_lost = 0
         self.seconds = 0.0
@@ -1207,12 +1208,19 @@ class StereoInertialOdometry:
             other = self._keyframes[q]
             if other.place is None:
                 continue
+            self.loop_checks.candidates += 1
             found = verify_loop(
                 kf.place, other.place, q, self.geometry.K, min_inliers=c.loop_min_inliers,
-                local_map=self._local_map(q),
+                local_map=self._local_map(q), min_spread=c.loop_min_spread,
             )
-            if found is not None:
+            if found is None:
+                log.debug("loop candidate: keyframe %d with %d rejected: its geometry does not "
+                          "hold", k, q)
+                continue
+            self.loop_checks.verified += 1
+            if self._agrees_with_graph(found, k):
                 break
+            found = None
         if found is None:
             return False, False
         joined = self._root(self._keyframes[found.candidate].segment) != root
@@ -1225,9 +1233,38 @@ class StereoInertialOdometry:
             and found.candidate
             in [q for q in self._kf_order if self._keyframes[q].segment == cand.segment][-5:]
         )
-        self._close_loop(found, k, relink=relink)
+        if not self._close_loop(found, k, relink=relink):
+            return False, False
         seg.loops_since = 0
         return True, joined
+
+    def _graph_inputs(self) -> tuple[dict[int, F64], dict[int, int], dict[int, F64]]:
+        """The pose graph's odometry, segments and current poses, per keyframe."""
+        odometry = {q: kf.T_odom for q, kf in self._keyframes.items()}
+        segments = {q: kf.segment for q, kf in self._keyframes.items()}
+        poses = {q: kf.T_world_rect for q, kf in self._keyframes.items()}
+        return odometry, segments, poses
+
+    def _agrees_with_graph(self, loop: LoopCandidate, k: int) -> bool:
+        """The consistency test before a verified loop moves anything: its relative pose
+        against the graph's prediction (:meth:`PoseGraph.loop_chi2`)."""
+        chi2 = self._graph.loop_chi2(loop.candidate, k, loop.T_cand_query, loop.covariance,
+                                     *self._graph_inputs())
+        if chi2 is None:
+            log.debug("loop: keyframe %d with %d: the graph cannot predict their relative pose "
+                      "(a segment not joined yet); judged after the solve", k, loop.candidate)
+            return True
+        if chi2 <= self.config.loop_max_chi2:
+            log.debug("loop: keyframe %d with %d agrees with the odometry (chi-square %.1f)",
+                      k, loop.candidate, chi2)
+            return True
+        self.loop_checks.rejected_odometry += 1
+        log.info(
+            "loop rejected: keyframe %d with %d (%d inliers) disagrees with the odometry "
+            "(chi-square %.1f > %.1f)", k, loop.candidate, loop.inliers, chi2,
+            self.config.loop_max_chi2,
+        )
+        return False
 
     def _local_map(self, q: int) -> list[PlaceFeatures]:
         """Places of keyframe ``q``'s neighbours in its segment (``loop_local_keyframes`` on
@@ -1282,17 +1319,30 @@ class StereoInertialOdometry:
             time.perf_counter() - t0,
         )
 
-    def _close_loop(self, loop: LoopCandidate, k: int, *, relink: bool = False) -> None:
+    def _close_loop(self, loop: LoopCandidate, k: int, *, relink: bool = False) -> bool:
+        """Add a loop and re-optimise; undo it when the solve fails or the optimised graph
+        still disagrees with it. Returns True when the loop was kept."""
         self._graph.add_loop(loop.candidate, k, loop.T_cand_query, loop.covariance)
-        odometry = {q: kf.T_odom for q, kf in self._keyframes.items()}
-        segments = {q: kf.segment for q, kf in self._keyframes.items()}
-        initial = {q: kf.T_world_rect for q, kf in self._keyframes.items()}
+        odometry, segments, initial = self._graph_inputs()
         try:
             solved = self._graph.optimise(odometry, segments, initial)
         except RuntimeError as err:
             log.warning("pose graph optimisation failed (%s); loop ignored", err)
             self._graph.loops.pop()
-            return
+            self.loop_checks.rejected_solver += 1
+            return False
+        chi2 = self._graph.loop_chi2(loop.candidate, k, loop.T_cand_query, loop.covariance,
+                                     odometry, segments, solved, marginal=False)
+        if chi2 is not None and not chi2 <= self.config.loop_max_chi2:
+            self._graph.loops.pop()
+            self.loop_checks.rejected_graph += 1
+            log.info(
+                "loop rejected: keyframe %d with %d (%d inliers): the optimised graph still "
+                "disagrees with it (chi-square %.1f > %.1f); the graph is left as it was",
+                k, loop.candidate, loop.inliers, chi2, self.config.loop_max_chi2,
+            )
+            return False
+        self.loop_checks.accepted += 1
         for q, T in solved.items():
             kf = self._keyframes[q]
             kf.correction = T @ invert_T(kf.T_odom)
@@ -1309,3 +1359,4 @@ class StereoInertialOdometry:
         else:
             self.loop_closures += 1
         log.info("loop closed: keyframe %d with %d (%d inliers)", k, loop.candidate, loop.inliers)
+        return True
