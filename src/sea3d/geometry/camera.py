@@ -147,19 +147,19 @@ class CameraModel(Protocol):
 
 def as_points(points: object, name: str = "points") -> FloatArray:
     """Validate and convert to an ``(N, 3)`` float64 array; raise :class:`GeometryError`."""
-    arr = np.asarray(points, dtype=np.float64)
-    if arr.ndim == 1 and arr.shape[0] == 3:
-        arr = arr[None, :]
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise GeometryError(f"{name} must have shape (N, 3), got {arr.shape}")
-    return arr
+    return _as_rows(points, 3, name)
 
 
 def as_pixels(uv: object, name: str = "uv") -> FloatArray:
     """Validate and convert to an ``(N, 2)`` float64 array; raise :class:`GeometryError`."""
-    arr = np.asarray(uv, dtype=np.float64)
-    if arr.ndim == 1 and arr.shape[0] == 2:
+    return _as_rows(uv, 2, name)
+
+
+def _as_rows(values: object, width: int, name: str) -> FloatArray:
+    """``values`` as an ``(N, width)`` float64 array (one row of ``width`` becomes N = 1)."""
+    arr = np.asarray(values, dtype=np.float64)
+    if arr.ndim == 1 and arr.shape[0] == width:
         arr = arr[None, :]
-    if arr.ndim != 2 or arr.shape[1] != 2:
-        raise GeometryError(f"{name} must have shape (N, 2), got {arr.shape}")
+    if arr.ndim != 2 or arr.shape[1] != width:
+        raise GeometryError(f"{name} must have shape (N, {width}), got {arr.shape}")
     return arr

@@ -295,6 +295,23 @@ def read_pfm(path: str | Path) -> NDArray[np.float32]:
     return out
 
 
+def _read_pfm_or_npy(p: Path) -> np.ndarray | None:
+    """The array a ``.pfm`` or ``.npy`` file stores, as stored; None for any other suffix.
+
+    Raises:
+        StereoError: the file cannot be read as its suffix says.
+    """
+    suffix = p.suffix.lower()
+    if suffix == ".pfm":
+        return read_pfm(p)
+    if suffix != ".npy":
+        return None
+    try:
+        return np.asarray(np.load(p, allow_pickle=False))
+    except (OSError, ValueError) as err:
+        raise StereoError(f"cannot read {p}: {err}") from err
+
+
 def read_disparity(path: str | Path, scale: float | None = None) -> NDArray[np.float32]:
     """Read a disparity map in pixels, NaN where unknown.
 
@@ -314,13 +331,9 @@ def read_disparity(path: str | Path, scale: float | None = None) -> NDArray[np.f
     suffix = p.suffix.lower()
     if not p.is_file():
         raise StereoError(f"disparity file not found: {p}")
-    if suffix == ".pfm":
-        d = read_pfm(p)
-    elif suffix == ".npy":
-        try:
-            d = np.load(p, allow_pickle=False)
-        except (OSError, ValueError) as err:
-            raise StereoError(f"cannot read {p}: {err}") from err
+    stored = _read_pfm_or_npy(p)
+    if stored is not None:
+        d = stored
     elif suffix in (".png", ".pgm", ".ppm", ".tif", ".tiff"):
         img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
         if img is None:
@@ -451,14 +464,10 @@ def read_depth(
         raise StereoError(f"depth file not found: {p}")
     suffix = p.suffix.lower()
     d: np.ndarray
-    if suffix == ".pfm":
-        d = read_pfm(p)
-    elif suffix == ".npy":
-        try:
-            d = np.load(p, allow_pickle=False)
-        except (OSError, ValueError) as err:
-            raise StereoError(f"cannot read {p}: {err}") from err
-        if d.dtype.kind != "f" and depth_scale is None:
+    stored = _read_pfm_or_npy(p)
+    if stored is not None:
+        d = stored
+        if suffix == ".npy" and d.dtype.kind != "f" and depth_scale is None:
             raise StereoError(
                 f"{p}: depth .npy holds {d.dtype}; expected float metres (NaN invalid)"
             )

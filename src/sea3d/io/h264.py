@@ -156,25 +156,27 @@ def _sei_messages(rbsp: bytes) -> list[tuple[int, bytes]]:
     out = []
     i = 1  # skip the NAL header
     while i < len(rbsp) and rbsp[i] != 0x80:
-        ptype = 0
-        while i < len(rbsp) and rbsp[i] == 255:
-            ptype += 255
-            i += 1
-        if i >= len(rbsp):
+        ptype, i = _sei_number(rbsp, i)
+        if ptype < 0:
             break
-        ptype += rbsp[i]
-        i += 1
-        psize = 0
-        while i < len(rbsp) and rbsp[i] == 255:
-            psize += 255
-            i += 1
-        if i >= len(rbsp):
+        psize, i = _sei_number(rbsp, i)
+        if psize < 0:
             break
-        psize += rbsp[i]
-        i += 1
         out.append((ptype, rbsp[i : i + psize]))
         i += psize
     return out
+
+
+def _sei_number(rbsp: bytes, i: int) -> tuple[int, int]:
+    """An SEI payload type or size read at ``i`` (H.264 7.3.2.3.1: 0xFF bytes add 255 each,
+    the first other byte ends it) and the index after it; ``(-1, i)`` when the data ends first."""
+    value = 0
+    while i < len(rbsp) and rbsp[i] == 255:
+        value += 255
+        i += 1
+    if i >= len(rbsp):
+        return -1, i
+    return value + rbsp[i], i + 1
 
 
 def find_frame_meta(access_unit: bytes) -> FrameMeta | None:

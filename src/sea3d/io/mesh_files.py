@@ -117,11 +117,9 @@ def read_mesh(path: str | os.PathLike[str]) -> Mesh:
         v = np.asarray(pc.points, np.float64)
         if len(v) == 0:
             raise ReconError(f"{p} holds no vertices (not a mesh or point cloud Open3D reads)")
-        cols = (np.clip(np.rint(np.asarray(pc.colors) * 255), 0, 255).astype(np.uint8)
-                if pc.has_colors() else None)
+        cols = _colours_u8(pc.colors) if pc.has_colors() else None
         return Mesh(vertices=v, triangles=np.zeros((0, 3), np.int64), colors_rgb=cols)
-    cols = (np.clip(np.rint(np.asarray(m.vertex_colors) * 255), 0, 255).astype(np.uint8)
-            if m.has_vertex_colors() else None)
+    cols = _colours_u8(m.vertex_colors) if m.has_vertex_colors() else None
     nrm = np.asarray(m.vertex_normals, np.float64) if m.has_vertex_normals() else None
     return Mesh(vertices=v, triangles=f, colors_rgb=cols, normals=nrm)
 
@@ -142,9 +140,13 @@ def read_point_cloud(path: str | os.PathLike[str]) -> tuple[NDArray[np.float64],
     pts = np.asarray(pc.points, np.float64)
     if len(pts) == 0:
         raise ReconError(f"{p} holds no points")
-    cols = (np.clip(np.rint(np.asarray(pc.colors) * 255), 0, 255).astype(np.uint8)
-            if pc.has_colors() else None)
+    cols = _colours_u8(pc.colors) if pc.has_colors() else None
     return pts, cols
+
+
+def _colours_u8(colors01: object) -> NDArray[np.uint8]:
+    """Open3D's (N, 3) colours in [0, 1] as uint8 0-255, rounded to nearest."""
+    return np.clip(np.rint(np.asarray(colors01) * 255), 0, 255).astype(np.uint8)
 
 
 def write_compact_mesh(path: str | os.PathLike[str], mesh: Mesh) -> None:
