@@ -13,12 +13,16 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import secrets
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
 
-__all__ = ["atomic_open", "atomic_path", "atomic_write", "is_temp_name", "temp_path"]
+__all__ = ["atomic_open", "atomic_path", "atomic_write", "is_temp_name", "remove_stale_temps",
+           "temp_path"]
+
+_TEMP_NAME = re.compile(r"^\..+\.(?P<pid>\d+)-[0-9a-f]{8}\.tmp(\.[^.]+)?$")
 
 
 def temp_path(path: str | os.PathLike[str]) -> Path:
@@ -30,6 +34,51 @@ def temp_path(path: str | os.PathLike[str]) -> Path:
 def is_temp_name(name: str) -> bool:
     """True for a name :func:`temp_path` (or the older ``.<name>.tmp``) made."""
     return name.startswith(".") and ".tmp" in name
+
+
+def _alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # someone else's process
+        return True
+    return True
+
+
+def remove_stale_temps(folder: str | os.PathLike[str], *, depth: int = 2) -> list[Path]:
+    """Remove the temporary files :func:`temp_path` named in ``folder`` (and its subfolders,
+    ``depth`` levels down) whose writing process is gone: what a killed run left behind.
+    A temporary file of a process still running is kept. Call it while holding the folder
+    (:func:`~sea3d.pipeline.lock.output_lock`).
+
+    Returns:
+        The files removed.
+    """
+    removed: list[Path] = []
+    root = Path(folder)
+    level = [root]
+    for _ in range(depth + 1):
+        below: list[Path] = []
+        for d in level:
+            try:
+                entries = list(os.scandir(d))
+            except OSError:
+                continue
+            for e in entries:
+                if e.is_dir(follow_symlinks=False):
+                    below.append(Path(e.path))
+                    continue
+                m = _TEMP_NAME.match(e.name)
+                if m is None or _alive(int(m["pid"])):
+                    continue
+                with contextlib.suppress(OSError):
+                    os.unlink(e.path)
+                    removed.append(Path(e.path))
+        level = below
+    return removed
 
 
 def _fsync_path(path: Path) -> None:

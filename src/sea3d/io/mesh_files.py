@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 from sea3d.errors import ReconError
 from sea3d.geometry.mesh import Mesh
-from sea3d.io._atomic import atomic_path
+from sea3d.io._atomic import atomic_open, atomic_path
 
 __all__ = [
     "read_compact_mesh",
@@ -27,14 +27,58 @@ __all__ = [
 ]
 
 
+def _write_ply(path: Path, vertices: NDArray[np.float64], *,
+               colors_rgb: NDArray[np.uint8] | None = None,
+               normals: NDArray[np.float64] | None = None,
+               triangles: NDArray[np.int64] | None = None) -> None:
+    """Binary little-endian PLY, atomically: double x y z, [double nx ny nz], [uchar red
+    green blue] per vertex, [``list uchar int vertex_indices`` per triangle].
+
+    Written here, not by Open3D: Open3D's PLY writer reports success after writes that
+    failed (a full disk: a file cut short, or with vertices and no faces); Python's file
+    writes raise instead.
+
+    Raises:
+        OSError: the file cannot be written (nothing is left under ``path``).
+    """
+    n = len(vertices)
+    fields: list[tuple[str, str]] = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
+    head = ["ply", "format binary_little_endian 1.0", f"element vertex {n}",
+            "property double x", "property double y", "property double z"]
+    if normals is not None:
+        fields += [("nx", "<f8"), ("ny", "<f8"), ("nz", "<f8")]
+        head += ["property double nx", "property double ny", "property double nz"]
+    if colors_rgb is not None:
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+        head += ["property uchar red", "property uchar green", "property uchar blue"]
+    rec = np.empty(n, dtype=fields)
+    for i, k in enumerate("xyz"):
+        rec[k] = vertices[:, i]
+        if normals is not None:
+            rec["n" + k] = normals[:, i]
+    if colors_rgb is not None:
+        for i, k in enumerate(("red", "green", "blue")):
+            rec[k] = colors_rgb[:, i]
+    faces = None
+    if triangles is not None:
+        head += [f"element face {len(triangles)}", "property list uchar int vertex_indices"]
+        faces = np.empty(len(triangles), dtype=[("n", "u1"), ("v", "<i4", (3,))])
+        faces["n"], faces["v"] = 3, triangles
+    head.append("end_header")
+    with atomic_open(path, "wb") as fh:
+        fh.write(("\n".join(head) + "\n").encode("ascii"))
+        fh.write(rec.tobytes())
+        if faces is not None:
+            fh.write(faces.tobytes())
+
+
 def write_mesh(path: str | os.PathLike[str], mesh: Mesh) -> None:
     """Write a :class:`~sea3d.geometry.mesh.Mesh` (format from the extension, PLY binary).
 
     Raises:
-        ReconError: the file cannot be written.
+        ReconError: the file cannot be written (a full disk included: nothing is then left
+            under ``path``).
     """
-    import open3d as o3d
-
     p = Path(path)
     if len(mesh.vertices) == 0 or len(mesh.triangles) == 0:
         raise ReconError(
@@ -42,20 +86,32 @@ def write_mesh(path: str | os.PathLike[str], mesh: Mesh) -> None:
             f"{len(mesh.triangles)} triangles): nothing was fused into it (no depth inside "
             "the fusion volume?)"
         )
-    m = o3d.geometry.TriangleMesh()
-    m.vertices = o3d.utility.Vector3dVector(np.ascontiguousarray(mesh.vertices, np.float64))
-    m.triangles = o3d.utility.Vector3iVector(np.ascontiguousarray(mesh.triangles, np.int32))
-    if mesh.colors_rgb is not None:
-        m.vertex_colors = o3d.utility.Vector3dVector(mesh.colors_rgb.astype(np.float64) / 255.0)
-    if mesh.normals is not None:
-        m.vertex_normals = o3d.utility.Vector3dVector(np.ascontiguousarray(mesh.normals))
+    vertices = np.ascontiguousarray(mesh.vertices, np.float64)
+    triangles = np.ascontiguousarray(mesh.triangles, np.int64)
     try:
+        if p.suffix.lower() == ".ply":
+            _write_ply(p, vertices, colors_rgb=mesh.colors_rgb, triangles=triangles,
+                       normals=None if mesh.normals is None else np.asarray(mesh.normals))
+            return
+        import open3d as o3d
+
+        m = o3d.geometry.TriangleMesh()
+        m.vertices = o3d.utility.Vector3dVector(vertices)
+        m.triangles = o3d.utility.Vector3iVector(triangles.astype(np.int32))
+        if mesh.colors_rgb is not None:
+            m.vertex_colors = o3d.utility.Vector3dVector(
+                mesh.colors_rgb.astype(np.float64) / 255.0)
+        if mesh.normals is not None:
+            m.vertex_normals = o3d.utility.Vector3dVector(np.ascontiguousarray(mesh.normals))
         with atomic_path(p) as tmp:
-            ok = o3d.io.write_triangle_mesh(tmp, m, write_ascii=False, compressed=False)
-            if not ok:
+            if not o3d.io.write_triangle_mesh(tmp, m, write_ascii=False, compressed=False):
                 raise ReconError(
                     f"cannot write mesh {p} (Open3D refused the format {p.suffix!r})"
                 )
+            back = o3d.io.read_triangle_mesh(tmp)  # Open3D does not report failed writes
+            if len(back.triangles) != len(triangles):
+                raise ReconError(f"cannot write mesh {p}: {len(back.triangles)} of "
+                                 f"{len(triangles)} triangles read back (is the disk full?)")
     except OSError as err:
         raise ReconError(f"cannot write mesh {p}: {err}") from err
 
@@ -72,27 +128,37 @@ def write_point_cloud(
         points: (N, 3) metres. colors_rgb: (N, 3) uint8 or None. normals: (N, 3) or None.
 
     Raises:
-        ReconError: mismatched shapes or an unwritable file.
+        ReconError: mismatched shapes or an unwritable file (a full disk included: nothing
+            is then left under ``path``).
     """
-    import open3d as o3d
-
     p = Path(path)
     pts = np.asarray(points, np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ReconError(f"points must be (N, 3), got {pts.shape}")
-    pc = o3d.geometry.PointCloud()
-    pc.points = o3d.utility.Vector3dVector(pts)
     for name, a in (("colours", colors_rgb), ("normals", normals)):
         if a is not None and np.asarray(a).shape != pts.shape:
             raise ReconError(f"{name} {np.asarray(a).shape} do not match points {pts.shape}")
-    if colors_rgb is not None:
-        pc.colors = o3d.utility.Vector3dVector(np.asarray(colors_rgb, np.float64) / 255.0)
-    if normals is not None:
-        pc.normals = o3d.utility.Vector3dVector(np.asarray(normals, np.float64))
     try:
+        if p.suffix.lower() == ".ply":
+            _write_ply(p, pts,
+                       colors_rgb=None if colors_rgb is None else np.asarray(colors_rgb),
+                       normals=None if normals is None else np.asarray(normals, np.float64))
+            return
+        import open3d as o3d
+
+        pc = o3d.geometry.PointCloud()
+        pc.points = o3d.utility.Vector3dVector(pts)
+        if colors_rgb is not None:
+            pc.colors = o3d.utility.Vector3dVector(np.asarray(colors_rgb, np.float64) / 255.0)
+        if normals is not None:
+            pc.normals = o3d.utility.Vector3dVector(np.asarray(normals, np.float64))
         with atomic_path(p) as tmp:
             if not o3d.io.write_point_cloud(tmp, pc, write_ascii=False, compressed=False):
                 raise ReconError(f"cannot write point cloud {p} (format {p.suffix!r})")
+            back = o3d.io.read_point_cloud(tmp)  # Open3D does not report failed writes
+            if len(back.points) != len(pts):
+                raise ReconError(f"cannot write point cloud {p}: {len(back.points)} of "
+                                 f"{len(pts)} points read back (is the disk full?)")
     except OSError as err:
         raise ReconError(f"cannot write point cloud {p}: {err}") from err
 

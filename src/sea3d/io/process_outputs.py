@@ -25,7 +25,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sea3d.io._atomic import atomic_open, atomic_write
+from sea3d.errors import SessionError
+from sea3d.io._atomic import atomic_open, atomic_path, atomic_write
 
 __all__ = ["FrameRow", "process_files", "read_status_csv", "read_summary_json",
            "write_process_outputs", "write_status_csv", "write_summary_json"]
@@ -72,8 +73,15 @@ def _json_default(o: Any) -> Any:
 def write_summary_json(path: Path, data: dict[str, Any],
                        default: Callable[[Any], Any] | None = None) -> None:
     """summary.json (atomic). ``default`` turns what JSON cannot hold into what it can
-    (numpy scalars and arrays and paths by default; ``str`` takes anything)."""
-    atomic_write(path, json.dumps(data, indent=2, default=default or _json_default) + "\n")
+    (numpy scalars and arrays and paths by default; ``str`` takes anything).
+
+    Raises:
+        SessionError: it cannot be written (the previous one, if any, is left as it was).
+    """
+    try:
+        atomic_write(path, json.dumps(data, indent=2, default=default or _json_default) + "\n")
+    except OSError as err:
+        raise SessionError(f"cannot write {path}: {err}") from err
 
 
 def write_status_csv(path: Path, rows: Sequence[FrameRow]) -> None:
@@ -110,14 +118,12 @@ def _write_results_mcap(path: Path, t_ns: NDArray[np.int64], T: NDArray[np.float
                         statuses: Sequence[str], mesh: Any, cloud: Any, rig: Any) -> None:
     from sea3d.io.foxglove_mcap import write_results_mcap
 
-    tmp = path.with_name(path.name + ".partial")
-    tmp.unlink(missing_ok=True)
-    counts = write_results_mcap(
-        tmp, trajectory=(t_ns, T), status=list(statuses),
-        cloud=(cloud.points, cloud.colors),
-        mesh=(mesh.vertices, mesh.triangles, mesh.colors_rgb), rig=rig,
-    )
-    tmp.replace(path)
+    with atomic_path(path) as tmp:
+        counts = write_results_mcap(
+            tmp, trajectory=(t_ns, T), status=list(statuses),
+            cloud=(cloud.points, cloud.colors),
+            mesh=(mesh.vertices, mesh.triangles, mesh.colors_rgb), rig=rig,
+        )
     _log.info("wrote %s: %s", path, counts)  # under its own name, not the temporary one
 
 
@@ -136,7 +142,8 @@ def write_process_outputs(out_dir: Path, *, t_ns: NDArray[np.int64], T_world_lef
         rig: the stereo rig (for ``/tf`` in results.mcap).
 
     Raises:
-        SessionError: a file cannot be written.
+        SessionError, ReconError, OdometryError: a file cannot be written (a full disk
+            included); each file is whole under its name, or not there.
     """
     from sea3d.io.mesh_files import write_mesh, write_point_cloud
     from sea3d.io.trajectory_files import write_tum
@@ -148,7 +155,10 @@ def write_process_outputs(out_dir: Path, *, t_ns: NDArray[np.int64], T_world_lef
                      "status.csv")
     write_mesh(files["mesh"], mesh)
     write_point_cloud(files["cloud"], cloud.points, cloud.colors, cloud.normals)
-    write_status_csv(files["status"], rows)
-    _write_results_mcap(files["results_mcap"], t_ns, T_world_left, [r.status for r in rows],
-                        mesh, cloud, rig)
+    try:
+        write_status_csv(files["status"], rows)
+        _write_results_mcap(files["results_mcap"], t_ns, T_world_left,
+                            [r.status for r in rows], mesh, cloud, rig)
+    except OSError as err:
+        raise SessionError(f"cannot write the outputs in {out_dir}: {err}") from err
     return files

@@ -849,12 +849,14 @@ class _Run:
         from sea3d.pipeline.depth_scheduler import StageTimer
         from sea3d.pipeline.executors import ProcessExecutor
         from sea3d.pipeline.frame_stage import install_geometry, stage_depth
+        from sea3d.pipeline.lock import clear_stale_temps
         from sea3d.pipeline.process import make_odometry
         from sea3d.pipeline.submap_store import DiskSubmapStore
         from sea3d.recon.submaps import SubmapFusion
 
         self.config, self.out, self.feed = config, out, feed
         out.mkdir(parents=True, exist_ok=True)
+        clear_stale_temps(out)
         self.timer = StageTimer()
         self.stage = config.frame_stage(native_rig)
         self.stereo = stage_depth(self.stage)

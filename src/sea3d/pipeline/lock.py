@@ -19,7 +19,7 @@ from typing import Any, TypeVar
 
 from sea3d.errors import OutputInUseError, SessionError
 
-__all__ = ["LOCK_NAME", "locks_out_dir", "output_lock"]
+__all__ = ["LOCK_NAME", "clear_stale_temps", "locks_out_dir", "output_lock"]
 
 LOCK_NAME = ".sea3d.lock"
 _log = logging.getLogger(__name__)
@@ -94,3 +94,15 @@ def locks_out_dir(fn: F) -> F:
             return fn(session_path, config, *args, **kwargs)
 
     return wrapper  # type: ignore[return-value]
+
+
+def clear_stale_temps(folder: str | os.PathLike[str]) -> None:
+    """Remove what a killed run left half-written in ``folder`` (its temporary files: a
+    ``.mesh.<pid>-<token>.tmp.ply`` and the like); call it holding the folder's lock."""
+    from sea3d.io._atomic import remove_stale_temps
+
+    removed = remove_stale_temps(folder)
+    if removed:
+        _log.info("%s: removed %d temporary files an earlier run left (%s%s)", folder,
+                  len(removed), ", ".join(p.name for p in removed[:3]),
+                  ", ..." if len(removed) > 3 else "")

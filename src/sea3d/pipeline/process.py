@@ -54,7 +54,7 @@ from sea3d.pipeline.colour_stage import DiveColours
 from sea3d.pipeline.config import ColourConfig, ExecutorConfig, MapConfig, PoseConfig
 from sea3d.pipeline.depth_scheduler import StageTimer
 from sea3d.pipeline.frame_stage import FrameStageConfig, install_geometry, rectify_pair, stage_depth
-from sea3d.pipeline.lock import locks_out_dir
+from sea3d.pipeline.lock import clear_stale_temps, locks_out_dir
 from sea3d.pipeline.ordered import TRUSTED, OrderedStages
 from sea3d.pipeline.progress import ProgressFactory, no_progress
 from sea3d.recon.submaps import FusionConfig
@@ -328,6 +328,7 @@ def run_process(
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise SessionError(f"cannot create the output folder {out}: {err}") from err
+    clear_stale_temps(out)
     with open_session(session_path) as session:
         source = SessionFrames(session, session_path, _rig(session, config),
                                max_frames=config.max_frames)
