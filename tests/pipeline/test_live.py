@@ -138,6 +138,11 @@ def test_cli_live_replay(sim_session, tmp_path, capsys):
                  str(_gt(sim_session)), "--max-frames", "6", "--rate", "5", "--json"]) == 0
     s = json.loads(capsys.readouterr().out)
     assert s["frames"] == 6 and s["live"]["frames"] == 6
+    # the odometry's own poses, without loop closure: the switch reaches the odometry
+    assert main(["live", "--replay", str(sim_session), "-o", str(tmp_path / "nl"),
+                 "--max-frames", "6", "--rate", "5", "--no-loop-closure", "--json"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["loop_checks"]["enabled"] is False and s["loop_closures"] == 0
     assert main(["live", "-o", str(tmp_path / "x")]) == 2  # no source
     assert "give --replay SESSION" in capsys.readouterr().err
     assert main(["live", "-o", str(tmp_path / "x"), "--record", str(tmp_path / "r.mcap"),

@@ -357,6 +357,19 @@ def test_cli_floater_options_reach_fusion(sim_session, first_run, tmp_path, caps
     assert code == 2 and "hole_margin_px must be 0..16" in err and err.count("\n") == 1
 
 
+def test_cli_no_loop_closure_reaches_the_odometry(sim_session, first_run, tmp_path, capsys):
+    seen = []
+    for i, extra in enumerate(([], ["--no-loop-closure"])):
+        out = _with_cache(first_run[0], tmp_path / f"lc{i}")
+        assert main(["process", str(sim_session), "-o", str(out), "--workers", "0", "--json",
+                     "--no-report", *extra]) == 0
+        seen.append(json.loads(capsys.readouterr().out)["loop_checks"])
+    assert seen[0]["enabled"] is True and seen[1]["enabled"] is False
+    assert seen[1]["candidates"] == 0
+    assert set(seen[0]) == {"enabled", "candidates", "verified", "accepted", "rejected_geometry",
+                            "rejected_odometry", "rejected_graph", "rejected_solver"}
+
+
 def test_cache_entries_are_compact_and_old_ones_still_read(first_run, tmp_path):
     """Entries hold float32 depth (exact: a resumed run equals a fresh one) and uint8
     confidence in 16 levels; an entry written before (no confidence) reads back and fuses

@@ -86,6 +86,23 @@ def depth_config(args: argparse.Namespace, **extra: Any) -> Any:
     return DepthConfig(**kw)
 
 
+def add_loop_closure_flag(parser: Any) -> None:
+    """``--no-loop-closure``: the odometry without place recognition and pose-graph loops."""
+    parser.add_argument("--no-loop-closure", action="store_true",
+                        help="odometry without loop closure (the keyframe pose graph is never "
+                        "re-optimised)")
+
+
+def odometry_config(args: argparse.Namespace) -> Any:
+    """The :class:`~sea3d.odometry.OdometryConfig` of a command's odometry flags
+    (``--no-loop-closure``); None, the defaults, when none is given."""
+    if not args.no_loop_closure:
+        return None
+    from sea3d.odometry import OdometryConfig
+
+    return OdometryConfig(loop_closure=False)
+
+
 def deprecated(old: str) -> str:
     """The help-text note of an old spelling kept as an alias."""
     return f"{old}: deprecated alias, kept for one release"

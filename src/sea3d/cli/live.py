@@ -12,7 +12,13 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import config_option, image_size, param_option
+from sea3d.cli._args import (
+    add_loop_closure_flag,
+    config_option,
+    image_size,
+    odometry_config,
+    param_option,
+)
 
 __all__ = ["register"]
 
@@ -47,7 +53,8 @@ def _cmd_live(args: argparse.Namespace) -> int:
     if args.record is not None and not (args.left and args.right):
         raise ConfigError("--record needs --left and --right camera sources")
     config = ProcessConfig(out_dir=args.output, rig_path=args.rig, size_px=args.size,
-                           poses=PoseConfig(poses_path=args.poses, use_imu=not args.no_imu),
+                           poses=PoseConfig(poses_path=args.poses, use_imu=not args.no_imu,
+                                            odometry_config=odometry_config(args)),
                            max_frames=args.max_frames, report=False)
     live = LiveConfig(depth_in_flight=args.depth_in_flight,
                       depth_max_backlog=args.depth_max_backlog or None,  # 0: any
@@ -123,6 +130,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--size", type=image_size, help="process at WxH")
     p.add_argument("--poses", type=Path, help="known T_world_left poses instead of odometry")
     p.add_argument("--no-imu", action="store_true", help="visual odometry only")
+    add_loop_closure_flag(p)
     p.add_argument("--max-frames", type=int, help="only the first N pairs")
     config_option(p, LiveConfig, "depth_in_flight", type=int,
                   help="depth frames computed at once")

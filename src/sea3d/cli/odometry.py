@@ -16,8 +16,16 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from sea3d._text import loop_checks_text
 from sea3d.cli import error_line
-from sea3d.cli._args import add_depth_range, config_option, depth_config, param_option
+from sea3d.cli._args import (
+    add_depth_range,
+    add_loop_closure_flag,
+    config_option,
+    depth_config,
+    odometry_config,
+    param_option,
+)
 from sea3d.errors import ConfigError
 
 __all__ = ["register", "register_calibrate_imu"]
@@ -58,7 +66,7 @@ def register(sub: Any) -> None:
                   help="stereo engine for the depth (sea3d, sea3d-gpu, opencv)")
     add_depth_range(p, near="nearest depth searched", far="farthest depth kept")
     p.add_argument("--max-frames", type=int, help="stop after this many frames")
-    p.add_argument("--no-loop-closure", action="store_true", help="odometry only")
+    add_loop_closure_flag(p)
     g = p.add_argument_group("rgbd")
     g.add_argument("--color", metavar="GLOB", help="colour images (sorted naturally)")
     g.add_argument("--depth", metavar="GLOB", help="depth images, 16-bit (0 = invalid)")
@@ -88,12 +96,6 @@ def _progress(total: int | None, desc: str, enabled: bool = True) -> Any:
     return bar(total, desc, enabled=enabled)
 
 
-def _config(args: argparse.Namespace) -> Any:
-    from sea3d.odometry import OdometryConfig
-
-    return OdometryConfig(loop_closure=not args.no_loop_closure)
-
-
 def _report(args: argparse.Namespace, out: Any) -> int:
     s = out.summary
     if args.json:
@@ -106,7 +108,8 @@ def _report(args: argparse.Namespace, out: Any) -> int:
         print(
             f"wrote {s['frames']} poses to {args.output}: {s['keyframes']} keyframes, "
             f"{s['loop_closures']} loop closures ({s.get('relinks', 0)} re-links across lost "
-            f"frames apart), path {s['path_length_m']:.2f} m; frames "
+            f"frames apart){loop_checks_text(s.get('loop_checks', {}))}, path "
+            f"{s['path_length_m']:.2f} m; frames "
             f"tracking {st['tracking']}, imu_only {st['imu_only']}, lost {st['lost']}, "
             f"relocalised {st['relocalised']}, initialising {st['initialising']}; "
             f"{'with IMU' if s['imu'] else 'visual-only'}; {s['seconds']:.1f} s"
@@ -158,7 +161,7 @@ def _run(args: argparse.Namespace) -> int:
             rig_path=args.rig,
             use_imu=not args.no_imu,
             depth=depth_config(args),
-            config=_config(args),
+            config=odometry_config(args),
             max_frames=args.max_frames,
             progress=bar.update,
             on_start=bar.start,
@@ -186,7 +189,7 @@ def _run_rgbd(args: argparse.Namespace) -> int:
             status_csv=args.status,
             depth_scale=args.depth_scale,
             method=args.method,
-            config=_config(args),
+            config=odometry_config(args),
             progress=bar.update,
             on_start=bar.start,
             dense_config=DenseRgbdConfig(

@@ -15,8 +15,17 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from sea3d._text import loop_checks_text
 from sea3d.cli import error_line
-from sea3d.cli._args import add_depth_range, config_option, image_size, param_option, plural
+from sea3d.cli._args import (
+    add_depth_range,
+    add_loop_closure_flag,
+    config_option,
+    image_size,
+    odometry_config,
+    param_option,
+    plural,
+)
 
 __all__ = ["register", "register_eval"]
 
@@ -49,7 +58,8 @@ def _cmd_process(args: argparse.Namespace) -> int:
                       carve_free_space=args.carve_free_space,
                       min_confidence=args.fusion_min_confidence,
                       confidence_full=args.fusion_confidence_full),
-        poses=PoseConfig(use_imu=not args.no_imu, poses_path=args.poses),
+        poses=PoseConfig(use_imu=not args.no_imu, poses_path=args.poses,
+                         odometry_config=odometry_config(args)),
         colours=ColourConfig(
             enhance=process_enhance_hook(args.enhance) if args.enhance else None,
             restore_colours=args.restore_colours),
@@ -70,7 +80,8 @@ def _cmd_process(args: argparse.Namespace) -> int:
     print(
         f"{plural(s['frames'], 'frame')}: {plural(s['keyframes'], 'keyframe')}, "
         f"{s['frames_lost']} lost, {plural(s['loop_closures'], 'loop closure')}"
-        f" ({plural(s.get('relinks', 0), 're-link')} across lost frames apart), path "
+        f" ({plural(s.get('relinks', 0), 're-link')} across lost frames apart)"
+        f"{loop_checks_text(s.get('loop_checks', {}))}, path "
         f"{s['path_length_m']:.2f} m; poses from {s['odometry']}"
     )
     fps = s.get("frames_per_second")
@@ -279,6 +290,7 @@ def register(sub: Any) -> None:
     config_option(p, MapConfig, "voxel_m", type=float, metavar="V",
                   help="TSDF voxel edge in metres")
     p.add_argument("--no-imu", action="store_true", help="visual odometry only")
+    add_loop_closure_flag(p)
     ex = p.add_mutually_exclusive_group()
     ex.add_argument("--workers", type=int, metavar="N",
                     help="local worker processes for the per-frame stage (default: one per "

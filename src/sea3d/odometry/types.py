@@ -52,6 +52,7 @@ class LoopChecks:
     """What became of the loop candidates of a run (counters, updated as it goes).
 
     Attributes:
+        enabled: whether the odometry searches for loops at all (``--no-loop-closure``: no).
         candidates: keyframes proposed by place recognition (or, for a segment not yet
             joined, the other segments' last keyframes) and checked geometrically.
         verified: candidates whose geometry held (:func:`~sea3d.odometry.loop.verify_loop`).
@@ -63,6 +64,7 @@ class LoopChecks:
         rejected_solver: loops undone because the pose graph optimisation failed.
     """
 
+    enabled: bool = True
     candidates: int = 0
     verified: int = 0
     accepted: int = 0
@@ -70,9 +72,10 @@ class LoopChecks:
     rejected_graph: int = 0
     rejected_solver: int = 0
 
-    def as_dict(self) -> dict[str, int]:
+    def as_dict(self) -> dict[str, int | bool]:
         """The counters by name (for summaries)."""
         return {
+            "enabled": self.enabled,
             "candidates": self.candidates,
             "verified": self.verified,
             "accepted": self.accepted,

@@ -178,7 +178,7 @@ class StereoInertialOdometry:
         self._clahe = cv2.createCLAHE(clipLimit=3.0, tileGridSize=(8, 8))
         self.loop_closures = 0
         self.relinks = 0
-        self.loop_checks = LoopChecks()
+        self.loop_checks = LoopChecks(enabled=self.config.loop_closure)
         self._last_relink = False
         self.frames_lost = 0
         self.seconds = 0.0

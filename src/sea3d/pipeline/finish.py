@@ -107,6 +107,7 @@ def run_summary(stages: OrderedStages, rec: Reconstruction, **extra: Any) -> dic
         "frames_from_cache": extra.pop("frames_from_cache", 0),
         "loop_closures": stages.loop_closures,
         "relinks": stages.relinks,
+        "loop_checks": stages.loop_checks.as_dict(),
         "segments": int(seg.max() + 1) if len(seg) else 0,
         "path_length_m": (_path_length(rec.T_world_left, trusted, seg)
                           if len(rec.T_world_left) > 1 else 0.0),

@@ -31,7 +31,8 @@ from sea3d.geometry.rig import StereoRig
 from sea3d.odometry.config import OdometryConfig
 from sea3d.odometry.observe import Observer, imu_chunks
 from sea3d.odometry.rgbd_dense import DenseRgbdConfig
-from sea3d.odometry.types import FrameObservation, ImuChunk, TrackingStatus
+from sea3d.odometry.types import FrameObservation, ImuChunk, LoopChecks, TrackingStatus
+from sea3d.odometry.vio import StereoInertialOdometry
 from sea3d.stereo.recipe import DepthConfig
 
 __all__ = [
@@ -293,6 +294,8 @@ def run_odometry(
         "frames_lost": int(counts.get(TrackingStatus.LOST.value, 0)),
         "loop_closures": int(getattr(odometry, "loop_closures", 0)),
         "relinks": int(getattr(odometry, "relinks", 0)),
+        "loop_checks": (odometry.loop_checks if isinstance(odometry, StereoInertialOdometry)
+                        else LoopChecks(enabled=False)).as_dict(),
         "path_length_m": path_length_m(T, statuses),
         "seconds": time.perf_counter() - t0,
         "seconds_odometry": seconds_odo,

@@ -16,7 +16,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d._typing import F64
-from sea3d.odometry.types import FrameObservation, ImuChunk, Odometry, OdometryEstimate
+from sea3d.odometry.types import (
+    FrameObservation,
+    ImuChunk,
+    LoopChecks,
+    Odometry,
+    OdometryEstimate,
+)
 from sea3d.odometry.types import TrackingStatus as TS
 from sea3d.pipeline.depth_scheduler import StageTimer
 from sea3d.pipeline.frame_stage import FrameResult
@@ -67,6 +73,16 @@ class OrderedStages:
         self.failed = 0
         self.loop_closures = 0
         self.relinks = 0  # closures that re-link neighbouring keyframes across a lost stretch
+
+    @property
+    def loop_checks(self) -> LoopChecks:
+        """What became of the odometry's loop candidates (zeros for an odometry that closes
+        no loops: known poses)."""
+        from sea3d.odometry.vio import StereoInertialOdometry
+
+        if isinstance(self.odometry, StereoInertialOdometry):
+            return self.odometry.loop_checks
+        return LoopChecks(enabled=False)
 
     def step(self, res: FrameResult, imu: ImuChunk | None, *, fuse: bool = True
              ) -> OdometryEstimate | None:
