@@ -123,3 +123,44 @@ def test_the_cli_refuses_a_second_process_in_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert rc != 0
     assert len(err) == 1 and "is in use by another sea3d run (pid" in err[0], err
+
+
+def test_live_takes_the_folder_lock_as_process_does(tmp_path):
+    from sea3d.pipeline.live import run_live_cameras, run_live_replay
+    from sea3d.pipeline.process import ProcessConfig
+
+    out = tmp_path / "out"
+    config = ProcessConfig(out_dir=out)
+    with output_lock(out):
+        with pytest.raises(OutputInUseError):
+            run_live_replay(tmp_path / "no_such_session.mcap", config)
+        with pytest.raises(OutputInUseError):
+            run_live_cameras(object(), config)  # refused before the recorder is touched
+
+
+@pytest.mark.slow
+def test_a_second_live_or_process_into_a_running_live_folder_is_refused(sim_session, tmp_path,
+                                                                        capsys):
+    from sea3d.cli import main
+
+    gt = sim_session.with_name(sim_session.stem + "_gt") / "poses_left.tum"
+    out = tmp_path / "out"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    code = "import sys; from sea3d.cli import main; sys.exit(main())"
+    first = subprocess.Popen(
+        [sys.executable, "-c", code, "-q", "live", "--replay", str(sim_session), "-o",
+         str(out), "--poses", str(gt), "--max-frames", "12", "--rate", "0.5"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        deadline = time.monotonic() + STARTUP_S
+        while not (out / LOCK_NAME).is_file() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert first.poll() is None
+        for argv in (["live", "--replay", str(sim_session)], ["process", str(sim_session)]):
+            assert main([*argv, "-o", str(out), "--poses", str(gt), "--max-frames", "2"]) == 2
+            err = capsys.readouterr().err.strip().splitlines()
+            assert len(err) == 1 and f"is in use by another sea3d run (pid {first.pid}" in err[0]
+        assert first.poll() is None  # the first run goes on, untouched
+    finally:
+        first.kill()
+        first.wait(30)

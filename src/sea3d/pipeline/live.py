@@ -56,6 +56,7 @@ from sea3d.errors import ConfigError, SessionError
 from sea3d.odometry.types import ImuChunk, OdometryEstimate
 from sea3d.pipeline.frame_source import SessionFrames, imu_between
 from sea3d.pipeline.frame_stage import FrameResult, FrameStageConfig, process_frame, rectify_pair
+from sea3d.pipeline.lock import locks_out_dir
 from sea3d.pipeline.ordered import TRUSTED, OrderedStages
 
 __all__ = ["LiveConfig", "LiveFrame", "LiveStats", "LiveUpdate", "RecorderFrames",
@@ -948,6 +949,7 @@ class _Run:
         return summary
 
 
+@locks_out_dir  # as process: a second run into the folder is refused (OutputInUseError)
 def run_live_replay(session_path: Any, config: Any, live: LiveConfig | None = None, *,
                     rate: float = 1.0, feed: Any = None) -> tuple[dict[str, Any], LiveStats]:
     """``sea3d live --replay``: a recorded session replayed at its rate through the live loop,
@@ -965,6 +967,7 @@ def run_live_replay(session_path: Any, config: Any, live: LiveConfig | None = No
 
     Raises:
         SessionError, ConfigError: as :func:`~sea3d.pipeline.process.run_process`.
+        OutputInUseError: another run (``live`` or ``process``) writes into the folder.
     """
     from sea3d.io.session import open_session
     from sea3d.pipeline.process import _odometry, _rig
@@ -990,6 +993,7 @@ class _RigText:
         self.path, self.rig_yaml = path, rig_yaml
 
 
+@locks_out_dir
 def run_live_cameras(recorder: Any, config: Any, live: LiveConfig | None = None, *,
                      feed: Any = None, pair_tolerance_ns: int | None = None,
                      ) -> tuple[dict[str, Any], LiveStats, Any]:
@@ -1012,8 +1016,10 @@ def run_live_cameras(recorder: Any, config: Any, live: LiveConfig | None = None,
 
     Raises:
         ConfigError: no rig; RigFileError: a bad one; CaptureError: the recorder could not
-            start (nothing was recorded). An error of the live loop stops the recording
-            cleanly (what was written stays readable) and is raised.
+            start (nothing was recorded). OutputInUseError: another run (``live`` or
+            ``process``) writes into the output folder (nothing was recorded). An error of
+            the live loop stops the recording cleanly (what was written stays readable) and
+            is raised.
     """
     from sea3d.io.rig_file import resolve_rig
 
