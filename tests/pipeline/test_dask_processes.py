@@ -154,9 +154,9 @@ def test_a_scheduler_that_is_not_an_address_is_one_line(sim_session, tmp_path, c
     assert "'notanaddress' is not a Dask scheduler address of the form tcp://HOST:PORT" in err
 
 
-def _sum_later(values, seconds):
+def _sum_later(values, seconds, shared=None):
     time.sleep(seconds)
-    return float(values.sum())
+    return float(values.sum()) + (0.0 if shared is None else float(shared.sum()))
 
 
 @pytest.mark.cluster
@@ -169,11 +169,12 @@ def test_calls_of_a_lost_dask_worker_are_submitted_again(dask_processes):
     ex = DaskExecutor(dask_processes)
     try:
         values = np.ones(100_000)  # scattered straight to the worker, lost with it
-        futures = [ex.submit(_sum_later, values, 2.0) for _ in range(3)]
+        shared = ex.share(np.full(10, 0.5))  # on every worker: lost with the only one
+        futures = [ex.submit(_sum_later, values, 2.0, shared) for _ in range(3)]
         time.sleep(1.0)
         for pid in ex.client.run(os.getpid).values():  # its nanny starts a fresh worker
             os.kill(pid, signal.SIGKILL)
-        assert [f.result(timeout=GUARD_S) for f in futures] == [100_000.0] * 3
+        assert [f.result(timeout=GUARD_S) for f in futures] == [100_005.0] * 3
         assert ex.resubmitted >= 1
     finally:
         ex.close()
@@ -201,3 +202,36 @@ def test_a_cluster_left_without_workers_ends_in_one_error(dask_processes):
             fut.result(timeout=GUARD_S)
     finally:
         ex.close()
+
+
+@pytest.mark.cluster
+@pytest.mark.slow
+def test_process_goes_on_when_its_dask_worker_is_killed(sim_session, dask_processes, tmp_path):
+    import distributed
+
+    gt = sim_session.with_name(sim_session.stem + "_gt") / "poses_left.tum"
+    out = tmp_path / "out"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    run = subprocess.Popen(
+        [sys.executable, "-c", CLI, "-q", "process", str(sim_session), "-o", str(out),
+         "--poses", str(gt), "--max-frames", "12", "--no-report", "--json",
+         "--scheduler", dask_processes],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        frames = out / "cache" / "frames"
+        deadline = time.monotonic() + GUARD_S
+        while run.poll() is None and time.monotonic() < deadline:
+            if frames.is_dir() and any(frames.glob("*.s3c")):
+                break  # the worker has frames in hand
+            time.sleep(0.05)
+        with distributed.Client(dask_processes, timeout=5, set_as_default=False) as c:
+            for pid in c.run(os.getpid).values():  # its nanny starts a fresh worker
+                os.kill(pid, signal.SIGKILL)
+        stdout, stderr = run.communicate(timeout=GUARD_S)
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.wait(10)
+    assert run.returncode == 0, stderr
+    assert "a Dask worker was lost with a call" in stderr  # and its frames sent again
+    assert json.loads(stdout)["frames"] == 12
