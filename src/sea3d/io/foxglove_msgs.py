@@ -58,6 +58,7 @@ from foxglove.messages import (
 
 from sea3d.errors import GeometryError
 from sea3d.geometry.se3 import R_to_quat_wxyz, check_T
+from sea3d.io.session.ros_messages import TOPICS as SESSION_TOPICS
 
 __all__ = [
     "IMU_SCHEMA",
@@ -81,13 +82,10 @@ __all__ = [
     "timestamp",
 ]
 
+# The sensors go on a session's own topics, so that a recorded session and what sea3d
+# publishes open in the same Foxglove layout.
 TOPICS = {
-    "left": "/cam/left/image",
-    "right": "/cam/right/image",
-    "left_info": "/cam/left/camera_info",
-    "right_info": "/cam/right/camera_info",
-    "imu": "/imu",
-    "sonar": "/sonar",
+    **{k: SESSION_TOPICS[k] for k in ("left", "right", "left_info", "right_info", "imu", "sonar")},
     "depth": "/depth",
     "disparity": "/disparity",
     "tf": "/tf",
