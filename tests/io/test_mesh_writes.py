@@ -118,3 +118,31 @@ def test_stale_temporaries_of_dead_processes_are_removed(tmp_path):
     removed = _atomic.remove_stale_temps(tmp_path)
     assert sorted(removed) == sorted(stale)
     assert all(p.exists() for p in kept) and not any(p.exists() for p in stale)
+
+
+@pytest.mark.parametrize("writer", ["sea3d", "open3d"])
+def test_a_ply_cut_short_is_refused_not_read_as_a_smaller_mesh(tmp_path, writer):
+    """What a full disk left before writes were checked (a mesh with vertices and no faces,
+    796 of its vertices): Open3D reads it as a smaller mesh; it is now an error."""
+    import open3d as o3d
+
+    rng = np.random.default_rng(0)
+    m = _mesh(rng)
+    path = tmp_path / "mesh.ply"
+    if writer == "sea3d":
+        write_mesh(path, m)
+    else:
+        om = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(m.vertices),
+                                       o3d.utility.Vector3iVector(m.triangles.astype(np.int32)))
+        assert o3d.io.write_triangle_mesh(str(path), om)
+    whole = path.read_bytes()
+    assert len(read_mesh(path).triangles) == len(m.triangles)
+    for cut in (len(whole) - 1, len(whole) // 2, len(whole) // 5):
+        path.write_bytes(whole[:cut])
+        with pytest.raises(ReconError, match=r"mesh.ply is cut short"):
+            read_mesh(path)
+    cloud = tmp_path / "cloud.ply"
+    write_point_cloud(cloud, m.vertices, m.colors_rgb)
+    cloud.write_bytes(cloud.read_bytes()[:-3])
+    with pytest.raises(ReconError, match=r"cloud.ply is cut short"):
+        read_point_cloud(cloud)

@@ -163,18 +163,70 @@ def write_point_cloud(
         raise ReconError(f"cannot write point cloud {p}: {err}") from err
 
 
+_PLY_BYTES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2,
+              "int16": 2, "uint16": 2, "int": 4, "uint": 4, "int32": 4, "uint32": 4,
+              "float": 4, "float32": 4, "double": 8, "float64": 8}
+
+
+def _check_ply_whole(p: Path) -> None:
+    """Refuse a binary PLY file shorter than its header announces (a polygon list counted
+    at its smallest, a triangle): Open3D reads such a file cut short by a full disk or a
+    killed writer as a smaller mesh, without a word. Other files are left to Open3D.
+
+    Raises:
+        ReconError: the file is cut short.
+    """
+    if p.suffix.lower() != ".ply":
+        return
+    with open(p, "rb") as fh:
+        head = fh.read(1 << 16)
+    end = head.find(b"end_header")
+    newline = head.find(b"\n", end)
+    if not head.startswith(b"ply") or end < 0 or newline < 0:
+        return
+    need, count, per_item = newline + 1, 0, 0
+    for line in head[:end].decode("ascii", "replace").splitlines():
+        words = line.split()
+        if not words:
+            continue
+        if words[0] == "format" and not words[1:2] == ["binary_little_endian"] \
+                and not words[1:2] == ["binary_big_endian"]:
+            return  # ASCII
+        if words[0] == "element" and len(words) == 3:
+            need += count * per_item
+            count, per_item = int(words[2]) if words[2].isdigit() else 0, 0
+        elif words[0] == "property" and len(words) >= 3:
+            if words[1] == "list" and len(words) == 5:
+                if words[2] not in _PLY_BYTES or words[3] not in _PLY_BYTES:
+                    return
+                polygon = words[4] in ("vertex_indices", "vertex_index")
+                per_item += _PLY_BYTES[words[2]] + (3 * _PLY_BYTES[words[3]] if polygon else 0)
+            elif words[1] in _PLY_BYTES:
+                per_item += _PLY_BYTES[words[1]]
+            else:
+                return
+    need += count * per_item
+    size = p.stat().st_size
+    if size < need:
+        raise ReconError(f"{p} is cut short: {size} bytes where its header announces at "
+                         f"least {need} (written by a run that was killed or whose disk "
+                         "filled); write it again")
+
+
 def read_mesh(path: str | os.PathLike[str]) -> Mesh:
     """Read a triangle mesh; a file without triangles comes back as a mesh of its vertices
     only (``triangles`` empty), so point clouds can be evaluated too.
 
     Raises:
-        ReconError: missing or unreadable file, or one with no vertices.
+        ReconError: missing or unreadable file, one with no vertices, or a binary PLY file
+            cut short.
     """
     import open3d as o3d
 
     p = Path(path)
     if not p.is_file():
         raise ReconError(f"mesh {p} does not exist")
+    _check_ply_whole(p)
     m = o3d.io.read_triangle_mesh(p)
     v = np.asarray(m.vertices, np.float64)
     f = np.asarray(m.triangles, np.int64).reshape(-1, 3)
@@ -195,13 +247,14 @@ def read_point_cloud(path: str | os.PathLike[str]) -> tuple[NDArray[np.float64],
     """Points (N, 3) and colours (N, 3) uint8 (or None) of a point-cloud file.
 
     Raises:
-        ReconError: missing, unreadable or empty file.
+        ReconError: missing, unreadable or empty file, or a binary PLY file cut short.
     """
     import open3d as o3d
 
     p = Path(path)
     if not p.is_file():
         raise ReconError(f"point cloud {p} does not exist")
+    _check_ply_whole(p)
     pc = o3d.io.read_point_cloud(p)
     pts = np.asarray(pc.points, np.float64)
     if len(pts) == 0:
