@@ -55,13 +55,14 @@ colour. :func:`seathru` does both.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
 import cv2
 import numpy as np
 import scipy.sparse as sp
-from scipy.optimize import least_squares
+from scipy.optimize import OptimizeResult, least_squares
 from scipy.sparse.linalg import splu
 
 from sea3d._typing import F32, F64, BoolArray
@@ -456,14 +457,8 @@ def _fit_backscatter_channel(
             for beta_b in (0.3, 2.0)
             for j0, beta_d in ((0.0, 1.0), (0.3 * top, 0.5), (top, 1.5))
         ]
-        for beta_b, j0, beta_d in starts:
-            x0 = np.array([top, beta_b, j0, beta_d])
-            try:
-                r = least_squares(resid, x0, bounds=(lo, hi), method="trf", max_nfev=300)
-            except (ValueError, np.linalg.LinAlgError):  # pragma: no cover - defensive
-                continue
-            if np.all(np.isfinite(r.x)) and (best is None or r.cost < best.cost):
-                best = r
+        best = _best_fit(resid, [[top, beta_b, j0, beta_d] for beta_b, j0, beta_d in starts],
+                         (lo, hi))
     if best is None:
         notes.append(f"backscatter: channel {channel} not fitted; constant level")
         level = float(np.clip(np.median(v), 0.0, 1.0))
@@ -586,20 +581,8 @@ def _fit_attenuation(
             beta = np.maximum(_beta_model(z, p[0], p[1], p[2], p[3]), 1e-6)
             return np.asarray(z - y / beta)
 
-        best = None
-        for x0 in ([beta0, 0.0, 0.0, -1.0], [0.5 * beta0, -0.1, 0.5 * beta0, -1.0]):
-            try:
-                r = least_squares(
-                    resid,
-                    np.asarray(x0, dtype=np.float64),
-                    bounds=([0.0, -10.0, 0.0, -10.0], [50.0, 0.0, 50.0, 0.0]),
-                    method="trf",
-                    max_nfev=300,
-                )
-            except (ValueError, np.linalg.LinAlgError):  # pragma: no cover - defensive
-                continue
-            if np.all(np.isfinite(r.x)) and (best is None or r.cost < best.cost):
-                best = r
+        best = _best_fit(resid, [[beta0, 0.0, 0.0, -1.0], [0.5 * beta0, -0.1, 0.5 * beta0, -1.0]],
+                         ([0.0, -10.0, 0.0, -10.0], [50.0, 0.0, 50.0, 0.0]))
         if best is not None and best.cost < 0.95 * cost1:
             params.append(tuple(float(v) for v in best.x))  # type: ignore[arg-type]
             kinds.append("two-term")
@@ -627,23 +610,29 @@ def _fit_attenuation_scaled(z: F64, y: F64) -> tuple[float, float, float, float]
     def resid(p: F64) -> F64:
         return np.asarray(_beta_model(z, p[0], p[1], p[2], p[3]) * z - p[4] - y)
 
+    best = _best_fit(resid, [[beta0, 0.0, 0.0, -1.0, kappa0],
+                             [0.5 * beta0, -0.1, 0.5 * beta0, -1.0, kappa0]],
+                     ([0.0, -10.0, 0.0, -10.0, -50.0], [50.0, 0.0, 50.0, 0.0, 50.0]))
+    if best is not None and best.cost < 0.95 * cost1:
+        return (float(best.x[0]), float(best.x[1]), float(best.x[2]), float(best.x[3]))
+    return (beta0, 0.0, 0.0, 0.0)
+
+
+def _best_fit(resid: Callable[[F64], F64], starts: Sequence[Sequence[float]],
+              bounds: tuple[Sequence[float] | F64, Sequence[float] | F64]) -> OptimizeResult | None:
+    """The bounded least-squares fit (trust region, at most 300 evaluations) of ``resid`` with
+    the lowest cost over the start points ``starts``; None when none ends at finite
+    parameters."""
     best = None
-    for x0 in ([beta0, 0.0, 0.0, -1.0, kappa0], [0.5 * beta0, -0.1, 0.5 * beta0, -1.0, kappa0]):
+    for x0 in starts:
         try:
-            r = least_squares(
-                resid,
-                np.asarray(x0, dtype=np.float64),
-                bounds=([0.0, -10.0, 0.0, -10.0, -50.0], [50.0, 0.0, 50.0, 0.0, 50.0]),
-                method="trf",
-                max_nfev=300,
-            )
+            r = least_squares(resid, np.asarray(x0, dtype=np.float64), bounds=bounds,
+                              method="trf", max_nfev=300)
         except (ValueError, np.linalg.LinAlgError):  # pragma: no cover - defensive
             continue
         if np.all(np.isfinite(r.x)) and (best is None or r.cost < best.cost):
             best = r
-    if best is not None and best.cost < 0.95 * cost1:
-        return (float(best.x[0]), float(best.x[1]), float(best.x[2]), float(best.x[3]))
-    return (beta0, 0.0, 0.0, 0.0)
+    return best
 
 
 # ------------------------------------------------------------------------------ holes
