@@ -175,7 +175,8 @@ def test_real_charuco_photos(data_dir: Path) -> None:
     full = detect_board(cv2.imread(str(folder / "choriginal.jpg"))[:, :, ::-1], board)
     assert full.status is DetectionStatus.DETECTED and len(full) == 24  # SOURCE.md: 24/24
     occluded = detect_board(cv2.imread(str(folder / "chocclusion.jpg"))[:, :, ::-1], board)
-    assert occluded.status in (DetectionStatus.PARTIAL, DetectionStatus.NOT_FOUND)
+    # SOURCE.md: OpenCV's CharucoDetector finds 1 of the 24 corners behind the occlusion.
+    assert occluded.status is DetectionStatus.PARTIAL and len(occluded) == 1
 
 
 @pytest.mark.data
