@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from odometry._chess import K, ate_m, load_chess, obs, open3d_f2f
+from odometry._chess import K, ate_m, obs, open3d_f2f
 from sea3d.errors import OdometryError
 from sea3d.odometry import TrackingStatus
 from sea3d.odometry.rgbd_dense import DenseRgbdConfig, DenseRgbdOdometry
@@ -16,13 +16,6 @@ from sea3d.odometry.rgbd_loop import RgbdLoopCloser
 from sea3d.odometry.rgbd_model import TsdfModel, voxel_from_depth
 
 pytestmark = pytest.mark.data
-
-
-
-@pytest.fixture(scope="module")
-def chess(data_dir):
-    return load_chess(data_dir, 60)
-
 
 
 def test_voxel_from_depth_is_the_pixel_footprint_at_the_median_depth() -> None:
