@@ -4,8 +4,10 @@ reference in the same run.
 1. Simulated dives (``benchmarks/odometry_sessions.py`` renders them once into the cache):
    a 3,000-frame lawnmower survey through the paper's dome ports (640x360, coastal water), a
    600-frame orbit, and 600 frames through flat ports. For each: sea3d with the IMU and
-   visual-only (frames, keyframes, lost, loops, ATE against the simulator's truth after an SE3
-   alignment, in metres and in per cent of the path, ms per frame wall and CPU, peak memory),
+   visual-only, each with and without loop closure (frames, keyframes, lost, loops, ATE
+   against the simulator's truth after an SE3 alignment, in metres and in per cent of the path,
+   ms per frame wall and CPU, peak memory; the closures' precision and recall, a closure being
+   right when its relative pose is within 3 cm and 1 degree of the truth),
    and beside it the paper's method: Open3D's frame-to-frame ``rgbd_odometry_multi_scale`` on
    the same rectified images and depth maps (``--no-reference`` skips it).
 2. 7-Scenes chess (60 frames, ``../shared/data/rgbd/7scenes_chess``): sea3d's RGB-D mode
@@ -166,13 +168,52 @@ def _observations(cache: Path, name: str, engine: str, use_imu: bool, limit: int
     return rig, maps, stamps, gt_t, gt_T, frames, reader
 
 
-def run_sea3d(cache: Path, name: str, engine: str, use_imu: bool, limit: int | None) -> dict:
+# a closure is right when its relative pose is within these of the truth (as in the tests)
+LOOP_RIGHT_M = 0.03
+LOOP_RIGHT_DEG = 1.0
+
+
+def loop_precision_recall(checks, maps, gt_t: np.ndarray, gt_T: np.ndarray) -> dict:
+    """Each verified loop's relative pose against the ground truth: ``right`` when within
+    ``LOOP_RIGHT_M`` and ``LOOP_RIGHT_DEG``. Precision: right among the accepted; recall:
+    accepted among the right ones verified (what the consistency tests let through)."""
+    from sea3d.geometry.se3 import R_to_rotvec
+
+    gt = {int(t): T for t, T in zip(gt_t.tolist(), gt_T, strict=True)}
+    T_left_rect = np.eye(4)
+    T_left_rect[:3, :3] = np.asarray(maps.R_rect_left_left).T
+    rows = []
+    for rec in checks.verified_loops:
+        if rec.t_query_ns not in gt or rec.t_candidate_ns not in gt:
+            continue
+        true = np.linalg.inv(gt[rec.t_candidate_ns] @ T_left_rect) @ (gt[rec.t_query_ns]
+                                                                      @ T_left_rect)
+        D = np.linalg.inv(true) @ rec.T_candidate_query
+        err_m = float(np.linalg.norm(D[:3, 3]))
+        err_deg = float(np.degrees(np.linalg.norm(R_to_rotvec(D[:3, :3]))))
+        rows.append((rec.outcome == "accepted", err_m < LOOP_RIGHT_M and err_deg < LOOP_RIGHT_DEG,
+                     err_m, err_deg))
+    accepted = [r for r in rows if r[0]]
+    right = [r for r in rows if r[1]]
+    return {
+        "loops_verified": len(rows), "loops_accepted": len(accepted),
+        "loops_right_accepted": sum(r[1] for r in accepted),
+        "loop_precision": (sum(r[1] for r in accepted) / len(accepted)) if accepted else None,
+        "loop_recall": (sum(r[0] for r in right) / len(right)) if right else None,
+        "loop_err_mm_max": max((1e3 * r[2] for r in accepted), default=None),
+        "loop_err_deg_max": max((r[3] for r in accepted), default=None),
+    }
+
+
+def run_sea3d(cache: Path, name: str, engine: str, use_imu: bool, limit: int | None,
+              loop_closure: bool = True) -> dict:
     """One run of sea3d's odometry on a cached session (in this process)."""
-    from sea3d.odometry import TrackingStatus, create_odometry
+    from sea3d.odometry import OdometryConfig, TrackingStatus, create_odometry
 
     rig, maps, _, gt_t, gt_T, frames, reader = _observations(cache, name, engine, use_imu,
                                                                    limit)
-    odo = create_odometry(rig, maps, use_imu=use_imu)
+    odo = create_odometry(rig, maps, use_imu=use_imu,
+                          config=OdometryConfig(loop_closure=loop_closure))
     step_wall, step_cpu, statuses = [], [], []
     for obs in frames():
         w0, c0 = time.perf_counter(), time.process_time()
@@ -185,7 +226,9 @@ def run_sea3d(cache: Path, name: str, engine: str, use_imu: bool, limit: int | N
     n = len(statuses)
     q = max(n // 6, 1)
     return {
-        "name": name, "method": "sea3d " + ("stereo+IMU" if use_imu else "stereo"),
+        "name": name, "method": "sea3d " + ("stereo+IMU" if use_imu else "stereo")
+        + ("" if loop_closure else " no loops"),
+        **loop_precision_recall(odo.loop_checks, maps, gt_t, gt_T),
         "frames": n, "keyframes": odo.keyframe_count,
         "lost": sum(s is TrackingStatus.LOST for s in statuses),
         "not_tracking": sum(s not in (TrackingStatus.TRACKING, TrackingStatus.RELOCALISED)
@@ -287,6 +330,10 @@ def _child(args: argparse.Namespace, what: str, name: str) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def _pct(x: float | None) -> str:
+    return "-" if x is None else f"{100 * x:.0f} %"
+
+
 def _row(r: dict) -> None:
     print(
         f"  {r['method']:<20}{r['frames']:>7}{r['keyframes']:>6}{r['not_tracking']:>6}"
@@ -315,8 +362,16 @@ def bench_sessions(args: argparse.Namespace) -> None:
         results = [_child(args, "vio", name), _child(args, "vo", name)]
         if not args.no_reference:
             results.append(_child(args, "open3d", name))
-        for r in results:
+        plain = [_child(args, "vio-noloop", name), _child(args, "vo-noloop", name)]
+        for r in results + plain:
             _row(r)
+        for r, p in zip(results[:2], plain, strict=True):
+            print(f"    {r['method']}: loop closures {r['loops_accepted']} of "
+                  f"{r['loops_verified']} verified, right (within {LOOP_RIGHT_M * 100:.0f} cm "
+                  f"and {LOOP_RIGHT_DEG:.0f} deg of the truth) {r['loops_right_accepted']}: "
+                  f"precision {_pct(r['loop_precision'])}, recall {_pct(r['loop_recall'])}; "
+                  f"ATE {r['ate_m'] * 100:.2f} cm with closures, {p['ate_m'] * 100:.2f} cm "
+                  "without")
         for r in results[:2]:
             print(f"    {r['method']}: CPU ms per frame first sixth {r['ms_cpu_first']:.1f}, "
                   f"last sixth {r['ms_cpu_last']:.1f}, p95 {r['ms_cpu_p95']:.1f}; state held "
@@ -624,7 +679,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.child == "open3d":
             r = run_open3d(args.cache, args.only, args.engine, args.frames)
         else:
-            r = run_sea3d(args.cache, args.only, args.engine, args.child == "vio", args.frames)
+            what, _, loops = args.child.partition("-")
+            r = run_sea3d(args.cache, args.only, args.engine, what == "vio", args.frames,
+                          loop_closure=loops != "noloop")
         print(json.dumps(r))
         return 0
     print(f"sea3d odometry benchmark ({os.cpu_count()} CPUs; load average "

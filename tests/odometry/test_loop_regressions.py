@@ -40,7 +40,8 @@ def _case(name: str):
 
 def _error(T_est, T_true):
     D = np.linalg.inv(T_true) @ T_est
-    return float(np.linalg.norm(D[:3, 3])), float(np.degrees(np.linalg.norm(R_to_rotvec(D[:3, :3]))))
+    rotation_deg = np.degrees(np.linalg.norm(R_to_rotvec(D[:3, :3])))
+    return float(np.linalg.norm(D[:3, 3])), float(rotation_deg)
 
 
 @pytest.mark.parametrize("name", ["ambiguous", "crowded"])

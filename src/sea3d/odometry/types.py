@@ -26,6 +26,7 @@ __all__ = [
     "FrameObservation",
     "ImuChunk",
     "LoopChecks",
+    "LoopRecord",
     "Odometry",
     "OdometryEstimate",
     "TrackingStatus",
@@ -45,6 +46,27 @@ class TrackingStatus(enum.StrEnum):
     """No trustworthy pose; a new segment starts at the next frame that tracks."""
     RELOCALISED = "relocalised"
     """A new segment was joined to an earlier one by a loop closure or relocalisation."""
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class LoopRecord:
+    """One geometrically verified loop and what became of it.
+
+    Attributes:
+        t_query_ns: the stamp of the keyframe that saw the place again.
+        t_candidate_ns: the stamp of the earlier keyframe.
+        T_candidate_query: 4x4, the measured pose of the query's ``rect_left`` in the
+            candidate's ``rect_left``.
+        inliers: the verification's inliers.
+        outcome: ``accepted``, ``rejected_odometry``, ``rejected_graph`` or
+            ``rejected_solver`` (see :class:`LoopChecks`).
+    """
+
+    t_query_ns: int
+    t_candidate_ns: int
+    T_candidate_query: F64
+    inliers: int
+    outcome: str
 
 
 @dataclass(kw_only=True)
@@ -71,6 +93,26 @@ class LoopChecks:
     rejected_odometry: int = 0
     rejected_graph: int = 0
     rejected_solver: int = 0
+    verified_loops: list[LoopRecord] = field(default_factory=list)
+    """Every verified loop, in the order met (for checks against a ground truth)."""
+
+    def record(self, loop_query_ns: int, loop_candidate_ns: int, T_candidate_query: F64,
+               inliers: int, outcome: str) -> None:
+        """Count a verified loop's outcome and keep its record."""
+        if outcome == "accepted":
+            self.accepted += 1
+        elif outcome == "rejected_odometry":
+            self.rejected_odometry += 1
+        elif outcome == "rejected_graph":
+            self.rejected_graph += 1
+        elif outcome == "rejected_solver":
+            self.rejected_solver += 1
+        else:
+            raise ValueError(f"unknown loop outcome {outcome!r}")
+        self.verified_loops.append(LoopRecord(
+            t_query_ns=loop_query_ns, t_candidate_ns=loop_candidate_ns,
+            T_candidate_query=np.asarray(T_candidate_query, dtype=np.float64), inliers=inliers,
+            outcome=outcome))
 
     def as_dict(self) -> dict[str, int | bool]:
         """The counters by name (for summaries)."""

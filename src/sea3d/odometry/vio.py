@@ -1204,10 +1204,14 @@ class StereoInertialOdometry:
         if self._db is not None and kf.bow is not None:
             self._db.add(k, kf.bow)
         found: LoopCandidate | None = None
+        covered: set[int] = set()  # keyframes whose places a failed verification has used
         for q in candidates:
             other = self._keyframes[q]
-            if other.place is None:
+            if other.place is None or q in covered:
+                # a neighbour of an earlier candidate: its place was in that one's local map
                 continue
+            covered.add(q)
+            covered.update(self._neighbours(q))
             self.loop_checks.candidates += 1
             found = verify_loop(
                 kf.place, other.place, q, self.geometry.K, min_inliers=c.loop_min_inliers,
@@ -1258,7 +1262,7 @@ class StereoInertialOdometry:
             log.debug("loop: keyframe %d with %d agrees with the odometry (chi-square %.1f)",
                       k, loop.candidate, chi2)
             return True
-        self.loop_checks.rejected_odometry += 1
+        self._record_loop(loop, k, "rejected_odometry")
         log.info(
             "loop rejected: keyframe %d with %d (%d inliers) disagrees with the odometry "
             "(chi-square %.1f > %.1f)", k, loop.candidate, loop.inliers, chi2,
@@ -1266,18 +1270,23 @@ class StereoInertialOdometry:
         )
         return False
 
-    def _local_map(self, q: int) -> list[PlaceFeatures]:
-        """Places of keyframe ``q``'s neighbours in its segment (``loop_local_keyframes`` on
-        each side), their points moved into ``q``'s frame by the poses between them."""
+    def _neighbours(self, q: int) -> list[int]:
+        """Keyframe ``q``'s neighbours in its segment, ``loop_local_keyframes`` on each side."""
         n = self.config.loop_local_keyframes
         if n <= 0:
             return []
-        cand = self._keyframes[q]
-        same = [o for o in self._kf_order if self._keyframes[o].segment == cand.segment]
+        seg = self._keyframes[q].segment
+        same = [o for o in self._kf_order if self._keyframes[o].segment == seg]
         i = same.index(q)
+        return same[max(0, i - n): i] + same[i + 1: i + 1 + n]
+
+    def _local_map(self, q: int) -> list[PlaceFeatures]:
+        """Places of keyframe ``q``'s neighbours in its segment (``loop_local_keyframes`` on
+        each side), their points moved into ``q``'s frame by the poses between them."""
+        cand = self._keyframes[q]
         T_q_world = invert_T(cand.T_world_rect)
         out = []
-        for o in same[max(0, i - n): i] + same[i + 1: i + 1 + n]:
+        for o in self._neighbours(q):
             place = self._keyframes[o].place
             if place is None or place.descriptors.shape[0] == 0:
                 continue
@@ -1319,6 +1328,10 @@ class StereoInertialOdometry:
             time.perf_counter() - t0,
         )
 
+    def _record_loop(self, loop: LoopCandidate, k: int, outcome: str) -> None:
+        self.loop_checks.record(self._keyframes[k].t_ns, self._keyframes[loop.candidate].t_ns,
+                                loop.T_cand_query, loop.inliers, outcome)
+
     def _close_loop(self, loop: LoopCandidate, k: int, *, relink: bool = False) -> bool:
         """Add a loop and re-optimise; undo it when the solve fails or the optimised graph
         still disagrees with it. Returns True when the loop was kept."""
@@ -1329,20 +1342,20 @@ class StereoInertialOdometry:
         except RuntimeError as err:
             log.warning("pose graph optimisation failed (%s); loop ignored", err)
             self._graph.loops.pop()
-            self.loop_checks.rejected_solver += 1
+            self._record_loop(loop, k, "rejected_solver")
             return False
         chi2 = self._graph.loop_chi2(loop.candidate, k, loop.T_cand_query, loop.covariance,
                                      odometry, segments, solved, marginal=False)
         if chi2 is not None and not chi2 <= self.config.loop_max_chi2:
             self._graph.loops.pop()
-            self.loop_checks.rejected_graph += 1
+            self._record_loop(loop, k, "rejected_graph")
             log.info(
                 "loop rejected: keyframe %d with %d (%d inliers): the optimised graph still "
                 "disagrees with it (chi-square %.1f > %.1f); the graph is left as it was",
                 k, loop.candidate, loop.inliers, chi2, self.config.loop_max_chi2,
             )
             return False
-        self.loop_checks.accepted += 1
+        self._record_loop(loop, k, "accepted")
         for q, T in solved.items():
             kf = self._keyframes[q]
             kf.correction = T @ invert_T(kf.T_odom)
