@@ -26,10 +26,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.errors import SessionError
-from sea3d.io._atomic import atomic_open, atomic_path, atomic_write
+from sea3d.io._atomic import (
+    atomic_open,
+    atomic_path,
+    atomic_write,
+    remove_stale_temps,  # an output folder's leftovers of a killed run
+)
 
 __all__ = ["FrameRow", "process_files", "read_status_csv", "read_summary_json",
-           "write_process_outputs", "write_status_csv", "write_summary_json"]
+           "remove_stale_temps", "write_process_outputs", "write_status_csv",
+           "write_summary_json"]
 
 _log = logging.getLogger(__name__)
 

@@ -99,7 +99,7 @@ def locks_out_dir(fn: F) -> F:
 def clear_stale_temps(folder: str | os.PathLike[str]) -> None:
     """Remove what a killed run left half-written in ``folder`` (its temporary files: a
     ``.mesh.<pid>-<token>.tmp.ply`` and the like); call it holding the folder's lock."""
-    from sea3d.io._atomic import remove_stale_temps
+    from sea3d.io.process_outputs import remove_stale_temps
 
     removed = remove_stale_temps(folder)
     if removed:
