@@ -11,8 +11,9 @@ from typing import Any
 
 from sea3d._text import plural
 
-__all__ = ["add_depth_range", "add_output", "config_default", "config_option", "deprecated",
-           "depth_config", "field_help", "image_size", "param_default", "param_option", "plural",
+__all__ = ["add_depth_range", "add_output", "check_output_suffix", "config_default",
+           "config_option", "deprecated", "depth_config", "field_help", "image_size",
+           "param_default", "param_option", "plural",
            "positive_depth", "positive_float"]
 
 
@@ -27,6 +28,30 @@ def image_size(text: str) -> tuple[int, int]:
     return w, h
 
 
+
+
+def check_output_suffix(path: Any, flag: str, suffixes: tuple[str, ...], what: str) -> None:
+    """Refuse an output whose suffix no writer of the command accepts, before any work.
+
+    Args:
+        path: the output path given.
+        flag: the option that gave it (``-o/--output``).
+        suffixes: the accepted suffixes, lower case with the dot (``(".png", ".npy")``).
+        what: what the file holds (``a depth map``), for the message.
+
+    Raises:
+        ConfigError: an unknown or missing suffix, naming the flag and the accepted ones.
+    """
+    from pathlib import Path
+
+    from sea3d.errors import ConfigError
+
+    suffix = Path(path).suffix.lower()
+    if suffix not in suffixes:
+        got = f"suffix {suffix!r}" if suffix else "no suffix"
+        known = (suffixes[0] if len(suffixes) == 1
+                 else f"{', '.join(suffixes[:-1])} or {suffixes[-1]}")
+        raise ConfigError(f"{flag} {path}: {got}; {what} is written as {known}")
 
 
 def _finite_positive(text: str, expected: str, must: str) -> float:

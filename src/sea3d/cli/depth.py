@@ -13,7 +13,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import add_depth_range, config_option, depth_config, plural, positive_float
+from sea3d.cli._args import (
+    add_depth_range,
+    check_output_suffix,
+    config_option,
+    depth_config,
+    plural,
+    positive_float,
+)
 
 __all__ = ["register"]
 
@@ -91,10 +98,13 @@ def _check_depth_range(args: argparse.Namespace) -> None:
 
 
 def _cmd_stereo(args: argparse.Namespace) -> int:
-    from sea3d.io.depth_files import write_disparity
+    from sea3d.io.depth_files import DISPARITY_SUFFIXES, write_disparity
     from sea3d.stereo import match
     from sea3d.stereo.filters import FilterChain, parse_filter_chain
 
+    check_output_suffix(args.output, "-o/--output", DISPARITY_SUFFIXES, "disparity")
+    if args.confidence:
+        check_output_suffix(args.confidence, "--confidence", DISPARITY_SUFFIXES, "confidence")
     config = _engine_config(args)
     chain = FilterChain(parse_filter_chain(args.filters)) if args.filters else None
     left = _read_image(args.left)
@@ -246,7 +256,11 @@ def _cmd_depth(args: argparse.Namespace) -> int:
 
         raise StereoError("--points needs a file name (cloud.ply) for a single pair")
 
-    from sea3d.io.depth_files import write_depth, write_ply
+    from sea3d.io.depth_files import DEPTH_SUFFIXES, write_depth, write_ply
+
+    check_output_suffix(args.output, "-o/--output", DEPTH_SUFFIXES, "depth")
+    if args.points:
+        check_output_suffix(args.points, "--points", (".ply",), "a point cloud")
     from sea3d.io.rig_file import load_rig
     from sea3d.pipeline.depth_pair import depth_pair
 

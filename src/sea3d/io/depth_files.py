@@ -34,6 +34,8 @@ from sea3d.errors import StereoError
 from sea3d.io._atomic import atomic_open, atomic_path
 
 __all__ = [
+    "DEPTH_SUFFIXES",
+    "DISPARITY_SUFFIXES",
     "DepthGrid",
     "check_depth_grid",
     "check_depth_pinhole",
@@ -50,6 +52,11 @@ __all__ = [
     "write_pfm",
     "write_ply",
 ]
+
+# Output suffixes the writers accept (any case): :func:`write_disparity` writes float32;
+# :func:`write_depth` also writes a 16-bit PNG of millimetres.
+DISPARITY_SUFFIXES = (".pfm", ".npy", ".tif", ".tiff")
+DEPTH_SUFFIXES = (".png", *DISPARITY_SUFFIXES)
 
 GridKind = Literal["raw-left", "rectified-left"]
 

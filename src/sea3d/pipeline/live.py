@@ -966,12 +966,15 @@ def run_live_replay(session_path: Any, config: Any, live: LiveConfig | None = No
         ``(summary, stats)``.
 
     Raises:
-        SessionError, ConfigError: as :func:`~sea3d.pipeline.process.run_process`.
+        SessionError, ConfigError: as :func:`~sea3d.pipeline.process.run_process`; a
+            ``rate`` not > 0 (ConfigError) before the session opens.
         OutputInUseError: another run (``live`` or ``process``) writes into the folder.
     """
     from sea3d.io.session import open_session
     from sea3d.pipeline.process import _odometry, _rig
 
+    if not rate > 0:  # before the session opens and the depth worker warms up
+        raise ConfigError(f"rate must be > 0, got {rate}")
     path = Path(session_path)
     with open_session(path) as session:
         source = SessionFrames(session, path, _rig(session, config),
@@ -1015,6 +1018,7 @@ def run_live_cameras(recorder: Any, config: Any, live: LiveConfig | None = None,
         ``(summary, stats, record_summary)``.
 
     Raises:
+        SessionError: the recorder's output exists already (before any warm-up).
         ConfigError: no rig; RigFileError: a bad one; CaptureError: the recorder could not
             start (nothing was recorded). OutputInUseError: another run (``live`` or
             ``process``) writes into the output folder (nothing was recorded). An error of
@@ -1024,6 +1028,8 @@ def run_live_cameras(recorder: Any, config: Any, live: LiveConfig | None = None,
     from sea3d.io.rig_file import resolve_rig
 
     rc = recorder.config
+    if Path(rc.out_path).exists():  # the recorder refuses it too, but only after the warm-up
+        raise SessionError(f"{rc.out_path} already exists; refusing to overwrite it")
     if config.rig_path is None and not rc.rig_yaml:
         raise ConfigError("live reconstruction from cameras needs the rig: give a rig file "
                           "(rig_path), stored with the recording as well")

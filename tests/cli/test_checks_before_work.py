@@ -1,0 +1,130 @@
+"""Arguments that a command can check without doing anything are checked first.
+
+Each test replaces the command's expensive step (matching, the live run, opening cameras) with
+one that fails the test, so a refusal that comes after the work shows up as that failure, not
+as a slow run; the refusal itself is exit status 2, one line naming the flag, and no output.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import cv2
+import numpy as np
+import pytest
+
+from _rigs import real_sea3d_rig
+from sea3d.cli import main
+from sea3d.io.rig_file import save_rig
+
+
+def _no_work(real):
+    """A stand-in for ``real`` (same signature, for the parser's defaults) that fails the test."""
+
+    @functools.wraps(real)
+    def fail(*args, **kwargs):
+        raise AssertionError(f"{real.__name__} ran before the arguments were checked")
+
+    return fail
+
+
+def _one_line_error(capsys, *names: str) -> str:
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert err.startswith("sea3d: error: ")
+    for name in names:
+        assert name in err, err
+    return err
+
+
+@pytest.fixture
+def raw_pair(tmp_path):
+    rng = np.random.default_rng(0)
+    rig = real_sea3d_rig(size_px=(96, 64))
+    save_rig(rig, tmp_path / "rig.yaml")
+    for side in ("left", "right"):
+        img = rng.integers(0, 256, (64, 96, 3), dtype=np.uint8)
+        assert cv2.imwrite(str(tmp_path / f"{side}.png"), img)
+    return tmp_path
+
+
+@pytest.mark.parametrize("name", ["dnoext", "depth.jpg"])
+def test_depth_refuses_an_unknown_output_suffix_before_matching(raw_pair, monkeypatch, capsys,
+                                                                name):
+    import sea3d.pipeline.depth_pair as depth_pair
+
+    monkeypatch.setattr(depth_pair, "depth_pair", _no_work(depth_pair.depth_pair))
+    out = raw_pair / name
+    assert main(["depth", "--rig", str(raw_pair / "rig.yaml"), "--left",
+                 str(raw_pair / "left.png"), "--right", str(raw_pair / "right.png"),
+                 "-o", str(out)]) == 2
+    err = _one_line_error(capsys, "-o/--output", name, ".png", ".npy", ".pfm", ".tiff")
+    assert "unknown" not in err.split(":")[0]
+    assert not out.exists()
+
+
+def test_depth_refuses_a_points_file_that_is_not_ply_before_matching(raw_pair, monkeypatch,
+                                                                    capsys):
+    import sea3d.pipeline.depth_pair as depth_pair
+
+    monkeypatch.setattr(depth_pair, "depth_pair", _no_work(depth_pair.depth_pair))
+    assert main(["depth", "--rig", str(raw_pair / "rig.yaml"), "--left",
+                 str(raw_pair / "left.png"), "--right", str(raw_pair / "right.png"),
+                 "-o", str(raw_pair / "d.tiff"), "--points", str(raw_pair / "cloud")]) == 2
+    _one_line_error(capsys, "--points", ".ply")
+    assert not (raw_pair / "d.tiff").exists()
+
+
+@pytest.mark.parametrize("flag", ["-o", "--confidence"])
+def test_stereo_refuses_an_unknown_output_suffix_before_matching(raw_pair, monkeypatch, capsys,
+                                                                 flag):
+    import sea3d.stereo
+
+    monkeypatch.setattr(sea3d.stereo, "match", _no_work(sea3d.stereo.match))
+    outputs = {"-o": str(raw_pair / "d.pfm"), "--confidence": str(raw_pair / "c.pfm")}
+    outputs[flag] = str(raw_pair / "noext")
+    assert main(["stereo", str(raw_pair / "left.png"), str(raw_pair / "right.png"),
+                 "--max-disparity", "15", "--engine", "opencv", "-o", outputs["-o"],
+                 "--confidence", outputs["--confidence"]]) == 2
+    _one_line_error(capsys, flag, "noext", ".pfm", ".npy", ".tiff")
+    assert not any(raw_pair.glob("*.pfm")) and not (raw_pair / "noext").exists()
+
+
+@pytest.mark.parametrize("rate", ["0", "-1"])
+def test_live_refuses_a_rate_not_above_zero_before_the_replay(tmp_path, monkeypatch, capsys,
+                                                              rate):
+    import sea3d.pipeline.live as live
+
+    monkeypatch.setattr(live, "run_live_replay", _no_work(live.run_live_replay))
+    out = tmp_path / "out"
+    assert main(["live", "--replay", str(tmp_path / "s.mcap"), "-o", str(out),
+                 "--rate", rate]) == 2
+    _one_line_error(capsys, "--rate", "> 0")
+    assert not out.exists()
+
+
+def test_live_refuses_to_record_onto_an_existing_session_before_opening_cameras(
+        tmp_path, monkeypatch, capsys):
+    import sea3d.capture.spec as spec
+    import sea3d.pipeline.live as live
+
+    monkeypatch.setattr(spec, "open_source", _no_work(spec.open_source))
+    monkeypatch.setattr(live, "run_live_cameras", _no_work(live.run_live_cameras))
+    existing = tmp_path / "s.mcap"
+    existing.write_bytes(b"an earlier recording")
+    out = tmp_path / "out"
+    assert main(["live", "--record", str(existing), "--left", "test:left", "--right",
+                 "test:right", "-o", str(out)]) == 2
+    _one_line_error(capsys, "--record", str(existing), "exists")
+    assert existing.read_bytes() == b"an earlier recording"
+    assert not out.exists()
+
+
+def test_live_replay_library_refuses_a_bad_rate_before_opening_the_session(tmp_path):
+    from sea3d.errors import ConfigError
+    from sea3d.pipeline.live import run_live_replay
+    from sea3d.pipeline.process import ProcessConfig
+
+    config = ProcessConfig(out_dir=tmp_path / "out", report=False)
+    with pytest.raises(ConfigError, match="rate must be > 0"):
+        run_live_replay(tmp_path / "missing.mcap", config, rate=0.0)
