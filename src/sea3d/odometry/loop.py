@@ -354,6 +354,14 @@ def verify_loop(
         return None
     q_idx, P = q_idx[ok], P[ok]
     uv = query.uv[q_idx].astype(np.float64)
+    Pq_m = query.points_rect[q_idx].astype(np.float64)
+    has3 = np.isfinite(Pq_m).all(axis=1)
+    if has3.sum() >= min_inliers:
+        # a cheap first look: most pairs with depth in both keyframes must agree on one rigid
+        # motion; a place that only looks alike rarely gives even half the inliers needed
+        tol3 = 2 * (0.03 + 0.03 * np.abs(Pq_m[has3, 2]))
+        if _consensus_3d(Pq_m[has3], P[has3], tol3) < min_inliers // 2:
+            return None
     try:
         found, rvec, tvec, inl = cv2.solvePnPRansac(
             P,
@@ -416,6 +424,28 @@ def verify_loop(
         consistent_3d=consistent,
         covariance=covariance,
     )
+
+
+def _consensus_3d(points_a: F64, points_b: F64, tol_m: F64, hypotheses: int = 300) -> int:
+    """The largest number of pairs ``(a_i, b_i)`` that one rigid motion ``b ~ R a + t`` brings
+    within ``tol_m (N,)`` of each other, by RANSAC over 3-pair samples (Kabsch, batched)."""
+    n = points_a.shape[0]
+    if n < 3:
+        return 0
+    rng = np.random.default_rng(0)
+    idx = np.stack([rng.choice(n, 3, replace=False) for _ in range(hypotheses)])
+    A, B = points_a[idx], points_b[idx]  # (h, 3, 3)
+    ma, mb = A.mean(axis=1, keepdims=True), B.mean(axis=1, keepdims=True)
+    H = (A - ma).transpose(0, 2, 1) @ (B - mb)
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(Vt.transpose(0, 2, 1) @ U.transpose(0, 2, 1)))
+    D = np.broadcast_to(np.eye(3), (hypotheses, 3, 3)).copy()
+    D[:, 2, 2] = d
+    R = Vt.transpose(0, 2, 1) @ D @ U.transpose(0, 2, 1)
+    t = mb[:, 0, :] - (R @ ma.transpose(0, 2, 1))[:, :, 0]
+    moved = np.einsum("hij,nj->hni", R, points_a) + t[:, None, :]
+    inliers = (np.linalg.norm(moved - points_b[None], axis=2) < tol_m[None]).sum(axis=1)
+    return int(inliers.max())
 
 
 def _rigid_refine(
