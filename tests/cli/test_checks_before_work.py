@@ -128,3 +128,69 @@ def test_live_replay_library_refuses_a_bad_rate_before_opening_the_session(tmp_p
     config = ProcessConfig(out_dir=tmp_path / "out", report=False)
     with pytest.raises(ConfigError, match="rate must be > 0"):
         run_live_replay(tmp_path / "missing.mcap", config, rate=0.0)
+
+
+@pytest.mark.parametrize("layout", ["mcap", "folder"])
+def test_sim_refuses_an_existing_session_before_loading_the_scene(tmp_path, monkeypatch, capsys,
+                                                                  layout):
+    import sea3d.sim.scene as scene
+
+    monkeypatch.setattr(scene, "load_scene", _no_work(scene.load_scene))
+    if layout == "mcap":
+        out = tmp_path / "s.mcap"
+        out.write_bytes(b"an earlier session")
+    else:
+        out = tmp_path / "s"
+        (out / "left").mkdir(parents=True)
+        (out / "left" / "0.png").write_bytes(b"an earlier image")
+    assert main(["sim", "--scene", "lake", "--frames", "2", "--size", "64x48",
+                 "-o", str(out)]) == 2
+    _one_line_error(capsys, str(out), "refusing to overwrite")
+    assert not (tmp_path / f"{out.stem}_gt").exists()
+
+
+def test_enhance_refuses_an_unknown_output_suffix_before_enhancing(raw_pair, monkeypatch,
+                                                                   capsys):
+    import sea3d.enhance.api as api
+
+    monkeypatch.setattr(api, "enhance_image", _no_work(api.enhance_image))
+    assert main(["enhance", str(raw_pair / "left.png"), "--method", "grey-world",
+                 "-o", str(raw_pair / "restored.xyz")]) == 2
+    _one_line_error(capsys, "-o/--output", "restored.xyz", ".png", ".jpg")
+    assert not (raw_pair / "restored.xyz").exists()
+
+
+@pytest.mark.parametrize(("name", "names"), [
+    ("depthnoext", ("-o/--output", ".png", ".npy")),
+    ("relative.png", ("relative (not metric)", ".npy/.pfm/.tiff")),
+])
+def test_mono_depth_refuses_an_output_it_cannot_write_before_loading_the_network(
+        raw_pair, monkeypatch, capsys, name, names):
+    import sea3d.monodepth
+
+    monkeypatch.setattr(sea3d.monodepth, "OnnxDepthModel",
+                        _no_work(sea3d.monodepth.OnnxDepthModel))
+    out = raw_pair / name
+    assert main(["mono-depth", str(raw_pair / "left.png"), "--model",
+                 str(raw_pair / "net.onnx"), "-o", str(out)]) == 2
+    _one_line_error(capsys, name, *names)
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("flag", ["-o", "--cloud"])
+def test_fuse_refuses_an_unknown_output_suffix_before_fusing(tmp_path, monkeypatch, capsys,
+                                                             flag):
+    import sea3d.pipeline.fuse as fuse
+    from sea3d.io.trajectory_files import write_tum
+
+    monkeypatch.setattr(fuse, "fuse_rgbd", _no_work(fuse.fuse_rgbd))
+    assert cv2.imwrite(str(tmp_path / "0.jpg"), np.zeros((48, 64, 3), np.uint8))
+    assert cv2.imwrite(str(tmp_path / "0.png"), np.full((48, 64), 1000, np.uint16))
+    write_tum(tmp_path / "p.tum", [0], np.eye(4)[None])
+    outputs = {"-o": str(tmp_path / "mesh.ply"), "--cloud": str(tmp_path / "cloud.ply")}
+    outputs[flag] = str(tmp_path / "noext")
+    assert main(["fuse", "--color", str(tmp_path / "*.jpg"), "--depth", str(tmp_path / "*.png"),
+                 "--poses", str(tmp_path / "p.tum"), "--intrinsics", "50", "50", "32", "24",
+                 "--voxel-m", "0.02", "-o", outputs["-o"], "--cloud", outputs["--cloud"]]) == 2
+    _one_line_error(capsys, flag, "noext", ".ply")
+    assert not any(tmp_path.glob("*.ply")) and not (tmp_path / "noext").exists()

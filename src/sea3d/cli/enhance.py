@@ -63,7 +63,11 @@ def _cmd_enhance(args: argparse.Namespace) -> int:
         return _cmd_enhance_session(args)
     if args.input is None:
         raise EnhanceError("sea3d enhance needs an input image (or --session SESSION)")
+    from sea3d.cli._args import check_output_suffix
     from sea3d.enhance.api import enhance_image
+    from sea3d.io.image_files import IMAGE_SUFFIXES
+
+    check_output_suffix(args.output, "-o/--output", IMAGE_SUFFIXES, "an image")
 
     image = _read_image(args.input)
     params: dict[str, Any] = {}

@@ -55,9 +55,14 @@ def _cmd_live(args: argparse.Namespace) -> int:
     # Checked here, before sessions, cameras or the depth worker start (seconds of work).
     if not args.rate > 0:
         raise ConfigError(f"--rate must be > 0, got {args.rate:g}")
-    if args.record is not None and args.record.exists():
-        raise ConfigError(f"--record {args.record} already exists; refusing to overwrite it "
-                          "(record into a new session path)")
+    if args.record is not None:
+        from sea3d.errors import SessionError
+        from sea3d.io.session import check_new_session
+
+        try:
+            check_new_session(args.record)
+        except SessionError as err:
+            raise ConfigError(f"--record: {err} (record into a new session path)") from err
     config = ProcessConfig(out_dir=args.output, rig_path=args.rig, size_px=args.size,
                            poses=PoseConfig(poses_path=args.poses, use_imu=not args.no_imu,
                                             odometry_config=odometry_config(args)),

@@ -84,16 +84,33 @@ def _stereo(rig: Any, args: argparse.Namespace) -> Any:
     return StereoDepth(rig, depth_config(args))
 
 
-def _write(path: Path, depth: Any, metric: bool) -> None:
+def _relative_refused(path: Path) -> Any:
     from sea3d.errors import MonoDepthError
+
+    return MonoDepthError(
+        f"{path}: the network's output is relative (not metric) without alignment and "
+        "cannot be stored as millimetres; align it (--rig/--right, --align-depth, "
+        "--align-sfm) or write .npy/.pfm/.tiff"
+    )
+
+
+def _check_output(path: Path, args: argparse.Namespace) -> None:
+    """Refuse an image's output that no writer takes, or a PNG of depth that stays relative."""
+    from sea3d.cli._args import check_output_suffix
+    from sea3d.io.depth_files import DEPTH_SUFFIXES
+
+    check_output_suffix(path, "-o/--output", DEPTH_SUFFIXES, "depth")
+    aligned = bool(args.right or args.rig or args.align_depth or args.align_sfm)
+    if not aligned and args.output_kind != "metric" and \
+            path.suffix.lower() not in _FLOAT_SUFFIXES:
+        raise _relative_refused(path)
+
+
+def _write(path: Path, depth: Any, metric: bool) -> None:
     from sea3d.io.depth_files import write_depth
 
     if not metric and path.suffix.lower() not in _FLOAT_SUFFIXES:
-        raise MonoDepthError(
-            f"{path}: the network's output is relative (not metric) without alignment and "
-            "cannot be stored as millimetres; align it (--rig/--right, --align-depth, "
-            "--align-sfm) or write .npy/.pfm/.tiff"
-        )
+        raise _relative_refused(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     write_depth(path, depth)
 
@@ -101,18 +118,20 @@ def _write(path: Path, depth: Any, metric: bool) -> None:
 def _cmd_mono_depth(args: argparse.Namespace) -> int:
     from sea3d.errors import MonoDepthError
     from sea3d.io.rig_file import load_rig
+    from sea3d.io.session import is_session
     from sea3d.monodepth import MonoDepthConfig, OnnxDepthModel
     from sea3d.monodepth.metric import predict_metric
     from sea3d.pipeline.monodepth_session import sfm_sparse_depth, stereo_sparse_depth
 
+    src = Path(args.input)
+    out = Path(args.output)
+    session = src.exists() and is_session(src)
+    if not session:  # the output is checked before the network loads and runs
+        _check_output(out, args)
     model = OnnxDepthModel(args.model, MonoDepthConfig(output_kind=args.output_kind,
                                                        normalize=args.normalize,
                                                        device=args.device))
-    src = Path(args.input)
-    out = Path(args.output)
-    from sea3d.io.session import is_session
-
-    if src.exists() and is_session(src):
+    if session:
         return _session(args, model, src, out)
     left = _read_rgb(src)
     sparse, fill, frame = None, False, "left"

@@ -128,12 +128,16 @@ def _cmd_fuse(args: argparse.Namespace) -> int:
     import numpy as np
 
     from sea3d.cli import _progress
-    from sea3d.io.mesh_files import write_mesh, write_point_cloud
+    from sea3d.cli._args import check_output_suffix
+    from sea3d.io.mesh_files import CLOUD_SUFFIXES, MESH_SUFFIXES, write_mesh, write_point_cloud
     from sea3d.io.trajectory_files import read_trajectory
     from sea3d.pipeline.fuse import fuse_rgbd
     from sea3d.recon.cloud import CloudConfig, clean_point_cloud
     from sea3d.recon.tsdf import TsdfConfig
 
+    check_output_suffix(args.output, "-o/--output", MESH_SUFFIXES, "a mesh")
+    if args.cloud:
+        check_output_suffix(args.cloud, "--cloud", CLOUD_SUFFIXES, "a point cloud")
     colors = _glob(args.color, "colour")
     depths = _glob(args.depth, "depth")
     poses = read_trajectory(args.poses)

@@ -152,7 +152,9 @@ def _run_survey(args: argparse.Namespace) -> int:
     if args.frames < 1:
         raise SimulationError(f"--frames must be >= 1, got {args.frames}")
     from sea3d.io.ground_truth import ground_truth_dir
-    from sea3d.io.session import layout_of
+    from sea3d.io.session import check_new_session, layout_of
+
+    check_new_session(args.out, args.format)  # before the rig, the scene and the estimate
     from sea3d.sim.scene import load_scene
     from sea3d.sim.survey import (
         check_disk_room,

@@ -18,6 +18,8 @@ from sea3d.geometry.mesh import Mesh
 from sea3d.io._atomic import atomic_open, atomic_path
 
 __all__ = [
+    "CLOUD_SUFFIXES",
+    "MESH_SUFFIXES",
     "read_compact_mesh",
     "read_mesh",
     "read_point_cloud",
@@ -25,6 +27,10 @@ __all__ = [
     "write_mesh",
     "write_point_cloud",
 ]
+
+# Output suffixes the writers accept (any case): PLY by sea3d itself, the rest by Open3D.
+MESH_SUFFIXES = (".ply", ".obj", ".off", ".stl", ".gltf", ".glb")
+CLOUD_SUFFIXES = (".ply", ".pcd", ".pts", ".xyz", ".xyzn", ".xyzrgb")
 
 
 def _write_ply(path: Path, vertices: NDArray[np.float64], *,

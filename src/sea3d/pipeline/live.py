@@ -1018,7 +1018,7 @@ def run_live_cameras(recorder: Any, config: Any, live: LiveConfig | None = None,
         ``(summary, stats, record_summary)``.
 
     Raises:
-        SessionError: the recorder's output exists already (before any warm-up).
+        SessionError: the recorder's output holds a session already (before any warm-up).
         ConfigError: no rig; RigFileError: a bad one; CaptureError: the recorder could not
             start (nothing was recorded). OutputInUseError: another run (``live`` or
             ``process``) writes into the output folder (nothing was recorded). An error of
@@ -1026,10 +1026,10 @@ def run_live_cameras(recorder: Any, config: Any, live: LiveConfig | None = None,
             is raised.
     """
     from sea3d.io.rig_file import resolve_rig
+    from sea3d.io.session import check_new_session
 
     rc = recorder.config
-    if Path(rc.out_path).exists():  # the recorder refuses it too, but only after the warm-up
-        raise SessionError(f"{rc.out_path} already exists; refusing to overwrite it")
+    check_new_session(rc.out_path, rc.format)  # the recorder does too, after the warm-up
     if config.rig_path is None and not rc.rig_yaml:
         raise ConfigError("live reconstruction from cameras needs the rig: give a rig file "
                           "(rig_path), stored with the recording as well")

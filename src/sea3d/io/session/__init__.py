@@ -41,7 +41,7 @@ from sea3d.io.session.common import (
 )
 from sea3d.io.session.reader import SessionReader, is_session, layout_of, open_session
 from sea3d.io.session.tools import convert_session, verify_session
-from sea3d.io.session.writer import SessionWriter
+from sea3d.io.session.writer import SessionWriter, check_new_session
 
 __all__ = [
     "ImuSample",
@@ -53,6 +53,7 @@ __all__ = [
     "SonarSample",
     "SonarSeries",
     "StereoPair",
+    "check_new_session",
     "convert_session",
     "is_session",
     "layout_of",

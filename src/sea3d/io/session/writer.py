@@ -27,9 +27,33 @@ from sea3d.io.session.common import (
 from sea3d.io.session.reader import layout_of
 from sea3d.io.session.storage import STORAGES, StorageWriter, create_storage_writer
 
-__all__ = ["SessionWriter"]
+__all__ = ["SessionWriter", "check_new_session"]
 
 _log = logging.getLogger(__name__)
+
+
+def check_new_session(path: str | os.PathLike[str], format: str | None = None) -> None:
+    """Refuse, before any work, a session path that :class:`SessionWriter` would refuse.
+
+    Args:
+        path: the session to create: an ``.mcap`` file or a folder.
+        format: ``"mcap"``, ``"folder"``, or None to choose from the extension.
+
+    Raises:
+        SessionError: an MCAP file that exists, a file where a folder session goes, or a
+            folder that holds a session already.
+    """
+    p = Path(path)
+    if (format or layout_of(p)) == "mcap":
+        if p.exists():
+            raise SessionError(f"{p} already exists; refusing to overwrite it")
+        return
+    if p.exists() and not p.is_dir():
+        raise SessionError(f"{p} exists and is not a folder")
+    if (p / "session.json").exists() or any(
+        (p / s).is_dir() and any((p / s).iterdir()) for s in ("left", "right")
+    ):
+        raise SessionError(f"{p} already holds a session; refusing to overwrite it")
 
 
 class SessionWriter:
