@@ -1,5 +1,7 @@
 """Cache entries: round trip, atomic writes, damage detected and never passed on as good."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -46,6 +48,37 @@ def test_frame_cache_drops_damaged_entries_and_checks_its_configuration(tmp_path
     other = FrameCache(tmp_path / "cache", {"size": [640, 360]})
     assert not other.check_fingerprint()
     assert other.clear() == 1 and other.check_fingerprint()
+
+
+@pytest.mark.parametrize("damage", [b'{\n "size": [32', b"\x00" * 40, b"", b"[320, 180]\n"])
+def test_a_damaged_configuration_file_is_named_and_can_be_rebuilt_keeping_the_frames(
+        tmp_path, rng, damage):
+    cache = FrameCache(tmp_path / "cache", {"size": [320, 180]})
+    assert cache.check_fingerprint()
+    cache.put(100, {"d": rng.random(10)}, {"status": "ok"})
+    cache.put(200, {"d": rng.random(10)}, {"status": "ok"})
+    cfg = tmp_path / "cache" / "config.json"
+    cfg.write_bytes(damage)
+    again = FrameCache(tmp_path / "cache", {"size": [320, 180]})
+    with pytest.raises(CacheEntryError, match="damaged") as info:
+        again.check_fingerprint()
+    message = str(info.value)
+    assert str(cfg) in message and "2 cached frames" in message and "\n" not in message
+    assert "rebuild_cache_config" in message and "fresh" in message
+    assert cfg.read_bytes() == damage and again.stamps() == {100, 200}  # nothing touched
+    assert again.check_fingerprint(rebuild=True)
+    assert json.loads(cfg.read_text()) == {"size": [320, 180]}
+    assert again.stamps() == {100, 200} and again.get(100) is not None
+    assert FrameCache(tmp_path / "cache", {"size": [320, 180]}).check_fingerprint()
+
+
+def test_rebuilding_never_replaces_a_readable_configuration_of_another_run(tmp_path, rng):
+    cache = FrameCache(tmp_path / "cache", {"size": [320, 180]})
+    assert cache.check_fingerprint()
+    cache.put(100, {"d": rng.random(10)}, {"status": "ok"})
+    other = FrameCache(tmp_path / "cache", {"size": [640, 360]})
+    assert not other.check_fingerprint(rebuild=True)
+    assert json.loads((tmp_path / "cache" / "config.json").read_text()) == {"size": [320, 180]}
 
 
 def test_filtered_entries_round_trip_exactly_and_are_smaller(tmp_path, rng):

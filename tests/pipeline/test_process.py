@@ -189,6 +189,25 @@ def test_an_interrupted_run_resumes_from_its_cache(sim_session, first_run, tmp_p
     assert len(cache.stamps()) == 14
 
 
+def test_a_damaged_cache_configuration_is_named_and_rebuilt_keeping_the_frames(
+        sim_session, first_run, tmp_path, capsys):
+    out = _with_cache(first_run[0], tmp_path / "cut")
+    cfg = out / "cache" / "config.json"
+    cfg.write_bytes(cfg.read_bytes()[:40])  # cut short, as by a full disk
+    capsys.readouterr()
+    assert main(["process", str(sim_session), "-o", str(out), "--max-frames", "14"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(cfg) in err and "damaged" in err
+    assert "another configuration" not in err
+    assert "--rebuild-cache-config" in err and "--fresh" in err
+    gt = _gt(sim_session)
+    res = run_process(sim_session, _config(out, max_frames=14, rebuild_cache_config=True),
+                      odometry=lambda rig, maps: ScriptedOdometry(gt.t_ns, gt.T_world_x))
+    assert res.summary["frames_from_cache"] == 14 and res.summary["frames"] == 14
+    assert json.loads(cfg.read_text()) == json.loads(
+        (first_run[0] / "cache" / "config.json").read_text())
+
+
 def test_a_cache_of_another_configuration_is_refused(sim_session, first_run, tmp_path):
     out = _with_cache(first_run[0], tmp_path / "other")
     with pytest.raises(ConfigError, match="another configuration"):

@@ -37,7 +37,7 @@ _FLAG_OF_FIELD = {
     "max_frames": "--max-frames", "rate": "--rate", "strict": "--strict",
     "fresh": "--fresh", "range_m": "--depth", "max_disparity_px": "--max-disparity",
     "min_depth_m": "--min-depth", "max_depth_m": "--max-depth", "depth_rate": "--depth-rate",
-    "depth_scale": "--depth-scale",
+    "depth_scale": "--depth-scale", "rebuild_cache_config": "--rebuild-cache-config",
 }  # fmt: skip
 _FIELD_RE = re.compile(
     r"(?<![\w./-])(" + "|".join(_FLAG_OF_FIELD) + r")(?= must\b| or |\)|, not both| to discard)"
@@ -47,6 +47,7 @@ _FIELD_RE = re.compile(
 # tests/test_layout.py). Each is specific enough to occur only in the message it comes from.
 _PHRASES = {
     "use another output folder, or": "use another -o, or",
+    "rerun with rebuild_cache_config to keep": "rerun with --rebuild-cache-config to keep",
     "choose another output folder": "choose another -o/--output folder",
     "stores no rig; give a rig file": "stores no rig; pass --rig rig.yaml",
     "add the echosounder's mount to rig.yaml and pass that rig":

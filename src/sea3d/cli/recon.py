@@ -65,6 +65,7 @@ def _cmd_process(args: argparse.Namespace) -> int:
             restore_colours=args.restore_colours),
         executor=ExecutorConfig(workers=args.workers, scheduler=args.scheduler),
         fresh=args.fresh,
+        rebuild_cache_config=args.rebuild_cache_config,
         report=not args.no_report,
         max_frames=args.max_frames,
         depth_rate=args.depth_rate,
@@ -328,6 +329,10 @@ def register(sub: Any) -> None:
                   "(default: every observation weighs 1)")
     p.add_argument("--fresh", action="store_true",
                    help="discard cached per-frame results in OUT instead of resuming")
+    p.add_argument("--rebuild-cache-config", action="store_true",
+                   help="OUT/cache/config.json is damaged: write it again for this run and "
+                   "keep the cached frames (each still checked as it is read); only for a "
+                   "rerun of the options and session that made them")
     p.add_argument("--enhance-method", "--enhance", dest="enhance", metavar="METHOD",
                    help="enhance each raw image before matching, as 'sea3d enhance --method': "
                         "none (default: measured best for stereo), grey-world, shades-of-grey, "

@@ -151,11 +151,19 @@ class FrameCache:
         self.fingerprint = fingerprint
         self.bytes_written = 0
 
-    def check_fingerprint(self) -> bool:
+    def check_fingerprint(self, *, rebuild: bool = False) -> bool:
         """True if the folder is empty or was made with the same configuration; writes the
         fingerprint for a new cache.
 
+        Args:
+            rebuild: a damaged ``config.json`` (cut short, not JSON) is written again with
+                this run's fingerprint and the entries are kept (each is still checked as it
+                is read); only right when they were made with this configuration. A readable
+                ``config.json`` of another configuration is never replaced.
+
         Raises:
+            CacheEntryError: ``config.json`` is damaged (without ``rebuild``); the message
+                names it and says how many cached frames it holds.
             SessionError: unreadable or unwritable ``config.json``.
         """
         cfg = self.root / "config.json"
@@ -163,9 +171,23 @@ class FrameCache:
         try:
             if cfg.is_file():
                 try:
-                    return bool(json.loads(cfg.read_text()) == json.loads(text))
-                except json.JSONDecodeError:
-                    return False
+                    stored = json.loads(cfg.read_bytes())
+                except (json.JSONDecodeError, UnicodeDecodeError) as err:
+                    damage = f"not JSON ({err})"
+                else:
+                    if isinstance(stored, dict):
+                        return bool(stored == json.loads(text))
+                    damage = f"not a JSON object ({type(stored).__name__})"
+                n = len(self.stamps())
+                if not rebuild:
+                    raise CacheEntryError(
+                        f"{cfg} is damaged: {damage}; it no longer says which configuration "
+                        f"the {n} cached frames were made with. If this run's configuration "
+                        "and session are theirs, rerun with rebuild_cache_config to keep them "
+                        "(each is still checked as it is read), or with fresh to discard them"
+                    )
+                log.warning("%s was damaged (%s): written again for this configuration, "
+                            "keeping the %d cached frames", cfg, damage, n)
             self.root.mkdir(parents=True, exist_ok=True)
             atomic_write(cfg, text + "\n")
         except OSError as err:

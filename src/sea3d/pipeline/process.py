@@ -102,6 +102,10 @@ class ProcessConfig:
     """Workers or a Dask scheduler (:class:`ExecutorConfig`)."""
     fresh: bool = False
     """Ignore (delete) cached per-frame results instead of resuming."""
+    rebuild_cache_config: bool = False
+    """Write a damaged cache ``config.json`` again for this configuration and keep the cached
+    frames (each is still checked as it is read); for a rerun of the configuration and
+    session that made them."""
     evaluate: bool = True
     """Compare with the simulator's ground truth when the session has one."""
     report: bool = True
@@ -141,6 +145,8 @@ class ProcessConfig:
                                   f"{type(getattr(self, name)).__name__}")
         if self.max_frames is not None and self.max_frames < 1:
             raise ConfigError(f"max_frames must be >= 1, got {self.max_frames}")
+        if self.fresh and self.rebuild_cache_config:
+            raise ConfigError("either fresh or rebuild_cache_config, not both")
         from sea3d.pipeline.depth_rate import parse_depth_rate
 
         object.__setattr__(self, "depth_rate", parse_depth_rate(self.depth_rate))
@@ -223,14 +229,15 @@ def _rig(session: Any, config: ProcessConfig) -> Any:
     return resolve_rig(config.rig_path, session)
 
 
-def _frame_cache(out: Path, stage: FrameStageConfig, session_path: Path, fresh: bool) -> Any:
+def _frame_cache(out: Path, stage: FrameStageConfig, session_path: Path, fresh: bool,
+                 rebuild: bool = False) -> Any:
     from sea3d.io.result_cache import FrameCache
 
     cache = FrameCache(out / "cache", {"stage": stage.fingerprint(),
                                        "session": str(session_path.resolve())})
     if fresh:
         cache.clear()
-    if not cache.check_fingerprint():
+    if not cache.check_fingerprint(rebuild=rebuild):
         raise ConfigError(f"{out} holds cached results of another configuration or session; "
                           "use another output folder, or fresh to discard them")
     return cache
@@ -311,6 +318,8 @@ def run_process(
         SessionError: unreadable session, no stereo pairs, no rig.
         ConfigError: bad options, a cache made with another configuration (without
             ``fresh``).
+        CacheEntryError: a damaged cache ``config.json`` (without ``fresh`` or
+            ``rebuild_cache_config``).
         OdometryError, ReconError: invalid data reaching those stages.
     """
     from sea3d.io.session import open_session
@@ -341,7 +350,8 @@ def run_process(
         try:
             odo, odometry_name, imu_used, imu_note = _odometry(config, stereo, source,
                                                                odometry)
-            cache = _frame_cache(out, stage_cfg, session_path, config.fresh)
+            cache = _frame_cache(out, stage_cfg, session_path, config.fresh,
+                                 config.rebuild_cache_config)
             fusion_cfg = config.fusion(stereo.depth_range_m,
                                        stereo.maps.focal_px * stereo.maps.baseline_m)
             store = DiskSubmapStore(out / "submaps")
