@@ -12,8 +12,12 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
+from pathlib import Path
+from typing import Any
 
+import numpy as np
 import pytest
 
 from sea3d.errors import ExecutorError
@@ -65,6 +69,51 @@ def test_close_returns_while_a_call_still_runs():
     ex.close()
     assert fut.cancelled()
     assert time.monotonic() - t0 < RESULT_TIMEOUT_S
+
+
+def _spawned_children() -> list[int]:
+    """This process's worker processes now (``spawn_main`` in their command line)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            ppid = int(stat.read_text().rsplit(")", 1)[1].split()[1])
+            cmd = (stat.parent / "cmdline").read_bytes()
+        except (OSError, IndexError, ValueError):
+            continue
+        if ppid == os.getpid() and b"spawn_main" in cmd:
+            found.append(int(stat.parent.name))
+    return found
+
+
+def test_a_worker_killed_while_it_starts_does_not_block_the_caller():
+    """Spawn writes a worker's start-up data while holding the pipe's read end too: data
+    larger than the pipe (the set-up's maps, when they were sent that way) blocked the
+    caller forever when the worker died before reading it all."""
+    killed: list[int] = []
+
+    def kill_the_first_worker() -> None:
+        deadline = time.monotonic() + RESULT_TIMEOUT_S
+        while not killed and time.monotonic() < deadline:
+            for pid in _spawned_children():
+                os.kill(pid, signal.SIGKILL)
+                killed.append(pid)
+                break
+
+    ex = ProcessExecutor(1, setup=(np.sum, (np.zeros(4_000_000),)))  # 32 MB
+    try:
+        killer = threading.Thread(target=kill_the_first_worker, daemon=True)
+        killer.start()
+        got: list[Any] = []
+        caller = threading.Thread(target=lambda: got.append(ex.submit(divmod, 7, 2)),
+                                  daemon=True)
+        caller.start()
+        caller.join(RESULT_TIMEOUT_S)
+        assert not caller.is_alive(), "submit blocked by a worker killed at its start"
+        killer.join(RESULT_TIMEOUT_S)
+        assert killed
+        assert got[0].result(timeout=RESULT_TIMEOUT_S) == (3, 1)
+    finally:
+        ex.close()
 
 
 def _children(pid: int) -> list[tuple[int, str]]:

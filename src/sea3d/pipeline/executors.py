@@ -21,14 +21,18 @@ import functools
 import logging
 import multiprocessing
 import os
+import pickle
 import signal
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor
 from concurrent.futures import wait as cf_wait
 from concurrent.futures.process import BrokenProcessPool
+from multiprocessing.reduction import ForkingPickler
+from pathlib import Path
 from typing import Any, Protocol
 
 from sea3d.errors import ConfigError, ExecutorError
@@ -110,24 +114,46 @@ def _die_with_parent(parent_pid: int) -> None:
 
 def _init_worker(
     threads: int,
-    setup: tuple[Callable[..., Any], tuple[Any, ...]] | None,
+    setup_path: str | None,
     parent_pid: int | None = None,
 ) -> None:
     """Worker initialiser: die with the parent, keep each worker's library thread pools to its
-    share of cores, then run the caller's set-up (e.g. install the rectification maps)."""
+    share of cores, then run the caller's set-up (e.g. install the rectification maps), read
+    from ``setup_path`` (a pickled ``(fn, args)``)."""
     if parent_pid is not None:
         _die_with_parent(parent_pid)
     for var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
                 "MKL_NUM_THREADS"):
         os.environ.setdefault(var, str(threads))
     if "numba" in sys.modules:
-        # numba was imported while the initargs were unpickled, before the variable above was
-        # set: re-read it now, before any thread pool starts, or the first kernel compiled in
-        # this worker (a cache miss) sees the change and refuses to run
+        # numba was imported before the variable above was set: re-read it now, before any
+        # thread pool starts, or the first kernel compiled in this worker (a cache miss)
+        # sees the change and refuses to run
         sys.modules["numba"].config.reload_config()
-    if setup is not None:
-        fn, args = setup
+    if setup_path is not None:
+        with open(setup_path, "rb") as fh:
+            fn, args = pickle.load(fh)
         fn(*args)
+
+
+SETUP_PREFIX = "sea3d-worker-setup-"
+
+
+def _remove_setups_of_dead_runs() -> None:
+    """Remove the set-up files (in the temporary folder) of runs whose process is gone (one
+    killed with SIGKILL has no chance to remove its own)."""
+    folder = Path(tempfile.gettempdir())
+    for path in folder.glob(f"{SETUP_PREFIX}*-*.pickle"):
+        pid = path.name[len(SETUP_PREFIX):].split("-", 1)[0]
+        if not pid.isdigit():
+            continue
+        try:
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            with contextlib.suppress(OSError):
+                path.unlink()
+        except OSError:
+            pass  # another user's process, alive
 
 
 def _signal_name(exitcode: int | None) -> str:
@@ -179,7 +205,17 @@ class ProcessExecutor:
         self.restarts = 0
         """Pools started again after a worker died."""
         self._threads = max(1, (os.cpu_count() or 1) // workers)
-        self._setup = setup
+        self._setup_path: str | None = None
+        if setup is not None:
+            # The set-up (a stage's maps: megabytes) reaches each worker through a file, not
+            # its start-up pipe: spawn writes that pipe while still holding its read end, so
+            # a worker killed before reading it all would block the write, and this process,
+            # forever. What goes through the pipe now fits in its buffer.
+            _remove_setups_of_dead_runs()
+            fd, self._setup_path = tempfile.mkstemp(
+                prefix=f"{SETUP_PREFIX}{os.getpid()}-", suffix=".pickle")
+            with os.fdopen(fd, "wb") as fh:
+                fh.write(ForkingPickler.dumps(setup))
         self._lock = threading.RLock()
         self._calls: dict[int, _Call] = {}  # by id(outer), while not done
         self._closed = False
@@ -194,7 +230,7 @@ class ProcessExecutor:
             max_workers=self.workers,
             mp_context=multiprocessing.get_context("spawn"),
             initializer=_init_worker,
-            initargs=(self._threads, self._setup, os.getpid()),
+            initargs=(self._threads, self._setup_path, os.getpid()),
         )
 
     def submit(self, fn: Callable[..., Any], *args: Any) -> Future[Any]:
@@ -261,7 +297,7 @@ class ProcessExecutor:
                 broken = getattr(self._pool, "_broken", False)
                 dead = self._dead_worker()
                 if dead is not None or broken:
-                    self._recover(dead or "it ended")
+                    self._recover(dead or (broken if isinstance(broken, str) else "it ended"))
 
     def _recover(self, cause: str = "it ended") -> None:
         """Stop the current pool's workers, start a fresh pool and start again there every
@@ -300,6 +336,9 @@ class ProcessExecutor:
         self._wake.set()
         self._watch.join()
         _stop_pool(pool, kill=False)
+        if self._setup_path is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(self._setup_path)
 
 
 def _stop_pool(pool: ProcessPoolExecutor, *, kill: bool) -> None:
