@@ -297,7 +297,8 @@ class ProcessExecutor:
                 broken = getattr(self._pool, "_broken", False)
                 dead = self._dead_worker()
                 if dead is not None or broken:
-                    self._recover(dead or (broken if isinstance(broken, str) else "it ended"))
+                    said = broken[:1].lower() + broken[1:] if isinstance(broken, str) else ""
+                    self._recover(dead or said or "it ended")
 
     def _recover(self, cause: str = "it ended") -> None:
         """Stop the current pool's workers, start a fresh pool and start again there every
