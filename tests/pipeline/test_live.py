@@ -115,12 +115,13 @@ def test_replay_counts_the_frames_due_behind_each_one_and_skips_none():
     assert [fast.backlog for _ in fast] == [1] * 5
 
 
-def test_a_camera_that_stops_keeps_the_mesh_so_far(sim_session, tmp_path, monkeypatch):
+def test_frames_that_cannot_be_read_are_skipped_and_the_mesh_kept(sim_session, tmp_path,
+                                                                  monkeypatch):
     real_read = SessionFrames.read
 
     def read(self, pair):
         if pair.index >= 6:
-            raise SessionError("left camera: no frame for 2.0 s")
+            raise SessionError("chunk at byte 1234 is damaged (CRC mismatch)")
         return real_read(self, pair)
 
     monkeypatch.setattr(SessionFrames, "read", read)
@@ -128,9 +129,107 @@ def test_a_camera_that_stops_keeps_the_mesh_so_far(sim_session, tmp_path, monkey
                         max_frames=FRAMES, map=MapConfig(keyframes_per_submap=2))
     summary, stats = run_live_replay(sim_session, cfg, rate=50.0)
     assert stats.frames == 6 and summary["frames"] == 6
-    assert summary["live"]["stop_reason"] == ("camera stopped: left camera: no frame for "
-                                              "2.0 s")
+    assert summary["live"]["frames_unreadable"] == FRAMES - 6
+    assert summary["live"]["stop_reason"] == (f"replay ended ({FRAMES - 6} unreadable frames "
+                                              "skipped)")
     assert (tmp_path / "stop" / "mesh.ply").is_file() and summary["mesh"]["triangles"] > 0
+
+
+@pytest.fixture(scope="module")
+def chunked_session(sim_session, tmp_path_factory):
+    """``sim_session`` written again in chunks of about 1 MB (two or three frames each), so
+    that the chunks do not depend on how fast the simulator ran; its poses are
+    ``sim_session``'s."""
+    from sea3d.io.session import SessionWriter, open_session
+
+    out = tmp_path_factory.mktemp("chunked") / "lake.mcap"
+    with open_session(sim_session) as src:
+        match = src.match_pairs()
+        left_t, right_t = src.stamps("left"), src.stamps("right")
+        imu = src.imu()
+        with SessionWriter(out, rig_yaml=src.rig_yaml, chunk_size=1 << 20,
+                           chunk_interval_s=1e6) as w:
+            k = 0
+            for li, ri in zip(match.left_index, match.right_index, strict=True):
+                t = int(left_t[li])
+                assert int(right_t[ri]) == t
+                while k < len(imu) and int(imu.t_ns[k]) <= t:
+                    w.write_imu(int(imu.t_ns[k]), imu.accel_mps2[k], imu.gyro_radps[k])
+                    k += 1
+                w.write_stereo(t, src.image("left", int(li), by="index"),
+                               src.image("right", int(ri), by="index"))
+    return out
+
+
+def _damaged_copy(session, dst, which):
+    """A copy of ``session`` with one chunk's bytes flipped midway (its CRC then fails); the
+    chunk's ``(offset, start_ns, end_ns)``. ``which``: "first" or "middle"."""
+    from mcap.reader import make_reader
+
+    with open(session, "rb") as fh:
+        chunks = sorted(make_reader(fh).get_summary().chunk_indexes,
+                        key=lambda c: c.chunk_start_offset)
+    assert len(chunks) >= 3
+    c = chunks[0] if which == "first" else chunks[len(chunks) // 2]
+    data = bytearray(session.read_bytes())
+    at = c.chunk_start_offset + c.chunk_length // 2
+    data[at:at + 64] = bytes(b ^ 0xFF for b in data[at:at + 64])
+    dst.write_bytes(bytes(data))
+    return c.chunk_start_offset, c.message_start_time, c.message_end_time
+
+
+def _left_stamps(session):
+    from sea3d.io.session import open_session
+
+    with open_session(session) as s:
+        return [int(t) for t in s.stamps("left")]
+
+
+def test_replay_skips_a_damaged_middle_chunk_and_goes_on_after_it(sim_session, chunked_session,
+                                                                   tmp_path, caplog):
+    gt = _gt(sim_session)
+    sim_session = chunked_session
+    damaged = tmp_path / "mid.mcap"
+    offset, start_ns, end_ns = _damaged_copy(sim_session, damaged, "middle")
+    stamps = _left_stamps(sim_session)
+    lost = [t for t in stamps if start_ns <= t <= end_ns]
+    assert lost and stamps[-1] > end_ns  # good frames after the chunk
+    cfg = ProcessConfig(out_dir=tmp_path / "live", poses=PoseConfig(poses_path=gt),
+                        map=MapConfig(keyframes_per_submap=2), report=False)
+    summary, _ = run_live_replay(damaged, cfg, rate=50.0)
+    assert summary["live"]["frames_unreadable"] == len(lost)
+    assert summary["frames"] == len(stamps) - len(lost)
+    assert summary["live"]["stop_reason"] == f"replay ended ({len(lost)} unreadable frames skipped)"
+    rows = _rows(tmp_path / "live")
+    assert max(int(r["t_ns"]) for r in rows) == stamps[-1]
+    assert not {int(r["t_ns"]) for r in rows} & set(lost)
+    assert any(f"chunk at byte {offset}" in r.getMessage() and r.levelname == "WARNING"
+               for r in caplog.records)
+
+
+@pytest.mark.parametrize("command", ["process", "live"])
+def test_a_damaged_first_chunk_skips_its_frames_as_its_message_says(sim_session, chunked_session,
+                                                                   tmp_path, command):
+    gt = _gt(sim_session)
+    sim_session = chunked_session
+    from sea3d.pipeline.process import ExecutorConfig, run_process
+
+    damaged = tmp_path / "first.mcap"
+    _, start_ns, end_ns = _damaged_copy(sim_session, damaged, "first")
+    stamps = _left_stamps(sim_session)
+    lost = [t for t in stamps if start_ns <= t <= end_ns]
+    assert 0 < len(lost) < len(stamps)
+    cfg = ProcessConfig(out_dir=tmp_path / command, poses=PoseConfig(poses_path=gt),
+                        map=MapConfig(keyframes_per_submap=2), report=False,
+                        evaluate=False, executor=ExecutorConfig(workers=0))
+    if command == "process":
+        summary = run_process(damaged, cfg).summary
+        assert summary["frames_unreadable"] == len(lost)
+    else:
+        summary, _ = run_live_replay(damaged, cfg, rate=50.0)
+        assert summary["live"]["frames_unreadable"] == len(lost)
+    assert summary["frames"] == len(stamps) - len(lost)
+    assert summary["mesh"]["triangles"] > 0
 
 
 def test_cli_live_replay(sim_session, tmp_path, capsys):

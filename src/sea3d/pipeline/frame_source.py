@@ -56,7 +56,8 @@ class SessionFrames:
         max_frames: only the first N pairs.
 
     Raises:
-        SessionError: no stereo pairs, or images of another size than the rig.
+        SessionError: no stereo pairs, none that can be read, or images of another size than
+            the rig.
     """
 
     def __init__(self, session: Any, path: Path, rig: Any, *,
@@ -75,7 +76,7 @@ class SessionFrames:
                                 right_index=int(self.match.right_index[i]))
                       for i in range(n)]
         native = rig
-        first = session.image("left", self.pairs[0].left_index, by="index")
+        first = self._first_readable_left()
         if first.shape[:2] != (native.height, native.width):
             raise SessionError(
                 f"{path}: images are {first.shape[1]}x{first.shape[0]} but the rig is "
@@ -83,6 +84,23 @@ class SessionFrames:
                 " (size_px then sets the processing size)")
         self.native_rig = native
         self.imu = session.imu()
+
+    def _first_readable_left(self) -> NDArray[Any]:
+        """The first left image that can be read, for the size check: pairs in a damaged
+        chunk at the start are skipped here as the pipeline skips them (their warning names
+        the chunk), not taken as the whole session's failure.
+
+        Raises:
+            SessionError: no left image of the pairs can be read.
+        """
+        first_err: SessionError | None = None
+        for pair in self.pairs:
+            try:
+                return np.asarray(self.session.image("left", pair.left_index, by="index"))
+            except SessionError as err:
+                first_err = first_err or err
+        raise SessionError(f"{self.path}: none of the {len(self.pairs)} stereo pairs can be "
+                           f"read (the first: {first_err})")
 
     def __len__(self) -> int:
         return len(self.pairs)

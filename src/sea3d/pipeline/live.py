@@ -231,7 +231,8 @@ class ReplayFrames:
     """A session's pairs at their recorded rate (``rate`` times faster), as a live source.
 
     Frames are never skipped: when the consumer is late, the next frame is handed on at once.
-    ``stop_reason`` says why the source ended.
+    A pair that cannot be read (a damaged chunk) is skipped with a warning and counted in
+    ``unreadable``, as ``sea3d process`` skips it. ``stop_reason`` says why the source ended.
     """
 
     def __init__(self, source: SessionFrames, *, rate: float = 1.0,
@@ -242,6 +243,7 @@ class ReplayFrames:
         self.source, self.rate, self.clock, self.sleep = source, rate, clock, sleep
         self.stop_reason = ""
         self.backlog = 0
+        self.unreadable = 0
 
     def __iter__(self) -> Iterator[LiveFrame]:
         pairs = self.source.pairs
@@ -259,13 +261,15 @@ class ReplayFrames:
             try:
                 left, right = self.source.read(pair)
             except SessionError as err:
-                self.stop_reason = f"camera stopped: {err}"
-                return
+                log.warning("frame t_ns=%d cannot be read (%s); skipped", pair.t_ns, err)
+                self.unreadable += 1
+                continue
             yield LiveFrame(t_ns=pair.t_ns, left=left, right=right,
                             imu=imu_between(self.source.imu, t_prev, pair.t_ns),
                             arrival_s=min(due, self.clock()))
             t_prev = pair.t_ns
-        self.stop_reason = "replay ended"
+        self.stop_reason = "replay ended" + (
+            f" ({self.unreadable} unreadable frames skipped)" if self.unreadable else "")
 
 
 def _read_only(image: NDArray[Any]) -> NDArray[Any]:
@@ -982,10 +986,12 @@ def run_live_replay(session_path: Any, config: Any, live: LiveConfig | None = No
         run = _Run(config, source.native_rig, Path(config.out_dir), use_imu=False, feed=feed,
                    choose_odometry=lambda stereo: _odometry(config, stereo, source, None))
         warm_s = run.warm()
-        stats = run.run(ReplayFrames(source, rate=rate), live)
+        replay = ReplayFrames(source, rate=rate)
+        stats = run.run(replay, live)
     summary = run.finish(stats, live, session=str(path),
                          pairs_in_session=source.pairs_in_session,
-                         live_extra={"rate": rate, "warmup_s": warm_s})
+                         live_extra={"rate": rate, "warmup_s": warm_s,
+                                     "frames_unreadable": replay.unreadable})
     return summary, stats
 
 
