@@ -235,3 +235,26 @@ def test_process_goes_on_when_its_dask_worker_is_killed(sim_session, dask_proces
     assert run.returncode == 0, stderr
     assert "a Dask worker was lost with a call" in stderr  # and its frames sent again
     assert json.loads(stdout)["frames"] == 12
+
+
+@pytest.mark.cluster
+def test_a_lost_scheduler_ends_the_calls_in_one_error(dask_processes):
+    import cloudpickle
+
+    from sea3d.errors import ExecutorError
+    from sea3d.pipeline.executors import DaskExecutor
+
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    ex = DaskExecutor(dask_processes)
+    try:
+        futures = [ex.submit(_sum_later, np.ones(100_000), 2.0) for _ in range(2)]
+        time.sleep(1.0)
+        os.kill(ex.client.run_on_scheduler(os.getpid), signal.SIGKILL)
+        with pytest.raises(ExecutorError, match=r"^the Dask cluster at tcp://\S+ lost its "
+                                                r"scheduler$"):
+            while not all(f.done() for f in futures):
+                ex.wait_first([f for f in futures if not f.done()])
+            for f in futures:
+                f.result(timeout=GUARD_S)
+    finally:
+        ex.close()

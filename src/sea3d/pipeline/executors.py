@@ -28,7 +28,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterable
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, Future, InvalidStateError, ProcessPoolExecutor
 from concurrent.futures import wait as cf_wait
 from concurrent.futures.process import BrokenProcessPool
 from multiprocessing.reduction import ForkingPickler
@@ -478,6 +478,8 @@ class DaskExecutor:
         self.address = str(getattr(getattr(self.client, "scheduler", None), "address", "?"))
         self.resubmitted = 0
         """Calls submitted again after their worker was lost."""
+        self._calls: set[_Call] = set()  # not done yet
+        self._closed = False
         if self.workers == 0:
             log.warning("the Dask cluster at %s has no workers yet; frames wait for one "
                         "(at most %g s)", self.address, no_worker_timeout_s)
@@ -504,19 +506,31 @@ class DaskExecutor:
 
     def submit(self, fn: Callable[..., Any], *args: Any) -> Future[Any]:
         call = _Call(fn, args)
-        call.outer.add_done_callback(functools.partial(self._cancel_inner, call))
+        self._calls.add(call)
+        call.outer.add_done_callback(functools.partial(self._forget, call))
         self._start(call)
         return call.outer
+
+    def _scheduler_lost(self) -> bool:
+        """The client gave up on its scheduler (it reconnects for a while first)."""
+        return str(getattr(self.client, "status", "running")) in ("closing", "closed")
 
     def _start(self, call: _Call) -> None:
         while True:
             call.tries += 1
+            if self._closed:
+                call.outer.cancel()
+                return
+            if self._scheduler_lost():
+                call.outer.set_exception(ExecutorError(
+                    f"the Dask cluster at {self.address} lost its scheduler"))
+                return
             try:
                 inner = self.client.submit(call.fn, *self._args(call.args), pure=False)
                 break
             except Exception as err:  # scatter or submit failed: a worker gone, say
                 timed_out = isinstance(err, TimeoutError | self._distributed.TimeoutError)
-                if timed_out or call.tries >= MAX_TRIES:
+                if timed_out or call.tries >= MAX_TRIES or self._scheduler_lost():
                     call.outer.set_exception(self._error(err))
                     return
                 log.warning("the Dask cluster at %s did not take a call (%s: %s); trying "
@@ -534,7 +548,11 @@ class DaskExecutor:
 
     def _on_inner_done(self, call: _Call, inner: Any) -> None:
         """(Dask's callback thread.)"""
-        if call.inner is not inner or call.outer.done():
+        with contextlib.suppress(InvalidStateError):  # cancelled meanwhile (close)
+            self._settle(call, inner)
+
+    def _settle(self, call: _Call, inner: Any) -> None:
+        if call.inner is not inner or call.outer.done() or self._closed:
             return
         status = inner.status
         err: BaseException | None = None
@@ -552,7 +570,12 @@ class DaskExecutor:
             call.outer.set_exception(self._error(
                 err, "lost the workers that ran this call each time Dask tried it"))
             return
-        # cancelled or lost: its worker (with its arrays) is gone, or it never got one
+        # cancelled or lost: its worker (with its arrays) is gone, or it never got one, or
+        # the client gave up on the scheduler
+        if self._scheduler_lost():
+            call.outer.set_exception(ExecutorError(
+                f"the Dask cluster at {self.address} lost its scheduler"))
+            return
         if call.tries >= MAX_TRIES:
             call.outer.set_exception(self._error(
                 err or RuntimeError(f"status {status}"),
@@ -562,8 +585,8 @@ class DaskExecutor:
         self.resubmitted += 1
         self._start(call)
 
-    @staticmethod
-    def _cancel_inner(call: _Call, outer: Future[Any]) -> None:
+    def _forget(self, call: _Call, outer: Future[Any]) -> None:
+        self._calls.discard(call)
         if outer.cancelled() and call.inner is not None:
             with contextlib.suppress(Exception):  # a cluster already gone
                 call.inner.cancel()
@@ -599,6 +622,9 @@ class DaskExecutor:
                     f"{self.no_worker_timeout_s:g} s; {len(fs)} calls wait")
 
     def close(self) -> None:
+        self._closed = True  # calls lost from now on are not submitted again
+        for call in list(self._calls):
+            call.outer.cancel()
         if self._own:
             with contextlib.suppress(Exception):
                 self.client.close(timeout=CONNECT_TIMEOUT_S)
