@@ -32,6 +32,7 @@ __all__ = [
     "KeyframeDatabase",
     "LoopCandidate",
     "PlaceFeatures",
+    "QueryMatcher",
     "Vocabulary",
     "pnp_covariance",
     "verify_loop",
@@ -287,21 +288,52 @@ def pnp_covariance(points_query: F64, uv: F64, K: F64) -> F64 | None:
     return s2 * np.linalg.inv(H)
 
 
+class QueryMatcher:
+    """The ratio-test matches of one query's ORB descriptors against places, each place (by a
+    key the caller gives, a keyframe id) matched once however many candidates' local maps it
+    is part of.
+
+    Args:
+        query: the query keyframe's features.
+        ratio: Lowe's ratio of the best to the second-best Hamming distance.
+    """
+
+    def __init__(self, query: PlaceFeatures, ratio: float = 0.8) -> None:
+        self.query = query
+        self.ratio = ratio
+        self._bf = cv2.BFMatcher(cv2.NORM_HAMMING)
+        self._cache: dict[int, list[tuple[int, int, float]]] = {}
+
+    def matches(self, place: PlaceFeatures, key: int | None = None
+                ) -> list[tuple[int, int, float]]:
+        """``(query index, place index, distance)`` of the query features whose best match
+        in ``place`` passes the ratio test (and is under 64 bits)."""
+        if key is not None and key in self._cache:
+            return self._cache[key]
+        out = []
+        if place.descriptors.shape[0] >= 2:
+            for m in self._bf.knnMatch(self.query.descriptors, place.descriptors, k=2):
+                if (len(m) == 2 and m[0].distance < self.ratio * m[1].distance
+                        and m[0].distance < 64):
+                    out.append((m[0].queryIdx, m[0].trainIdx, float(m[0].distance)))
+        if key is not None:
+            self._cache[key] = out
+        return out
+
+
 def _match_places(
-    query: PlaceFeatures, places: list[PlaceFeatures], ratio: float
+    query: PlaceFeatures, places: list[PlaceFeatures], ratio: float,
+    matcher: QueryMatcher | None = None, keys: Sequence[int] | None = None,
 ) -> tuple[NDArray[np.int64], F64]:
     """Query feature indices and the 3D points (in the first place's frame) they match: the
     ratio test within each place, then each query feature's best match over the places."""
-    matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+    if matcher is None or matcher.query is not query:
+        matcher, keys = QueryMatcher(query, ratio), None
     best: dict[int, tuple[float, NDArray[np.float32]]] = {}
-    for place in places:
-        if place.descriptors.shape[0] < 2:
-            continue
-        for m in matcher.knnMatch(query.descriptors, place.descriptors, k=2):
-            if len(m) == 2 and m[0].distance < ratio * m[1].distance and m[0].distance < 64:
-                q = m[0].queryIdx
-                if q not in best or m[0].distance < best[q][0]:
-                    best[q] = (float(m[0].distance), place.points_rect[m[0].trainIdx])
+    for i, place in enumerate(places):
+        for q, t, dist in matcher.matches(place, None if keys is None else keys[i]):
+            if q not in best or dist < best[q][0]:
+                best[q] = (dist, place.points_rect[t])
     q_idx = np.asarray(sorted(best), dtype=np.int64)
     points = (np.asarray([best[q][1] for q in q_idx.tolist()], dtype=np.float64)
               if q_idx.size else np.zeros((0, 3)))
@@ -319,6 +351,8 @@ def verify_loop(
     ratio: float = 0.8,
     local_map: list[PlaceFeatures] | None = None,
     min_spread: float = 0.0,
+    matcher: QueryMatcher | None = None,
+    place_keys: Sequence[int] | None = None,
 ) -> LoopCandidate | None:
     """Geometric verification of a loop candidate.
 
@@ -331,6 +365,9 @@ def verify_loop(
     place apart (the ratio test within one place) and each query feature keeps its best match,
     so the inliers cover the part of the view that the candidate alone missed, as ORB-SLAM
     verifies a loop against the candidate's covisible map rather than one keyframe.
+
+    ``matcher`` and ``place_keys`` (one key per place: the candidate, then ``local_map``):
+    reuse the query's matches against places already matched for another candidate.
 
     ``min_spread``: the PnP inliers must span at least this fraction of the view's width and of
     its height (a pose fitted to a small patch of the view is not determined).
@@ -345,7 +382,7 @@ def verify_loop(
     if query.descriptors.shape[0] < min_inliers or cand.descriptors.shape[0] < min_inliers:
         return None
     places = [cand, *(local_map or [])]
-    q_idx, points = _match_places(query, places, ratio)
+    q_idx, points = _match_places(query, places, ratio, matcher, place_keys)
     if len(q_idx) < min_inliers:
         return None
     P = points
@@ -433,7 +470,10 @@ def _consensus_3d(points_a: F64, points_b: F64, tol_m: F64, hypotheses: int = 30
     if n < 3:
         return 0
     rng = np.random.default_rng(0)
-    idx = np.stack([rng.choice(n, 3, replace=False) for _ in range(hypotheses)])
+    idx = rng.integers(0, n, (2 * hypotheses, 3))
+    distinct = (idx[:, 0] != idx[:, 1]) & (idx[:, 1] != idx[:, 2]) & (idx[:, 0] != idx[:, 2])
+    idx = idx[distinct][:hypotheses]
+    hypotheses = idx.shape[0]
     A, B = points_a[idx], points_b[idx]  # (h, 3, 3)
     ma, mb = A.mean(axis=1, keepdims=True), B.mean(axis=1, keepdims=True)
     H = (A - ma).transpose(0, 2, 1) @ (B - mb)

@@ -50,6 +50,7 @@ from sea3d.odometry.loop import (
     KeyframeDatabase,
     LoopCandidate,
     PlaceFeatures,
+    QueryMatcher,
     Vocabulary,
     verify_loop,
 )
@@ -1204,6 +1205,7 @@ class StereoInertialOdometry:
         if self._db is not None and kf.bow is not None:
             self._db.add(k, kf.bow)
         found: LoopCandidate | None = None
+        matcher = QueryMatcher(kf.place)
         covered: set[int] = set()  # keyframes whose places a failed verification has used
         for q in candidates:
             other = self._keyframes[q]
@@ -1213,9 +1215,11 @@ class StereoInertialOdometry:
             covered.add(q)
             covered.update(self._neighbours(q))
             self.loop_checks.candidates += 1
+            keys, local = self._local_map(q)
             found = verify_loop(
                 kf.place, other.place, q, self.geometry.K, min_inliers=c.loop_min_inliers,
-                local_map=self._local_map(q), min_spread=c.loop_min_spread,
+                local_map=local, min_spread=c.loop_min_spread, matcher=matcher,
+                place_keys=[q, *keys],
             )
             if found is None:
                 log.debug("loop candidate: keyframe %d with %d rejected: its geometry does not "
@@ -1280,21 +1284,23 @@ class StereoInertialOdometry:
         i = same.index(q)
         return same[max(0, i - n): i] + same[i + 1: i + 1 + n]
 
-    def _local_map(self, q: int) -> list[PlaceFeatures]:
+    def _local_map(self, q: int) -> tuple[list[int], list[PlaceFeatures]]:
         """Places of keyframe ``q``'s neighbours in its segment (``loop_local_keyframes`` on
-        each side), their points moved into ``q``'s frame by the poses between them."""
+        each side), their points moved into ``q``'s frame by the poses between them, and
+        their keyframe ids."""
         cand = self._keyframes[q]
         T_q_world = invert_T(cand.T_world_rect)
-        out = []
+        ids, out = [], []
         for o in self._neighbours(q):
             place = self._keyframes[o].place
             if place is None or place.descriptors.shape[0] == 0:
                 continue
             T = T_q_world @ self._keyframes[o].T_world_rect
             P = place.points_rect.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+            ids.append(o)
             out.append(PlaceFeatures(uv=place.uv, descriptors=place.descriptors,
                                      points_rect=P.astype(np.float32)))
-        return out
+        return ids, out
 
     def _train_vocabulary(self, kf_ids: list[int]) -> None:
         c = self.config
