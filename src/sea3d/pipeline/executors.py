@@ -21,18 +21,14 @@ import functools
 import logging
 import multiprocessing
 import os
-import pickle
 import signal
 import sys
-import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import FIRST_COMPLETED, Future, InvalidStateError, ProcessPoolExecutor
 from concurrent.futures import wait as cf_wait
 from concurrent.futures.process import BrokenProcessPool
-from multiprocessing.reduction import ForkingPickler
-from pathlib import Path
 from typing import Any, Protocol
 
 from sea3d.errors import ConfigError, ExecutorError
@@ -95,6 +91,8 @@ WATCH_POLL_S = 0.2
 """Seconds between two checks that every local worker process is still alive."""
 MAX_TRIES = 3
 """Times one call is started before the run gives up on it (its worker died every time)."""
+EXIT_CODE_WAIT_S = 2.0
+"""Seconds to wait for a dead worker's exit code (to name it) once the pool saw it go."""
 CLOSE_GRACE_S = 10.0
 """Seconds ``close`` waits for the local workers to end by themselves before killing them."""
 
@@ -131,29 +129,10 @@ def _init_worker(
         # sees the change and refuses to run
         sys.modules["numba"].config.reload_config()
     if setup_path is not None:
-        with open(setup_path, "rb") as fh:
-            fn, args = pickle.load(fh)
+        from sea3d.io.worker_setup import read_worker_setup
+
+        fn, args = read_worker_setup(setup_path)
         fn(*args)
-
-
-SETUP_PREFIX = "sea3d-worker-setup-"
-
-
-def _remove_setups_of_dead_runs() -> None:
-    """Remove the set-up files (in the temporary folder) of runs whose process is gone (one
-    killed with SIGKILL has no chance to remove its own)."""
-    folder = Path(tempfile.gettempdir())
-    for path in folder.glob(f"{SETUP_PREFIX}*-*.pickle"):
-        pid = path.name[len(SETUP_PREFIX):].split("-", 1)[0]
-        if not pid.isdigit():
-            continue
-        try:
-            os.kill(int(pid), 0)
-        except ProcessLookupError:
-            with contextlib.suppress(OSError):
-                path.unlink()
-        except OSError:
-            pass  # another user's process, alive
 
 
 def _signal_name(exitcode: int | None) -> str:
@@ -211,11 +190,12 @@ class ProcessExecutor:
             # its start-up pipe: spawn writes that pipe while still holding its read end, so
             # a worker killed before reading it all would block the write, and this process,
             # forever. What goes through the pipe now fits in its buffer.
-            _remove_setups_of_dead_runs()
-            fd, self._setup_path = tempfile.mkstemp(
-                prefix=f"{SETUP_PREFIX}{os.getpid()}-", suffix=".pickle")
-            with os.fdopen(fd, "wb") as fh:
-                fh.write(ForkingPickler.dumps(setup))
+            from sea3d.io.worker_setup import write_worker_setup
+
+            try:
+                self._setup_path = write_worker_setup(setup)
+            except OSError as err:
+                raise ExecutorError(f"cannot hand the workers their set-up: {err}") from err
         self._lock = threading.RLock()
         self._calls: dict[int, _Call] = {}  # by id(outer), while not done
         self._closed = False
@@ -296,6 +276,10 @@ class ProcessExecutor:
                     return
                 broken = getattr(self._pool, "_broken", False)
                 dead = self._dead_worker()
+                deadline = time.monotonic() + EXIT_CODE_WAIT_S
+                while broken and dead is None and time.monotonic() < deadline:
+                    time.sleep(0.02)  # the pool saw its pipe close; the exit code follows
+                    dead = self._dead_worker()
                 if dead is not None or broken:
                     said = broken[:1].lower() + broken[1:] if isinstance(broken, str) else ""
                     self._recover(dead or said or "it ended")
@@ -338,8 +322,9 @@ class ProcessExecutor:
         self._watch.join()
         _stop_pool(pool, kill=False)
         if self._setup_path is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(self._setup_path)
+            from sea3d.io.worker_setup import remove_worker_setup
+
+            remove_worker_setup(self._setup_path)
 
 
 def _stop_pool(pool: ProcessPoolExecutor, *, kill: bool) -> None:
