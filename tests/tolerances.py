@@ -4,7 +4,3 @@ PIXEL_EXACT_PX = 1e-6  # pinhole project/unproject against OpenCV
 REFRACTIVE_ROUNDTRIP_PX = 1e-4  # project(unproject(uv)) through a port
 PINHOLE_REDUCTION_PX = 1e-9  # port camera that must reduce to the pinhole exactly
 METRE_EXACT_M = 1e-9
-# a loop closure is right when its relative pose is this close to the truth (the simulator's);
-# the benchmarks count precision and recall of the closures by the same rule
-LOOP_RIGHT_M = 0.03
-LOOP_RIGHT_DEG = 1.0

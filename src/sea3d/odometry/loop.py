@@ -372,9 +372,9 @@ def verify_loop(
     ``min_spread``: the PnP inliers must span at least this fraction of the view's width and of
     its height (a pose fitted to a small patch of the view is not determined).
 
-    Where enough inliers have depth in both keyframes, the pose and its covariance come from a
-    rigid fit of those 3D pairs instead of PnP's: PnP trades rotation for translation when the
-    points crowd together, while the 3D pairs fix both.
+    Before PnP RANSAC, the matches with depth in both keyframes must agree on one rigid motion
+    for at least half of ``min_inliers`` of them (a batched 3-pair RANSAC): most candidates are
+    places that only look alike, and this refuses them for a fraction of PnP's cost.
 
     Returns:
         A :class:`LoopCandidate`, or None when the geometry does not hold.
@@ -442,18 +442,6 @@ def verify_loop(
     T_cq[:3, :3] = R.T
     T_cq[:3, 3] = -R.T @ T_qc[:3, 3]
     covariance = pnp_covariance(moved, uv[inl], K)
-    if consistent >= max(6, min_inliers // 2):
-        # the inliers with depth in both keyframes fix the pose in 3D too: PnP alone trades
-        # rotation for translation when the inliers crowd into part of the view
-        # every match with depth in both, not only PnP's inliers: PnP's pixel threshold would
-        # keep the pairs whose 3D noise happens to be small, and the fit's spread would be
-        # underestimated
-        Pq_all = query.points_rect[q_idx].astype(np.float64)
-        ok3 = np.isfinite(Pq_all).all(axis=1)
-        refined = _rigid_refine(Pq_all[ok3], P[ok3], T_cq,
-                                0.03 + 0.03 * np.abs(Pq_all[ok3, 2]))
-        if refined is not None:
-            T_cq, covariance, consistent = refined
     return LoopCandidate(
         candidate=cand_id,
         T_cand_query=T_cq,
@@ -486,47 +474,3 @@ def _consensus_3d(points_a: F64, points_b: F64, tol_m: F64, hypotheses: int = 30
     moved = np.einsum("hij,nj->hni", R, points_a) + t[:, None, :]
     inliers = (np.linalg.norm(moved - points_b[None], axis=2) < tol_m[None]).sum(axis=1)
     return int(inliers.max())
-
-
-def _rigid_refine(
-    points_query: F64, points_cand: F64, T_cand_query: F64, tol_m: F64, iterations: int = 3
-) -> tuple[F64, F64, int] | None:
-    """Least-squares rigid fit of matched 3D points (Kabsch, by scipy's ``align_vectors``) from
-    a starting pose, re-selecting the pairs within ``tol_m`` of each other each time.
-
-    Args:
-        points_query: (N, 3) points in the query's ``rect_left``, metres.
-        points_cand: (N, 3) the same points in the candidate's ``rect_left``, metres.
-        T_cand_query: 4x4 starting pose (from PnP).
-        tol_m: (N,) largest distance of a pair that is kept, metres.
-
-    Returns:
-        ``(T_cand_query, covariance (6, 6), pairs)``: the covariance of ``T_cand_query @
-        Exp(xi)`` is ``s^2 (J^T J)^-1`` with ``J_i = [-[p_i]_x, I]`` (rotation first, in the
-        query's frame) and ``s^2`` the residuals' variance per coordinate; None when fewer than
-        6 pairs remain or the fit is degenerate.
-    """
-    from scipy.spatial.transform import Rotation
-
-    T = T_cand_query
-    keep = np.zeros(points_query.shape[0], dtype=bool)
-    for _ in range(iterations):
-        moved = points_query @ T[:3, :3].T + T[:3, 3]
-        keep = np.linalg.norm(moved - points_cand, axis=1) < tol_m
-        if keep.sum() < 6:
-            return None
-        a, b = points_cand[keep], points_query[keep]
-        ma, mb = a.mean(axis=0), b.mean(axis=0)
-        rot, _ = Rotation.align_vectors(a - ma, b - mb)
-        T = np.eye(4)
-        T[:3, :3] = rot.as_matrix()
-        T[:3, 3] = ma - T[:3, :3] @ mb
-    b = points_query[keep]
-    r = b @ T[:3, :3].T + T[:3, 3] - points_cand[keep]
-    n = b.shape[0]
-    J = np.concatenate([-_skew(b), np.broadcast_to(np.eye(3), (n, 3, 3))], axis=2).reshape(3 * n, 6)
-    H = J.T @ J
-    if not np.isfinite(H).all() or np.linalg.cond(H) > 1e12:
-        return None
-    s2 = float(np.sum(r**2)) / (3 * n - 6)
-    return T, s2 * np.linalg.inv(H), int(n)
