@@ -98,8 +98,15 @@ def _cmd_live(args: argparse.Namespace) -> int:
             with StopOnSignals(recorder.request_stop):
                 summary, stats, _rec = run_live_cameras(recorder, config, live, feed=feed)
         else:
-            summary, stats = run_live_replay(args.replay, config, live, rate=args.rate,
-                                             feed=feed)
+            from sea3d.cli._signals import StopOnSignals
+
+            # Ctrl-C or SIGTERM ends the replay at the next frame; what was replayed so far is
+            # finished and written, as when a recording is stopped
+            stops: list[str] = []
+            with StopOnSignals(stops.append):
+                summary, stats = run_live_replay(args.replay, config, live, rate=args.rate,
+                                                 feed=feed,
+                                                 stop=lambda: stops[-1] if stops else None)
     finally:
         if feed is not None:
             feed.close()

@@ -233,14 +233,18 @@ class ReplayFrames:
     Frames are never skipped: when the consumer is late, the next frame is handed on at once.
     A pair that cannot be read (a damaged chunk) is skipped with a warning and counted in
     ``unreadable``, as ``sea3d process`` skips it. ``stop_reason`` says why the source ended.
+    ``stop``, polled before each frame, returns a reason to end the replay early (Ctrl-C), or
+    None; the frames handed on so far are finished as usual.
     """
 
     def __init__(self, source: SessionFrames, *, rate: float = 1.0,
                  clock: Callable[[], float] = time.monotonic,
-                 sleep: Callable[[float], Any] = time.sleep) -> None:
+                 sleep: Callable[[float], Any] = time.sleep,
+                 stop: Callable[[], str | None] | None = None) -> None:
         if not rate > 0:
             raise ConfigError(f"rate must be > 0, got {rate}")
         self.source, self.rate, self.clock, self.sleep = source, rate, clock, sleep
+        self.stop = stop
         self.stop_reason = ""
         self.backlog = 0
         self.unreadable = 0
@@ -255,6 +259,10 @@ class ReplayFrames:
             wait = due - self.clock()
             if wait > 0:
                 self.sleep(wait)
+            reason = self.stop() if self.stop is not None else None
+            if reason:
+                self.stop_reason = reason
+                return
             # frames already due and not yet handed on: what a camera's queue would hold
             now_stamp = t0 + (self.clock() - t0_wall) * self.rate * 1e9
             self.backlog = max(1, int(np.searchsorted(stamps, now_stamp, "right")) - pair.index)
@@ -955,7 +963,9 @@ class _Run:
 
 @locks_out_dir  # as process: a second run into the folder is refused (OutputInUseError)
 def run_live_replay(session_path: Any, config: Any, live: LiveConfig | None = None, *,
-                    rate: float = 1.0, feed: Any = None) -> tuple[dict[str, Any], LiveStats]:
+                    rate: float = 1.0, feed: Any = None,
+                    stop: Callable[[], str | None] | None = None,
+                    ) -> tuple[dict[str, Any], LiveStats]:
     """``sea3d live --replay``: a recorded session replayed at its rate through the live loop,
     depth on one worker process, then the finish step and the outputs of ``sea3d process``
     (trajectory, mesh, cloud, status.csv, results.mcap, summary.json with a ``live`` block).
@@ -965,6 +975,8 @@ def run_live_replay(session_path: Any, config: Any, live: LiveConfig | None = No
         config: a :class:`~sea3d.pipeline.process.ProcessConfig` (depth, fusion, output).
         live: :class:`LiveConfig`. rate: replay speed (1: the recorded rate).
         feed: a :class:`~sea3d.pipeline.live_publish.LiveFeed` publishing while it runs.
+        stop: polled before each frame; a reason it returns ends the replay there (Ctrl-C),
+            and the frames so far are finished and written as at the end of the session.
 
     Returns:
         ``(summary, stats)``.
@@ -986,7 +998,7 @@ def run_live_replay(session_path: Any, config: Any, live: LiveConfig | None = No
         run = _Run(config, source.native_rig, Path(config.out_dir), use_imu=False, feed=feed,
                    choose_odometry=lambda stereo: _odometry(config, stereo, source, None))
         warm_s = run.warm()
-        replay = ReplayFrames(source, rate=rate)
+        replay = ReplayFrames(source, rate=rate, stop=stop)
         stats = run.run(replay, live)
     summary = run.finish(stats, live, session=str(path),
                          pairs_in_session=source.pairs_in_session,
