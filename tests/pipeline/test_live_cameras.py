@@ -322,3 +322,27 @@ def test_the_feed_keeps_finished_submap_meshes_on_disk_and_serves_them(monkeypat
         feed.publisher = None
     finally:
         feed.close()
+
+
+def test_cli_a_camera_that_fails_exits_non_zero_after_writing_the_frames_so_far(
+        sim_session, cameras, tmp_path, monkeypatch, capsys):
+    """``sea3d live --record``: a camera that raises (unplugged) ends the recording; the
+    frames before it are reconstructed and written, and the exit status is 1 with the fault on
+    stderr, as ``sea3d record`` does (it was 0)."""
+    import sea3d.cli.live as cli_live
+    from sea3d.cli import main
+
+    with open_session(cameras) as s:
+        rig_yaml = s.rig_yaml
+    left = CallableSource(_StopsAfter(cameras, 4), name="left-cam")
+    monkeypatch.setattr(cli_live, "_recorder",
+                        lambda args: _recorder(cameras, args.record, rig_yaml, left=left))
+    out = tmp_path / "out"
+    code = main(["live", "--record", str(tmp_path / "rec.mcap"), "--left", "0", "--right", "1",
+                 "-o", str(out), "--poses", str(_gt(sim_session))])
+    captured = capsys.readouterr()
+    assert code == 1
+    assert "camera stopped: left source left-cam" in captured.out
+    assert "sea3d live: left source left-cam: camera 'left': 30 grabs failed" in captured.err
+    assert (out / "mesh.ply").is_file() and (out / "trajectory.tum").is_file()
+    assert json.loads((out / "summary.json").read_text())["frames"] == 4

@@ -71,6 +71,7 @@ def _cmd_live(args: argparse.Namespace) -> int:
                       depth_max_backlog=args.depth_max_backlog or None,  # 0: any
                       depth_pick=args.depth_pick, depth_max_lag_s=args.depth_max_lag_s or None)
     recorder = _recorder(args) if args.record is not None else None
+    record_errors: list[str] = []
     servers: list[Any] = []
     rig_yaml = recorder.config.rig_yaml if recorder is not None else None
     feed = None
@@ -96,7 +97,8 @@ def _cmd_live(args: argparse.Namespace) -> int:
             from sea3d.cli._signals import StopOnSignals
 
             with StopOnSignals(recorder.request_stop):
-                summary, stats, _rec = run_live_cameras(recorder, config, live, feed=feed)
+                summary, stats, rec = run_live_cameras(recorder, config, live, feed=feed)
+            record_errors = list(rec.errors)
         else:
             from sea3d.cli._signals import StopOnSignals
 
@@ -112,9 +114,15 @@ def _cmd_live(args: argparse.Namespace) -> int:
             feed.close()
         for s in servers:
             s.stop()
+    # a camera that failed (unplugged, lost) or a writer error: the frames before it are
+    # reconstructed and written, and the exit status says the recording did not end cleanly,
+    # as `sea3d record` does
+    status = 1 if record_errors else 0
     if args.json:
         print(json.dumps(summary, indent=2, default=str))
-        return 0
+        for fault in record_errors:
+            print(f"sea3d live: {fault}", file=sys.stderr)
+        return status
     info = summary["live"]
     lat, pose = info["latency_s"], info["pose_latency_s"]
     print(f"{stats.frames} frames: {info['fraction_tracked']:.0%} tracked, "
@@ -122,7 +130,9 @@ def _cmd_live(args: argparse.Namespace) -> int:
           f"keep up); frame to fusion (fused frames) p50 {lat['p50'] or 0:.2f} s, p99 "
           f"{lat['p99'] or 0:.2f} s; frame to pose (every frame) p50 {pose['p50'] or 0:.2f} s, "
           f"p99 {pose['p99'] or 0:.2f} s; {info['stop_reason']}; outputs in {args.output}")
-    return 0
+    for fault in record_errors:
+        print(f"sea3d live: {fault}", file=sys.stderr)
+    return status
 
 
 def register(sub: argparse._SubParsersAction) -> None:
