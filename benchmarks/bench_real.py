@@ -173,7 +173,7 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-# evo's ATE RMSE (SE3) on evo's own V1_02 test files, as issue 21 quotes it (evo 1.x, default
+# evo's ATE RMSE (SE3) on evo's own V1_02 test files, as quoted there (evo 1.x, default
 # association: 0.01 s): the repeats kept, and the first pose of each repeated stamp kept
 EVO_V102_ATE_M = {"keep": 0.091727, "first": 0.091747}
 

@@ -1,4 +1,4 @@
-"""sea3d's SGM against OpenCV MODE_SGBM_3WAY on the two 1080p textures of issue 22.
+"""sea3d's SGM against OpenCV MODE_SGBM_3WAY on two 1080p textures.
 
 - ``noise``: 3x3-blurred uniform noise at a constant disparity of 64 (the input of
   ``bench_stereo_gpu.py --cpu-only``);

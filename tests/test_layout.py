@@ -1,4 +1,4 @@
-"""The house's layout rules, checked statically on every file under ``src/sea3d`` (issue 18).
+"""The house's layout rules, checked statically on every file under ``src/sea3d``.
 
 Pure ``ast``: nothing is imported, so the test is fast and sees imports inside functions too.
 
@@ -398,7 +398,7 @@ def test_allowed_shapes_pass(rel_path: str, source: str) -> None:
     assert not problems, problems
 
 
-# -- capture hands frames on; eval computes metrics (issue 18) ---------------------------------
+# -- capture hands frames on; eval computes metrics ---------------------------------
 
 # ``capture`` reads cameras and sensors and hands frames on: it runs no stage.
 _CAPTURE_ALLOWED = (
@@ -624,7 +624,7 @@ def test_flag_rule_allows_docs_fields_and_dashes(rel_path: str, source: str) -> 
     assert not check_flag_literals(parse_module(source, rel_path))
 
 
-# -- io is the only place that knows file formats (issue 18) -----------------------------------
+# -- io is the only place that knows file formats -----------------------------------
 
 # Calls that open, read or write a file by its format, outside ``sea3d.io``. Aliases are
 # spelled as the house imports them (``np``, ``o3d``); ``json.dump`` to ``sys.stdout`` or

@@ -338,7 +338,7 @@ def test_poses_clouds_and_meshes_reach_the_client():
     [["foxglove.websocket.v1"], ["foxglove.sdk.v1"], ["foxglove.sdk.v1", "foxglove.websocket.v1"]],
 )
 def test_clients_of_either_subprotocol_name_connect_and_get_data(offer):
-    """Issue 23.3: a client offering only the old name (Lichtblick before foxglove.sdk.v1) is
+    """A client offering only the old name (Lichtblick before foxglove.sdk.v1) is
     accepted, answered with the name it offered, and speaks the same protocol."""
     import json
 

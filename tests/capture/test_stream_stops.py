@@ -1,4 +1,4 @@
-"""Streams that stop when told, in bounded memory, and keep what they received (issue 19).
+"""Streams that stop when told, in bounded memory, and keep what they received.
 
 Loopback only (127.0.0.1); every process is bounded in time and killed on failure.
 """

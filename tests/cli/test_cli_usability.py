@@ -41,7 +41,7 @@ def test_sim_help_shows_the_subcommand_as_optional(capsys: pytest.CaptureFixture
     assert "sea3d sim [options]" in text and "sea3d sim calibration [options]" in text
     with pytest.raises(SystemExit):
         main(["sim", "calibration", "--help"])
-    # -v and -q are accepted after the subcommand too (issue 23.8)
+    # -v and -q are accepted after the subcommand too
     assert capsys.readouterr().out.startswith(
         "usage: sea3d sim calibration [-h] [-v] [-q] [--rig RIG]")
 

@@ -1,6 +1,6 @@
 """Options whose value lands in a config dataclass field or a library parameter take their
 default from there (``cli._args.config_option`` / ``param_option``), so the CLI's default and
-the library's are one value and cannot drift (issue 18)."""
+the library's are one value and cannot drift."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """``eval trajectory`` on files as real tools write them: repeated stamps, and paths too short,
-too still or too straight for the rotation error or the RPE to mean anything (issue 21)."""
+too still or too straight for the rotation error or the RPE to mean anything."""
 
 import json
 from pathlib import Path

@@ -1,4 +1,4 @@
-"""The one atomic write (issue 18 item 6): all or nothing, one temporary-name convention."""
+"""The one atomic write: all or nothing, one temporary-name convention."""
 
 from __future__ import annotations
 

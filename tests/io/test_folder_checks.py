@@ -1,4 +1,4 @@
-"""Folder sessions are checked on every read, not only by ``verify`` (issue 19).
+"""Folder sessions are checked on every read, not only by ``verify``.
 
 Each case: what every reader (``open_session``, hence process, convert, odometry, info) hands
 out, what ``verify`` says, and what ``convert`` writes.

@@ -1,4 +1,4 @@
-"""io is a room of its own (issue 18 item 6): it imports no stage, and its session package
+"""io is a room of its own: it imports no stage, and its session package
 reaches no private name of another module."""
 
 from __future__ import annotations

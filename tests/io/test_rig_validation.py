@@ -1,4 +1,4 @@
-"""Rig files with implausible distortion or a duplicated key are refused (issue 19)."""
+"""Rig files with implausible distortion or a duplicated key are refused."""
 
 from __future__ import annotations
 

@@ -323,7 +323,7 @@ def test_a_bare_mcap_file_is_read_too(tmp_path):
 
 
 def test_bag_info_on_a_bag_lacking_a_preset_topic_lists_what_is_there(oak_bag, capsys):
-    """Issue 23.11: info names the preset's missing roles instead of failing; export refuses."""
+    """Info names the preset's missing roles instead of failing; export refuses."""
     argv = ["bag", "info", str(oak_bag), "--preset", "oak-d", "--topic", "imu=/oak/no_imu"]
     assert main(argv) == 0
     out = capsys.readouterr().out

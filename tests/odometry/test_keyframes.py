@@ -1,5 +1,5 @@
 """Keyframes by parallax and track overlap, and re-links across lost stretches told apart from
-loop closures (issue 21)."""
+loop closures."""
 
 from __future__ import annotations
 

@@ -69,7 +69,7 @@ def test_session_without_rig_or_imu(sim_survey, tmp_path, capsys) -> None:
     out = tmp_path / "t.tum"
     assert sea3d_main(["odometry", str(bare), "-o", str(out)]) == 2
     err = capsys.readouterr().err
-    # A session recorded with a rig whose rig.yaml is gone is damaged, not rig-less (issue 19):
+    # A session recorded with a rig whose rig.yaml is gone is damaged, not rig-less:
     # the error names the missing file (a rig-less session's "stores no rig" is
     # tests/io/test_resolve_rig.py's).
     assert "rig.yaml is missing, though the session was recorded with a rig" in err

@@ -43,7 +43,7 @@ def test_demo_runs_the_whole_chain_into_one_report(tmp_path, capsys):
     for part in ("One stereo pair", "Trajectory", "Mesh", "Status timeline", "Timings",
                  "colour bar: depth (m)", "one-off"):
         assert part in html, part
-    # Issue 23.6: the report sends the user where the files are, results.mcap included.
+    # The report sends the user where the files are, results.mcap included.
     assert "Files in process/: process/trajectory.tum" in html and "process/results.mcap" in html
     assert Path(s["files"]["results_mcap"]) == out / "process" / "results.mcap"
 

@@ -1,4 +1,4 @@
-"""``sea3d process`` holds its output folder, and its workers die with it (issue 19).
+"""``sea3d process`` holds its output folder, and its workers die with it.
 
 Every child process is bounded in time and killed on failure.
 """

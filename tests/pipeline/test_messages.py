@@ -1,4 +1,4 @@
-"""Messages that say what went wrong, not what happened to fail next (issue 19)."""
+"""Messages that say what went wrong, not what happened to fail next."""
 
 from __future__ import annotations
 

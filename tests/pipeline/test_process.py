@@ -312,7 +312,7 @@ def test_the_enhancement_hook_colours_the_mesh(sim_session, first_run, tmp_path)
 
 
 def test_a_cached_rerun_lists_no_matching_as_if_it_had_run(sim_session, first_run, tmp_path):
-    """Issue 23.7: stage timings of cached frames belong to the run that computed them."""
+    """Stage timings of cached frames belong to the run that computed them."""
     fresh = first_run[1].summary["worker_timings_s"]
     assert sum(fresh.values()) > 0  # the first run did match
     res = _scripted_run(sim_session, first_run, tmp_path)
@@ -324,7 +324,7 @@ def test_a_cached_rerun_lists_no_matching_as_if_it_had_run(sim_session, first_ru
 
 
 def test_mesh_in_the_ground_truths_frame_and_eval_surface_agree(first_run, sim_session, capsys):
-    """Issue 23.1: README's ``process`` then ``eval surface`` gives the process report's figure."""
+    """README's ``process`` then ``eval surface`` gives the process report's figure."""
     out, _ = first_run
     s = json.loads((out / "summary.json").read_text())
     assert s["frame_of_file"]["mesh.ply"].startswith("the odometry's world")

@@ -1,4 +1,4 @@
-"""A self-calibrated camera no lens can have fails the model (issue 19)."""
+"""A self-calibrated camera no lens can have fails the model."""
 
 from __future__ import annotations
 
