@@ -167,8 +167,8 @@ def test_vocabulary_ranks_the_revisited_place_first(rng) -> None:
     assert 0.0 <= scores.min() and scores.max() <= 1.0 + 1e-6
 
 
-def test_pose_graph_spreads_a_loop_over_the_drifted_chain() -> None:
-    # a square of 4 m sides in 40 keyframes, the odometry turning 1 % too little
+def _drifted_square():
+    """A square of 4 m sides in 40 keyframes, the odometry turning 1 % too little."""
     true, odo = {}, {}
     T_t, T_o = np.eye(4), np.eye(4)
     step = make_T(np.eye(3), [0.4, 0.0, 0.0])
@@ -177,6 +177,11 @@ def test_pose_graph_spreads_a_loop_over_the_drifted_chain() -> None:
         turn = np.pi / 2 if (k + 1) % 10 == 0 else 0.0
         T_t = T_t @ step @ make_T(rotvec_to_R([0, 0, turn]), np.zeros(3))
         T_o = T_o @ step @ make_T(rotvec_to_R([0, 0, turn * 0.99]), np.zeros(3))
+    return true, odo
+
+
+def test_pose_graph_spreads_a_loop_over_the_drifted_chain() -> None:
+    true, odo = _drifted_square()
     before = np.linalg.norm(odo[40][:3, 3] - true[40][:3, 3])
     graph = PoseGraph()
     graph.add_loop(0, 40, np.linalg.inv(true[0]) @ true[40])  # verified: back at the start
@@ -191,19 +196,6 @@ def test_pose_graph_spreads_a_loop_over_the_drifted_chain() -> None:
     weak.add_loop(0, 40, np.linalg.inv(true[0]) @ true[40], covariance=np.eye(6) * 100.0)
     loose = weak.optimise(odo, segs, odo)
     assert max(np.linalg.norm(loose[k][:3, 3] - odo[k][:3, 3]) for k in odo) < 0.05 * before
-
-
-def _drifted_square():
-    """A square of 4 m sides in 40 keyframes, the odometry turning 1 % too little."""
-    true, odo = {}, {}
-    T_t, T_o = np.eye(4), np.eye(4)
-    step = make_T(np.eye(3), [0.4, 0.0, 0.0])
-    for k in range(41):
-        true[k], odo[k] = T_t.copy(), T_o.copy()
-        turn = np.pi / 2 if (k + 1) % 10 == 0 else 0.0
-        T_t = T_t @ step @ make_T(rotvec_to_R([0, 0, turn]), np.zeros(3))
-        T_o = T_o @ step @ make_T(rotvec_to_R([0, 0, turn * 0.99]), np.zeros(3))
-    return true, odo
 
 
 def test_a_loop_that_agrees_with_the_odometry_passes_the_consistency_test_and_a_wrong_one_fails():

@@ -1212,10 +1212,11 @@ class StereoInertialOdometry:
             if other.place is None or q in covered:
                 # a neighbour of an earlier candidate: its place was in that one's local map
                 continue
+            neighbours = self._neighbours(q)
             covered.add(q)
-            covered.update(self._neighbours(q))
+            covered.update(neighbours)
             self.loop_checks.candidates += 1
-            keys, local = self._local_map(q)
+            keys, local = self._local_map(q, neighbours)
             found = verify_loop(
                 kf.place, other.place, q, self.geometry.K, min_inliers=c.loop_min_inliers,
                 local_map=local, min_spread=c.loop_min_spread, matcher=matcher,
@@ -1284,14 +1285,14 @@ class StereoInertialOdometry:
         i = same.index(q)
         return same[max(0, i - n): i] + same[i + 1: i + 1 + n]
 
-    def _local_map(self, q: int) -> tuple[list[int], list[PlaceFeatures]]:
-        """Places of keyframe ``q``'s neighbours in its segment (``loop_local_keyframes`` on
-        each side), their points moved into ``q``'s frame by the poses between them, and
-        their keyframe ids."""
+    def _local_map(self, q: int, neighbours: list[int]
+                   ) -> tuple[list[int], list[PlaceFeatures]]:
+        """Places of keyframe ``q``'s ``neighbours`` (:meth:`_neighbours`), their points moved
+        into ``q``'s frame by the poses between them, and their keyframe ids."""
         cand = self._keyframes[q]
         T_q_world = invert_T(cand.T_world_rect)
         ids, out = [], []
-        for o in self._neighbours(q):
+        for o in neighbours:
             place = self._keyframes[o].place
             if place is None or place.descriptors.shape[0] == 0:
                 continue
