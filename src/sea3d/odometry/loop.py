@@ -441,13 +441,12 @@ def verify_loop(
     T_cq = np.eye(4)
     T_cq[:3, :3] = R.T
     T_cq[:3, 3] = -R.T @ T_qc[:3, 3]
-    covariance = pnp_covariance(moved, uv[inl], K)
     return LoopCandidate(
         candidate=cand_id,
         T_cand_query=T_cq,
         inliers=int(inl.size),
         consistent_3d=consistent,
-        covariance=covariance,
+        covariance=pnp_covariance(moved, uv[inl], K),
     )
 
 
