@@ -91,6 +91,34 @@ def test_damaged_chunk_is_reported_and_the_rest_is_read(tmp_path):
             np.testing.assert_array_equal(s.image("left", k), _frame(k))
 
 
+def test_imu_samples_of_a_damaged_chunk_get_one_warning_for_the_chunk(tmp_path, caplog):
+    """40 IMU samples in each of three chunks, the middle one damaged: its samples are
+    skipped with one warning naming the chunk's offset and their count (there was one
+    warning a sample), and the samples of the other chunks are read."""
+    path = tmp_path / "s.mcap"
+    with SessionWriter(path, chunk_size=1 << 20, chunk_interval_s=1e6) as w:
+        for c in range(3):
+            for k in range(40):
+                w.write_imu((c * 40 + k) * 5_000_000, [c, k, 9.81], [0, 0, 0])
+            w.flush()
+    with open_session(path) as s:
+        chunks = sorted({int(k) for k, _ in s._loc["imu"]})
+        assert len(chunks) == 3
+        middle = s._chunks[chunks[1]]
+    data = bytearray(path.read_bytes())
+    data[middle.data_offset + middle.data_length // 2] ^= 0xFF
+    path.write_bytes(bytes(data))
+    with caplog.at_level(logging.WARNING), open_session(path) as s:
+        imu = s.imu()
+        assert s.skipped["imu"] == 40
+    np.testing.assert_array_equal(imu.accel_mps2[:, 0], [0] * 40 + [2] * 40)
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    skipped = [m for m in warnings if "skipped" in m and "/imu" in m]
+    assert skipped == [f"{path} topic /imu: 40 records in the damaged chunk at byte "
+                       f"{middle.file_offset} (t_ns {middle.start_ns}..{middle.end_ns}) skipped"]
+    assert len(warnings) <= 2, warnings  # the chunk's own report, and its IMU samples
+
+
 def test_damaged_uncompressed_message_is_skipped_by_pairs(tmp_path, caplog):
     path = tmp_path / "s.mcap"
     with SessionWriter(path, chunk_size=1) as w:

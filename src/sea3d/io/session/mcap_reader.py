@@ -752,11 +752,29 @@ class McapSessionReader(SessionReader):
         return self._raw_to_array(msg, stream, index)
 
     def _each(self, stream: str) -> Any:
-        for i in range(self.stamps(stream).size):
-            try:
-                yield i, self._decode(stream, i)
-            except SessionError as err:
-                self._skipped(stream, str(err))
+        """Every readable record of a sample stream, in stamp order. The records of a damaged
+        chunk are skipped with one warning for the chunk (its offset and how many), not one
+        per record (an IMU chunk holds hundreds)."""
+        lost: dict[int, int] = {}  # damaged chunk -> records of this stream skipped in it
+        try:
+            for i in range(self.stamps(stream).size):
+                try:
+                    yield i, self._decode(stream, i)
+                except SessionError as err:
+                    k = int(self._loc[stream][i][0])
+                    if k >= 0 and self._chunks[k].damaged is not None:
+                        lost[k] = lost.get(k, 0) + 1
+                        self.skipped[stream] = self.skipped.get(stream, 0) + 1
+                    else:
+                        self._skipped(stream, str(err))
+        finally:
+            for k, n in lost.items():
+                c = self._chunks[k]
+                _log.warning(
+                    "%s topic %s: %d %s in the damaged chunk at byte %d (t_ns %d..%d) skipped",
+                    self.path, TOPICS.get(stream, stream), n, "record" if n == 1 else "records",
+                    c.file_offset, c.start_ns, c.end_ns,
+                )
 
     def _skipped(self, stream: str, message: str) -> None:
         self.skipped[stream] = self.skipped.get(stream, 0) + 1
