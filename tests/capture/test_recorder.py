@@ -11,7 +11,7 @@ import pytest
 
 from sea3d.capture import recorder as recorder_mod
 from sea3d.capture.recorder import Recorder, RecorderConfig
-from sea3d.capture.sources import ArraySource, CallableSource, Source
+from sea3d.capture.sources import ArraySource, CallableSource, ImageFrame, Source
 from sea3d.errors import CaptureError, ConfigError
 from sea3d.io.rig_file import rig_to_yaml
 from sea3d.io.session import ImuSample, SonarSample, open_session
@@ -274,3 +274,126 @@ def test_samples_within_the_camera_span_are_kept_when_the_cameras_end_first(tmp_
     assert summary.frames["left"] == n_frames and summary.frames["imu"] == n_imu
     with open_session(tmp_path / "r.mcap") as s:
         assert s.imu().accel_mps2[:, 0].tolist() == list(range(n_imu))
+
+
+class _Resizing(Source):
+    """A camera that delivers ``n`` frames of 8x6 pixels, then frames of 4x3 (its mode was
+    changed under it)."""
+
+    kind = "image"
+
+    def __init__(self, n, *, limit=20):
+        super().__init__("resizing-cam")
+        self.n, self.i, self.limit = n, 0, limit
+
+    def read(self):
+        self.i += 1
+        if self.i > self.limit:
+            return None
+        shape = (6, 8) if self.i <= self.n else (3, 4)
+        return ImageFrame(self.i * FRAME_NS, np.full(shape, self.i, np.uint8))
+
+
+@pytest.mark.parametrize("fmt", ["mcap", "folder"])
+def test_a_camera_that_changes_resolution_ends_the_recording_cleanly_with_one_warning(
+    tmp_path, caplog, fmt
+):
+    """The frames before the change are kept, the stop reason names the frame and both sizes,
+    one warning says the same, and it is not an error (nothing failed)."""
+    out = tmp_path / ("c.mcap" if fmt == "mcap" else "c")
+    config = RecorderConfig(out_path=out, block_when_full=True, min_free_bytes=NO_RESERVE)
+    right = ArraySource([np.zeros((6, 8), np.uint8)], rate_hz=30.0, speed=0.0, count=40)
+    with caplog.at_level("WARNING", logger="sea3d.capture.recorder"):
+        summary = Recorder(config, {"left": _Resizing(5), "right": right}).run()
+    reason = ("left camera resizing-cam changed resolution at frame 6 (t_ns=199999998): 4x3, "
+              "its earlier frames 8x6; the recording stops there")
+    assert summary.stop_reason == reason
+    assert not summary.errors
+    assert summary.frames["left"] == 5 and summary.captured["left"] == 5
+    warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert warnings == [reason]
+    with open_session(out) as s:
+        assert len(s.stamps("left")) == 5 and s.image("left", 4).shape == (6, 8)
+
+
+def test_a_change_of_channels_alone_names_the_layouts(tmp_path):
+    frames = iter([np.zeros((6, 8), np.uint8), np.zeros((6, 8, 3), np.uint8)])
+    stamps = iter(range(1, 3))
+
+    def produce():
+        img = next(frames, None)
+        return None if img is None else ImageFrame(next(stamps) * FRAME_NS, img)
+
+    config = RecorderConfig(out_path=tmp_path / "c.mcap", block_when_full=True,
+                            min_free_bytes=NO_RESERVE)
+    summary = Recorder(config, {"left": CallableSource(produce, name="cam"),
+                                "right": ArraySource([np.zeros((6, 8), np.uint8)], count=2,
+                                                     speed=0.0)}).run()
+    assert "changed resolution at frame 2 (t_ns=66666666): 8x6x3 uint8, its earlier frames " \
+        "8x6 uint8" in summary.stop_reason
+
+
+class _Stalling(Source):
+    """A camera that delivers ``n`` frames, blocks in its next read for ``stall_s``, then
+    delivers three more."""
+
+    kind = "image"
+
+    def __init__(self, n, stall_s):
+        super().__init__("stalling-cam")
+        self.n, self.i, self.stall_s = n, 0, stall_s
+        self.released = threading.Event()
+
+    def read(self):
+        self.i += 1
+        if self.i == self.n + 1:
+            self.released.wait(self.stall_s)
+        if self.i > self.n + 3:
+            return None
+        return ImageFrame(self.i * FRAME_NS, np.full((6, 8), self.i, np.uint8))
+
+
+def test_a_stalled_camera_is_warned_about_once_and_the_recording_goes_on(tmp_path, caplog):
+    """Blocked 1.2 s with the warning at 0.3 s: one warning naming the camera and how long,
+    then the frames after the stall are recorded as usual."""
+    config = RecorderConfig(out_path=tmp_path / "c.mcap", block_when_full=True,
+                            min_free_bytes=NO_RESERVE, stall_warn_s=0.3, stall_stop_s=5.0)
+    left = _Stalling(3, stall_s=1.2)
+    right = ArraySource([np.zeros((6, 8), np.uint8)], rate_hz=30.0, speed=0.0, count=6)
+    with caplog.at_level("WARNING", logger="sea3d.capture.recorder"):
+        summary = Recorder(config, {"left": left, "right": right}).run()
+    warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warnings) == 1, warnings
+    assert warnings[0].startswith("left camera stalling-cam has delivered nothing for 0.")
+    assert warnings[0].endswith(" s (stalled?)")
+    assert summary.stop_reason == "the camera sources ended" and not summary.errors
+    assert summary.frames["left"] == 6  # the stall delayed the frames, lost none
+
+
+def test_a_camera_stalled_past_the_limit_stops_the_recording_with_its_reason(tmp_path, caplog):
+    config = RecorderConfig(out_path=tmp_path / "c.mcap", block_when_full=True,
+                            min_free_bytes=NO_RESERVE, stall_warn_s=0.2, stall_stop_s=0.6)
+    left = _Stalling(3, stall_s=30.0)
+    right = ArraySource([np.zeros((6, 8), np.uint8)], rate_hz=30.0, speed=0.0, count=3)
+    t0 = time.monotonic()
+    try:
+        with caplog.at_level("WARNING", logger="sea3d.capture.recorder"):
+            summary = Recorder(config, {"left": left, "right": right}).run()
+    finally:
+        left.released.set()
+    assert time.monotonic() - t0 < 5.0  # not the 5 s wait for a thread that is blocked
+    assert summary.stop_reason.startswith("left camera stalling-cam stalled: nothing "
+                                          "delivered for 0.")
+    assert summary.stop_reason.endswith(" s (the limit is 0.6 s)")
+    assert not summary.errors and summary.frames["left"] == 3
+    assert sum("has delivered nothing" in r.getMessage() for r in caplog.records) == 1
+    with open_session(tmp_path / "c.mcap") as s:
+        assert len(s.stamps("left")) == 3
+
+
+def test_stall_limits_are_checked(tmp_path):
+    with pytest.raises(ConfigError, match="stall_warn_s must be > 0"):
+        RecorderConfig(out_path=tmp_path / "x.mcap", stall_warn_s=0)
+    with pytest.raises(ConfigError, match="stall_stop_s must be >= stall_warn_s"):
+        RecorderConfig(out_path=tmp_path / "x.mcap", stall_warn_s=2.0, stall_stop_s=1.0)
+    RecorderConfig(out_path=tmp_path / "x.mcap", stall_stop_s=None)

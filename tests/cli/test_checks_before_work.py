@@ -194,3 +194,89 @@ def test_fuse_refuses_an_unknown_output_suffix_before_fusing(tmp_path, monkeypat
                  "--voxel-m", "0.02", "-o", outputs["-o"], "--cloud", outputs["--cloud"]]) == 2
     _one_line_error(capsys, flag, "noext", ".ply")
     assert not any(tmp_path.glob("*.ply")) and not (tmp_path / "noext").exists()
+
+
+def _earlier_session(tmp_path):
+    existing = tmp_path / "s.mcap"
+    existing.write_bytes(b"an earlier recording")
+    return existing
+
+
+@pytest.mark.parametrize(("args", "names"), [
+    (["-o", "{existing}"], ("-o/--output", "s.mcap", "already exists")),
+    (["-o", "{tmp}/dive.png"], ("-o/--output", "dive.png", "'.png'", ".mcap file or a folder",
+                                "--format folder")),
+    (["-o", "{tmp}/dive.mcap", "--format", "folder"], ("-o/--output", "dive.mcap",
+                                                       "--format folder")),
+    (["-o", "{tmp}/dive", "--image-encoding", "raw"], ("--image-encoding raw", "MCAP only",
+                                                       "dive")),
+    (["-o", "{tmp}/d.mcap", "--duration", "0"], ("--duration", "> 0")),
+    (["-o", "{tmp}/d.mcap", "--duration", "nan"], ("--duration", "nan")),
+    (["-o", "{tmp}/d.mcap", "--min-free-gb", "nan"], ("--min-free-gb", "nan")),
+    (["-o", "{tmp}/d.mcap", "--min-free-gb", "inf"], ("--min-free-gb", "inf")),
+    (["-o", "{tmp}/d.mcap", "--queue", "0"], ("--queue", ">= 1")),
+    (["-o", "{tmp}/d.mcap", "--jpeg-quality", "200"], ("--jpeg-quality", "0..100")),
+    (["-o", "{tmp}/d.mcap", "--stall-warn", "0"], ("--stall-warn", "> 0")),
+    (["-o", "{tmp}/d.mcap", "--stall-stop", "1"], ("--stall-stop", ">= --stall-warn (2)")),
+])
+def test_record_refuses_its_arguments_before_opening_or_syncing_cameras(
+        tmp_path, monkeypatch, capsys, args, names):
+    """Opening the cameras (and configuring their sync) takes seconds and changes the
+    devices' state: every argument that can be checked without them is checked first."""
+    import sea3d.capture.spec as spec
+    import sea3d.capture.v4l2_sync as v4l2_sync
+
+    monkeypatch.setattr(spec, "open_source", _no_work(spec.open_source))
+    monkeypatch.setattr(v4l2_sync, "configure_sync", _no_work(v4l2_sync.configure_sync))
+    existing = _earlier_session(tmp_path)
+    argv = [a.format(existing=existing, tmp=tmp_path) for a in args]
+    assert main(["record", "--left", "0", "--right", "1", "--sync", *argv]) == 2
+    _one_line_error(capsys, *names)
+    assert existing.read_bytes() == b"an earlier recording"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.mcap"]
+
+
+@pytest.mark.parametrize(("args", "names"), [
+    (["-o", "{existing}"], ("-o/--output", "s.mcap", "already exists")),
+    (["-o", "{tmp}/restored.png"], ("-o/--output", "restored.png", ".mcap file or a folder")),
+    (["-o", "{tmp}/restored.mcap", "--format", "folder"], ("-o/--output", "--format folder")),
+    (["-o", "{tmp}/restored.mcap", "--method", "clahe", "--clip-limit", "-1"],
+     ("--clip-limit", "> 0")),
+])
+def test_enhance_session_refuses_its_arguments_before_opening_the_session(
+        tmp_path, monkeypatch, capsys, args, names):
+    import sea3d.io.session as session
+
+    monkeypatch.setattr(session, "open_session", _no_work(session.open_session))
+    existing = _earlier_session(tmp_path)
+    argv = [a.format(existing=existing, tmp=tmp_path) for a in args]
+    assert main(["enhance", "--session", str(existing), *argv]) == 2
+    _one_line_error(capsys, *names)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.mcap"]
+
+
+def test_enhance_refuses_a_clip_limit_not_above_zero_before_reading_the_image(
+        raw_pair, monkeypatch, capsys):
+    import sea3d.cli.enhance as cli_enhance
+
+    monkeypatch.setattr(cli_enhance, "_read_image", _no_work(cli_enhance._read_image))
+    out = raw_pair / "restored.png"
+    assert main(["enhance", str(raw_pair / "left.png"), "--method", "clahe", "--clip-limit",
+                 "0", "-o", str(out)]) == 2
+    _one_line_error(capsys, "--clip-limit", "> 0")
+    assert not out.exists()
+
+
+def test_live_refuses_to_record_into_a_name_with_a_file_suffix_before_opening_cameras(
+        tmp_path, monkeypatch, capsys):
+    import sea3d.capture.spec as spec
+    import sea3d.pipeline.live as live
+
+    monkeypatch.setattr(spec, "open_source", _no_work(spec.open_source))
+    monkeypatch.setattr(live, "run_live_cameras", _no_work(live.run_live_cameras))
+    out = tmp_path / "out"
+    assert main(["live", "--record", str(tmp_path / "dive.mp4"), "--left", "0", "--right", "1",
+                 "-o", str(out)]) == 2
+    err = _one_line_error(capsys, "--record", "dive.mp4", ".mcap file or a folder")
+    assert "--format" not in err  # live has no --format
+    assert not any(tmp_path.iterdir())

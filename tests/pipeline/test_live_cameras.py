@@ -53,12 +53,12 @@ def _gt(sim_session):
     return sim_session.with_name(sim_session.stem + "_gt") / "poses_left.tum"
 
 
-def _recorder(cameras, path, rig_yaml, *, left=None):
+def _recorder(cameras, path, rig_yaml, *, left=None, **config):
     sources = {"left": left or SessionReplaySource(cameras, "left", speed=SPEED),
                "right": SessionReplaySource(cameras, "right", speed=SPEED),
                "imu": SessionReplaySource(cameras, "imu", speed=SPEED)}
     cfg = RecorderConfig(out_path=path, image_encoding="png", block_when_full=True,
-                         min_free_bytes=0, rig_yaml=rig_yaml)
+                         min_free_bytes=0, rig_yaml=rig_yaml, **config)
     return Recorder(cfg, sources)
 
 
@@ -346,3 +346,112 @@ def test_cli_a_camera_that_fails_exits_non_zero_after_writing_the_frames_so_far(
     assert "sea3d live: left source left-cam: camera 'left': 30 grabs failed" in captured.err
     assert (out / "mesh.ply").is_file() and (out / "trajectory.tum").is_file()
     assert json.loads((out / "summary.json").read_text())["frames"] == 4
+
+
+class _HalvesAfter:
+    """A camera that delivers ``n`` frames at the recorded size, then frames of half the
+    width and height (its mode changed under the recording)."""
+
+    def __init__(self, cameras, n):
+        self.src = SessionReplaySource(cameras, "left", speed=SPEED)
+        self.n = n
+
+    def __call__(self):
+        rec = self.src.read()
+        if rec is None or self.n > 0:
+            self.n -= 1
+            return rec
+        return ImageFrame(rec.t_ns, np.ascontiguousarray(rec.image[::2, ::2]))
+
+
+def test_cli_a_camera_that_changes_resolution_ends_cleanly_keeping_the_frames_before(
+        sim_session, cameras, tmp_path, monkeypatch, capsys, caplog):
+    """``sea3d live --record``: a camera whose frames turn to half size after 4 frames ends
+    the recording there; the 4 frames before are reconstructed and written, the stop reason
+    names the frame and both sizes, one warning says so, and the exit status is 0 (the
+    cameras stopped, nothing failed)."""
+    import sea3d.cli.live as cli_live
+    from sea3d.cli import main
+
+    with open_session(cameras) as s:
+        rig_yaml = s.rig_yaml
+        t5 = int(s.stamps("left")[4])
+    left = CallableSource(_HalvesAfter(cameras, 4), name="left-cam")
+    monkeypatch.setattr(cli_live, "_recorder",
+                        lambda args: _recorder(cameras, args.record, rig_yaml, left=left))
+    out = tmp_path / "out"
+    with caplog.at_level("WARNING"):
+        code = main(["live", "--record", str(tmp_path / "rec.mcap"), "--left", "0",
+                     "--right", "1", "-o", str(out), "--poses", str(_gt(sim_session))])
+    captured = capsys.readouterr()
+    reason = (f"left camera left-cam changed resolution at frame 5 (t_ns={t5}): 160x90, its "
+              "earlier frames 320x180; the recording stops there")
+    assert code == 0, captured.err
+    assert f"recording ended: {reason}" in captured.out
+    assert [r.getMessage() for r in caplog.records if "resolution" in r.getMessage()] == [reason]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["frames"] == 4 and summary["live"]["stop_reason"] == f"recording ended: {reason}"
+    assert summary["mesh"]["triangles"] > 0
+    assert (out / "mesh.ply").is_file() and (out / "trajectory.tum").is_file()
+    with open_session(tmp_path / "rec.mcap") as s:  # the recording holds one size
+        assert len(s.stamps("left")) == 4
+
+
+def test_a_camera_frame_of_another_size_than_the_rig_stops_the_recording():
+    """Frames that do not have the rig's size are not reconstructed (they would be resized
+    into a wrong geometry): the recording is stopped with a reason naming the frame and both
+    sizes, once."""
+    rec = _FakeRecorder()
+    stops = []
+    rec.request_stop = stops.append
+    frames = RecorderFrames(rec, image_size=(8, 6), pair_tolerance_ns=0)
+    good, small = np.zeros((6, 8), np.uint8), np.zeros((3, 4), np.uint8)
+    for k in range(3):
+        rec.fn("left", ImageFrame(k, good))
+        rec.fn("right", ImageFrame(k, good))
+    rec.fn("left", ImageFrame(3, small))
+    rec.fn("right", ImageFrame(3, small))
+    frames.end("recording ended: " + stops[0])
+    assert [f.t_ns for f in frames] == [0, 1, 2]
+    assert stops == ["left frame t_ns=3 is 4x3, not the rig's 8x6; the recording stops there"]
+
+
+class _StallsAfter:
+    """A camera that delivers ``n`` frames, then blocks in its read until released."""
+
+    def __init__(self, cameras, n):
+        self.src = SessionReplaySource(cameras, "left", speed=SPEED)
+        self.n = n
+        self.released = threading.Event()
+
+    def __call__(self):
+        if self.n == 0:
+            self.released.wait(30.0)
+            return None
+        self.n -= 1
+        return self.src.read()
+
+
+def test_a_camera_stalled_past_the_limit_ends_the_run_keeping_the_frames_before(
+        sim_session, cameras, tmp_path, caplog):
+    """Limits of 0.3 s (warning) and 1 s (stop): one warning naming the camera, then the
+    recording stops with a reason that says it stalled; the 4 frames before are written."""
+    with open_session(cameras) as s:
+        rig_yaml = s.rig_yaml
+    stalls = _StallsAfter(cameras, 4)
+    recorder = _recorder(cameras, tmp_path / "rec.mcap", rig_yaml,
+                         left=CallableSource(stalls, name="left-cam"),
+                         stall_warn_s=0.3, stall_stop_s=1.0)
+    try:
+        with caplog.at_level("WARNING"):
+            summary, stats, rec = run_live_cameras(recorder,
+                                                   _config(sim_session, tmp_path / "out"))
+    finally:
+        stalls.released.set()
+    assert stats.stop_reason.startswith("recording ended: left camera left-cam stalled: "
+                                        "nothing delivered for 1.")
+    assert summary["frames"] == 4 and not rec.errors
+    assert summary["mesh"]["triangles"] > 0 and (tmp_path / "out" / "mesh.ply").is_file()
+    stalled = [r.getMessage() for r in caplog.records if "delivered nothing" in r.getMessage()]
+    assert len(stalled) == 1 and stalled[0].startswith("left camera left-cam has delivered "
+                                                       "nothing for 0.")

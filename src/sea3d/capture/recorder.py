@@ -34,7 +34,13 @@ from typing import Any
 from sea3d.capture.sources import ImageFrame, Source
 from sea3d.errors import CaptureError, ConfigError, SessionError
 from sea3d.io.disk_space import disk_free_bytes
-from sea3d.io.session import ImuSample, SessionWriteError, SessionWriter, SonarSample
+from sea3d.io.session import (
+    ImuSample,
+    SessionWriteError,
+    SessionWriter,
+    SonarSample,
+    layout_of,
+)
 
 __all__ = ["RecordSummary", "Recorder", "RecorderConfig"]
 
@@ -67,6 +73,10 @@ class RecorderConfig:
         rig_yaml: rig file text stored in the session.
         chunk_compression: MCAP only: ``"lz4"``, ``"zstd"`` or ``"none"``; None: LZ4 for raw
             images, none for encoded ones.
+        stall_warn_s: a camera whose source has been blocked in a read this many seconds
+            (it delivers nothing, nor fails) is named in one warning, with how long.
+        stall_stop_s: a camera stalled this long stops the recording, its stop reason naming
+            it; None: it is waited for as long as it takes.
     """
 
     out_path: Path
@@ -82,25 +92,35 @@ class RecorderConfig:
     disk_check_interval_s: float = 1.0
     rig_yaml: str | None = None
     chunk_compression: str | None = None
+    stall_warn_s: float = 2.0
+    stall_stop_s: float | None = 10.0
 
     def __post_init__(self) -> None:
-        if self.duration_s is not None and self.duration_s <= 0:
+        # one field a message, so that a command can name its option for it
+        if self.duration_s is not None and not self.duration_s > 0:
             raise ConfigError(f"duration_s must be > 0, got {self.duration_s}")
-        if self.queue_frames < 1 or self.encoder_threads < 1:
-            raise ConfigError(
-                f"queue_frames and encoder_threads must be >= 1, got {self.queue_frames} "
-                f"and {self.encoder_threads}"
-            )
-        if self.min_free_bytes < 0 or self.disk_check_interval_s <= 0:
-            raise ConfigError("min_free_bytes must be >= 0 and disk_check_interval_s > 0")
+        for name, low in (("queue_frames", 1), ("encoder_threads", 1), ("min_free_bytes", 0)):
+            if getattr(self, name) < low:
+                raise ConfigError(f"{name} must be >= {low}, got {getattr(self, name)}")
+        if not self.disk_check_interval_s > 0:
+            raise ConfigError(f"disk_check_interval_s must be > 0, got "
+                              f"{self.disk_check_interval_s}")
         if self.image_encoding not in ("jxl", "png", "jpeg", "raw"):
             raise ConfigError(
                 f"image_encoding must be jxl, png, jpeg or raw, got {self.image_encoding!r}"
             )
-        if not 0 <= self.png_compression <= 9 or not 0 <= self.jpeg_quality <= 100:
+        if self.image_encoding == "raw" and (self.format or layout_of(self.out_path)) != "mcap":
+            raise ConfigError(f"image_encoding raw is written to MCAP only; {self.out_path} is "
+                              "a folder session (png, jxl or jpeg)")
+        for name, high in (("png_compression", 9), ("jpeg_quality", 100)):
+            if not 0 <= getattr(self, name) <= high:
+                raise ConfigError(f"{name} must be 0..{high}, got {getattr(self, name)}")
+        if not self.stall_warn_s > 0:
+            raise ConfigError(f"stall_warn_s must be > 0, got {self.stall_warn_s}")
+        if self.stall_stop_s is not None and not self.stall_stop_s >= self.stall_warn_s:
             raise ConfigError(
-                f"png_compression must be 0..9 and jpeg_quality 0..100, got "
-                f"{self.png_compression} and {self.jpeg_quality}"
+                f"stall_stop_s must be >= stall_warn_s ({self.stall_warn_s:g}), got "
+                f"{self.stall_stop_s}"
             )
 
 
@@ -138,6 +158,14 @@ class RecordSummary:
     def as_dict(self) -> dict[str, Any]:
         """Plain dict (JSON-ready)."""
         return asdict(self)
+
+
+def _size_text(shape: tuple[int, ...], dtype: Any, *, full: bool = False) -> str:
+    """``320x180`` (``full``: ``320x180x3 uint8``) for an image's shape and dtype."""
+    size = f"{shape[1]}x{shape[0]}"
+    if not full:
+        return size
+    return f"{size}x{shape[2]} {dtype}" if len(shape) == 3 else f"{size} {dtype}"
 
 
 class Recorder:
@@ -180,6 +208,12 @@ class Recorder:
         self._disk_free = 0
         self._listeners: list[Callable[[str, Any], None]] = []
         self._write_error: str | None = None
+        # per camera: when its pending read began (None: not in a read), the size of its
+        # first frame, and whether its stall was warned about / stopped the recording
+        self._reading_since: dict[str, float | None] = {}
+        self._first_image: dict[str, tuple[tuple[int, ...], Any]] = {}
+        self._stall_warned: set[str] = set()
+        self._stalled: set[str] = set()
         self.running = False
 
     def add_listener(self, fn: Callable[[str, Any], None]) -> None:
@@ -283,11 +317,19 @@ class Recorder:
         writer = self._writer
         assert writer is not None
         while not self._stop.is_set():
+            self._reading_since[stream] = time.monotonic()
             try:
                 rec = src.read()
             except (CaptureError, SessionError, OSError) as err:
                 self._fail(f"{stream} source {src.name}: {err}")
                 return
+            finally:
+                self._reading_since[stream] = None
+            if stream in self._stalled:  # came back after the recording stopped without it
+                return
+            if stream in self._stall_warned:
+                self._stall_warned.discard(stream)
+                _log.info("%s camera %s delivers again", stream, src.name)
             if rec is None:
                 break
             if not isinstance(rec, ImageFrame):
@@ -295,6 +337,8 @@ class Recorder:
                     f"{stream} source {src.name} delivered {type(rec).__name__}, not an image"
                 )
                 return
+            if not self._same_size(stream, src, rec):
+                break
             self.captured[stream] += 1
             self._latest[stream] = rec
             self._seq[stream] += 1
@@ -311,6 +355,49 @@ class Recorder:
             fut = pool.submit(writer.encode, rec.image)
             q.put((stream, rec, fut))
         self._ended.add(stream)
+
+    def _same_size(self, stream: str, src: Source, rec: ImageFrame) -> bool:
+        """Whether the frame has its camera's first frame's size (and channels, depth); a
+        camera that changes resolution ends the recording there, cleanly (the session keeps
+        one size per camera), with one warning naming the frame and both sizes."""
+        image = rec.image
+        first = self._first_image.setdefault(stream, (image.shape, image.dtype))
+        if (image.shape, image.dtype) == first:
+            return True
+        was, now = _size_text(*first), _size_text(image.shape, image.dtype)
+        if was == now:  # the same width and height: name the layout that changed
+            was, now = _size_text(*first, full=True), _size_text(image.shape, image.dtype,
+                                                                 full=True)
+        reason = (
+            f"{stream} camera {src.name} changed resolution at frame "
+            f"{self.captured[stream] + 1} (t_ns={rec.t_ns}): {now}, its earlier frames {was}; "
+            "the recording stops there"
+        )
+        _log.warning("%s", reason)
+        self.request_stop(reason)
+        return False
+
+    def _watch_cameras(self, now: float) -> None:
+        """Warn once about a camera blocked in a read for ``stall_warn_s``; stop the
+        recording when one is blocked for ``stall_stop_s``."""
+        cfg = self.config
+        for stream, since in list(self._reading_since.items()):
+            if since is None:
+                continue
+            waited = now - since
+            name = self.sources[stream].name
+            if waited >= cfg.stall_warn_s and stream not in self._stall_warned:
+                self._stall_warned.add(stream)
+                _log.warning(
+                    "%s camera %s has delivered nothing for %.1f s (stalled?)", stream, name,
+                    waited,
+                )
+            if cfg.stall_stop_s is not None and waited >= cfg.stall_stop_s:
+                self._stalled.add(stream)
+                self.request_stop(
+                    f"{stream} camera {name} stalled: nothing delivered for {waited:.1f} s "
+                    f"(the limit is {cfg.stall_stop_s:g} s)"
+                )
 
     def _samples_caught_up(self, image_streams: list[str]) -> bool:
         """True when every sample stream has ended or delivered a sample at or after the
@@ -468,6 +555,7 @@ class Recorder:
                         self.request_stop("the camera sources ended")
                 elif not image_streams and all(s in self._ended for s in self.sources):
                     self.request_stop("the sources ended")
+                self._watch_cameras(now)
                 if now - getattr(self, "_last_disk_check", 0.0) >= cfg.disk_check_interval_s:
                     self._last_disk_check = now
                     self._disk_free = disk_free_bytes(Path(cfg.out_path).parent)
@@ -480,9 +568,11 @@ class Recorder:
             self.request_stop("interrupted (Ctrl-C)")
         finally:
             self._t_stop = time.monotonic()
-            for t in threads:
-                t.join(timeout=5.0)
-                if t.is_alive():
+            for stream, t in zip(self.sources, threads, strict=True):
+                # a camera stalled past the limit is blocked in its read: its stop reason
+                # says so, and it is not waited for again
+                t.join(timeout=0.2 if stream in self._stalled else 5.0)
+                if t.is_alive() and stream not in self._stalled:
                     self._fail(f"{t.name} did not stop within 5 s (blocked in read?)", stop=False)
             q.put(None)
             writer_thread.join()

@@ -38,6 +38,9 @@ _FLAG_OF_FIELD = {
     "fresh": "--fresh", "range_m": "--depth", "max_disparity_px": "--max-disparity",
     "min_depth_m": "--min-depth", "max_depth_m": "--max-depth", "depth_rate": "--depth-rate",
     "depth_scale": "--depth-scale", "rebuild_cache_config": "--rebuild-cache-config",
+    "duration_s": "--duration", "queue_frames": "--queue", "encoder_threads": "--encoders",
+    "png_compression": "--png-compression", "jpeg_quality": "--jpeg-quality",
+    "stall_warn_s": "--stall-warn", "stall_stop_s": "--stall-stop",
 }  # fmt: skip
 _FIELD_RE = re.compile(
     r"(?<![\w./-])(" + "|".join(_FLAG_OF_FIELD) + r")(?= must\b| or |\)|, not both| to discard)"
@@ -62,6 +65,8 @@ _PHRASES = {
     "widen max_offset_s": "widen --max-offset-s",
     "Add views or use the simple distortion model.": "Add views or use --distortion simple.",
     "(lower min_free_bytes)": "(lower it with --min-free-gb)",
+    "must be >= stall_warn_s (": "must be >= --stall-warn (",
+    "image_encoding raw is written to MCAP only": "--image-encoding raw is written to MCAP only",
     "or record without hardware sync (and": "or record without --sync (and",
     "; use restore_colours ": "; use --restore-colours ",
     "check the time base or max_diff_s": "check the time base or --max-diff-s",

@@ -54,6 +54,41 @@ def check_output_suffix(path: Any, flag: str, suffixes: tuple[str, ...], what: s
         raise ConfigError(f"{flag} {path}: {got}; {what} is written as {known}")
 
 
+def check_session_output(path: Any, flag: str, format: str | None = None, *,
+                         format_flag: bool = True) -> None:
+    """Refuse, before any work, a session output the command should not write: a name with
+    a file suffix other than ``.mcap`` (it would become a folder of that name), ``.mcap`` with
+    ``--format folder``, or a path that holds a session (or a file) already.
+
+    Args:
+        path: the output path given.
+        flag: the option that gave it (``-o/--output``).
+        format: the ``--format`` given (``"mcap"``, ``"folder"``) or None.
+        format_flag: the command has ``--format`` (its message then offers it).
+
+    Raises:
+        ConfigError: one line naming the flag, the path and what is wrong with it.
+    """
+    from pathlib import Path
+
+    from sea3d.errors import ConfigError, SessionError
+    from sea3d.io.session import check_new_session
+
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if format == "folder" and suffix == ".mcap":
+        raise ConfigError(f"{flag} {path}: --format folder writes a folder, but the name ends "
+                          "in .mcap (an MCAP file); drop --format folder, or name a folder")
+    if format is None and suffix != ".mcap" and re.fullmatch(r"\.[a-z][a-z0-9]{0,4}", suffix):
+        hint = " (pass --format folder for a folder of that name)" if format_flag else ""
+        raise ConfigError(f"{flag} {path}: suffix {suffix!r}; a session is written as a "
+                          f".mcap file or a folder{hint}")
+    try:
+        check_new_session(p, format)
+    except SessionError as err:
+        raise ConfigError(f"{flag}: {err} (write to a new session path)") from err
+
+
 def _finite_positive(text: str, expected: str, must: str) -> float:
     try:
         value = float(text)
@@ -254,3 +289,22 @@ def add_port_options(parser: Any, *, flat_help: str) -> None:
     flat_mm = config_default(FlatPort, "distance_m") * 1e3
     parser.add_argument("--flat-distance-mm", type=float, default=flat_mm,
                         help=f"{flat_help} (default {flat_mm:g})")
+
+
+def add_stall_options(parser: Any) -> None:
+    """``--stall-warn S`` and ``--stall-stop S`` (0: never) of ``sea3d record`` and ``sea3d
+    live --record``: a camera that delivers nothing for that long is warned about once, or
+    stops the recording (the defaults are :class:`~sea3d.capture.recorder.RecorderConfig`'s)."""
+    from sea3d.capture.recorder import RecorderConfig
+
+    config_option(parser, RecorderConfig, "stall_warn_s", "--stall-warn", type=float,
+                  metavar="S", help="warn once about a camera that has delivered nothing for "
+                  "S seconds")
+    config_option(parser, RecorderConfig, "stall_stop_s", "--stall-stop", type=float,
+                  metavar="S", help="stop the recording when a camera has delivered nothing "
+                  "for S seconds; 0: never")
+
+
+def stall_limits(args: argparse.Namespace) -> dict[str, Any]:
+    """The ``RecorderConfig`` fields of :func:`add_stall_options`' flags."""
+    return {"stall_warn_s": args.stall_warn_s, "stall_stop_s": args.stall_stop_s or None}

@@ -68,11 +68,11 @@ def _cmd_enhance(args: argparse.Namespace) -> int:
     from sea3d.io.image_files import IMAGE_SUFFIXES
 
     check_output_suffix(args.output, "-o/--output", IMAGE_SUFFIXES, "an image")
-
-    image = _read_image(args.input)
     params: dict[str, Any] = {}
     if args.method == "clahe":
-        params["clip_limit"] = args.clip_limit
+        params["clip_limit"] = _clip_limit(args)
+
+    image = _read_image(args.input)
     range_m = None
     if args.method == "seathru":
         from sea3d.pipeline.enhance_image import range_for_image
@@ -112,8 +112,17 @@ def _cmd_enhance(args: argparse.Namespace) -> int:
     return 0
 
 
+def _clip_limit(args: argparse.Namespace) -> float:
+    """``--clip-limit``, refused unless > 0 (every image would be kept unchanged)."""
+    from sea3d.errors import EnhanceError
+
+    if not args.clip_limit > 0 or args.clip_limit == float("inf"):
+        raise EnhanceError(f"--clip-limit must be > 0 and finite, got {args.clip_limit:g}")
+    return float(args.clip_limit)
+
+
 def _cmd_enhance_session(args: argparse.Namespace) -> int:
-    from sea3d.cli._args import depth_config
+    from sea3d.cli._args import check_session_output, depth_config
     from sea3d.cli._progress import bar as progress_bar
     from sea3d.cli._progress import once_per_message
     from sea3d.errors import EnhanceError
@@ -123,11 +132,11 @@ def _cmd_enhance_session(args: argparse.Namespace) -> int:
     from sea3d.stereo.recipe import StereoDepth
 
     out_path = Path(args.output)
-    if out_path.exists():
-        raise EnhanceError(f"output {out_path} exists; choose a new session path")
+    # before the session is opened and the method set up (Sea-thru builds its stereo depth)
+    check_session_output(out_path, "-o/--output", args.format)
     params: dict[str, Any] = {}
     if args.method == "clahe":
-        params["clip_limit"] = args.clip_limit
+        params["clip_limit"] = _clip_limit(args)
     with open_session(args.session) as session:
         stereo = cfg = None
         if args.method == "seathru":

@@ -14,10 +14,13 @@ from typing import Any
 
 from sea3d.cli._args import (
     add_loop_closure_flag,
+    add_stall_options,
+    check_session_output,
     config_option,
     image_size,
     odometry_config,
     param_option,
+    stall_limits,
 )
 
 __all__ = ["register"]
@@ -38,7 +41,7 @@ def _recorder(args: argparse.Namespace) -> Any:
         with open_session(sources["left"].path) as replayed:  # type: ignore[attr-defined]
             rig_yaml = replayed.rig_yaml
     return Recorder(RecorderConfig(out_path=args.record, duration_s=args.duration,
-                                   rig_yaml=rig_yaml), sources)
+                                   rig_yaml=rig_yaml, **stall_limits(args)), sources)
 
 
 def _cmd_live(args: argparse.Namespace) -> int:
@@ -56,13 +59,7 @@ def _cmd_live(args: argparse.Namespace) -> int:
     if not args.rate > 0:
         raise ConfigError(f"--rate must be > 0, got {args.rate:g}")
     if args.record is not None:
-        from sea3d.errors import SessionError
-        from sea3d.io.session import check_new_session
-
-        try:
-            check_new_session(args.record)
-        except SessionError as err:
-            raise ConfigError(f"--record: {err} (record into a new session path)") from err
+        check_session_output(args.record, "--record", format_flag=False)
     config = ProcessConfig(out_dir=args.output, rig_path=args.rig, size_px=args.size,
                            poses=PoseConfig(poses_path=args.poses, use_imu=not args.no_imu,
                                             odometry_config=odometry_config(args)),
@@ -151,6 +148,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "cameras stop or Ctrl-C)")
     param_option(p, open_source, "replay_speed", type=float,
                  help="pace of replay sources given to --left/--right (1: real time)")
+    add_stall_options(p)
     p.add_argument("-o", "--output", type=Path, required=True, help="output folder")
     param_option(p, run_live_replay, "rate", type=float, help="replay speed (1: as recorded)")
     p.add_argument("--rig", type=Path, help="rig file (default: the session's); stored with "

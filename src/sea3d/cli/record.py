@@ -10,7 +10,15 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from sea3d.cli._args import add_output, config_default, config_option, param_option
+from sea3d.cli._args import (
+    add_output,
+    add_stall_options,
+    check_session_output,
+    config_default,
+    config_option,
+    param_option,
+    stall_limits,
+)
 from sea3d.cli._foxglove import FOXGLOVE_HELP as _FOXGLOVE_HELP
 from sea3d.cli._signals import StopOnSignals
 
@@ -69,6 +77,7 @@ def register(sub: Any) -> None:
     )
     param_option(rec, open_source, "replay_speed", type=float,
                  help="pacing of replay sources: 1 real time, 0 as fast as possible")
+    add_stall_options(rec)
     rec.add_argument(
         "--block",
         action="store_true",
@@ -135,9 +144,34 @@ def _print_summary(summary: Any, as_json: bool) -> None:
 
 
 def _record(args: argparse.Namespace) -> int:
+    import dataclasses
+    import math
+
     from sea3d.capture.recorder import Recorder, RecorderConfig
     from sea3d.capture.spec import open_source
+    from sea3d.errors import ConfigError
 
+    # Everything that can be checked without the cameras is checked first: opening them, or
+    # configuring their sync, takes seconds and changes the devices' state.
+    check_session_output(args.out, "-o/--output", args.format)
+    if not (math.isfinite(args.min_free_gb) and args.min_free_gb >= 0):
+        raise ConfigError(f"--min-free-gb must be >= 0 and finite, got {args.min_free_gb:g}")
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+        raise ConfigError(f"--duration must be > 0 seconds, got {args.duration:g}")
+    config = RecorderConfig(
+        out_path=Path(args.out),
+        format=args.format,
+        duration_s=args.duration,
+        image_encoding=args.image_encoding,
+        png_compression=args.png_compression,
+        jpeg_quality=args.jpeg_quality,
+        queue_frames=args.queue,
+        encoder_threads=args.encoders,
+        block_when_full=args.block,
+        min_free_bytes=int(args.min_free_gb * 1e9),
+        chunk_compression=args.chunk_compression,
+        **stall_limits(args),
+    )
     rig_yaml = None
     if args.rig:
         from sea3d.io.rig_file import read_rig_text, rig_from_yaml
@@ -163,20 +197,7 @@ def _record(args: argparse.Namespace) -> int:
         sources["imu"] = open_source(args.imu, "imu", replay_speed=args.replay_speed)
     if args.sonar:
         sources["sonar"] = open_source(args.sonar, "sonar", replay_speed=args.replay_speed)
-    config = RecorderConfig(
-        out_path=Path(args.out),
-        format=args.format,
-        duration_s=args.duration,
-        image_encoding=args.image_encoding,
-        png_compression=args.png_compression,
-        jpeg_quality=args.jpeg_quality,
-        queue_frames=args.queue,
-        encoder_threads=args.encoders,
-        block_when_full=args.block,
-        min_free_bytes=int(args.min_free_gb * 1e9),
-        rig_yaml=rig_yaml,
-        chunk_compression=args.chunk_compression,
-    )
+    config = dataclasses.replace(config, rig_yaml=rig_yaml)
     recorder = Recorder(config, sources)
     server = None
     if args.monitor:

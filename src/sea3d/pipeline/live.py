@@ -317,11 +317,15 @@ class RecorderFrames:
         imu_time_offset_s: the rig's ``t_imu = t_cam + offset``.
         imu_tolerance_s: largest clock disagreement, seconds
             (:attr:`~sea3d.odometry.config.OdometryConfig.imu_max_clock_offset_s`).
+        image_size: the rig's ``(width, height)``: a camera frame of another size is not
+            reconstructed (it would be resized into a wrong geometry); the recording is
+            stopped there, with one warning naming the frame and both sizes. None: no check.
     """
 
     def __init__(self, recorder: Any, *, pair_tolerance_ns: int | None = None,
                  imu_wait_s: float = 0.2, imu_time_offset_s: float = 0.0,
-                 imu_tolerance_s: float = 1.0) -> None:
+                 imu_tolerance_s: float = 1.0,
+                 image_size: tuple[int, int] | None = None) -> None:
         if pair_tolerance_ns is not None and pair_tolerance_ns < 0:
             raise ConfigError(f"pair_tolerance_ns must be >= 0, got {pair_tolerance_ns}")
         self.pair_tolerance_ns = pair_tolerance_ns
@@ -345,12 +349,18 @@ class RecorderFrames:
         self.pairs_made = 0
         self.backlog = 0
         self.stop_reason = ""
+        self.image_size = image_size
+        self._stop_recorder: Callable[[str], Any] | None = getattr(recorder, "request_stop",
+                                                                   None)
+        self._size_fault: str | None = None
         recorder.add_listener(self.on_record)
 
     # -- the recorder's side (capture threads) ---------------------------------------------
     def on_record(self, stream: str, record: Any) -> None:
         """The listener: queue the record and return."""
         now = time.monotonic()
+        if stream in ("left", "right") and not self._fits_rig(stream, record):
+            return
         with self._cv:
             if stream in ("left", "right"):
                 self._arrival[id(record)] = now
@@ -369,6 +379,26 @@ class RecorderFrames:
             if stream in ("left", "right"):
                 self._match(final=False)
             self._cv.notify_all()
+
+    def _fits_rig(self, stream: str, record: Any) -> bool:
+        """Whether a camera frame has the rig's size; the first that has not stops the
+        recording (once, with one warning)."""
+        if self.image_size is None:
+            return True
+        h, w = record.image.shape[:2]
+        if (w, h) == tuple(self.image_size):
+            return True
+        fault = (f"{stream} frame t_ns={int(record.t_ns)} is {w}x{h}, not the rig's "
+                 f"{self.image_size[0]}x{self.image_size[1]}; the recording stops there")
+        with self._cv:
+            first = self._size_fault is None
+            if first:
+                self._size_fault = fault
+        if first:
+            log.warning("live: %s", fault)
+            if self._stop_recorder is not None:
+                self._stop_recorder(fault)
+        return False
 
     def end(self, reason: str) -> None:
         """The recorder stopped (``reason``: its stop reason): pair what is left, then end."""
@@ -1058,7 +1088,8 @@ def run_live_cameras(recorder: Any, config: Any, live: LiveConfig | None = None,
     frames = RecorderFrames(
         recorder, pair_tolerance_ns=pair_tolerance_ns,
         imu_time_offset_s=rig.imu.time_offset_s if rig.imu is not None else 0.0,
-        imu_tolerance_s=getattr(config.poses.odometry_config, "imu_max_clock_offset_s", 1.0))
+        imu_tolerance_s=getattr(config.poses.odometry_config, "imu_max_clock_offset_s", 1.0),
+        image_size=(rig.width, rig.height))
     result: dict[str, Any] = {}
 
     def record() -> None:
