@@ -15,7 +15,8 @@ def loop_checks_text(checks: dict[str, int | bool]) -> str:
     empty string when no verified loop was refused (a summary's ``loop_checks``)."""
     parts = [(checks.get("rejected_odometry", 0), "disagreed with the odometry"),
              (checks.get("rejected_graph", 0), "with the solved graph"),
-             (checks.get("rejected_solver", 0), "failed to solve")]
+             (checks.get("rejected_solver", 0), "failed to solve"),
+             (checks.get("rejected_unconfirmed", 0), "not confirmed")]
     n = sum(k for k, _ in parts)
     if n == 0:
         return ""

@@ -224,3 +224,38 @@ def test_a_segment_no_loop_has_joined_is_not_judged_by_its_loose_prior():
     far = np.linalg.inv(true[0]) @ true[40] @ make_T(np.eye(3), [5.0, 0.0, 0.0])
     chi2 = PoseGraph().loop_chi2(0, 40, far, np.eye(6) * 1e-4, odo, segs, odo)
     assert chi2 is None or chi2 < OdometryConfig().loop_max_chi2
+
+
+def test_a_loop_a_second_view_contradicts_fails_the_confirmation() -> None:
+    """Two loops to one candidate, from a query and the keyframe just before it, each with the
+    covariance a right loop of the simulated survey claimed (27 inliers): both right, they
+    agree, within their own noise too; the first 3.4 degrees and 93 mm off (as a one-view PnP
+    on that survey was), they do not."""
+    graph = PoseGraph()
+    T_c_q = make_T(rotvec_to_R([0.0, 0.3, 0.05]), [0.6, -0.2, 0.5])
+    T_q_p = make_T(rotvec_to_R([0.0, -0.02, 0.0]), [-0.12, 0.0, 0.01])
+    T_c_p = T_c_q @ T_q_p
+    cov = np.diag(np.r_[np.radians([0.57, 0.46, 0.19]) ** 2, np.array([11.6, 14.2, 2.7]) ** 2
+                        * 1e-6])
+    limit = OdometryConfig().loop_max_chi2
+    assert graph.loops_agree(T_c_q, cov, T_q_p, T_c_p, cov) < 1e-9
+    off = T_c_q @ make_T(rotvec_to_R(np.radians([0.0, 3.36, 0.0])), [0.093, 0.0, 0.0])
+    assert graph.loops_agree(off, cov, T_q_p, T_c_p, cov) > limit
+    # each loop's own noise (its covariance, p = 0.999) keeps the two in agreement
+    rng = np.random.default_rng(3)
+    floor = np.r_[[graph.loop_rotation_sigma_rad] * 3, [graph.loop_translation_sigma_m] * 3]
+    L = np.linalg.cholesky(cov + np.diag(floor**2))
+    agree = 0
+    for _ in range(200):
+        xi_q, xi_p = L @ rng.standard_normal(6), L @ rng.standard_normal(6)
+        noisy_q = T_c_q @ _exp(xi_q)
+        noisy_p = T_c_p @ _exp(xi_p)
+        agree += graph.loops_agree(noisy_q, cov, T_q_p, noisy_p, cov) <= limit
+    assert agree >= 196
+
+
+def _exp(xi: np.ndarray) -> np.ndarray:
+    """gtsam's Pose3 exponential of ``(rotation, translation)``, as a 4x4."""
+    import gtsam
+
+    return np.asarray(gtsam.Pose3.Expmap(xi).matrix())

@@ -386,7 +386,8 @@ def test_cli_no_loop_closure_reaches_the_odometry(sim_session, first_run, tmp_pa
     assert seen[0]["enabled"] is True and seen[1]["enabled"] is False
     assert seen[1]["candidates"] == 0
     assert set(seen[0]) == {"enabled", "candidates", "verified", "accepted", "rejected_geometry",
-                            "rejected_odometry", "rejected_graph", "rejected_solver"}
+                            "rejected_odometry", "rejected_graph", "rejected_solver",
+                            "rejected_unconfirmed"}
 
 
 def test_cache_entries_are_compact_and_old_ones_still_read(first_run, tmp_path):

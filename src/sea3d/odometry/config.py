@@ -141,6 +141,13 @@ class OdometryConfig:
     graph's prediction (loop covariance plus the graph's marginal covariance of the relative
     pose) is at most this, and, after the solve, its distance from the optimised poses under
     its own covariance too (22.46: chi-square, 6 degrees of freedom, p = 0.999)."""
+    loop_confirm_keyframes: int = 2
+    """A loop within one joined map moves the graph only when one of the query's this many
+    previous keyframes verifies the same candidate with a relative pose that agrees with the
+    loop's (chi-square with both loops' covariances, :attr:`loop_max_chi2`): a pose fitted to
+    one view can be wrong by degrees with its inliers still consistent, and a second view
+    rarely is wrong the same way (ORB-SLAM confirms a loop by covisible keyframes). 0: a loop
+    needs no confirmation."""
     loop_cooldown_keyframes: int = 3
     """Keyframes after an accepted loop before the next search."""
     pose_graph_rotation_sigma_rad: float = 0.001

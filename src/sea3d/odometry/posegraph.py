@@ -95,6 +95,37 @@ class PoseGraph:
             return np.diag(floor**2)
         return 0.5 * (lp.covariance + lp.covariance.T) + np.diag(floor**2)
 
+    def loops_agree(self, T_c_q: F64, cov_q: F64 | None, T_q_p: F64, T_c_p: F64,
+                    cov_p: F64 | None) -> float:
+        """Squared Mahalanobis distance between two loops to one candidate ``c``: from query
+        ``q`` (``T_c_q``) and from a keyframe ``p`` just before it (``T_c_p``), with ``T_q_p``
+        the odometry between the two queries (taken as exact: over a keyframe or two it is far
+        better known than either loop). ``e = Log((T_c_q T_q_p)^-1 T_c_p)`` in ``p``'s tangent,
+        ``S = Ad(T_q_p^-1) S_q Ad(T_q_p^-1)^T + S_p`` with each loop's
+        :meth:`loop_covariance`; chi-square with 6 degrees of freedom when both are right.
+
+        Args:
+            T_c_q: 4x4 the first loop (maps ``q`` into ``c``).
+            cov_q: (6, 6) its covariance, or None.
+            T_q_p: 4x4 maps ``p`` into ``q`` (odometry).
+            T_c_p: 4x4 the second loop (maps ``p`` into ``c``).
+            cov_p: (6, 6) its covariance, or None.
+
+        Returns:
+            The squared distance (inf when the covariance is singular).
+        """
+        import gtsam
+
+        pred = T_c_q @ T_q_p
+        e = np.asarray(gtsam.Pose3.Logmap(gtsam.Pose3(np.linalg.inv(pred) @ T_c_p)))
+        Ad = np.asarray(gtsam.Pose3(T_q_p).inverse().AdjointMap())
+        S_q = self.loop_covariance(_Loop(0, 1, T_c_q, cov_q))
+        S = Ad @ S_q @ Ad.T + self.loop_covariance(_Loop(0, 1, T_c_p, cov_p))
+        try:
+            return float(e @ np.linalg.solve(S, e))
+        except np.linalg.LinAlgError:
+            return float("inf")
+
     def loop_chi2(
         self,
         a: int,

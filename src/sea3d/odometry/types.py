@@ -84,6 +84,8 @@ class LoopChecks:
         rejected_graph: loops undone after the solve, because the optimised graph still
             disagreed with them.
         rejected_solver: loops undone because the pose graph optimisation failed.
+        rejected_unconfirmed: verified loops that no keyframe just before the query confirmed
+            (the same candidate verified from there, with a relative pose that agrees).
     """
 
     enabled: bool = True
@@ -93,6 +95,7 @@ class LoopChecks:
     rejected_odometry: int = 0
     rejected_graph: int = 0
     rejected_solver: int = 0
+    rejected_unconfirmed: int = 0
     verified_loops: list[LoopRecord] = field(default_factory=list)
     """Every verified loop, in the order met (for checks against a ground truth)."""
 
@@ -107,6 +110,8 @@ class LoopChecks:
             self.rejected_graph += 1
         elif outcome == "rejected_solver":
             self.rejected_solver += 1
+        elif outcome == "rejected_unconfirmed":
+            self.rejected_unconfirmed += 1
         else:
             raise ValueError(f"unknown loop outcome {outcome!r}")
         self.verified_loops.append(LoopRecord(
@@ -125,6 +130,7 @@ class LoopChecks:
             "rejected_odometry": self.rejected_odometry,
             "rejected_graph": self.rejected_graph,
             "rejected_solver": self.rejected_solver,
+            "rejected_unconfirmed": self.rejected_unconfirmed,
         }
 
 

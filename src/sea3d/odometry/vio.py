@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d._text import plural
 from sea3d._typing import F64
 from sea3d.errors import OdometryError, SmootherFailure
 from sea3d.geometry.rig import ImuSpec
@@ -1227,7 +1228,7 @@ class StereoInertialOdometry:
                           "hold", k, q)
                 continue
             self.loop_checks.verified += 1
-            if self._agrees_with_graph(found, k):
+            if self._agrees_with_graph(found, k) and self._confirmed(found, k, local):
                 break
             found = None
         if found is None:
@@ -1272,6 +1273,50 @@ class StereoInertialOdometry:
             "loop rejected: keyframe %d with %d (%d inliers) disagrees with the odometry "
             "(chi-square %.1f > %.1f)", k, loop.candidate, loop.inliers, chi2,
             self.config.loop_max_chi2,
+        )
+        return False
+
+    def _confirmed(self, loop: LoopCandidate, k: int, local: list[PlaceFeatures]) -> bool:
+        """A loop within one joined map is confirmed when one of the query's previous
+        keyframes (``loop_confirm_keyframes``, its segment) verifies the same candidate against
+        the same local map with a relative pose that agrees with the loop's: ``T_cand_query @
+        T_query_prev`` (the odometry between the two query keyframes) against the second loop,
+        under both loops' covariances (:meth:`PoseGraph.loop_covariance`), chi-square at most
+        ``loop_max_chi2``. Loops that join segments (the graph cannot predict them) are judged
+        after the solve instead, as before."""
+        c = self.config
+        q = loop.candidate
+        cand = self._keyframes[q]
+        if c.loop_confirm_keyframes <= 0 or self._root(cand.segment) != self._root(
+                self._keyframes[k].segment) or cand.place is None:
+            return True
+        seg = self._keyframes[k].segment
+        earlier = [o for o in self._kf_order if o != k and self._keyframes[o].segment == seg]
+        T_query_world = invert_T(self._keyframes[k].T_world_rect)
+        best = float("inf")
+        for o in reversed(earlier[-c.loop_confirm_keyframes:]):
+            place = self._keyframes[o].place
+            if place is None:
+                continue
+            other = verify_loop(place, cand.place, q, self.geometry.K,
+                                min_inliers=c.loop_min_inliers, local_map=local,
+                                min_spread=c.loop_min_spread)
+            if other is None:
+                continue
+            T_query_prev = T_query_world @ self._keyframes[o].T_world_rect
+            chi2 = self._graph.loops_agree(loop.T_cand_query, loop.covariance, T_query_prev,
+                                           other.T_cand_query, other.covariance)
+            best = min(best, chi2)
+            if chi2 <= c.loop_max_chi2:
+                log.debug("loop: keyframe %d with %d confirmed by keyframe %d (chi-square %.1f)",
+                          k, q, o, chi2)
+                return True
+        self._record_loop(loop, k, "rejected_unconfirmed")
+        log.info(
+            "loop rejected: keyframe %d with %d (%d inliers) is not confirmed by the %s before "
+            "it (%s)", k, q, loop.inliers, plural(c.loop_confirm_keyframes, "keyframe"),
+            "none verified the candidate" if best == float("inf")
+            else f"best chi-square {best:.1f} > {c.loop_max_chi2:.1f}",
         )
         return False
 
