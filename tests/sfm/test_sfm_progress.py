@@ -8,13 +8,38 @@ from pathlib import Path
 import cv2
 
 from sea3d.sfm import SfmConfig, SfmFrame, run_sfm
-from sea3d.sfm.colmap import _sequential_pairs
+from sea3d.sfm.colmap import _count_rows, _sequential_pairs
 
 
 def test_sequential_pair_count_matches_colmaps_rule() -> None:
     # overlap 2 over 5 frames: (i, i+1), (i, i+2) and the quadratic i + 1, i + 2: 4 + 3 pairs
     assert _sequential_pairs(5, 2) == 7
     assert _sequential_pairs(1, 10) == 0
+
+
+def test_a_progress_poll_leaves_colmaps_wal_index_alone_and_sees_its_rows(tmp_path: Path) -> None:
+    """COLMAP (its own SQLite, inside pycolmap) keeps its database in WAL mode with the -shm
+    file mapped. A poll through Python's sqlite3, another copy of SQLite in the same process,
+    must not rewrite that file (a reset of it under COLMAP's mapping is a SIGBUS when COLMAP
+    touches it before it grows again), and must count the rows COLMAP has written so far."""
+    import pycolmap
+
+    path = tmp_path / "database.db"
+    db = pycolmap.Database.open(str(path))
+    try:
+        camera = pycolmap.Camera(model="PINHOLE", width=32, height=24,
+                                 params=[30.0, 30.0, 16.0, 12.0])
+        db.write_camera(camera)
+        shm = Path(f"{path}-shm")
+        assert shm.is_file()  # the WAL index COLMAP maps
+        for expected in (1, 2, 3):
+            before = (shm.stat().st_mtime_ns, shm.stat().st_size, shm.read_bytes())
+            assert _count_rows(path, "SELECT COUNT(*) FROM cameras") == expected
+            assert (shm.stat().st_mtime_ns, shm.stat().st_size, shm.read_bytes()) == before
+            db.write_camera(camera)
+    finally:
+        db.close()
+    assert _count_rows(tmp_path / "missing.db", "SELECT COUNT(*) FROM cameras") is None
 
 
 def test_extract_and_match_report_progress_to_the_end(

@@ -249,6 +249,29 @@ def _sequential_pairs(n: int, overlap: int) -> int:
     return len(pairs)
 
 
+def _count_rows(db_path: Path, count_sql: str) -> int | None:
+    """``count_sql``'s count in COLMAP's database while COLMAP writes it, or None when it
+    cannot be read at this moment.
+
+    pycolmap links its own copy of SQLite and keeps the database in WAL mode, its ``-shm``
+    file (the WAL index) mapped into memory. Python's ``sqlite3`` is another copy of the
+    library in the same process: POSIX locks do not tell it that COLMAP's copy holds the file,
+    so a connection of its own took itself for the first one and truncated the ``-shm`` file
+    to reset it, under COLMAP's mapping (COLMAP then died of SIGBUS if it touched the file
+    before it grew again). ``readonly_shm=1`` opens the ``-shm`` file read-only, so this
+    connection never resets it: it reads the WAL itself, and sees what COLMAP wrote.
+    """
+    import contextlib
+    import sqlite3
+
+    uri = f"file:{db_path}?mode=ro&readonly_shm=1"
+    try:
+        with contextlib.closing(sqlite3.connect(uri, uri=True, timeout=0.1)) as con:
+            return int(con.execute(count_sql).fetchone()[0])
+    except sqlite3.Error:
+        return None  # COLMAP holds a write lock for a moment: try at the next poll
+
+
 def _watched(call: Callable[[], object], db_path: Path, count_sql: str, stage: str, total: int,
              progress: Progress | None, poll_s: float = 0.5) -> None:
     """Run a pycolmap stage with no callback of its own, reporting progress from its database.
@@ -260,7 +283,6 @@ def _watched(call: Callable[[], object], db_path: Path, count_sql: str, stage: s
     if progress is None:
         call()
         return
-    import sqlite3
     import threading
 
     failure: list[BaseException] = []
@@ -274,15 +296,11 @@ def _watched(call: Callable[[], object], db_path: Path, count_sql: str, stage: s
     worker = threading.Thread(target=work, name=f"pycolmap-{stage}", daemon=True)
     worker.start()
     progress(stage, 0, total)
-    uri = f"file:{db_path}?mode=ro"
     while worker.is_alive():
         worker.join(poll_s)
-        try:
-            with sqlite3.connect(uri, uri=True, timeout=0.1) as con:
-                done = int(con.execute(count_sql).fetchone()[0])
-        except sqlite3.Error:
-            continue  # COLMAP holds a write lock for a moment: try at the next poll
-        progress(stage, min(done, total), total)
+        done = _count_rows(db_path, count_sql)
+        if done is not None:
+            progress(stage, min(done, total), total)
     if failure:
         raise failure[0]
     progress(stage, total, total)
