@@ -52,3 +52,6 @@ def _register_hypothesis_profiles() -> None:
 
 
 _register_hypothesis_profiles()
+
+
+pytest_plugins = ["crash_handlers"]
