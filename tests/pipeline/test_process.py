@@ -344,14 +344,15 @@ def test_mesh_in_the_ground_truths_frame_and_eval_surface_agree(first_run, sim_s
 
 def test_cli_floater_options_reach_fusion(sim_session, first_run, tmp_path, capsys):
     """``--hole-margin-px``, ``--carve-free-space``, ``--fusion-min-confidence``,
-    ``--fusion-confidence-full`` and ``--min-observations`` reach the fusion's TSDF (the summary
+    ``--fusion-confidence-full``, ``--min-observations`` and ``--min-piece-triangles`` reach the fusion's TSDF (the summary
     says so) and change the mesh: the margin leaves out the pixels beside holes."""
     poses = str(_gt_dir(sim_session) / "poses_left.tum")
     meshes, summaries = [], []
     for i, extra in enumerate(([], ["--hole-margin-px", "2", "--carve-free-space",
                                     "--fusion-min-confidence", "0.1",
                                     "--fusion-confidence-full", "0.5",
-                                    "--min-observations", "1"])):
+                                    "--min-observations", "1",
+                                    "--min-piece-triangles", "0"])):
         out = _with_cache(first_run[0], tmp_path / f"cli{i}")
         assert main(["process", str(sim_session), "-o", str(out), "--poses", poses,
                      "--workers", "0", "--json", *extra]) == 0
@@ -360,12 +361,13 @@ def test_cli_floater_options_reach_fusion(sim_session, first_run, tmp_path, caps
     plain, opts = summaries
     assert plain["frames_from_cache"] == opts["frames_from_cache"] == 30
     noise = plain["fusion"].pop("depth_noise_per_m")
-    assert plain["fusion"] == {"min_observations": 2, "hole_margin_px": 0,
-                               "carve_free_space": False, "min_confidence": 0.0,
-                               "confidence_full": None}
+    assert plain["fusion"] == {"min_observations": 2, "min_piece_triangles": 100,
+                               "hole_margin_px": 0, "carve_free_space": False,
+                               "min_confidence": 0.0, "confidence_full": None}
     f = opts["fusion"]
-    assert (f["min_observations"], f["hole_margin_px"], f["carve_free_space"],
-            f["min_confidence"], f["confidence_full"]) == (1, 2, True, 0.1, 0.5)
+    assert (f["min_observations"], f["min_piece_triangles"], f["hole_margin_px"],
+            f["carve_free_space"], f["min_confidence"], f["confidence_full"]) == (
+        1, 0, 2, True, 0.1, 0.5)
     # the carving margin's noise from the rig: 0.25 px over f B (f B of the 320x180 dome
     # rig: about 19 px m)
     assert 0.25 / 30 < f["depth_noise_per_m"] < 0.25 / 10 and f["depth_noise_per_m"] == noise

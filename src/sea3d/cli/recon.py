@@ -54,6 +54,7 @@ def _cmd_process(args: argparse.Namespace) -> int:
         depth=depth_config(args),
         map=MapConfig(voxel_m=args.voxel_m, integrate=args.integrate,
                       min_observations=args.min_observations,
+                      min_piece_triangles=args.min_piece_triangles,
                       hole_margin_px=args.hole_margin_px,
                       carve_free_space=args.carve_free_space,
                       min_confidence=args.fusion_min_confidence,
@@ -313,6 +314,9 @@ def register(sub: Any) -> None:
     config_option(p, MapConfig, "min_observations", type=int, metavar="N",
                   help="mesh and cloud keep the voxels fused from at least N depth frames "
                   "(1: every voxel seen; 2 drops the surfaces one frame's wrong depth leaves)")
+    config_option(p, MapConfig, "min_piece_triangles", type=int, metavar="N",
+                  help="drop mesh pieces of fewer than N triangles not connected to the rest, "
+                  "and the cloud's points on them (specks in open water; 0 keeps all)")
     config_option(p, MapConfig, "hole_margin_px", type=int, metavar="N",
                   help="do not fuse depth pixels within N px of a pixel without depth "
                   "(fewer floaters, less surface beside wide holes; 0 fuses every pixel)")

@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 from sea3d._typing import F64
 from sea3d.errors import ReconError
 
-__all__ = ["Mesh"]
+__all__ = ["Mesh", "drop_small_pieces"]
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -74,3 +74,39 @@ class Mesh:
             colors_rgb=cols,
             normals=nrm,
         )
+
+
+def drop_small_pieces(mesh: Mesh, min_triangles: int) -> tuple[Mesh, NDArray[np.bool_]]:
+    """The mesh without its pieces (sets of triangles connected through shared vertices) of
+    fewer than ``min_triangles`` triangles, and which of the input's vertices it kept.
+
+    Args:
+        mesh: a welded mesh (pieces are found through shared vertex indices).
+        min_triangles: pieces smaller than this go; 0 or 1 keeps every piece.
+
+    Returns:
+        ``(mesh, kept)``: the mesh (unreferenced vertices removed, order kept) and a (V,)
+        mask over the input's vertices.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n_v = len(mesh.vertices)
+    if min_triangles <= 1 or mesh.empty:
+        return mesh, np.ones(n_v, bool)
+    f = mesh.triangles
+    rows = np.concatenate([f[:, 0], f[:, 1]])
+    cols = np.concatenate([f[:, 1], f[:, 2]])
+    graph = coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(n_v, n_v))
+    _, label = connected_components(graph, directed=False)
+    size = np.bincount(label[f[:, 0]], minlength=label.max() + 1)
+    keep_f = size[label[f[:, 0]]] >= min_triangles
+    kept = np.zeros(n_v, bool)
+    kept[f[keep_f].ravel()] = True
+    index = np.cumsum(kept) - 1
+    return Mesh(
+        vertices=mesh.vertices[kept],
+        triangles=index[f[keep_f]].astype(np.int64),
+        colors_rgb=None if mesh.colors_rgb is None else mesh.colors_rgb[kept],
+        normals=None if mesh.normals is None else mesh.normals[kept],
+    ), kept

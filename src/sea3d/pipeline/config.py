@@ -43,6 +43,11 @@ class MapConfig:
     """Mesh and cloud keep the voxels fused from at least this many depth frames (summed over
     the submaps): a surface seen once, the floater one frame's wrong depth leaves, is dropped;
     1 keeps every voxel seen."""
+    min_piece_triangles: int = 100
+    """Mesh pieces (triangles connected to each other) of fewer triangles than this, and the
+    cloud's points on them, are dropped: the specks one frame's wrong depth leaves in open
+    water (about 7x7 voxels, 14 cm across at 2 cm voxels; a piece of the scene that size lies
+    on the surface and is connected to it); 0 keeps every piece."""
     hole_margin_px: int = 0
     """Depth pixels within this many pixels of a pixel without depth are not fused (where
     stereo's wrong depth gathers; it also loses true surface beside wide holes: 0 fuses every
@@ -63,6 +68,8 @@ class MapConfig:
             raise ConfigError(f"voxel_m must be > 0, got {self.voxel_m}")
         if self.min_observations < 1:
             raise ConfigError(f"min_observations must be >= 1, got {self.min_observations}")
+        if self.min_piece_triangles < 0:
+            raise ConfigError(f"min_piece_triangles must be >= 0, got {self.min_piece_triangles}")
         if not 0 <= self.hole_margin_px <= 16:
             raise ConfigError(f"hole_margin_px must be 0..16, got {self.hole_margin_px}")
         if not 0 <= self.min_confidence < 1:

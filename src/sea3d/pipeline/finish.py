@@ -36,7 +36,7 @@ class Reconstruction:
 
 def finish_reconstruction(stages: OrderedStages, store: Any, tsdf: Any, *,
                           tile_m: float | None, cloud_voxel_m: float, progress: Any,
-                          timer: StageTimer) -> Reconstruction:
+                          timer: StageTimer, min_piece_triangles: int = 0) -> Reconstruction:
     """Final trajectory, merge of the stored submaps at the final keyframe poses, cloud.
 
     Args:
@@ -45,7 +45,10 @@ def finish_reconstruction(stages: OrderedStages, store: Any, tsdf: Any, *,
         tile_m: edge of the merge's tiles. cloud_voxel_m: the cloud's downsampling voxel.
         progress: a progress bar factory ``(stage, total) -> bar``.
         timer: where ``merge_s`` and ``cloud_s`` are added.
+        min_piece_triangles: mesh pieces of fewer triangles, and the cloud points nearest to
+            them, are dropped (0 keeps all).
     """
+    from sea3d.geometry.mesh import drop_small_pieces
     from sea3d.recon.cloud import CloudConfig, clean_point_cloud
     from sea3d.recon.submaps import merge_submaps
 
@@ -57,12 +60,19 @@ def finish_reconstruction(stages: OrderedStages, store: Any, tsdf: Any, *,
                                progress=bar.update)
     finally:
         bar.close()
+    mesh, kept = drop_small_pieces(merged.mesh, min_piece_triangles)
+    points, colors, normals = merged.points, merged.colors, merged.normals
+    if not kept.all() and len(points):
+        from scipy.spatial import cKDTree
+
+        _, nearest = cKDTree(merged.mesh.vertices).query(points)
+        on = kept[nearest]
+        points, colors, normals = points[on], colors[on], normals[on]
     timer.add("merge_s", time.perf_counter() - tm)
     tc = time.perf_counter()
-    cloud = clean_point_cloud(merged.points, merged.colors, merged.normals,
-                              CloudConfig(voxel_m=cloud_voxel_m))
+    cloud = clean_point_cloud(points, colors, normals, CloudConfig(voxel_m=cloud_voxel_m))
     timer.add("cloud_s", time.perf_counter() - tc)
-    return Reconstruction(t_ns=t, T_world_left=T, mesh=merged.mesh, cloud=cloud,
+    return Reconstruction(t_ns=t, T_world_left=T, mesh=mesh, cloud=cloud,
                           submaps=merged.submaps, moved=merged.moved)
 
 

@@ -975,7 +975,8 @@ class _Run:
         rec = finish_reconstruction(
             stages, self.store, self.fusion_cfg.tsdf, tile_m=config.map.merge_tile_m,
             cloud_voxel_m=config.map.cloud_voxel_m or config.map.voxel_m / 2,
-            progress=_no_progress, timer=self.timer)
+            progress=_no_progress, timer=self.timer,
+            min_piece_triangles=config.map.min_piece_triangles)
         files = write_process_outputs(self.out, t_ns=rec.t_ns, T_world_left=rec.T_world_left,
                                       rows=frame_rows(stages), mesh=rec.mesh, cloud=rec.cloud,
                                       rig=self.stereo.rig)

@@ -426,7 +426,8 @@ def _finish(session_path: Path, out: Path, config: ProcessConfig, stages: Ordere
     maps = stereo.maps
     rec = finish_reconstruction(stages, store, fusion_cfg.tsdf, tile_m=config.map.merge_tile_m,
                                 cloud_voxel_m=config.map.cloud_voxel_m or config.map.voxel_m / 2,
-                                progress=bar, timer=timer)
+                                progress=bar, timer=timer,
+                                min_piece_triangles=config.map.min_piece_triangles)
     tw = time.perf_counter()
     files = write_process_outputs(out, t_ns=rec.t_ns, T_world_left=rec.T_world_left,
                                   rows=frame_rows(stages), mesh=rec.mesh, cloud=rec.cloud,
@@ -450,6 +451,7 @@ def _finish(session_path: Path, out: Path, config: ProcessConfig, stages: Ordere
         summary["colours"]["water_model"] = colours.summary()
     tc = fusion_cfg.tsdf
     summary["fusion"] = {"min_observations": config.map.min_observations,
+                         "min_piece_triangles": config.map.min_piece_triangles,
                          "hole_margin_px": tc.hole_margin_px,
                          "carve_free_space": tc.carve_free_space,
                          "depth_noise_per_m": tc.depth_noise_per_m,
