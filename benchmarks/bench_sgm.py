@@ -24,9 +24,9 @@ CPU-second of the aggregation, and the path sweep's time per pixel and path on t
 full-size volume against a volume small enough to stay in the L1 cache (the same time in both
 means the sweep is bound by arithmetic, not by memory bandwidth).
 
-Each run writes its date, machine, load, command and figures into the section of
-``benchmarks/results/stereo.md`` between the ``bench_sgm`` markers, replacing the previous
-run's (``--no-record`` only prints).
+Each run adds its rows (date, load, figures) to the table in the section of
+``benchmarks/results/stereo.md`` between the ``bench_sgm`` markers and replaces the details
+of the latest run there (command, machine, rates, stages); ``--no-record`` only prints.
 
     PYTHONPATH=src python benchmarks/bench_sgm.py [--repeats 3] [--textures noise,multiscale]
         [--session out/bench_process/lake_640x360_80 --frames 6] [--no-record]
@@ -48,7 +48,7 @@ import cv2
 import numpy as np
 
 RESULTS = Path(__file__).resolve().parent / "results" / "stereo.md"
-BEGIN = "<!-- bench_sgm: begin (written by benchmarks/bench_sgm.py; each run replaces it) -->"
+BEGIN = "<!-- bench_sgm: begin (written by benchmarks/bench_sgm.py; each run adds its rows) -->"
 END = "<!-- bench_sgm: end -->"
 
 
@@ -261,35 +261,47 @@ def _machine() -> str:
     return f"{model}, {os.cpu_count()} CPUs, {platform.system()}"
 
 
-def record(args: argparse.Namespace, load: tuple[float, float], dive_out: dict | None,
-           textures: list[dict]) -> None:
-    """Replace the ``bench_sgm`` section of benchmarks/results/stereo.md with this run."""
-    now = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
+_HEADER = ("| run (UTC), load before / after | frames | sea3d CPU s (wall) | 3WAY CPU s (wall) | "
+           "sea3d / 3WAY CPU (wall) | accuracy sea3d | accuracy 3WAY |")
+
+
+def record(load: tuple[float, float], dive_out: dict | None, textures: list[dict]) -> None:
+    """Add this run's rows to the table of the ``bench_sgm`` section of
+    benchmarks/results/stereo.md (rows of earlier runs are kept) and replace the section's
+    details of the latest run (command, machine, rates, stages)."""
+    now = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M")
     cmd = "PYTHONPATH=src python benchmarks/bench_sgm.py " + shlex.join(sys.argv[1:])
-    lines = [BEGIN, "", f"### Latest `bench_sgm.py` run: {now}", "",
-             f"`{cmd.strip()}` on {_machine()}; load average {load[0]:.2f} before, "
-             f"{load[1]:.2f} after (wall times depend on it, CPU times much less). Medians per "
-             "frame of the interleaved runs; CPU is process time, all threads.", "",
-             "| frames | sea3d CPU s (wall) | 3WAY CPU s (wall) | sea3d / 3WAY CPU (wall) | "
-             "accuracy sea3d | accuracy 3WAY |", "|---|---|---|---|---|---|"]
+    run = f"{now}, {load[0]:.2f} / {load[1]:.2f}"
+    rows = []
     if dive_out is not None:
         d = dive_out
         c, w = d["cpu"], d["wall"]
         acc = {e: f"depth error {v[0]:.3f} / {v[1]:.3f} % (median / p90), {v[2]:.1f} % with "
                "depth" for e, v in d["depth"].items()}
-        lines.append(
-            f"| dive {d['name']}, {d['size']}, 0..{d['d_max']}, {d['frames']} x {d['repeats']} | "
-            f"{c['sea3d']:.4f} ({w['sea3d']:.4f}) | {c['opencv-3way']:.4f} "
+        rows.append(
+            f"| {run} | dive {d['name']}, {d['size']}, 0..{d['d_max']}, {d['frames']} x "
+            f"{d['repeats']} | {c['sea3d']:.4f} ({w['sea3d']:.4f}) | {c['opencv-3way']:.4f} "
             f"({w['opencv-3way']:.4f}) | {c['sea3d'] / c['opencv-3way']:.2f}x "
             f"({w['sea3d'] / w['opencv-3way']:.2f}x) | {acc['sea3d']} | {acc['opencv-3way']} |")
     for t in textures:
         c, w = t["cpu"], t["wall"]
-        lines.append(
-            f"| {t['texture']}, {t['size']}, 0..255, {t['repeats']} | {c['sea3d']:.3f} "
-            f"({w['sea3d']:.3f}) | {c['opencv-3way']:.3f} ({w['opencv-3way']:.3f}) | "
-            f"{c['sea3d'] / c['opencv-3way']:.2f}x ({w['sea3d'] / w['opencv-3way']:.2f}x) | "
-            f"bad-2 {t['bad2']['sea3d']:.3f} % dense, {t['bad2_matched']:.3f} % matched | "
-            f"bad-2 {t['bad2']['opencv-3way']:.3f} % |")
+        rows.append(
+            f"| {run} | {t['texture']}, {t['size']}, 0..255, {t['repeats']} | "
+            f"{c['sea3d']:.3f} ({w['sea3d']:.3f}) | {c['opencv-3way']:.3f} "
+            f"({w['opencv-3way']:.3f}) | {c['sea3d'] / c['opencv-3way']:.2f}x "
+            f"({w['sea3d'] / w['opencv-3way']:.2f}x) | bad-2 {t['bad2']['sea3d']:.3f} % dense, "
+            f"{t['bad2_matched']:.3f} % matched | bad-2 {t['bad2']['opencv-3way']:.3f} % |")
+    text = RESULTS.read_text()
+    earlier: list[str] = []
+    if BEGIN in text and END in text:
+        old = text.split(BEGIN, 1)[1].split(END, 1)[0]
+        earlier = [ln for ln in old.splitlines() if ln.startswith("| 20")]
+    lines = [BEGIN, "", "### `bench_sgm.py` runs", "",
+             "Written by the script, a row per run and input: medians per frame of the "
+             "interleaved runs, CPU as process time (all threads), wall in brackets; the load "
+             "average before and after the run (wall times depend on it, CPU times much less).",
+             "", _HEADER, "|---|---|---|---|---|---|---|", *earlier, *rows, "",
+             f"Latest run ({now} UTC): `{cmd.strip()}` on {_machine()}."]
     if dive_out is not None:
         d = dive_out
         k = d["kernels"]
@@ -309,7 +321,6 @@ def record(args: argparse.Namespace, load: tuple[float, float], dive_out: dict |
             + ", ".join(f"{name} {1000 * v:.1f}" for name, v in k.items()) + ".",
         ]
     lines += ["", END]
-    text = RESULTS.read_text()
     section = "\n".join(lines)
     if BEGIN in text and END in text:
         head, rest = text.split(BEGIN, 1)
@@ -379,7 +390,7 @@ def main() -> None:
     load1 = os.getloadavg()[0]
     print(f"\nload after {load1:.2f}")
     if not args.no_record:
-        record(args, (load0, load1), dive_out, textures)
+        record((load0, load1), dive_out, textures)
 
 
 if __name__ == "__main__":
