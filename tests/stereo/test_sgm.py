@@ -275,14 +275,16 @@ def _census_reference(img: np.ndarray, half_h: int, half_w: int) -> np.ndarray:
     return (hi << np.uint64(32)) | (lo & np.uint64(0xFFFFFFFF))
 
 
+@pytest.mark.parametrize("shape", [(23, 11), (9, 37)])
 @pytest.mark.parametrize(("half_h", "half_w"), [(3, 4), (1, 1), (2, 6)])
-def test_census_transform_matches_the_plain_definition_bit_for_bit(half_h: int,
-                                                                   half_w: int) -> None:
+def test_census_transform_matches_the_plain_definition_bit_for_bit(
+        half_h: int, half_w: int, shape: tuple[int, int]) -> None:
     from sea3d.stereo._sgm_kernels import census_transform
 
     rng = np.random.default_rng(3)
-    # ties (quantised values) and a narrow image, so the replicated borders meet
-    img = np.round(rng.random((23, 11)) * 8).astype(np.float32)
+    # ties (quantised values); a narrow image, so the replicated borders meet, and one whose
+    # rows end part-way through a block of 16 pixels
+    img = np.round(rng.random(shape) * 8).astype(np.float32)
     got = census_transform(img, half_h, half_w)
     assert got.dtype == np.uint64
     np.testing.assert_array_equal(got, _census_reference(img, half_h, half_w))

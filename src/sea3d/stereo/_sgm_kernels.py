@@ -32,6 +32,7 @@ from numba import njit, prange
 from sea3d.stereo._simd import (
     LANES,
     argmin16,
+    census16,
     census_cost16,
     load_at,
     min_outside16,
@@ -53,41 +54,35 @@ def census_transform(img: np.ndarray, half_h: int, half_w: int) -> np.ndarray:
     """Census signature of each pixel: one bit per window neighbour darker than the centre.
 
     ``img`` (H, W) float32; window (2*half_h+1) x (2*half_w+1) <= 65 pixels; borders replicate.
-    Returns (H, W) uint64. The loops run along rows (vectorised), filling two 32-bit halves; the
-    bit order is the same for both images, which is all the Hamming distance needs. Each window
-    row is copied once into a padded row (a contiguous copy plus the replicated ends) and every
-    neighbour's bits are formed from a contiguous slice of it, so the inner loops vectorise
-    without per-pixel clamping (measured: 2.2 ms against 5.6 ms per 640x360 image, one thread,
-    the same bits).
+    Returns (H, W) uint64: the first 32 neighbours (rows first, then columns; the centre left
+    out) in the low word, the first of them in its highest bit, the others in the high word;
+    the bit order is the same for both images, which is all the Hamming distance needs. Each
+    output row copies its window rows once into padded rows (the ends replicated), and
+    :func:`census16` forms the bits of 16 pixels at a time in registers, reading every
+    neighbour from a contiguous slice (measured on a presmoothed 640x360 frame of the
+    simulated dive, one thread: 1.17 ms against 1.72 ms with the bits formed a neighbour at a
+    time over the whole row, the same bits).
     """
     h, w = img.shape
-    pw = w + 2 * half_w
+    n_rows = 2 * half_h + 1
+    n_cols = 2 * half_w + 1
+    stride = w + 2 * half_w + LANES  # room for the last block's reads
+    n_blocks = (w + LANES - 1) // LANES
     out = np.empty((h, w), np.uint64)
-    one = np.uint32(1)
-    zero = np.uint32(0)
     for y in prange(h):
-        centre = img[y]
-        padded = np.empty(pw, np.float32)
-        lo32 = np.zeros(w, np.uint32)
-        hi32 = np.zeros(w, np.uint32)
-        n = 0
-        for dy in range(-half_h, half_h + 1):
-            row = img[min(max(y + dy, 0), h - 1)]
-            padded[half_w:half_w + w] = row
+        rows = np.empty(n_rows * stride, np.float32)
+        for r in range(n_rows):
+            row = img[min(max(y + r - half_h, 0), h - 1)]
+            b = r * stride
+            rows[b + half_w:b + half_w + w] = row
             for x in range(half_w):
-                padded[x] = row[0]
-                padded[half_w + w + x] = row[w - 1]
-            for dx in range(2 * half_w + 1):
-                if dy == 0 and dx == half_w:
-                    continue
-                src = padded[dx:dx + w]
-                if n < 32:
-                    for x in range(w):
-                        lo32[x] = (lo32[x] << one) | (one if src[x] < centre[x] else zero)
-                else:
-                    for x in range(w):
-                        hi32[x] = (hi32[x] << one) | (one if src[x] < centre[x] else zero)
-                n += 1
+                rows[b + x] = row[0]
+            for x in range(half_w + w, stride):
+                rows[b + x] = row[w - 1]
+        lo32 = np.empty(n_blocks * LANES, np.uint32)
+        hi32 = np.empty(n_blocks * LANES, np.uint32)
+        for k in range(n_blocks):
+            census16(rows, stride, n_rows, n_cols, k * LANES, lo32, hi32)
         for x in range(w):
             out[y, x] = (np.uint64(hi32[x]) << np.uint64(32)) | np.uint64(lo32[x])
     return out

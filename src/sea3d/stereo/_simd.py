@@ -22,6 +22,7 @@ from numba.extending import intrinsic
 __all__ = [
     "LANES",
     "argmin16",
+    "census16",
     "census_cost16",
     "load_at",
     "min_outside16",
@@ -111,6 +112,61 @@ hold a large value); ``cost`` uint8 the matching costs at ``i_cost``; ``c2 = m +
 
 path_step16_set = _make_path_step(False)
 """As :data:`path_step16_add`, but stores ``L(p, d_k)`` into ``total`` instead of adding."""
+
+
+@intrinsic
+def census16(typingctx: Any, rows: Any, stride: Any, n_rows: Any, n_cols: Any, x0: Any,
+             lo_out: Any, hi_out: Any) -> Any:
+    """Census bits of 16 neighbouring pixels of one image row.
+
+    ``rows`` (float32) holds the window's ``n_rows`` image rows, each ``stride`` entries long
+    and padded so that entry ``x + c`` is the neighbour ``c - n_cols // 2`` columns from pixel
+    ``x``; the centre row is ``n_rows // 2``. For pixels ``x0 .. x0 + 15``, every neighbour
+    but the centre, rows first then columns, shifts one bit (1 where the neighbour is darker
+    than the centre) into the pixel's first 32-bit word for the first 32 neighbours and into
+    its second word after; the words go to ``lo_out[x0:x0 + 16]`` and ``hi_out[x0:x0 + 16]``
+    (uint32). The caller keeps every read (``x0 + n_cols + 15`` in each row) inside ``rows``.
+    """
+    sig = types.void(rows, stride, n_rows, n_cols, x0, lo_out, hi_out)
+
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> None:
+        rf, st_, nr_, nc_, x0_, lo_, hi_ = args
+        a = signature.args
+        i64 = _I64
+        v32 = ir.VectorType(ir.IntType(32), LANES)
+        st, nr, nc, x0 = (context.cast(builder, v, a[k], types.int64) for k, v in
+                          ((1, st_), (2, nr_), (3, nc_), (4, x0_)))
+        rdata = context.make_array(a[0])(context, builder, rf).data
+        two = ir.Constant(i64, 2)
+        cr = builder.sdiv(nr, two)
+        cc = builder.sdiv(nc, two)
+        centre = _load(builder, builder.gep(rdata, [builder.add(builder.mul(cr, st),
+                                                                builder.add(x0, cc))]), _VF)
+        lo_slot = cgutils.alloca_once_value(builder, ir.Constant(v32, [0] * LANES))
+        hi_slot = cgutils.alloca_once_value(builder, ir.Constant(v32, [0] * LANES))
+        n_slot = cgutils.alloca_once_value(builder, ir.Constant(i64, 0))
+        one = ir.Constant(v32, [1] * LANES)
+        with cgutils.for_range(builder, nr) as rloop:
+            r = rloop.index
+            base = builder.add(builder.mul(r, st), x0)
+            with cgutils.for_range(builder, nc) as cloop:
+                c = cloop.index
+                skip = builder.and_(builder.icmp_signed("==", r, cr),
+                                    builder.icmp_signed("==", c, cc))
+                with builder.if_then(builder.not_(skip)):
+                    src = _load(builder, builder.gep(rdata, [builder.add(base, c)]), _VF)
+                    bit = builder.zext(builder.fcmp_ordered("<", src, centre), v32)
+                    n = builder.load(n_slot)
+                    first = builder.icmp_signed("<", n, ir.Constant(i64, 32))
+                    slot = builder.select(first, lo_slot, hi_slot)
+                    word = builder.load(slot)
+                    builder.store(builder.or_(builder.shl(word, one), bit), slot)
+                    builder.store(builder.add(n, ir.Constant(i64, 1)), n_slot)
+        for k, slot in ((5, lo_slot), (6, hi_slot)):
+            out = context.make_array(a[k])(context, builder, (lo_, hi_)[k - 5]).data
+            _store(builder, builder.load(slot), builder.gep(out, [x0]))
+
+    return sig, codegen
 
 
 @intrinsic
