@@ -344,8 +344,9 @@ def test_mesh_in_the_ground_truths_frame_and_eval_surface_agree(first_run, sim_s
 
 def test_cli_floater_options_reach_fusion(sim_session, first_run, tmp_path, capsys):
     """``--hole-margin-px``, ``--carve-free-space``, ``--fusion-min-confidence``,
-    ``--fusion-confidence-full``, ``--min-observations`` and ``--min-piece-triangles`` reach the fusion's TSDF (the summary
-    says so) and change the mesh: the margin leaves out the pixels beside holes."""
+    ``--fusion-confidence-full``, ``--min-observations`` and ``--min-piece-triangles`` reach
+    the fusion's TSDF (the summary says so) and change the mesh: the margin leaves out the
+    pixels beside holes."""
     poses = str(_gt_dir(sim_session) / "poses_left.tum")
     meshes, summaries = [], []
     for i, extra in enumerate(([], ["--hole-margin-px", "2", "--carve-free-space",

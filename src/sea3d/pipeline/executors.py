@@ -497,8 +497,13 @@ class DaskExecutor:
         return call.outer
 
     def _scheduler_lost(self) -> bool:
-        """The client gave up on its scheduler (it reconnects for a while first)."""
-        return str(getattr(self.client, "status", "running")) in ("closing", "closed")
+        """The client gave up on its scheduler (it reconnects for a while first). Its
+        connection pool is closed a moment before its own status says so, and a call made in
+        that moment fails with the pool's ``CommClosedError``: both are looked at."""
+        gone = ("closing", "closed", "Status.closing", "Status.closed")
+        pool = getattr(self.client, "rpc", None)
+        return (str(getattr(self.client, "status", "running")) in gone
+                or str(getattr(pool, "status", "running")) in gone)
 
     def _start(self, call: _Call) -> None:
         while True:
@@ -515,7 +520,11 @@ class DaskExecutor:
                 break
             except Exception as err:  # scatter or submit failed: a worker gone, say
                 timed_out = isinstance(err, TimeoutError | self._distributed.TimeoutError)
-                if timed_out or call.tries >= MAX_TRIES or self._scheduler_lost():
+                if self._scheduler_lost():
+                    call.outer.set_exception(ExecutorError(
+                        f"the Dask cluster at {self.address} lost its scheduler"))
+                    return
+                if timed_out or call.tries >= MAX_TRIES:
                     call.outer.set_exception(self._error(err))
                     return
                 log.warning("the Dask cluster at %s did not take a call (%s: %s); trying "
