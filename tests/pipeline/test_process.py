@@ -23,6 +23,7 @@ from sea3d.io.mesh_files import read_mesh
 from sea3d.io.result_cache import FrameCache
 from sea3d.io.session import SessionWriter, open_session
 from sea3d.io.trajectory_files import read_trajectory
+from sea3d.pipeline.odometry import session_odometry
 from sea3d.pipeline.process import (
     ColourConfig,
     ExecutorConfig,
@@ -172,6 +173,26 @@ def test_lost_frames_are_in_the_trajectory_but_not_fused(sim_session, first_run,
     # The planted 0.5 m pose error of the lost frames did not reach the mesh.
     good = first_run[1].summary["mesh_vs_gt"]["accuracy_m"]
     assert s["mesh_vs_gt"]["accuracy_m"]["p90"] < good["p90"] + 0.003
+
+
+def test_odometry_and_process_report_one_path_length(sim_session, first_run, tmp_path,
+                                                     monkeypatch):
+    """``sea3d odometry`` and ``sea3d process`` report the same path length for the same
+    trajectory: the steps between trusted frames, none into or out of a lost frame."""
+    import sea3d.odometry
+
+    lost = (5, 6, 7, 20)
+    gt = _gt(sim_session)
+    processed = _scripted_run(sim_session, first_run, tmp_path, lost=lost).summary
+    monkeypatch.setattr(sea3d.odometry, "create_odometry", lambda rig, maps, **kw:
+                        ScriptedOdometry(gt.t_ns, gt.T_world_x, lost=lost))
+    odometry = session_odometry(sim_session, use_imu=False).summary
+    step = np.linalg.norm(np.diff(gt.T_world_x[:, :3, 3], axis=0), axis=1)
+    counted = [i for i in range(len(step)) if i not in lost and i + 1 not in lost]
+    assert len(counted) == len(step) - 6
+    assert odometry["frames_lost"] == processed["frames_lost"] == len(lost)
+    assert odometry["path_length_m"] == pytest.approx(float(step[counted].sum()), rel=1e-12)
+    assert processed["path_length_m"] == odometry["path_length_m"]
 
 
 def test_an_interrupted_run_resumes_from_its_cache(sim_session, first_run, tmp_path):

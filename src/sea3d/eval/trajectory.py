@@ -219,12 +219,36 @@ def umeyama(src: F64, dst: F64, *, with_scale: bool) -> tuple[F64, F64, float]:
     return R, t, s
 
 
-def path_length_m(positions: F64) -> float:
-    """Length of the polyline through (N, 3) positions, metres."""
+def path_length_m(positions: F64, trusted: NDArray[np.bool_] | None = None,
+                  segments: NDArray[np.int64] | None = None) -> float:
+    """Length of a camera path through (N, 3) positions, metres.
+
+    A step between two consecutive frames counts when both frames are trusted and in the same
+    segment: the steps into and out of an untrusted frame, and the jump from one segment to
+    the next, are left out, so a stretch without a trustworthy pose adds nothing. Without
+    ``trusted`` and ``segments`` every step counts: the length of the polyline (a reference
+    trajectory).
+
+    Args:
+        positions: (N, 3) positions, in time order.
+        trusted: (N,) whether each frame's pose is trusted; None trusts every frame.
+        segments: (N,) each frame's segment id; None puts every frame in one segment.
+
+    Returns:
+        The summed length of the counted steps; 0 for fewer than two positions.
+    """
     p = np.asarray(positions, dtype=np.float64)
     if len(p) < 2:
         return 0.0
-    return float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1)))
+    step = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    ok = np.ones(len(step), dtype=bool)
+    if trusted is not None:
+        t = np.asarray(trusted, dtype=bool)
+        ok &= t[1:] & t[:-1]
+    if segments is not None:
+        g = np.asarray(segments)
+        ok &= g[1:] == g[:-1]
+    return float(step[ok].sum())
 
 
 def _rigid_inv(T: F64) -> F64:

@@ -17,7 +17,7 @@ from sea3d._typing import F64
 from sea3d.io.process_outputs import FrameRow
 from sea3d.odometry.types import TrackingStatus
 from sea3d.pipeline.depth_scheduler import StageTimer
-from sea3d.pipeline.ordered import TRUSTED, OrderedStages
+from sea3d.pipeline.ordered import OrderedStages, trusted_path_length_m
 
 __all__ = ["Reconstruction", "finish_reconstruction", "frame_rows", "run_summary"]
 
@@ -86,18 +86,10 @@ def frame_rows(stages: OrderedStages) -> list[FrameRow]:
                                      stages.valid_fraction, strict=True)]
 
 
-def _path_length(T: F64, trusted: NDArray[np.bool_], segments: NDArray[np.int64]) -> float:
-    p = T[:, :3, 3]
-    step = np.linalg.norm(np.diff(p, axis=0), axis=1)
-    ok = trusted[1:] & trusted[:-1] & (segments[1:] == segments[:-1])
-    return float(step[ok].sum())
-
-
 def run_summary(stages: OrderedStages, rec: Reconstruction, **extra: Any) -> dict[str, Any]:
     """summary.json's figures of the frames, odometry, fusion and outputs (``extra`` adds the
     run's own: session, executor, configuration...; their order is kept)."""
     statuses = [e.status for e in stages.estimates]
-    trusted = np.array([s in TRUSTED for s in statuses])
     seg = np.array([e.segment for e in stages.estimates], np.int64)
     counts = {s.value: int(sum(1 for x in statuses if x == s)) for s in TrackingStatus}
     head = {k: extra.pop(k) for k in ("session", "pairs_in_session") if k in extra}
@@ -119,8 +111,7 @@ def run_summary(stages: OrderedStages, rec: Reconstruction, **extra: Any) -> dic
         "relinks": stages.relinks,
         "loop_checks": stages.loop_checks.as_dict(),
         "segments": int(seg.max() + 1) if len(seg) else 0,
-        "path_length_m": (_path_length(rec.T_world_left, trusted, seg)
-                          if len(rec.T_world_left) > 1 else 0.0),
+        "path_length_m": trusted_path_length_m(rec.T_world_left, statuses, seg),
         **extra,
         "submaps": rec.submaps,
         "submaps_moved_by_loop_closures": rec.moved,

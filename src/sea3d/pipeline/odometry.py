@@ -33,6 +33,7 @@ from sea3d.odometry.observe import Observer, imu_chunks
 from sea3d.odometry.rgbd_dense import DenseRgbdConfig
 from sea3d.odometry.types import FrameObservation, ImuChunk, LoopChecks, TrackingStatus
 from sea3d.odometry.vio import StereoInertialOdometry
+from sea3d.pipeline.ordered import trusted_path_length_m
 from sea3d.stereo.recipe import DepthConfig
 
 __all__ = [
@@ -251,19 +252,6 @@ class OdometryRun:
     summary: dict[str, Any]
 
 
-def path_length_m(T: F64, statuses: list[TrackingStatus] | None = None) -> float:
-    """Length of the camera path, metres (LOST frames are left out)."""
-    if T.shape[0] < 2:
-        return 0.0
-    p = T[:, :3, 3]
-    if statuses is not None:
-        keep = np.array([s is not TrackingStatus.LOST for s in statuses], dtype=bool)
-        p = p[keep]
-    if p.shape[0] < 2:
-        return 0.0
-    return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
-
-
 def run_odometry(
     frames: Iterator[FrameObservation],
     odometry: Any,
@@ -296,7 +284,7 @@ def run_odometry(
         "relinks": int(getattr(odometry, "relinks", 0)),
         "loop_checks": (odometry.loop_checks if isinstance(odometry, StereoInertialOdometry)
                         else LoopChecks(enabled=False)).as_dict(),
-        "path_length_m": path_length_m(T, statuses),
+        "path_length_m": trusted_path_length_m(T, statuses, segments),
         "seconds": time.perf_counter() - t0,
         "seconds_odometry": seconds_odo,
         "ms_per_frame_odometry": 1e3 * seconds_odo / max(n, 1),

@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from sea3d._typing import F64
+from sea3d.eval.trajectory import path_length_m
 from sea3d.odometry.types import (
     FrameObservation,
     ImuChunk,
@@ -27,11 +29,35 @@ from sea3d.odometry.types import TrackingStatus as TS
 from sea3d.pipeline.depth_scheduler import StageTimer
 from sea3d.pipeline.frame_stage import FrameResult
 
-__all__ = ["TRUSTED", "OrderedStages", "T_left_rect"]
+__all__ = ["TRUSTED", "OrderedStages", "T_left_rect", "trusted_path_length_m"]
 
 log = logging.getLogger(__name__)
 
 TRUSTED = (TS.TRACKING, TS.RELOCALISED)
+
+
+def trusted_path_length_m(T_world_left: F64, statuses: Sequence[TS],
+                          segments: Sequence[int] | NDArray[np.int64]) -> float:
+    """The ``path_length_m`` every run's summary reports (process, live and odometry).
+
+    The camera path counted between consecutive frames that are both trusted (tracking or
+    relocalised: :data:`TRUSTED`) and in the same segment
+    (:func:`sea3d.eval.trajectory.path_length_m`): lost, initialising and IMU-only frames and
+    the jumps between segments add nothing.
+
+    Args:
+        T_world_left: (N, 4, 4) poses, in time order.
+        statuses: (N) each frame's tracking status.
+        segments: (N) each frame's segment id, as reported when the frame was processed.
+
+    Returns:
+        The length, metres; 0 for fewer than two frames.
+    """
+    T = np.asarray(T_world_left, np.float64)
+    if len(T) < 2:
+        return 0.0
+    return path_length_m(T[:, :3, 3], np.array([s in TRUSTED for s in statuses], dtype=bool),
+                         np.asarray(segments, np.int64))
 
 
 def T_left_rect(maps: Any) -> F64:
