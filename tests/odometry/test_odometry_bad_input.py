@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from sea3d.cli import main as sea3d_main
-from sea3d.pipeline.odometry import imu_clock_check
+from sea3d.geometry.rig import ImuSpec
+from sea3d.pipeline.odometry import imu_clock_check, imu_decision
 
 SHIFT_S = 5.0
 SIZE = (320, 180)
@@ -32,6 +33,28 @@ def test_imu_clock_check_finds_an_imu_seconds_away() -> None:
     # the rig's offset (t_imu = t_cam + offset) puts the same series back on the camera clock
     assert imu_clock_check(cam, imu + round(SHIFT_S * 1e9), SHIFT_S) is None
     assert "no IMU samples" in str(imu_clock_check(cam, np.zeros(0, np.int64)))
+
+
+def test_imu_decision_leaves_out_an_unusable_imu_and_says_why() -> None:
+    cam = np.arange(30, dtype=np.int64) * 100_000_000 + 10**12
+    imu = np.arange(-100, 700, dtype=np.int64) * 5_000_000 + 10**12
+    block = ImuSpec(T_left_imu=np.eye(4), time_offset_s=0.0)
+    assert imu_decision(True, block, cam, imu) == (True, None)
+    off = imu_decision(False, block, cam, imu)
+    none = imu_decision(True, block, cam, np.zeros(0, np.int64))
+    no_block = imu_decision(True, None, cam, imu)
+    away = imu_decision(True, block, cam, imu + round(SHIFT_S * 1e9))
+    assert off == (False, "use_imu off: visual-only")
+    assert none == (False, "the session has no IMU samples: visual-only")
+    assert no_block[0] is False and "no imu block" in str(no_block[1])
+    assert away[0] is False and "not synchronised" in str(away[1])
+    assert str(away[1]).endswith(": visual-only")
+    # a live IMU stream: its samples are still to come, its clock is checked on them later
+    assert imu_decision(True, block, None, None) == (True, None)
+    assert imu_decision(True, None, None, None)[0] is False
+    # the rig's offset puts an IMU clock seconds away back on the camera's
+    shifted = ImuSpec(T_left_imu=np.eye(4), time_offset_s=SHIFT_S)
+    assert imu_decision(True, shifted, cam, imu + round(SHIFT_S * 1e9)) == (True, None)
 
 
 def _black_session(tmp_path, value: int = 0):
@@ -162,13 +185,14 @@ def test_process_with_an_imu_seconds_away_runs_visual_only_and_says_so(
     argv = ["process", str(shifted), "-o", str(out), "--workers", "0", "--engine", "opencv",
             "--max-frames", "12", "--no-report", "--json"]  # fmt: skip
     assert sea3d_main(argv) == 0
-    s = _json(capsys)
-    assert s["imu_used"] is False and "not synchronised" in s["imu_note"]
+    processed = _json(capsys)
+    assert processed["imu_used"] is False and "not synchronised" in processed["imu_note"]
     argv = ["odometry", str(shifted), "-o", str(tmp_path / "t.tum"), "--engine", "opencv",
             "--max-frames", "12", "--json"]  # fmt: skip
     assert sea3d_main(argv) == 0
     s = _json(capsys)
     assert s["imu"] is False and "not synchronised" in s["imu_note"]
+    assert processed["imu_note"] == s["imu_note"]  # one decision, said the same way
 
 
 @pytest.mark.data

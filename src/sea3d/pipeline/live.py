@@ -58,6 +58,7 @@ from sea3d.pipeline.frame_source import SessionFrames, imu_between
 from sea3d.pipeline.frame_stage import FrameResult, FrameStageConfig, process_frame, rectify_pair
 from sea3d.pipeline.lock import locks_out_dir
 from sea3d.pipeline.ordered import TRUSTED, OrderedStages
+from sea3d.pipeline.pose_stage import OdometryChoice, choose_odometry, choose_session_odometry
 
 __all__ = ["LiveConfig", "LiveFrame", "LiveStats", "LiveUpdate", "RecorderFrames",
            "ReplayFrames", "run_live", "run_live_cameras", "run_live_replay"]
@@ -885,15 +886,12 @@ class _Loop:
 class _Run:
     """The stages of one live run over a rig (shared by replay and cameras)."""
 
-    def __init__(self, config: Any, native_rig: Any, out: Path, *, use_imu: bool,
-                 choose_odometry: Callable[[Any], tuple[Any, str, bool, str | None]] | None
-                 = None, feed: Any = None) -> None:
-        from sea3d.io.trajectory_files import read_trajectory
+    def __init__(self, config: Any, native_rig: Any, out: Path, *,
+                 choose_odometry: Callable[[Any], OdometryChoice], feed: Any = None) -> None:
         from sea3d.pipeline.depth_scheduler import StageTimer
         from sea3d.pipeline.executors import ProcessExecutor
         from sea3d.pipeline.frame_stage import install_geometry, stage_depth
         from sea3d.pipeline.lock import clear_stale_temps
-        from sea3d.pipeline.process import make_odometry
         from sea3d.pipeline.submap_store import DiskSubmapStore
         from sea3d.recon.submaps import SubmapFusion
 
@@ -903,15 +901,7 @@ class _Run:
         self.timer = StageTimer()
         self.stage = config.frame_stage(native_rig)
         self.stereo = stage_depth(self.stage)
-        if choose_odometry is not None:
-            odometry = choose_odometry(self.stereo)
-        else:
-            poses = (read_trajectory(config.poses.poses_path) if config.poses.poses_path
-                     else None)
-            odo, name = make_odometry(self.stereo.rig, self.stereo.maps, use_imu=use_imu,
-                                      poses=poses, config=config.poses.odometry_config)
-            disabled = getattr(odo, "imu_disabled_reason", None)
-            odometry = (odo, name, use_imu and poses is None and disabled is None, disabled)
+        odometry = choose_odometry(self.stereo)
         self.odo, self.odometry_name, self.imu_used, self.imu_note = odometry
         self.store: Any = DiskSubmapStore(out / "submaps")
         self.store.clear()
@@ -968,14 +958,14 @@ class _Run:
         the feed publishes the merged mesh and the final status."""
         from sea3d.io.process_outputs import write_process_outputs, write_summary_json
         from sea3d.pipeline.finish import finish_reconstruction, frame_rows, run_summary
-        from sea3d.pipeline.process import _no_progress
+        from sea3d.pipeline.progress import no_progress
 
         config, stages = self.config, self.stages
         stages.finish_fusion()
         rec = finish_reconstruction(
             stages, self.store, self.fusion_cfg.tsdf, tile_m=config.map.merge_tile_m,
             cloud_voxel_m=config.map.cloud_voxel_m or config.map.voxel_m / 2,
-            progress=_no_progress, timer=self.timer,
+            progress=no_progress, timer=self.timer,
             min_piece_triangles=config.map.min_piece_triangles)
         files = write_process_outputs(self.out, t_ns=rec.t_ns, T_world_left=rec.T_world_left,
                                       rows=frame_rows(stages), mesh=rec.mesh, cloud=rec.cloud,
@@ -1017,17 +1007,18 @@ def run_live_replay(session_path: Any, config: Any, live: LiveConfig | None = No
             ``rate`` not > 0 (ConfigError) before the session opens.
         OutputInUseError: another run (``live`` or ``process``) writes into the folder.
     """
+    from sea3d.io.rig_file import resolve_rig
     from sea3d.io.session import open_session
-    from sea3d.pipeline.process import _odometry, _rig
 
     if not rate > 0:  # before the session opens and the depth worker warms up
         raise ConfigError(f"rate must be > 0, got {rate}")
     path = Path(session_path)
     with open_session(path) as session:
-        source = SessionFrames(session, path, _rig(session, config),
+        source = SessionFrames(session, path, resolve_rig(config.rig_path, session),
                                max_frames=config.max_frames)
-        run = _Run(config, source.native_rig, Path(config.out_dir), use_imu=False, feed=feed,
-                   choose_odometry=lambda stereo: _odometry(config, stereo, source, None))
+        run = _Run(config, source.native_rig, Path(config.out_dir), feed=feed,
+                   choose_odometry=lambda stereo: choose_session_odometry(config.poses, stereo,
+                                                                          source))
         warm_s = run.warm()
         replay = ReplayFrames(source, rate=rate, stop=stop)
         stats = run.run(replay, live)
@@ -1083,8 +1074,11 @@ def run_live_cameras(recorder: Any, config: Any, live: LiveConfig | None = None,
         raise ConfigError("live reconstruction from cameras needs the rig: give a rig file "
                           "(rig_path), stored with the recording as well")
     rig = resolve_rig(config.rig_path, _RigText(rc.out_path, rc.rig_yaml))
-    use_imu = bool(config.poses.use_imu and "imu" in recorder.sources)
-    run = _Run(config, rig, Path(config.out_dir), use_imu=use_imu, feed=feed)
+    # the IMU's samples are still to come: its clock is checked on the first pair
+    imu_t_ns = None if "imu" in recorder.sources else np.zeros(0, np.int64)
+    run = _Run(config, rig, Path(config.out_dir), feed=feed,
+               choose_odometry=lambda stereo: choose_odometry(config.poses, stereo, None,
+                                                              imu_t_ns, where="live"))
     warm_s = run.warm()  # before the cameras start
     frames = RecorderFrames(
         recorder, pair_tolerance_ns=pair_tolerance_ns,

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from sea3d._typing import F64
 from sea3d.errors import ConfigError, OdometryError
-from sea3d.geometry.rig import StereoRig
+from sea3d.geometry.rig import ImuSpec, StereoRig
 from sea3d.odometry.config import OdometryConfig
 from sea3d.odometry.observe import Observer, imu_chunks
 from sea3d.odometry.rgbd_dense import DenseRgbdConfig
@@ -39,6 +39,8 @@ from sea3d.stereo.recipe import DepthConfig
 __all__ = [
     "OdometryRun",
     "StereoSource",
+    "imu_clock_check",
+    "imu_decision",
     "open_stereo_source",
     "rgbd_observations",
     "run_odometry",
@@ -204,28 +206,43 @@ def imu_clock_check(
     return None
 
 
-def imu_decision(
-    src: StereoSource, use_imu: bool, n_frames: int | None = None, tolerance_s: float = 1.0
-) -> tuple[bool, str | None]:
-    """Whether the IMU can be used for the first ``n_frames`` frames, and why not.
+def imu_decision(use_imu: bool, rig_imu: ImuSpec | None, frame_t_ns: NDArray[np.int64] | None,
+                 imu_t_ns: NDArray[np.int64] | None, *,
+                 tolerance_s: float = 1.0) -> tuple[bool, str | None]:
+    """Whether the odometry gets the IMU, and why not: the one decision of ``sea3d odometry``,
+    ``sea3d process`` and ``sea3d live``.
 
-    Policy: an unusable IMU (none, no ``imu`` block in the rig, clocks that disagree) is never
-    an error: the odometry runs visual-only, which is right for the intact camera data, and
-    the reason is said (``imu_note``, ``imu_used`` false).
+    Policy: an unusable IMU is never an error: the odometry runs visual-only, which is right
+    for the intact camera data, and the reason is said (the summary's ``imu_note``). The IMU
+    is left out when it is switched off, when there are no IMU samples, when the rig has no
+    ``imu`` block, or when its stamps do not cover the frames (:func:`imu_clock_check`).
+
+    Args:
+        use_imu: the IMU is wanted (``--no-imu``: not).
+        rig_imu: the rig's ``imu`` block, or None.
+        frame_t_ns: (N,) camera stamps to be run, increasing; None when not known yet (live
+            cameras: the clock is checked on the first pair).
+        imu_t_ns: (M,) IMU stamps, increasing; None when they are still to come (a live IMU
+            stream: the clock is checked on its first samples).
+        tolerance_s: allowed clock disagreement, seconds
+            (:attr:`~sea3d.odometry.config.OdometryConfig.imu_max_clock_offset_s`).
+
+    Returns:
+        ``(use, why)``: whether to give the IMU to the odometry, and why not (None when it is
+        given), ending in ``: visual-only``.
     """
     if not use_imu:
         return False, "use_imu off: visual-only"
-    if src.imu_t_ns.size == 0:
+    if imu_t_ns is not None and imu_t_ns.size == 0:
         return False, "the session has no IMU samples: visual-only"
-    if src.rig.imu is None:
+    if rig_imu is None:
         return False, (
             "the rig has no imu block (T_left_imu): visual-only; add it from a Kalibr "
             "camera-IMU calibration or estimate it with 'sea3d calibrate imu'"
         )
-    t = src.t_ns if n_frames is None else src.t_ns[: max(int(n_frames), 1)]
-    why = imu_clock_check(
-        t, src.imu_t_ns, src.rig.imu.time_offset_s, tolerance_s=tolerance_s
-    )
+    if frame_t_ns is None or imu_t_ns is None:
+        return True, None
+    why = imu_clock_check(frame_t_ns, imu_t_ns, rig_imu.time_offset_s, tolerance_s=tolerance_s)
     if why is not None:
         return False, why + ": visual-only"
     return True, None
@@ -325,7 +342,9 @@ def session_odometry(
     cfg = config or OdometryConfig()
     src = open_stereo_source(path, rig_path, imu=use_imu)
     try:
-        imu_ok, why = imu_decision(src, use_imu, max_frames, cfg.imu_max_clock_offset_s)
+        n_run = src.t_ns.size if max_frames is None else max(int(max_frames), 1)
+        imu_ok, why = imu_decision(use_imu, src.rig.imu, src.t_ns[:n_run], src.imu_t_ns,
+                                   tolerance_s=cfg.imu_max_clock_offset_s)
         notes = list(src.notes)
         if why:
             notes.append(why)

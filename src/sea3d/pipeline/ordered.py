@@ -71,7 +71,7 @@ class OrderedStages:
     """Odometry and fusion over per-frame results in time order.
 
     Args:
-        odometry: the pose stage (:func:`sea3d.pipeline.process.make_odometry`).
+        odometry: the pose stage (:func:`sea3d.pipeline.pose_stage.make_odometry`).
         fusion: a :class:`~sea3d.recon.submaps.SubmapFusion`.
         store: where finished submaps go (a :class:`~sea3d.recon.submaps.SubmapStore`).
         maps: the rectification the results live on.

@@ -20,8 +20,8 @@ active submap; finished ones live on disk. A killed run loses at most the frames
 a rerun with the same ``-o`` takes every cached frame from disk and runs the per-frame stage
 only for the rest (the ordered stages, much cheaper, run again from the start).
 
-The odometry is chosen in one place, :func:`make_odometry`: known poses (``--poses``) or
-sea3d's stereo-inertial odometry (``sea3d.odometry.create_odometry``).
+The odometry is chosen in one place, :func:`sea3d.pipeline.pose_stage.make_odometry`: known
+poses (``--poses``) or sea3d's stereo-inertial odometry (``sea3d.odometry.create_odometry``).
 
 :func:`run_process` wires small stages together: the frame source
 (:mod:`sea3d.pipeline.frame_source`), the depth scheduler over an executor and the cache
@@ -56,6 +56,7 @@ from sea3d.pipeline.depth_scheduler import StageTimer
 from sea3d.pipeline.frame_stage import FrameStageConfig, install_geometry, rectify_pair, stage_depth
 from sea3d.pipeline.lock import clear_stale_temps, locks_out_dir
 from sea3d.pipeline.ordered import TRUSTED, OrderedStages
+from sea3d.pipeline.pose_stage import choose_session_odometry
 from sea3d.pipeline.progress import ProgressFactory, no_progress
 from sea3d.recon.submaps import FusionConfig
 from sea3d.stereo.recipe import DepthConfig
@@ -68,15 +69,11 @@ __all__ = [
     "ProcessConfig",
     "ProcessResult",
     "ProgressFactory",
-    "make_odometry",
     "run_process",
 ]
 
 log = logging.getLogger(__name__)
 
-
-
-_no_progress = no_progress
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -182,32 +179,6 @@ class ProcessResult:
     files: dict[str, Path] = field(default_factory=dict)
 
 
-def make_odometry(rig: Any, maps: Any, *, use_imu: bool, poses: Any | None,
-                  config: Any = None) -> tuple[Odometry, str]:
-    """The one place that chooses the ordered pose stage.
-
-    Args:
-        rig: the (scaled) stereo rig. maps: its rectification.
-        use_imu: let the odometry use the IMU.
-        poses: a :class:`~sea3d.io.trajectory_files.TrajectoryFile` of known ``T_world_left``
-            (then no odometry runs), or None.
-        config: the odometry's own configuration.
-
-    Returns:
-        ``(odometry, description)``.
-    """
-    if poses is not None:
-        from sea3d.odometry.reference import KnownPoses
-
-        return KnownPoses(poses.t_ns, poses.T_world_x), f"known poses from {poses.path}"
-    from sea3d.odometry import create_odometry
-
-    odo = create_odometry(rig, maps, use_imu=use_imu, config=config)
-    reason = odo.imu_disabled_reason
-    mode = "stereo-inertial" if use_imu and reason is None else "visual"
-    return odo, f"sea3d {mode} odometry" + (f" ({reason})" if mode == "visual" and reason else "")
-
-
 def _per_frame_costs(worker_timings_s: dict[str, float], computed: int,
                      restored: int) -> dict[str, float]:
     """Mean seconds per frame of matching (over the ``computed`` frames: a cached one matched
@@ -222,13 +193,6 @@ def _rss_mb(who: int) -> float:
     return float(resource.getrusage(who).ru_maxrss) / 1024.0
 
 
-def _rig(session: Any, config: ProcessConfig) -> Any:
-    """``--rig``'s rig, else the session's stored one (:func:`~sea3d.io.rig_file.resolve_rig`)."""
-    from sea3d.io.rig_file import resolve_rig
-
-    return resolve_rig(config.rig_path, session)
-
-
 def _frame_cache(out: Path, stage: FrameStageConfig, session_path: Path, fresh: bool,
                  rebuild: bool = False) -> Any:
     from sea3d.io.result_cache import FrameCache
@@ -241,44 +205,6 @@ def _frame_cache(out: Path, stage: FrameStageConfig, session_path: Path, fresh: 
         raise ConfigError(f"{out} holds cached results of another configuration or session; "
                           "use another output folder, or fresh to discard them")
     return cache
-
-
-def _odometry(config: ProcessConfig, stereo: Any, source: Any,
-              factory: Callable[[Any, Any], Odometry] | None
-              ) -> tuple[Odometry, str, bool, str | None]:
-    """The pose stage, its description, whether it gets the IMU, and why not (or None).
-
-    The IMU is used only when it covers the frames in time (the same clock check as
-    ``sea3d odometry``, :func:`~sea3d.pipeline.odometry.imu_clock_check`): an IMU seconds away
-    from the cameras is left out, the odometry runs visual-only (right for the camera data),
-    and the summary says why.
-    """
-    from sea3d.io.trajectory_files import read_trajectory
-    from sea3d.pipeline.odometry import imu_clock_check
-
-    has_imu = len(source.imu) > 0
-    use_imu = config.poses.use_imu and has_imu
-    note: str | None = None
-    if config.poses.use_imu and not has_imu:
-        log.warning("%s has no IMU samples: the odometry runs visual-only", source.path)
-    elif use_imu:
-        rig = stereo.rig
-        offset_s = rig.imu.time_offset_s if rig.imu is not None else 0.0
-        tol_s = getattr(config.poses.odometry_config, "imu_max_clock_offset_s", 1.0)
-        note = imu_clock_check(np.array([p.t_ns for p in source.pairs], np.int64),
-                               np.asarray(source.imu.t_ns, np.int64), offset_s,
-                               tolerance_s=tol_s)
-        if note is not None:
-            log.warning("%s: %s: the odometry runs visual-only", source.path, note)
-            use_imu = False
-    if factory is not None:
-        odo = factory(stereo.rig, stereo.maps)
-        return odo, str(getattr(odo, "name", type(odo).__name__)), use_imu, note
-    poses = read_trajectory(config.poses.poses_path) if config.poses.poses_path else None
-    odo, name = make_odometry(stereo.rig, stereo.maps, use_imu=use_imu, poses=poses,
-                              config=config.poses.odometry_config)
-    disabled = getattr(odo, "imu_disabled_reason", None)
-    return odo, name, use_imu and poses is None and disabled is None, note or disabled
 
 
 def _depth_rate(config: ProcessConfig, stereo: Any) -> Any:
@@ -308,7 +234,8 @@ def run_process(
         config: :class:`ProcessConfig`.
         progress: progress-bar factory (the CLI's tqdm); None shows nothing.
         on_result: called with the result at the end.
-        odometry: ``factory(rig, maps) -> Odometry`` to use instead of :func:`make_odometry`
+        odometry: ``factory(rig, maps) -> Odometry`` to use instead of
+            :func:`~sea3d.pipeline.pose_stage.make_odometry`
             (another estimator, or a test double).
 
     Returns:
@@ -322,6 +249,7 @@ def run_process(
             ``rebuild_cache_config``).
         OdometryError, ReconError: invalid data reaching those stages.
     """
+    from sea3d.io.rig_file import resolve_rig
     from sea3d.io.session import open_session
     from sea3d.pipeline.depth_scheduler import DepthScheduler
     from sea3d.pipeline.executors import make_executor
@@ -329,7 +257,7 @@ def run_process(
     from sea3d.pipeline.submap_store import DiskSubmapStore
     from sea3d.recon.submaps import SubmapFusion
 
-    bar = progress or _no_progress
+    bar = progress or no_progress
     t_start = time.perf_counter()
     timer = StageTimer()
     session_path, out = Path(session_path), Path(config.out_dir)
@@ -339,7 +267,7 @@ def run_process(
         raise SessionError(f"cannot create the output folder {out}: {err}") from err
     clear_stale_temps(out)
     with open_session(session_path) as session:
-        source = SessionFrames(session, session_path, _rig(session, config),
+        source = SessionFrames(session, session_path, resolve_rig(config.rig_path, session),
                                max_frames=config.max_frames)
         stage_cfg = config.frame_stage(source.native_rig)
         t0 = time.perf_counter()
@@ -348,8 +276,8 @@ def run_process(
         executor = make_executor(config.executor.workers, config.executor.scheduler,
                                  setup=(install_geometry, (stage_cfg, stereo)))
         try:
-            odo, odometry_name, imu_used, imu_note = _odometry(config, stereo, source,
-                                                               odometry)
+            odo, odometry_name, imu_used, imu_note = choose_session_odometry(
+                config.poses, stereo, source, odometry)
             cache = _frame_cache(out, stage_cfg, session_path, config.fresh,
                                  config.rebuild_cache_config)
             fusion_cfg = config.fusion(stereo.depth_range_m,
