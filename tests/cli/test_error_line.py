@@ -148,3 +148,38 @@ def test_a_reworded_library_message_is_caught() -> None:
     assert not _produces(f"{_FIELD}: no right image; the {_FIELD} camera needs a right camera",
                          sample)
     assert not _produces(f"{_FIELD}: {_FIELD}", sample)
+
+
+def _options() -> tuple[set[str], set[str]]:
+    """Every option of every command, and the ones that are an option's own spelling (its
+    first long name; the others are deprecated aliases)."""
+    import argparse
+
+    from sea3d.cli import build_parser
+
+    def actions(parser: argparse.ArgumentParser):
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for sub in action.choices.values():
+                    yield from actions(sub)
+            else:
+                yield action
+
+    every, own = set(), set()
+    for action in actions(build_parser()):
+        every.update(action.option_strings)
+        own.update([o for o in action.option_strings if o.startswith("--")][:1])
+    return every, own
+
+
+def test_every_option_the_rewrite_names_is_spelt_as_the_commands_spell_it() -> None:
+    import re
+
+    from sea3d.cli import _FLAG_OF_FIELD, _PATTERNS, _PHRASES
+
+    every, own = _options()
+    written = [*_FLAG_OF_FIELD.values(), *_PHRASES.values(), *(r for _, r in _PATTERNS)]
+    named = {f for text in written for f in re.findall(r"--[a-z][a-z0-9-]*", text)}
+    assert named - every == set(), "options no command has"
+    assert named - own == set(), "deprecated aliases instead of the options' own spelling"
+    assert "--restore-colours" in every - own  # the check sees an alias

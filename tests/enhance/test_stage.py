@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sea3d.enhance.stage import ColourConfig, restore_colours_with_range
+from sea3d.enhance.stage import ColourRestoreConfig, restore_colours_with_range
 from sea3d.errors import EnhanceError
 
 
@@ -18,8 +18,8 @@ def test_colour_restoration_is_opt_in_and_falls_back_with_a_status(
 ) -> None:
     a = _img(rng)
     range_m = np.full(a.shape[:2], 2.0, dtype=np.float32)
-    assert restore_colours_with_range(a, range_m, ColourConfig()).status == "disabled"
-    on = ColourConfig(enabled=True, method="water-model")
+    assert restore_colours_with_range(a, range_m, ColourRestoreConfig()).status == "disabled"
+    on = ColourRestoreConfig(enabled=True, method="water-model")
     res = restore_colours_with_range(a, np.full_like(range_m, np.nan), on)
     assert res.status == "fallback-grey-world" and "cannot fit B_inf or beta_D" in res.notes[0]
     assert res.image.shape == a.shape and res.image.mean() > 0
@@ -36,7 +36,7 @@ def test_colour_restoration_is_opt_in_and_falls_back_with_a_status(
 def test_the_per_image_seathru_still_runs_with_a_status(rng: np.random.Generator) -> None:
     a = _img(rng)
     ramp = np.linspace(1.0, 4.0, a.shape[0], dtype=np.float32)[:, None] * np.ones((1, a.shape[1]))
-    res = restore_colours_with_range(a, ramp.astype(np.float32), ColourConfig(enabled=True))
+    res = restore_colours_with_range(a, ramp.astype(np.float32), ColourRestoreConfig(enabled=True))
     # A range ramp of 1-4 m identifies the water: the image's own fit, not a fallback.
     assert res.status == "ok" and res.model is not None and res.notes == ()
     assert res.image.dtype == np.uint8 and res.image.mean() > 20

@@ -68,7 +68,7 @@ _PHRASES = {
     "must be >= stall_warn_s (": "must be >= --stall-warn (",
     "image_encoding raw is written to MCAP only": "--image-encoding raw is written to MCAP only",
     "or record without hardware sync (and": "or record without --sync (and",
-    "; use restore_colours ": "; use --restore-colours ",
+    "; use restore_colours ": "; use --restore-colors ",
     "check the time base or max_diff_s": "check the time base or --max-diff-s",
     "use align 'none' for": "use --align none for",
     "; write raw-view depth (the raw grid) with sea3d depth":

@@ -27,13 +27,13 @@ from sea3d.enhance.seathru import SeathruConfig, SeathruModel, seathru
 from sea3d.enhance.water import WaterModel, fit_water_model, restore
 from sea3d.errors import EnhanceError
 
-__all__ = ["ColourConfig", "ColourResult", "restore_colours_with_range"]
+__all__ = ["ColourRestoreConfig", "ColourResult", "restore_colours_with_range"]
 
 _log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True, kw_only=True)
-class ColourConfig:
+class ColourRestoreConfig:
     """Sea-thru of the output colours, after depth."""
 
     enabled: bool = False
@@ -82,7 +82,7 @@ def _wxh(shape: tuple[int, ...]) -> str:
 
 
 def restore_colours_with_range(
-    image: np.ndarray, range_m: np.ndarray, config: ColourConfig
+    image: np.ndarray, range_m: np.ndarray, config: ColourRestoreConfig
 ) -> ColourResult:
     """Sea-thru of an image with the metric range of its own pixels (e.g. the norms of the
     stereo points in the camera frame, which are exact through dome and flat ports).
@@ -90,7 +90,7 @@ def restore_colours_with_range(
     Args:
         image: ``(H, W, 3)`` image (a grey ``(H, W)`` image falls back: no colour to restore).
         range_m: ``(H, W)`` float32 range along the line of sight, metres, NaN invalid.
-        config: :class:`ColourConfig`.
+        config: :class:`ColourRestoreConfig`.
 
     Returns:
         :class:`ColourResult`; never raises for bad range or a saturated frame: it falls back

@@ -40,7 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.enhance.seathru import depth_to_range
-from sea3d.enhance.stage import ColourConfig, restore_colours_with_range
+from sea3d.enhance.stage import ColourRestoreConfig, restore_colours_with_range
 from sea3d.enhance.water import WaterFitConfig, WaterModel, fit_water_model
 from sea3d.errors import ConfigError, EnhanceError
 from sea3d.pipeline.frame_stage import FrameResult
@@ -230,7 +230,7 @@ class DiveColours:
             out = grey_world(img) if img.ndim == 3 else img
             status, colors = "fallback-grey-world", np.asarray(out, np.uint8)
         else:
-            cfg = ColourConfig(enabled=True, method="water-model", water_model=self.model)
+            cfg = ColourRestoreConfig(enabled=True, method="water-model", water_model=self.model)
             got = restore_colours_with_range(img, frame_range_m(res, self.maps), cfg)
             status, colors = got.status, np.asarray(got.image, np.uint8)
         if colors.ndim == 2:
@@ -254,7 +254,7 @@ class DiveColours:
         img = res.rect_right
         if img.ndim != 3:
             raise EnhanceError(f"frame {res.t_ns}: the right view has no colour to restore")
-        cfg = ColourConfig(enabled=True, method="water-model", water_model=self.model)
+        cfg = ColourRestoreConfig(enabled=True, method="water-model", water_model=self.model)
         got = restore_colours_with_range(img, right_range_m(res, self.maps), cfg)
         return np.ascontiguousarray(got.image, np.uint8)
 

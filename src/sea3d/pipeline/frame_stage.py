@@ -406,7 +406,7 @@ def _restore_colours(rect_left: NDArray[np.uint8], depth_m: NDArray[np.float32],
     """Sea-thru of the rectified left image with the range of the stereo points (their norms
     in the left camera frame: exact through the ports), on the pixels that have depth."""
     from sea3d.enhance.seathru import depth_to_range
-    from sea3d.enhance.stage import ColourConfig, restore_colours_with_range
+    from sea3d.enhance.stage import ColourRestoreConfig, restore_colours_with_range
 
     has = np.isfinite(depth_m)
     if int(has.sum()) == len(points_left):
@@ -414,6 +414,6 @@ def _restore_colours(rect_left: NDArray[np.uint8], depth_m: NDArray[np.float32],
         range_m[has] = np.linalg.norm(points_left, axis=1)
     else:  # not one point per pixel with depth: the rectified pinhole's rays instead
         range_m = depth_to_range(depth_m, maps.focal_px, maps.focal_px, maps.cx_px, maps.cy_px)
-    out = restore_colours_with_range(rect_left, range_m, ColourConfig(enabled=True))
+    out = restore_colours_with_range(rect_left, range_m, ColourRestoreConfig(enabled=True))
     img = out.image if out.image.ndim == 3 else np.repeat(out.image[..., None], 3, axis=2)
     return np.ascontiguousarray(img, np.uint8), out.status
