@@ -300,6 +300,27 @@ def test_a_merge_from_chunks_on_disk_equals_the_merge_in_memory(tmp_path, monkey
     order = np.lexsort(ref.keys.T[::-1])
     np.testing.assert_array_equal(whole.blocks.keys, ref.keys[order])
     np.testing.assert_array_equal(whole.blocks.tsdf, ref.tsdf[order])
+    # tiles that share chunks read each chunk file once while it is kept; none kept, the
+    # merge reads them again for every tile that reaches them, and gives the same mesh
+    reads: list[str] = []
+    real_read = submap_store.read_entry
+
+    def counted(path):
+        reads.append(path.name)
+        return real_read(path)
+
+    monkeypatch.setattr(submap_store, "read_entry", counted)
+    for cache_bytes in (submap_store.CHUNK_CACHE_BYTES, 0):
+        reads.clear()
+        again = merge_submaps(DiskSubmapStore(tmp_path / "submaps", cache_bytes=cache_bytes),
+                              moved, TSDF, tile_m=0.3)
+        chunk_reads = [r for r in reads if ".c" in r]
+        np.testing.assert_allclose(_sorted(again.mesh.vertices), _sorted(got.mesh.vertices),
+                                   atol=1e-9)
+        if cache_bytes:
+            assert len(chunk_reads) == len(set(chunk_reads))
+        else:
+            assert len(chunk_reads) > len(set(chunk_reads))
 
 
 def test_a_surface_seen_once_is_dropped_when_two_observations_are_required():

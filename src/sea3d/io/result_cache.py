@@ -70,7 +70,12 @@ def _encode(a: NDArray[Any]) -> tuple[NDArray[Any], list[Any] | None]:
 def _decode(a: NDArray[Any], how: list[Any]) -> NDArray[Any]:
     kind, dtype, shape = how[0], np.dtype(how[1]), tuple(int(n) for n in how[2])
     if kind == "shuffle":
-        return np.ascontiguousarray(a.T).view(dtype).reshape(shape)
+        # byte plane k holds byte k of every value: written plane by plane (a strided copy of
+        # each contiguous plane), about 5x faster than numpy's copy of the transpose
+        out = np.empty((a.shape[1], a.shape[0]), np.uint8)
+        for k in range(a.shape[0]):
+            out[:, k] = a[k]
+        return out.view(dtype).reshape(shape)
     if kind == "delta1":
         return np.cumsum(a, axis=1, dtype=np.uint8).reshape(shape)
     raise ValueError(f"unknown array filter {kind!r}")

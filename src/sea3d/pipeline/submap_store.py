@@ -12,6 +12,7 @@ the chunks) is read as well.
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -23,33 +24,67 @@ from sea3d.errors import ReconError
 from sea3d.io.result_cache import CacheEntryError, read_entry, write_entry
 from sea3d.recon.types import Submap, VoxelBlocks
 
-__all__ = ["CHUNK_BLOCKS", "DiskSubmapStore"]
+__all__ = ["CHUNK_BLOCKS", "CHUNK_CACHE_BYTES", "DiskSubmapStore"]
 
 _SUFFIX = ".s3c"
 
 CHUNK_BLOCKS = 2048
 """Blocks per chunk entry (20 MB of voxels at 8^3)."""
 
+CHUNK_CACHE_BYTES = 256 << 20
+"""Decoded chunks a store keeps for the merge's next reads (about 12 chunks)."""
+
 
 class DiskSubmapStore:
     """Finished TSDF submaps on disk (see the module): a
     :class:`~sea3d.recon.submaps.SubmapStore`.
 
+    The merge reads a chunk once for every tile it reaches; the last chunks read are kept,
+    decoded, up to ``cache_bytes`` (the tiles are visited in order, so a chunk is mostly asked
+    for again while it is still held).
+
     Args:
         root: the folder (created; existing entries are removed by :meth:`clear`).
+        cache_bytes: decoded chunks kept in memory for the next reads (0: none).
     """
 
-    def __init__(self, root: Path) -> None:
+    def __init__(self, root: Path, *, cache_bytes: int = CHUNK_CACHE_BYTES) -> None:
         self.root = Path(root)
         self.bytes_written = 0
+        self.cache_bytes = int(cache_bytes)
+        self._chunks: OrderedDict[tuple[int, int], dict[str, NDArray[Any]]] = OrderedDict()
+        self._held = 0
+
+    def _chunk(self, submap_id: int, k: int) -> dict[str, NDArray[Any]]:
+        """Chunk ``k`` of a submap, decoded: from the kept ones, or read (and kept)."""
+        key = (int(submap_id), int(k))
+        got = self._chunks.get(key)
+        if got is not None:
+            self._chunks.move_to_end(key)
+            return got
+        c, _ = self._read(self._chunk_path(submap_id, k), submap_id)
+        size = sum(int(np.asarray(v).nbytes) for v in c.values())
+        if size <= self.cache_bytes:
+            self._chunks[key] = c
+            self._held += size
+            while self._held > self.cache_bytes:
+                _, old = self._chunks.popitem(last=False)
+                self._held -= sum(int(np.asarray(v).nbytes) for v in old.values())
+        return c
+
+    def _forget_chunks(self) -> None:
+        self._chunks.clear()
+        self._held = 0
 
     def clear(self) -> None:
         """Remove every stored submap."""
+        self._forget_chunks()
         if self.root.is_dir():
             for p in self.root.glob(f"*{_SUFFIX}"):
                 p.unlink()
 
     def put(self, submap: Submap) -> None:
+        self._forget_chunks()
         b = submap.blocks
         order = np.lexsort(b.keys.T[::-1]) if len(b) else np.zeros(0, np.int64)
         starts = np.arange(0, len(b), CHUNK_BLOCKS, dtype=np.int64)
@@ -102,14 +137,13 @@ class DiskSubmapStore:
                 want = sel[a0:a0 + step]
                 if not want.any():
                     continue
-                c, _ = self._read(self._chunk_path(submap_id, k), submap_id)
+                c = self._chunk(submap_id, k)
                 for n in parts:
                     got = np.asarray(c[n])
                     if len(got) != len(want):
                         raise ReconError(f"submap {submap_id} in {self.root} is damaged: "
                                          f"chunk {k} holds {len(got)} blocks, not {len(want)}")
                     parts[n].append(got if want.all() else got[want])
-                del c
             keys = keys[sel]
             empty = {"tsdf": (r, r, r), "weight": (r, r, r), "color": (r, r, r, 3)}
             arrays = {n: (np.concatenate(v) if v else np.zeros((0, *empty[n]), np.float32))
