@@ -70,7 +70,8 @@ import open3d as o3d
 import open3d.core as o3c
 
 from sea3d.eval.surface import surface_metrics
-from sea3d.io.rgbd_files import read_color, read_depth
+from sea3d.io.depth_files import read_depth
+from sea3d.io.rgbd_files import read_color
 from sea3d.io.trajectory_files import TrajectoryFile
 from sea3d.pipeline.fuse import fuse_rgbd
 from sea3d.recon.tsdf import TsdfConfig, TsdfVolume

@@ -155,3 +155,16 @@ def test_port_cli_on_rendered_in_water_images(tmp_path: Path, rng: np.random.Gen
     assert isinstance(water.left, DomePortCamera)
     np.testing.assert_allclose(water.left.port.center_m, out["left"]["dome_center_m"])
     assert water.baseline_m == pytest.approx(0.107, abs=1e-3)
+
+
+def test_image_arguments_take_a_glob_or_a_folder_in_natural_order(tmp_path) -> None:
+    from sea3d.cli.calibrate import _expand
+    from sea3d.errors import CalibrationError
+
+    for name in ("left10.png", "left2.png", "left1.png", "notes.txt"):
+        (tmp_path / name).write_bytes(b"")
+    want = [tmp_path / n for n in ("left1.png", "left2.png", "left10.png")]
+    assert _expand(str(tmp_path / "left*.png"), "left") == want
+    assert _expand(str(tmp_path), "left") == want  # a folder: its images
+    with pytest.raises(CalibrationError, match=r"--left .* matches no files"):
+        _expand(str(tmp_path / "right*.png"), "left")

@@ -7,8 +7,8 @@ import pytest
 
 from sea3d.cli import main
 from sea3d.eval.surface import point_to_mesh_distance
+from sea3d.io.depth_files import read_depth
 from sea3d.io.mesh_files import read_mesh
-from sea3d.io.rgbd_files import read_depth
 from sea3d.io.trajectory_files import write_tum
 
 FX, CX, CY = 585.0, 320.0, 240.0

@@ -4,10 +4,12 @@ import cv2
 import numpy as np
 import pytest
 
-from sea3d.errors import ReconError
+from sea3d.errors import ReconError, StereoError
 from sea3d.geometry.mesh import Mesh
+from sea3d.io.depth_files import read_depth
+from sea3d.io.image_files import natural_key
 from sea3d.io.mesh_files import read_mesh, read_point_cloud, write_mesh, write_point_cloud
-from sea3d.io.rgbd_files import natural_key, read_color, read_depth
+from sea3d.io.rgbd_files import read_color
 
 
 def test_depth_scales_and_invalid_pixels(tmp_path):
@@ -21,7 +23,7 @@ def test_depth_scales_and_invalid_pixels(tmp_path):
     np.save(tmp_path / "d.npy", f)
     zf = read_depth(tmp_path / "d.npy")
     assert zf[0, 0] == 1.5 and np.isnan(zf[0, 1]) and np.isnan(zf[1, 1])
-    with pytest.raises(ReconError, match="not found"):
+    with pytest.raises(StereoError, match="not found"):
         read_depth(tmp_path / "nope.png")
     # integer .npy with the frames' scale; negative values are invalid like in float depth
     np.save(tmp_path / "i.npy", np.array([[5000, -5000], [0, 2500]], np.int32))

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import glob
 import json
 import logging
 import re
@@ -94,16 +93,10 @@ def _add_pair_inputs(p: argparse.ArgumentParser) -> None:
 
 
 # ---------------------------------------------------------------------- helpers
-def _natural_key(path: Path) -> list[Any]:
-    """Sort ``left2.png`` before ``left10.png`` and stamps numerically (1e9 after 2e8)."""
-    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", str(path))]
-
-
 def _expand(pattern: str, side: str) -> list[Path]:
-    paths = sorted((Path(p) for p in glob.glob(pattern)), key=_natural_key)
-    if not paths and Path(pattern).is_dir():
-        paths = sorted((p for p in Path(pattern).iterdir() if p.suffix.lower() in (
-            ".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm")), key=_natural_key)
+    from sea3d.io.image_files import image_paths
+
+    paths = image_paths(pattern)
     if not paths:
         raise CalibrationError(f"--{side} {pattern!r} matches no files")
     return paths
@@ -128,7 +121,6 @@ def _detect_all(paths: list[Path], board: Any, quiet: bool, detector: str = "aut
 def _pair_paths(left: list[Path], right: list[Path]) -> None:
     if len(left) == len(right):
         return
-    import re
 
     def key(p: Path) -> str:
         return "".join(re.findall(r"\d+", p.stem))

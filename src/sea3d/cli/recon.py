@@ -118,7 +118,7 @@ def _written(files: dict[str, Path]) -> str:
 
 def _glob(pattern: str, what: str) -> list[Path]:
     from sea3d.errors import ReconError
-    from sea3d.io.rgbd_files import natural_key
+    from sea3d.io.image_files import natural_key
 
     paths = sorted((Path(p) for p in glob.glob(pattern)), key=natural_key)
     if not paths:

@@ -94,11 +94,12 @@ def fuse_rgbd(
         progress: called with 1 after each frame.
 
     Raises:
-        ReconError: mismatched lists, unreadable files, frames of other sizes.
-        StereoError: a depth file whose grid sidecar says another grid than ``K``.
+        ReconError: mismatched lists, an unreadable colour image, frames of other sizes.
+        StereoError: an unreadable depth image (or 8-bit, or of several channels), a depth
+            file whose grid sidecar says another grid than ``K``.
     """
-    from sea3d.io.depth_files import DepthGrid, check_depth_pinhole
-    from sea3d.io.rgbd_files import read_color, read_depth
+    from sea3d.io.depth_files import DepthGrid, check_depth_pinhole, read_depth
+    from sea3d.io.rgbd_files import read_color
 
     if len(color_paths) != len(depth_paths):
         raise ReconError(f"{len(color_paths)} colour images but {len(depth_paths)} depth images")

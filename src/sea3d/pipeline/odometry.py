@@ -397,7 +397,7 @@ def session_odometry(
 def _expand(pattern: str, what: str) -> list[Path]:
     import glob
 
-    from sea3d.io.rgbd_files import natural_key
+    from sea3d.io.image_files import natural_key
 
     paths = sorted((Path(p) for p in glob.glob(pattern)), key=natural_key)
     if not paths:
@@ -439,17 +439,18 @@ def rgbd_observations(
     depth_scale: float = 1000.0,
 ) -> tuple[list[Path], list[Path], F64, tuple[int, int]]:
     """Resolve and check RGB-D inputs: sorted colour and depth files, their times (seconds),
-    and the image size. Files are read by :mod:`sea3d.io.rgbd_files` (16-bit depth in units
-    of ``1 / depth_scale`` m, float depth in metres).
+    and the image size. Depth is read by :func:`sea3d.io.depth_files.read_depth` (16-bit
+    depth in units of ``1 / depth_scale`` m, float depth in metres).
 
     Raises:
         ConfigError: no files, different counts, bad intrinsics (a principal point outside
             the image) or scale, a first depth image whose median is no plausible depth.
-        ReconError: an unreadable first image, 8-bit depth, or colour and depth of different
-            sizes.
+        ReconError: an unreadable first colour image, or colour and depth of different sizes.
+        StereoError: an unreadable first depth image, or 8-bit depth.
     """
     from sea3d.errors import ReconError
-    from sea3d.io.rgbd_files import read_color, read_depth
+    from sea3d.io.depth_files import read_depth
+    from sea3d.io.rgbd_files import read_color
 
     if not depth_scale > 0:
         raise ConfigError(f"depth_scale must be > 0, got {depth_scale}")
@@ -493,8 +494,9 @@ def read_rgbd_frame(
     color_path: Path, depth_path: Path, depth_scale: float
 ) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
     """Colour (RGB uint8) and depth (float32 metres, NaN invalid) through
-    :mod:`sea3d.io.rgbd_files`."""
-    from sea3d.io.rgbd_files import read_color, read_depth
+    :mod:`sea3d.io.rgbd_files` and :func:`sea3d.io.depth_files.read_depth`."""
+    from sea3d.io.depth_files import read_depth
+    from sea3d.io.rgbd_files import read_color
 
     return read_color(color_path), read_depth(depth_path, depth_scale)
 
