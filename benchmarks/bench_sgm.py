@@ -261,17 +261,33 @@ def _machine() -> str:
     return f"{model}, {os.cpu_count()} CPUs, {platform.system()}"
 
 
-_HEADER = ("| run (UTC), load before / after | frames | sea3d CPU s (wall) | 3WAY CPU s (wall) | "
-           "sea3d / 3WAY CPU (wall) | accuracy sea3d | accuracy 3WAY |")
+def _tree() -> str:
+    """The commit the sources were at (``+`` when they had changes on top), or ``?``."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, check=True,
+                              capture_output=True, text=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "src"], cwd=root,
+                               check=True, capture_output=True, text=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "?"
+    return head + ("+" if dirty else "")
+
+
+_HEADER = ("| run (UTC, commit), load before / after | frames | sea3d CPU s (wall) | "
+           "3WAY CPU s (wall) | sea3d / 3WAY CPU (wall) | accuracy sea3d | accuracy 3WAY |")
 
 
 def record(load: tuple[float, float], dive_out: dict | None, textures: list[dict]) -> None:
     """Add this run's rows to the table of the ``bench_sgm`` section of
-    benchmarks/results/stereo.md (rows of earlier runs are kept) and replace the section's
-    details of the latest run (command, machine, rates, stages)."""
+    benchmarks/results/stereo.md (rows of earlier runs are kept; the run column names the
+    commit the sources were at) and replace the section's details of the latest run
+    (command, machine, rates, stages)."""
     now = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M")
     cmd = "PYTHONPATH=src python benchmarks/bench_sgm.py " + shlex.join(sys.argv[1:])
-    run = f"{now}, {load[0]:.2f} / {load[1]:.2f}"
+    run = f"{now} ({_tree()}), {load[0]:.2f} / {load[1]:.2f}"
     rows = []
     if dive_out is not None:
         d = dive_out
