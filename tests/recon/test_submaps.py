@@ -371,3 +371,29 @@ def test_a_surface_seen_once_is_dropped_when_two_observations_are_required():
     (_, n_once), (z_twice, n_twice) = _box_top(once), _box_top(twice)
     assert n_twice > 0.9 * n_once
     assert abs(z_twice[2] - BOX_HI[2]) < PLACE_TOL_M
+
+
+@pytest.mark.parametrize("moved", [False, True])
+def test_the_one_pass_dense_sum_equals_the_splat_and_sort_sum(moved):
+    """A tile's box summed in dense arrays by one pass over the samples gives the sums the
+    sparse path gives from the splat's targets (sorted and reduced), to the bit."""
+    from sea3d.recon.submaps import _Accumulator
+
+    rng = np.random.default_rng(5)
+    coords = rng.integers(-20, 60, (5000, 3))
+    tsdf = rng.uniform(-1, 1, 5000)
+    weight = rng.integers(1, 40, 5000).astype(np.float64)
+    color = rng.uniform(0, 1, (5000, 3))
+    T = np.eye(4)
+    T[:3, :3] = rotvec_to_R(np.array([0.02, -0.01, 0.03]))
+    T[:3, 3] = (0.013, -0.027, 0.004)
+    lo, hi = np.array([0, -5, 3]), np.array([40, 50, 45])
+    sums = []
+    for dense_at in (10**9, 0):
+        acc = _Accumulator(lo, hi, dense_at=dense_at)
+        assert acc.dense == (dense_at > 0)
+        acc.add_samples(coords, tsdf, weight, color, T if moved else None, 0.02)
+        sums.append(acc.reduce())
+    for a, b in zip(*sums, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert len(sums[0][0]) > 500

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Literal, Protocol
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 from sea3d._typing import F64
@@ -405,6 +406,39 @@ class _Accumulator:
         for row, x in enumerate((w, wt, wc[:, 0], wc[:, 1], wc[:, 2])):
             acc[row] += np.bincount(key, weights=x, minlength=self._n)
 
+    def add_samples(self, coords: NDArray[np.int64], tsdf: F64, weight: F64, color: F64,
+                    T_world_grid: F64 | None, voxel_m: float) -> None:
+        """Add a submap's voxel samples (:func:`_voxel_samples`): where ``T_world_grid`` is
+        None (the submap was not moved) at their own coordinates, else splatted trilinearly
+        at their moved ones; only the targets inside the box count. Dense boxes sum in one
+        pass (:func:`_accumulate_dense`), the same sums as :meth:`add` of the splat's targets."""
+        if not len(coords):
+            return
+        if self.dense:
+            if self._seen is None or self._sums_dense is None:
+                self._seen = np.zeros(self._n, bool)
+                self._sums_dense = np.zeros((5, self._n), np.float64)
+            T = np.eye(4) if T_world_grid is None else np.asarray(T_world_grid, np.float64)
+            _accumulate_dense(np.ascontiguousarray(coords, np.int64),
+                              np.ascontiguousarray(tsdf, np.float64),
+                              np.ascontiguousarray(weight, np.float64),
+                              np.ascontiguousarray(color, np.float64), T, float(voxel_m),
+                              T_world_grid is not None, self.lo, self.dims, 1.0 / _QUANTUM,
+                              self._sums_dense, self._seen)
+            return
+        m_lo, m_hi = self.lo, self.lo + self.dims
+        if T_world_grid is None:
+            sel = np.all((coords >= m_lo) & (coords < m_hi), axis=1)
+            self.add(coords[sel], tsdf[sel], weight[sel], color[sel])
+            return
+        for a in range(0, len(coords), _SPLAT_CHUNK):
+            b = min(a + _SPLAT_CHUNK, len(coords))
+            tc, tw = _splat(coords[a:b], T_world_grid, voxel_m)
+            rep = np.tile(np.arange(a, b), 8)
+            sel = np.all((tc >= m_lo) & (tc < m_hi), axis=1) & (tw > 1e-6)
+            self.add(tc[sel], tsdf[rep[sel]], weight[rep[sel]] * tw[sel], color[rep[sel]])
+            del tc, tw, rep, sel
+
     def add(self, coords: NDArray[np.int64], tsdf: F64, weight: F64, color: F64) -> None:
         if len(coords) and self.dense:
             c = coords - self.lo
@@ -458,6 +492,54 @@ class _Accumulator:
 
 _SPLAT_CHUNK = 100_000
 """Voxels of a moved submap splatted at once (8 targets each: about 40 MB of temporaries)."""
+
+
+@njit(cache=True)
+def _accumulate_dense(coords: Any, tsdf: Any, weight: Any, color: Any, T: Any, voxel_m: float,
+                      moved: bool, lo: Any, dims: Any, inv_quantum: float, sums: Any,
+                      seen: Any) -> None:  # pragma: no cover - numba
+    """Sum voxel samples into a dense box in one pass: each sample at its own voxel, or (moved)
+    splatted over the 8 voxels round its moved centre with trilinear weights above 1e-6; every
+    summand rounded to the quantum (``round(x * inv_quantum) / inv_quantum``), as
+    :func:`_fixed` rounds it. ``sums`` (5, n): weight, weight x tsdf, weight x RGB."""
+    n0, n1, n2 = dims[0], dims[1], dims[2]
+    q = 1.0 / inv_quantum
+    for i in range(coords.shape[0]):
+        if moved:
+            px = coords[i, 0] * voxel_m
+            py = coords[i, 1] * voxel_m
+            pz = coords[i, 2] * voxel_m
+            qx = (T[0, 0] * px + T[0, 1] * py + T[0, 2] * pz + T[0, 3]) / voxel_m
+            qy = (T[1, 0] * px + T[1, 1] * py + T[1, 2] * pz + T[1, 3]) / voxel_m
+            qz = (T[2, 0] * px + T[2, 1] * py + T[2, 2] * pz + T[2, 3]) / voxel_m
+            fx0, fy0, fz0 = np.floor(qx), np.floor(qy), np.floor(qz)
+            fx, fy, fz = qx - fx0, qy - fy0, qz - fz0
+            bx, by, bz = int(fx0) - lo[0], int(fy0) - lo[1], int(fz0) - lo[2]
+            corners = 8
+        else:
+            bx, by, bz = coords[i, 0] - lo[0], coords[i, 1] - lo[1], coords[i, 2] - lo[2]
+            fx = fy = fz = 0.0
+            corners = 1
+        for c in range(corners):
+            dx, dy, dz = (c >> 2) & 1, (c >> 1) & 1, c & 1
+            x, y, z = bx + dx, by + dy, bz + dz
+            if x < 0 or y < 0 or z < 0 or x >= n0 or y >= n1 or z >= n2:
+                continue
+            if moved:
+                wt = ((fx if dx else 1.0 - fx) * (fy if dy else 1.0 - fy)
+                      * (fz if dz else 1.0 - fz))
+                if not wt > 1e-6:
+                    continue
+                w = weight[i] * wt
+            else:
+                w = weight[i]
+            key = (x * n1 + y) * n2 + z
+            seen[key] = True
+            sums[0, key] += np.rint(w * inv_quantum) * q
+            sums[1, key] += np.rint(w * tsdf[i] * inv_quantum) * q
+            sums[2, key] += np.rint(w * color[i, 0] * inv_quantum) * q
+            sums[3, key] += np.rint(w * color[i, 1] * inv_quantum) * q
+            sums[4, key] += np.rint(w * color[i, 2] * inv_quantum) * q
 
 
 def _splat(coords: NDArray[np.int64], T: F64, voxel_m: float
@@ -611,20 +693,7 @@ def merge_submaps(
                 continue
             coords, tsdf, weight, color = _voxel_samples(blocks)
             del blocks
-            if moved:
-                for a in range(0, len(coords), _SPLAT_CHUNK):
-                    b = min(a + _SPLAT_CHUNK, len(coords))
-                    tc, tw = _splat(coords[a:b], T_wg, v)
-                    rep = np.tile(np.arange(a, b), 8)
-                    sel = np.all((tc >= m_lo) & (tc < m_hi), axis=1) & (tw > 1e-6)
-                    acc.add(tc[sel], tsdf[rep[sel]].astype(np.float64),
-                            (weight[rep[sel]] * tw[sel]).astype(np.float64),
-                            color[rep[sel]].astype(np.float64))
-                    del tc, tw, rep, sel
-            else:
-                sel = np.all((coords >= m_lo) & (coords < m_hi), axis=1)
-                acc.add(coords[sel], tsdf[sel].astype(np.float64),
-                        weight[sel].astype(np.float64), color[sel].astype(np.float64))
+            acc.add_samples(coords, tsdf, weight, color, T_wg if moved else None, v)
         coords, wsum, tmean, cmean = acc.reduce()
         if len(coords) == 0:
             continue
