@@ -8,7 +8,6 @@ trajectories (ATE, RPE) and surfaces (accuracy, completeness).
 from __future__ import annotations
 
 import argparse
-import glob
 import json
 import logging
 import sys
@@ -118,9 +117,9 @@ def _written(files: dict[str, Path]) -> str:
 
 def _glob(pattern: str, what: str) -> list[Path]:
     from sea3d.errors import ReconError
-    from sea3d.io.image_files import natural_key
+    from sea3d.io.image_files import image_paths
 
-    paths = sorted((Path(p) for p in glob.glob(pattern)), key=natural_key)
+    paths = image_paths(pattern)
     if not paths:
         raise ReconError(f"no {what} files match {pattern!r}")
     return paths

@@ -395,11 +395,9 @@ def session_odometry(
 
 # ---------------------------------------------------------------------- RGB-D
 def _expand(pattern: str, what: str) -> list[Path]:
-    import glob
+    from sea3d.io.image_files import image_paths
 
-    from sea3d.io.image_files import natural_key
-
-    paths = sorted((Path(p) for p in glob.glob(pattern)), key=natural_key)
+    paths = image_paths(pattern)
     if not paths:
         raise ConfigError(f"{what} {pattern!r} matches no files")
     return paths
