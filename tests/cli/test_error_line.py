@@ -183,3 +183,30 @@ def test_every_option_the_rewrite_names_is_spelt_as_the_commands_spell_it() -> N
     assert named - every == set(), "options no command has"
     assert named - own == set(), "deprecated aliases instead of the options' own spelling"
     assert "--restore-colours" in every - own  # the check sees an alias
+
+
+@pytest.mark.parametrize(("flag", "value", "named"), [
+    ("--min-observations", "0", "--min-observations must be >= 1, got 0"),
+    ("--hole-margin-px", "40", "--hole-margin-px must be 0..16, got 40"),
+    ("--fusion-min-confidence", "1.5", "--fusion-min-confidence must be in [0, 1), got 1.5"),
+])
+def test_cli_error_names_the_commands_own_option_of_the_field(tmp_path, capsys, flag, value,
+                                                              named) -> None:
+    argv = ["process", str(tmp_path / "none.mcap"), "-o", str(tmp_path / "out"), flag, value]
+    assert main(argv) == 2
+    assert capsys.readouterr().err.strip() == f"sea3d: error: {named}"
+
+
+def test_command_flags_are_the_commands_own_options_in_their_own_spelling() -> None:
+    from sea3d.cli import build_parser, command_flags
+
+    parser = build_parser()
+    process = command_flags(parser, ["-q", "process", "s.mcap", "-o", "o"])
+    assert process["min_observations"] == "--min-observations"
+    assert process["restore_colours"] == "--restore-colors"  # not the deprecated alias
+    assert process["min_confidence"] == "--fusion-min-confidence"  # renamed by the CLI
+    assert "stall_warn_s" not in process  # another command's option
+    assert command_flags(parser, []) == {}
+    # a field the command does not set is left to the table
+    assert error_line("stall_warn_s must be > 0", process) == "--stall-warn must be > 0"
+    assert error_line("min_observations must be >= 1", {}) == "min_observations must be >= 1"

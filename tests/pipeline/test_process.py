@@ -397,7 +397,7 @@ def test_cli_floater_options_reach_fusion(sim_session, first_run, tmp_path, caps
     code = main(["process", str(sim_session), "-o", str(tmp_path / "bad"), "--poses", poses,
                  "--workers", "0", "--hole-margin-px", "40"])
     err = capsys.readouterr().err
-    assert code == 2 and "hole_margin_px must be 0..16" in err and err.count("\n") == 1
+    assert code == 2 and "--hole-margin-px must be 0..16" in err and err.count("\n") == 1
 
 
 def test_cli_no_loop_closure_reaches_the_odometry(sim_session, first_run, tmp_path, capsys):

@@ -20,7 +20,7 @@ from typing import Any
 from sea3d import __version__
 from sea3d.errors import Sea3dError
 
-__all__ = ["FlagNames", "build_parser", "error_line", "main"]
+__all__ = ["FlagNames", "build_parser", "command_flags", "error_line", "main"]
 
 # Modules under sea3d.cli that add subcommands, in the order they appear in --help.
 _COMMAND_MODULES = (
@@ -110,14 +110,56 @@ _PATTERNS = (
 )
 
 
-def error_line(message: str) -> str:
+def _field_re(names: Sequence[str]) -> re.Pattern[str]:
+    """Where a message names one of ``names`` as a field (see ``_FIELD_RE``)."""
+    alt = "|".join(map(re.escape, names))
+    return re.compile(rf"(?<![\w./-])({alt})(?= must\b| or |\)|, not both| to discard)"
+                      rf"|(?<=either )({alt})\b")
+
+
+def error_line(message: str, flags: dict[str, str] | None = None) -> str:
     """A library message (error, warning, note) with the config fields and settings it names
-    spelt as this CLI's options (``voxel_m must be > 0`` -> ``--voxel-m must be > 0``)."""
+    spelt as this CLI's options (``voxel_m must be > 0`` -> ``--voxel-m must be > 0``).
+
+    Args:
+        message: the library's message.
+        flags: the fields the command's own options set, each with its option
+            (:func:`command_flags`); they are named first, the table's fields after.
+    """
     for lib, cli in _PHRASES.items():
         message = message.replace(lib, cli)
     for pattern, repl in _PATTERNS:
         message = pattern.sub(repl, message)
+    if flags:
+        message = _field_re(sorted(flags, key=len, reverse=True)).sub(
+            lambda m: flags[m.group(1) or m.group(2)], message)
     return _FIELD_RE.sub(lambda m: _FLAG_OF_FIELD[m.group(1) or m.group(2)], message)
+
+
+def command_flags(parser: argparse.ArgumentParser, argv: Sequence[str]) -> dict[str, str]:
+    """The config fields and library parameters that the options of the command in ``argv``
+    set (those made by ``config_option`` and ``param_option``), each with its option's own
+    spelling (its first long name; the others are deprecated aliases).
+
+    Args:
+        parser: the whole parser (:func:`build_parser`).
+        argv: the command line, without the program name.
+    """
+    flags: dict[str, str] = {}
+    node, rest = parser, list(argv)
+    while True:
+        subs: dict[str, argparse.ArgumentParser] = {}
+        for action in node._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                subs.update(action.choices)
+            source = getattr(action, "sea3d_default_from", None)
+            own = [o for o in action.option_strings if o.startswith("--")]
+            if source is not None and own:
+                flags.setdefault(source[1], own[0])
+        at = next((i for i, t in enumerate(rest) if t in subs), None)
+        if at is None:
+            return flags
+        node, rest = subs[rest[at]], rest[at + 1:]
 
 
 class FlagNames(logging.Filter):
@@ -180,6 +222,7 @@ def _configure_logging(verbose: int, quiet: bool) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``sea3d`` command; return the process exit status."""
     parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = parser.parse_args(argv)
     _configure_logging(args.verbose, args.quiet)
     handler = getattr(args, "handler", None)
@@ -189,7 +232,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         status = handler(args)
     except Sea3dError as err:
-        print(f"sea3d: error: {error_line(str(err))}", file=sys.stderr)
+        line = error_line(str(err), command_flags(parser, argv))
+        print(f"sea3d: error: {line}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("sea3d: interrupted", file=sys.stderr)
