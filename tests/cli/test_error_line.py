@@ -75,6 +75,11 @@ def test_cli_log_filter_names_the_option() -> None:
     assert FlagNames().filter(record)
     assert record.getMessage() == ("rig.yml holds no image size; assuming 64x48 (pass --size to "
                                    "set it)")
+    # a field the running command's own option sets is named by that option
+    record = logging.LogRecord("sea3d.recon", logging.WARNING, __file__, 1,
+                               "min_observations must be >= 1, got 0", None, None)
+    assert FlagNames({"min_observations": "--min-observations"}).filter(record)
+    assert record.getMessage() == "--min-observations must be >= 1, got 0"
 
 
 # ------------------------------------------------- the phrases still occur in the library

@@ -164,11 +164,19 @@ def command_flags(parser: argparse.ArgumentParser, argv: Sequence[str]) -> dict[
 
 class FlagNames(logging.Filter):
     """A log filter that rewrites a record's message with :func:`error_line`, so warnings from
-    library code name this CLI's options; installed on the CLI's log handler."""
+    library code name this CLI's options; installed on the CLI's log handler.
+
+    Args:
+        flags: the running command's own options of fields (:func:`command_flags`).
+    """
+
+    def __init__(self, flags: dict[str, str] | None = None) -> None:
+        super().__init__()
+        self.flags = dict(flags or {})
 
     def filter(self, record: logging.LogRecord) -> bool:
         text = record.getMessage()
-        new = error_line(text)
+        new = error_line(text, self.flags)
         if new != text:
             record.msg, record.args = new, None
         return True
@@ -209,14 +217,17 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _configure_logging(verbose: int, quiet: bool) -> None:
+def _configure_logging(verbose: int, quiet: bool, flags: dict[str, str]) -> None:
     level = logging.WARNING if quiet else (logging.DEBUG if verbose > 1 else logging.INFO)
     logging.basicConfig(
         level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr
     )
     for handler in logging.getLogger().handlers:
-        if not any(isinstance(f, FlagNames) for f in handler.filters):
-            handler.addFilter(FlagNames())
+        named = [f for f in handler.filters if isinstance(f, FlagNames)]
+        for f in named:
+            f.flags = dict(flags)  # this command's options (an earlier main() in-process)
+        if not named:
+            handler.addFilter(FlagNames(flags))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -224,7 +235,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     argv = sys.argv[1:] if argv is None else list(argv)
     args = parser.parse_args(argv)
-    _configure_logging(args.verbose, args.quiet)
+    flags = command_flags(parser, argv)
+    _configure_logging(args.verbose, args.quiet, flags)
     handler = getattr(args, "handler", None)
     if handler is None:
         parser.print_help()
@@ -232,7 +244,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         status = handler(args)
     except Sea3dError as err:
-        line = error_line(str(err), command_flags(parser, argv))
+        line = error_line(str(err), flags)
         print(f"sea3d: error: {line}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
