@@ -123,3 +123,25 @@ def test_entries_without_filters_still_read(tmp_path, rng):
     back, meta = read_entry(tmp_path / "old.s3c")
     assert meta == {"status": "ok"}
     np.testing.assert_array_equal(back["depth"], a)
+
+
+def test_an_entry_encoded_elsewhere_is_written_as_put_writes_it(tmp_path, rng):
+    """A worker encodes a frame's entry (FrameCache.encode) and the caller only writes its
+    bytes: the file is the one put writes, and bytes that are not an entry are refused."""
+    from sea3d.errors import SessionError
+
+    arrays = {"depth_m": rng.random((60, 80)).astype(np.float32),
+              "rect_left": rng.integers(0, 255, (60, 80), dtype=np.uint8)}
+    meta = {"status": "ok", "valid_fraction": 0.5}
+    a = FrameCache(tmp_path / "a", {"k": 1})
+    b = FrameCache(tmp_path / "b", {"k": 1})
+    a.put(7, arrays, meta)
+    b.put_encoded(7, FrameCache.encode(7, arrays, meta))
+    assert a.path(7).read_bytes() == b.path(7).read_bytes()
+    assert a.bytes_written == b.bytes_written > 0
+    back, m = b.get(7)
+    assert m["t_ns"] == 7
+    np.testing.assert_array_equal(back["depth_m"], arrays["depth_m"])
+    with pytest.raises(SessionError, match="not a cache entry"):
+        b.put_encoded(8, b"PNG....")
+    assert not b.path(8).exists()

@@ -41,7 +41,8 @@ from numpy.typing import NDArray
 from sea3d.errors import CacheEntryError, SessionError
 from sea3d.io._atomic import atomic_write
 
-__all__ = ["CacheEntryError", "FrameCache", "read_entry", "write_entry"]
+__all__ = ["CacheEntryError", "FrameCache", "encode_entry", "read_entry", "write_entry",
+           "write_entry_bytes"]
 
 log = logging.getLogger(__name__)
 
@@ -81,12 +82,9 @@ def _decode(a: NDArray[Any], how: list[Any]) -> NDArray[Any]:
     raise ValueError(f"unknown array filter {kind!r}")
 
 
-def write_entry(path: Path, arrays: dict[str, NDArray[Any]], meta: dict[str, Any]) -> int:
-    """Write one entry atomically; returns its size in bytes.
-
-    Raises:
-        SessionError: the file cannot be written.
-    """
+def encode_entry(arrays: dict[str, NDArray[Any]], meta: dict[str, Any]) -> bytes:
+    """One entry's bytes, as :func:`write_entry` writes them (a worker can encode what the
+    caller then writes with :func:`write_entry_bytes`)."""
     import imagecodecs
 
     buf = io.BytesIO()
@@ -100,7 +98,26 @@ def write_entry(path: Path, arrays: dict[str, NDArray[Any]], meta: dict[str, Any
                                "__codec__": np.array(json.dumps(codec)), **filtered}
     np.savez(buf, **members)
     payload = imagecodecs.zstd_encode(buf.getvalue(), level=_ZSTD_LEVEL)
-    data = _MAGIC + _HEAD.pack(len(payload), zlib.crc32(payload) & 0xFFFFFFFF) + payload
+    return _MAGIC + _HEAD.pack(len(payload), zlib.crc32(payload) & 0xFFFFFFFF) + payload
+
+
+def write_entry(path: Path, arrays: dict[str, NDArray[Any]], meta: dict[str, Any]) -> int:
+    """Write one entry atomically; returns its size in bytes.
+
+    Raises:
+        SessionError: the file cannot be written.
+    """
+    return write_entry_bytes(path, encode_entry(arrays, meta))
+
+
+def write_entry_bytes(path: Path, data: bytes) -> int:
+    """Write an entry's bytes (:func:`encode_entry`) atomically; returns their size.
+
+    Raises:
+        SessionError: the file cannot be written, or ``data`` is not an entry.
+    """
+    if data[:len(_MAGIC)] != _MAGIC:
+        raise SessionError(f"not a cache entry for {path}")
     try:
         # no fsync per frame: a torn entry fails its CRC-32 and the frame is computed again
         atomic_write(path, data, fsync=False)
@@ -230,6 +247,15 @@ class FrameCache:
     def put(self, t_ns: int, arrays: dict[str, NDArray[Any]], meta: dict[str, Any]) -> None:
         """Store one frame's result."""
         self.bytes_written += write_entry(self.path(t_ns), arrays, {**meta, "t_ns": int(t_ns)})
+
+    @staticmethod
+    def encode(t_ns: int, arrays: dict[str, NDArray[Any]], meta: dict[str, Any]) -> bytes:
+        """One frame's entry, encoded (where the result is computed) for :meth:`put_encoded`."""
+        return encode_entry(arrays, {**meta, "t_ns": int(t_ns)})
+
+    def put_encoded(self, t_ns: int, data: bytes) -> None:
+        """Store one frame's entry made by :meth:`encode`."""
+        self.bytes_written += write_entry_bytes(self.path(t_ns), data)
 
     def get(self, t_ns: int) -> tuple[dict[str, NDArray[Any]], dict[str, Any]] | None:
         """One frame's result, or None when absent or damaged (a damaged entry is logged and

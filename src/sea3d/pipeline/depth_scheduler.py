@@ -122,7 +122,7 @@ class DepthScheduler:
             self.on_depth(1)
             return
         self._pending[t] = self.executor.submit(process_frame, self.stage, t, left, right,
-                                                self.stereo)
+                                                self.stereo, True)
 
     def _collect(self, ready: dict[int, FrameResult | None]) -> None:
         self.executor.wait_first(self._pending.values())
@@ -139,7 +139,11 @@ class DepthScheduler:
                     "rerun into the same folder resumes from the frames cached so far"
                 ) from err
             tw = time.perf_counter()
-            self.cache.put(t_done, *res.to_cache())
+            if res.cache_entry:  # encoded by the worker: only written here
+                self.cache.put_encoded(t_done, res.cache_entry)
+                res = dataclasses.replace(res, cache_entry=b"")
+            else:
+                self.cache.put(t_done, *res.to_cache())
             self.timer.add("cache_write_s", time.perf_counter() - tw)
             ready[t_done] = res
             self.on_depth(1)

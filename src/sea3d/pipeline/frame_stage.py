@@ -24,7 +24,7 @@ import logging
 import pickle
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any, Literal
 
 import cv2
@@ -128,6 +128,9 @@ class FrameResult:
         timings_s: seconds per step (``enhance_s``, ``rectify_s``, ``match_s``, ``depth_s``,
             ``rectify_right_s``, ``resample_s``, and ``warmup_s`` on a worker's first frame:
             kernel compilation).
+        cache_entry: the result encoded as a cache entry where it was computed
+            (:meth:`~sea3d.io.result_cache.FrameCache.encode`; empty when not asked for), so
+            the caller only writes it.
         seeded: the frame got no depth of its own (:mod:`sea3d.pipeline.depth_rate`, or a
             live frame dropped to keep up): ``depth_m`` is an earlier frame's, the odometry's
             stereo seeds only; it is not fused and not cached.
@@ -148,6 +151,7 @@ class FrameResult:
     color_left: NDArray[np.uint8] = field(default_factory=lambda: np.zeros((0, 0), np.uint8))
     colour_status: str = ""
     seeded: bool = False
+    cache_entry: bytes = b""
 
     def colors(self) -> NDArray[np.uint8]:
         """(H, W, 3) uint8 colours for mesh and cloud: the restored ones when there are, else
@@ -313,7 +317,8 @@ def rectify_pair(stereo: StereoDepth, left: NDArray[Any], right: NDArray[Any]
 
 
 def process_frame(config: FrameStageConfig, t_ns: int, left: NDArray[Any],
-                  right: NDArray[Any], geometry: StereoDepth | None = None) -> FrameResult:
+                  right: NDArray[Any], geometry: StereoDepth | None = None,
+                  encode_cache_entry: bool = False) -> FrameResult:
     """Enhance (if configured), rectify, match and triangulate one raw stereo pair.
 
     Args:
@@ -322,6 +327,8 @@ def process_frame(config: FrameStageConfig, t_ns: int, left: NDArray[Any],
         left, right: raw images (H, W) or (H, W, 3) RGB, uint8 or uint16, at the recorded size.
         geometry: the :class:`~sea3d.stereo.recipe.StereoDepth` of ``config`` built by the
             caller (see :func:`install_geometry`); None builds or reuses this process's own.
+        encode_cache_entry: also encode the result as its cache entry
+            (:attr:`FrameResult.cache_entry`), here in the worker, not in the caller.
 
     Returns:
         :class:`FrameResult` (``failed`` with a message for images it cannot use, never an
@@ -385,7 +392,7 @@ def process_frame(config: FrameStageConfig, t_ns: int, left: NDArray[Any],
         colors, colour_status = _restore_colours(rect_raw, res.depth_m, res.points_left, maps)
         timings["restore_colours_s"] = time.perf_counter() - tc
     valid = float(np.isfinite(res.depth_m).mean())
-    return FrameResult(
+    out = FrameResult(
         t_ns=t_ns,
         status="ok" if valid > 0 else "no_depth",
         rect_left=np.ascontiguousarray(res.rect_left, np.uint8),
@@ -399,6 +406,11 @@ def process_frame(config: FrameStageConfig, t_ns: int, left: NDArray[Any],
         color_left=colors,
         colour_status=colour_status,
     )
+    if encode_cache_entry:
+        from sea3d.io.result_cache import FrameCache
+
+        out = replace(out, cache_entry=FrameCache.encode(t_ns, *out.to_cache()))
+    return out
 
 
 def _restore_colours(rect_left: NDArray[np.uint8], depth_m: NDArray[np.float32],
