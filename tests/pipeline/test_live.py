@@ -79,6 +79,11 @@ def test_replay_tracks_every_frame_and_fuses_what_it_keeps_up_with(sim_session, 
     assert summary["mesh"]["triangles"] > 1000
     traj = np.loadtxt(tmp_path / "live" / "trajectory.tum")
     assert len(traj) == FRAMES
+    # the finish step of process: its timings and its fusion block, as process writes them
+    assert {"merge_s", "cloud_s", "write_s"} <= summary["timings_s"].keys()
+    assert summary["fusion"]["min_piece_triangles"] == cfg.map.min_piece_triangles
+    written = json.loads((tmp_path / "live" / "summary.json").read_text())
+    assert written["fusion"] == summary["fusion"]
 
 
 class _Pairs:

@@ -1,13 +1,17 @@
-"""The finish step of the process pipeline: final poses, merged mesh and cloud, summary.
+"""The finish step of ``process`` and ``live``: final poses, merged mesh and cloud, outputs,
+summary.
 
 After the last frame the odometry's final keyframe poses re-anchor every stored submap; the
-submaps are merged into one mesh (tile by tile, so memory stays bounded) and a cleaned cloud.
+submaps are merged into one mesh (tile by tile, so memory stays bounded) and a cleaned cloud;
+the trajectory, mesh, cloud, status.csv and results.mcap are written and summary.json's figures
+gathered (:func:`finish_run`, which both commands call).
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -19,7 +23,32 @@ from sea3d.odometry.types import TrackingStatus
 from sea3d.pipeline.depth_scheduler import StageTimer
 from sea3d.pipeline.ordered import OrderedStages, trusted_path_length_m
 
-__all__ = ["Reconstruction", "finish_reconstruction", "frame_rows", "run_summary"]
+__all__ = ["FinishOptions", "FinishedRun", "Reconstruction", "finish_reconstruction",
+           "finish_run", "frame_rows", "fusion_summary", "run_summary"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class FinishOptions:
+    """How a run's map is merged and cleaned at the finish step.
+
+    Attributes:
+        tile_m: edge of the merge's tiles (None: one tile).
+        cloud_voxel_m: the cloud's downsampling voxel.
+        min_piece_triangles: mesh pieces of fewer triangles, and the cloud points nearest to
+            them, are dropped (0 keeps all).
+    """
+
+    tile_m: float | None
+    cloud_voxel_m: float
+    min_piece_triangles: int = 0
+
+    @classmethod
+    def of_map(cls, map_cfg: Any) -> FinishOptions:
+        """The options of a run's map configuration (``ProcessConfig.map``); the cloud's voxel
+        is half the TSDF's unless set."""
+        return cls(tile_m=map_cfg.merge_tile_m,
+                   cloud_voxel_m=map_cfg.cloud_voxel_m or map_cfg.voxel_m / 2,
+                   min_piece_triangles=map_cfg.min_piece_triangles)
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -121,3 +150,66 @@ def run_summary(stages: OrderedStages, rec: Reconstruction, **extra: Any) -> dic
         "mean_valid_depth_fraction": (float(np.mean(stages.valid_fraction))
                                       if stages.valid_fraction else 0.0),
     }
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class FinishedRun:
+    """What the shared finish step made: the reconstruction, the files written, and
+    summary.json's content so far (the caller adds its own blocks and writes it).
+
+    Attributes:
+        rec: the final poses, merged mesh and cloud.
+        files: output files by name (``summary`` is where summary.json goes).
+        summary: summary.json's content, not yet written.
+    """
+
+    rec: Reconstruction
+    files: dict[str, Path]
+    summary: dict[str, Any]
+
+
+def finish_run(stages: OrderedStages, store: Any, tsdf: Any, out: Path, rig: Any,
+               options: FinishOptions, *, progress: Any, timer: StageTimer,
+               summary_extra: dict[str, Any]) -> FinishedRun:
+    """The finish step after the last frame: merge and cloud (:func:`finish_reconstruction`),
+    the outputs (trajectory, mesh, cloud, status.csv, results.mcap; timed as ``write_s``)
+    and summary.json's figures (:func:`run_summary`).
+
+    Args:
+        stages: the ordered stages after the last frame (fusion finished).
+        store: the submap store.
+        tsdf: the TSDF configuration of the submaps.
+        out: the output folder.
+        rig: the rectified rig written with the outputs.
+        options: :class:`FinishOptions`.
+        progress: a progress bar factory ``(stage, total) -> bar``.
+        timer: where ``merge_s``, ``cloud_s`` and ``write_s`` are added.
+        summary_extra: the run's own summary figures, in order (see :func:`run_summary`).
+    """
+    from sea3d.io.process_outputs import write_process_outputs
+
+    rec = finish_reconstruction(stages, store, tsdf, tile_m=options.tile_m,
+                                cloud_voxel_m=options.cloud_voxel_m, progress=progress,
+                                timer=timer, min_piece_triangles=options.min_piece_triangles)
+    tw = time.perf_counter()
+    files = write_process_outputs(out, t_ns=rec.t_ns, T_world_left=rec.T_world_left,
+                                  rows=frame_rows(stages), mesh=rec.mesh, cloud=rec.cloud,
+                                  rig=rig)
+    timer.add("write_s", time.perf_counter() - tw)
+    return FinishedRun(rec=rec, files=files, summary=run_summary(stages, rec, **summary_extra))
+
+
+def fusion_summary(map_cfg: Any, tsdf: Any) -> dict[str, Any]:
+    """summary.json's ``fusion`` block: the settings that decided what the mesh keeps.
+
+    Args:
+        map_cfg: the run's map configuration (``ProcessConfig.map``).
+        tsdf: the TSDF configuration of the submaps.
+    """
+    return {"min_observations": map_cfg.min_observations,
+            "min_piece_triangles": map_cfg.min_piece_triangles,
+            "hole_margin_px": tsdf.hole_margin_px,
+            "carve_free_space": tsdf.carve_free_space,
+            "depth_noise_per_m": tsdf.depth_noise_per_m,
+            "min_confidence": tsdf.min_confidence,
+            "confidence_full": tsdf.confidence_full}

@@ -954,25 +954,22 @@ class _Run:
 
     def finish(self, stats: LiveStats, live: LiveConfig | None, live_extra: dict[str, Any],
                **extra: Any) -> dict[str, Any]:
-        """Merge, write the outputs of ``process`` and summary.json with a ``live`` block;
-        the feed publishes the merged mesh and the final status."""
-        from sea3d.io.process_outputs import write_process_outputs, write_summary_json
-        from sea3d.pipeline.finish import finish_reconstruction, frame_rows, run_summary
+        """The finish step of ``process`` (merge, outputs, summary.json with its ``fusion``
+        block) and summary.json's ``live`` block; the feed publishes the merged mesh and the
+        final status."""
+        from sea3d.io.process_outputs import write_summary_json
+        from sea3d.pipeline.finish import FinishOptions, finish_run, fusion_summary
         from sea3d.pipeline.progress import no_progress
 
         config, stages = self.config, self.stages
         stages.finish_fusion()
-        rec = finish_reconstruction(
-            stages, self.store, self.fusion_cfg.tsdf, tile_m=config.map.merge_tile_m,
-            cloud_voxel_m=config.map.cloud_voxel_m or config.map.voxel_m / 2,
-            progress=no_progress, timer=self.timer,
-            min_piece_triangles=config.map.min_piece_triangles)
-        files = write_process_outputs(self.out, t_ns=rec.t_ns, T_world_left=rec.T_world_left,
-                                      rows=frame_rows(stages), mesh=rec.mesh, cloud=rec.cloud,
-                                      rig=self.stereo.rig)
-        summary = run_summary(stages, rec, odometry=self.odometry_name,
-                              imu_used=self.imu_used, imu_note=self.imu_note,
-                              voxel_m=config.map.voxel_m, **extra)
+        done = finish_run(
+            stages, self.store, self.fusion_cfg.tsdf, self.out, self.stereo.rig,
+            FinishOptions.of_map(config.map), progress=no_progress, timer=self.timer,
+            summary_extra=dict(odometry=self.odometry_name, imu_used=self.imu_used,
+                               imu_note=self.imu_note, voxel_m=config.map.voxel_m, **extra))
+        rec, files, summary = done.rec, done.files, done.summary
+        summary["fusion"] = fusion_summary(config.map, self.fusion_cfg.tsdf)
         if self.feed is not None:
             self.feed.finish(stats, rec)
         summary["live"] = {**stats.as_dict(), **live_extra,

@@ -347,44 +347,33 @@ def _finish(session_path: Path, out: Path, config: ProcessConfig, stages: Ordere
             on_result: Callable[[ProcessResult], None] | None,
             colours: DiveColours | None = None) -> ProcessResult:
     """Merge, write the outputs, evaluate, report (the finish step of :func:`run_process`)."""
-    from sea3d.io.process_outputs import write_process_outputs, write_summary_json
-    from sea3d.pipeline.finish import finish_reconstruction, frame_rows, run_summary
+    from sea3d.io.process_outputs import write_summary_json
+    from sea3d.pipeline.finish import FinishOptions, finish_run, fusion_summary
     from sea3d.pipeline.groundtruth import evaluate_against_ground_truth
 
     maps = stereo.maps
-    rec = finish_reconstruction(stages, store, fusion_cfg.tsdf, tile_m=config.map.merge_tile_m,
-                                cloud_voxel_m=config.map.cloud_voxel_m or config.map.voxel_m / 2,
-                                progress=bar, timer=timer,
-                                min_piece_triangles=config.map.min_piece_triangles)
-    tw = time.perf_counter()
-    files = write_process_outputs(out, t_ns=rec.t_ns, T_world_left=rec.T_world_left,
-                                  rows=frame_rows(stages), mesh=rec.mesh, cloud=rec.cloud,
-                                  rig=stereo.rig)
-    timer.add("write_s", time.perf_counter() - tw)
-    summary = run_summary(
-        stages, rec, session=str(session_path), pairs_in_session=source.pairs_in_session,
-        frames_unreadable=depth.unreadable, frames_from_cache=depth.from_cache,
-        depth_rate=config.depth_rate, frames_with_depth=len(stages.estimates) - depth.seeded,
-        odometry=odometry_name, imu_used=imu[0], imu_note=imu[1],
-        executor={"kind": executor.name, "workers": executor.workers, "in_flight": window},
-        image_size_px=[int(maps.width), int(maps.height)], refractive=bool(maps.refractive),
-        depth_range_m=list(stereo.depth_range_m), max_disparity_px=stereo.max_disparity_px,
-        virtual_pinhole_rms_px=(maps.report_left.rms_px if maps.report_left else 0.0),
-        voxel_m=config.map.voxel_m, integrate=config.map.integrate)
+    done = finish_run(
+        stages, store, fusion_cfg.tsdf, out, stereo.rig, FinishOptions.of_map(config.map),
+        progress=bar, timer=timer, summary_extra=dict(
+            session=str(session_path), pairs_in_session=source.pairs_in_session,
+            frames_unreadable=depth.unreadable, frames_from_cache=depth.from_cache,
+            depth_rate=config.depth_rate,
+            frames_with_depth=len(stages.estimates) - depth.seeded,
+            odometry=odometry_name, imu_used=imu[0], imu_note=imu[1],
+            executor={"kind": executor.name, "workers": executor.workers, "in_flight": window},
+            image_size_px=[int(maps.width), int(maps.height)],
+            refractive=bool(maps.refractive), depth_range_m=list(stereo.depth_range_m),
+            max_disparity_px=stereo.max_disparity_px,
+            virtual_pinhole_rms_px=(maps.report_left.rms_px if maps.report_left else 0.0),
+            voxel_m=config.map.voxel_m, integrate=config.map.integrate))
+    rec, files, summary = done.rec, done.files, done.summary
     summary["colours"] = {"enhance": str(config.colours.enhance or "none"),
                           "restore": config.colours.restore_colours,
                           "restore_status": stages.colour_status,
                           "per_frame": stages.colour_frames}
     if colours is not None:
         summary["colours"]["water_model"] = colours.summary()
-    tc = fusion_cfg.tsdf
-    summary["fusion"] = {"min_observations": config.map.min_observations,
-                         "min_piece_triangles": config.map.min_piece_triangles,
-                         "hole_margin_px": tc.hole_margin_px,
-                         "carve_free_space": tc.carve_free_space,
-                         "depth_noise_per_m": tc.depth_noise_per_m,
-                         "min_confidence": tc.min_confidence,
-                         "confidence_full": tc.confidence_full}
+    summary["fusion"] = fusion_summary(config.map, fusion_cfg.tsdf)
     computed = len(stages.estimates) - depth.from_cache
     if config.colours.restore_colours != "none":
         summary["colours"]["per_frame_s"] = _per_frame_costs(
