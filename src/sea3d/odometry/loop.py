@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d._typing import F64
+from sea3d.odometry._hamming_kernel import ratio_matches
 
 _NO_DIST = np.zeros(4)  # rectified, virtual-pinhole consistent pixels: no distortion
 
@@ -301,7 +302,7 @@ class QueryMatcher:
     def __init__(self, query: PlaceFeatures, ratio: float = 0.8) -> None:
         self.query = query
         self.ratio = ratio
-        self._bf = cv2.BFMatcher(cv2.NORM_HAMMING)
+        self._words = _as_words(query.descriptors)
         self._cache: dict[int, list[tuple[int, int, float]]] = {}
 
     def matches(self, place: PlaceFeatures, key: int | None = None
@@ -310,15 +311,19 @@ class QueryMatcher:
         in ``place`` passes the ratio test (and is under 64 bits)."""
         if key is not None and key in self._cache:
             return self._cache[key]
-        out = []
-        if place.descriptors.shape[0] >= 2:
-            for m in self._bf.knnMatch(self.query.descriptors, place.descriptors, k=2):
-                if (len(m) == 2 and m[0].distance < self.ratio * m[1].distance
-                        and m[0].distance < 64):
-                    out.append((m[0].queryIdx, m[0].trainIdx, float(m[0].distance)))
+        out: list[tuple[int, int, float]] = []
+        if place.descriptors.shape[0] >= 2 and self._words.shape[0]:
+            qi, ti, dist = ratio_matches(self._words, _as_words(place.descriptors),
+                                         self.ratio, 64)
+            out = list(zip(qi.tolist(), ti.tolist(), dist.astype(float).tolist(), strict=True))
         if key is not None:
             self._cache[key] = out
         return out
+
+
+def _as_words(descriptors: U8) -> NDArray[np.uint64]:
+    """``(N, 32)`` uint8 descriptors as ``(N, 4)`` 64-bit words (the same bits)."""
+    return np.ascontiguousarray(descriptors, dtype=np.uint8).view(np.uint64)
 
 
 def _match_places(
