@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 from concurrent.futures import Future
 
 import numpy as np
@@ -30,7 +31,7 @@ def _rows(out):
 
 @pytest.mark.parametrize("rate", [1.0, 1000.0])
 def test_replay_tracks_every_frame_and_fuses_what_it_keeps_up_with(sim_session, tmp_path,
-                                                                   rate):
+                                                                   rate, caplog):
     """At the recorded rate (10 fps, 320x180) and 50 times faster: every frame reaches the
     odometry; frames whose depth was dropped are not fused, and say so; the count adds up;
     the latency's parts (depth on the worker, then to fusion) lie within it."""
@@ -43,9 +44,17 @@ def test_replay_tracks_every_frame_and_fuses_what_it_keeps_up_with(sim_session, 
     # loaded machine: 10 dropped, none stale)
     live_cfg = (LiveConfig(depth_max_backlog=1, depth_in_flight=FRAMES) if rate > 10
                 else LiveConfig())
-    summary, stats = run_live_replay(sim_session, cfg, live_cfg, rate=rate)
+    with caplog.at_level(logging.WARNING, logger="sea3d.pipeline.live"):
+        summary, stats = run_live_replay(sim_session, cfg, live_cfg, rate=rate)
     live = summary["live"]
     assert stats.frames == FRAMES and summary["frames"] == FRAMES
+    # a stage that fell behind is named in the summary, and said once
+    assert ("depth" in live["behind"]) == (stats.depth_dropped > 0)
+    assert ("odometry" in live["behind"]) == (max(stats.wait_s) > live_cfg.behind_after_s)
+    said = [r.getMessage() for r in caplog.records if "behind the camera" in r.getMessage()]
+    assert len(said) == len(live["behind"])
+    assert all(m.startswith(f"live: {st} is behind") for m, st in zip(said, live["behind"],
+                                                                      strict=True))
     assert live["fraction_tracked"] == 1.0
     rows = _rows(tmp_path / "live")
     assert len(rows) == FRAMES

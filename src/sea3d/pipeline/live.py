@@ -108,7 +108,14 @@ class LiveConfig:
     starved of CPU: seeds seconds old left 14 of 80 frames IMU-only on a loaded machine).
     About the worker's depth time on a loaded core of this machine (0.6-1.5 s)."""
 
+    behind_after_s: float = 1.0
+    """A frame that waits longer than this for the live loop to take it means the loop (the
+    odometry, fusion and the update hook) is behind the camera: said once, and named in the
+    summary's ``behind``."""
+
     def __post_init__(self) -> None:
+        if not self.behind_after_s > 0:
+            raise ConfigError(f"behind_after_s must be > 0, got {self.behind_after_s}")
         if self.depth_in_flight < 1:
             raise ConfigError(f"depth_in_flight must be >= 1, got {self.depth_in_flight}")
         if not self.seed_max_age_s > 0:
@@ -182,6 +189,18 @@ class LiveStats:
     """Of ``cpu_s``: the loop's own thread (odometry, seeds, fusion, the update hook)."""
     read_cpu_s: float = 0.0
     """Of ``cpu_s``: the read-ahead thread (reading, decoding, rectifying)."""
+    behind: list[str] = field(default_factory=list)
+    """The stages that fell behind the camera, in the order they first did: ``depth`` (a
+    frame got no depth because the worker was busy or the frame stale: tracked on seeds,
+    not fused) and ``odometry`` (a frame waited longer than ``behind_after_s`` for the loop).
+    Each is logged once, when it first happens."""
+
+    def fell_behind(self, stage: str, why: str) -> None:
+        """Note (and log, the first time) that ``stage`` is behind the camera."""
+        if stage in self.behind:
+            return
+        self.behind.append(stage)
+        log.warning("live: %s is behind the camera: %s", stage, why)
 
     def as_dict(self) -> dict[str, Any]:
         def pct(values: list[float]) -> dict[str, float | None]:
@@ -193,7 +212,7 @@ class LiveStats:
         return {"frames": self.frames, "tracked": self.tracked, "fused": self.fused,
                 "depth_dropped": self.depth_dropped, "depth_stale": self.depth_stale,
                 "seeds_moved": self.seeds_moved,
-                "depth_after_odometry": self.depth_after_odometry,
+                "depth_after_odometry": self.depth_after_odometry, "behind": list(self.behind),
                 "fraction_tracked": self.tracked / self.frames if self.frames else 0.0,
                 "fraction_fused": self.fused / self.frames if self.frames else 0.0,
                 "latency_s": pct(self.latency_s), "mesh_latency_s": pct(self.mesh_latency_s),
@@ -724,6 +743,13 @@ class _Loop:
         if busy >= cfg.depth_in_flight or stale:
             stats.depth_dropped += 1
             stats.depth_stale += int(busy < cfg.depth_in_flight)
+            stats.fell_behind("depth", (
+                f"frame t_ns={frame.t_ns} came while {busy} depth frame(s) were computing"
+                if busy >= cfg.depth_in_flight else
+                f"frame t_ns={frame.t_ns} was stale ({backlog} frames waiting, the oldest "
+                f"{lag_s:.2f} s old)")
+                + "; frames get depth as the worker keeps up, the others are tracked on "
+                "seeds and not fused")
             return None
         self.started_depth = True
         stats.depth_frames += 1
@@ -749,6 +775,10 @@ class _Loop:
         arrival = taken if frame.arrival_s is None else frame.arrival_s
         stats.frames += 1
         stats.wait_s.append(max(0.0, taken - arrival))
+        if taken - arrival > self.cfg.behind_after_s:
+            stats.fell_behind("odometry", (
+                f"frame t_ns={frame.t_ns} waited {taken - arrival:.2f} s for the live loop "
+                f"(odometry, fusion and publishing; {backlog} frames waiting)"))
         stats.backlog_max = max(stats.backlog_max, backlog)
         if self.cfg.depth_pick == "in-order":
             depth = self.start_depth(frame, max(0.0, taken - arrival), backlog)
