@@ -35,6 +35,7 @@ __all__ = [
     "PlaceFeatures",
     "QueryMatcher",
     "Vocabulary",
+    "confirm_loop",
     "pnp_covariance",
     "verify_loop",
 ]
@@ -478,3 +479,53 @@ def _consensus_3d(points_a: F64, points_b: F64, tol_m: F64, hypotheses: int = 30
     moved = np.einsum("hij,nj->hni", R, points_a) + t[:, None, :]
     inliers = (np.linalg.norm(moved - points_b[None], axis=2) < tol_m[None]).sum(axis=1)
     return int(inliers.max())
+
+
+def confirm_loop(
+    loop: LoopCandidate,
+    views: Sequence[tuple[PlaceFeatures | None, F64]],
+    cand: PlaceFeatures,
+    local_map: list[PlaceFeatures],
+    K: F64,
+    graph: Any,
+    *,
+    min_inliers: int,
+    min_spread: float,
+    max_chi2: float,
+) -> tuple[bool, float]:
+    """A loop seen again from other views of the query's (its previous keyframes): each is
+    verified against the same candidate and local map (:func:`verify_loop`), and the loop is
+    confirmed by the first whose relative pose agrees with the loop's, ``T_cand_query @
+    T_query_view`` against it under both loops' covariances (``graph.loops_agree``, a
+    :class:`~sea3d.odometry.posegraph.PoseGraph`): chi-square at most ``max_chi2``.
+
+    Args:
+        loop: the verified loop (from the query).
+        views: per other view, its place (None: none) and ``T_query_view`` (4x4, the odometry
+            between the two).
+        cand: the candidate's place.
+        local_map: the candidate's local map, as the loop was verified against.
+        K: (3, 3) rectified intrinsics.
+        graph: the pose graph (its loop covariances and ``loops_agree``).
+        min_inliers: as for :func:`verify_loop`.
+        min_spread: as for :func:`verify_loop`.
+        max_chi2: the largest squared distance that agrees.
+
+    Returns:
+        ``(confirmed, chi2)``: the chi-square of the confirming view, or the smallest of those
+        that verified (inf when none did).
+    """
+    best = float("inf")
+    for place, T_query_view in views:
+        if place is None:
+            continue
+        other = verify_loop(place, cand, loop.candidate, K, min_inliers=min_inliers,
+                            local_map=local_map, min_spread=min_spread)
+        if other is None:
+            continue
+        chi2 = float(graph.loops_agree(loop.T_cand_query, loop.covariance, T_query_view,
+                                       other.T_cand_query, other.covariance))
+        if chi2 <= max_chi2:
+            return True, chi2
+        best = min(best, chi2)
+    return False, best

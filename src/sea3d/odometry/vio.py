@@ -53,6 +53,7 @@ from sea3d.odometry.loop import (
     PlaceFeatures,
     QueryMatcher,
     Vocabulary,
+    confirm_loop,
     verify_loop,
 )
 from sea3d.odometry.posegraph import PoseGraph
@@ -1293,24 +1294,14 @@ class StereoInertialOdometry:
         seg = self._keyframes[k].segment
         earlier = [o for o in self._kf_order if o != k and self._keyframes[o].segment == seg]
         T_query_world = invert_T(self._keyframes[k].T_world_rect)
-        best = float("inf")
-        for o in reversed(earlier[-c.loop_confirm_keyframes:]):
-            place = self._keyframes[o].place
-            if place is None:
-                continue
-            other = verify_loop(place, cand.place, q, self.geometry.K,
-                                min_inliers=c.loop_min_inliers, local_map=local,
-                                min_spread=c.loop_min_spread)
-            if other is None:
-                continue
-            T_query_prev = T_query_world @ self._keyframes[o].T_world_rect
-            chi2 = self._graph.loops_agree(loop.T_cand_query, loop.covariance, T_query_prev,
-                                           other.T_cand_query, other.covariance)
-            best = min(best, chi2)
-            if chi2 <= c.loop_max_chi2:
-                log.debug("loop: keyframe %d with %d confirmed by keyframe %d (chi-square %.1f)",
-                          k, q, o, chi2)
-                return True
+        views = [(self._keyframes[o].place, T_query_world @ self._keyframes[o].T_world_rect)
+                 for o in reversed(earlier[-c.loop_confirm_keyframes:])]
+        ok, best = confirm_loop(loop, views, cand.place, local, self.geometry.K, self._graph,
+                                min_inliers=c.loop_min_inliers, min_spread=c.loop_min_spread,
+                                max_chi2=c.loop_max_chi2)
+        if ok:
+            log.debug("loop: keyframe %d with %d confirmed (chi-square %.1f)", k, q, best)
+            return True
         self._record_loop(loop, k, "rejected_unconfirmed")
         log.info(
             "loop rejected: keyframe %d with %d (%d inliers) is not confirmed by the %s before "
