@@ -48,11 +48,6 @@ MAX_FUNCTION_LINES = 150
 # Functions allowed to stay long, keyed by (path relative to src/, qualified name), with why.
 _LONG_FUNCTION_EXEMPT: dict[tuple[str, str], str] = {}
 
-# TEMPORARY: long functions in files another helper (``newuser``) was editing while this
-# test was written. The lead splits them after merging that branch and empties this list.
-_PENDING_OTHER_BRANCH: dict[tuple[str, str], str] = {
-}
-
 # Modules that may import the simulator although they are not in sea3d.sim, with why.
 _SIM_IMPORT_ALLOWED: dict[str, str] = {
     "sea3d/pipeline/demo.py": "the demo simulates a dive by design",
@@ -218,7 +213,7 @@ def check_function_length(
     module: Module, exempt: dict[tuple[str, str], str] | None = None
 ) -> list[str]:
     """Violations of ``long-function`` in one module."""
-    exempt = exempt if exempt is not None else {**_LONG_FUNCTION_EXEMPT, **_PENDING_OTHER_BRANCH}
+    exempt = exempt if exempt is not None else _LONG_FUNCTION_EXEMPT
     return [
         f"src/{module.rel_path}:{line}: [long-function] {qual} is {length} lines "
         f"(limit {MAX_FUNCTION_LINES}); split it into named steps"
@@ -303,7 +298,7 @@ def test_length_exemptions_are_still_needed(modules: list[Module]) -> None:
     stale = [
         f"{path}: {qual} is {lengths.get((path, qual), 'no longer')} lines; "
         "drop it from the exemption list"
-        for path, qual in [*_LONG_FUNCTION_EXEMPT, *_PENDING_OTHER_BRANCH]
+        for path, qual in _LONG_FUNCTION_EXEMPT
         if lengths.get((path, qual), 0) <= MAX_FUNCTION_LINES
     ]
     assert not stale, "\n".join(stale)

@@ -96,9 +96,10 @@ def test_a_relink_across_a_lost_stretch_is_not_counted_as_a_loop_closure(sim_sur
 @pytest.mark.data
 @pytest.mark.slow
 def test_a_still_real_camera_makes_few_keyframes(data_dir) -> None:
-    """The real EuRoC micro clip (40 frames, 2 s, the drone still on the ground): round 2's
-    rules made 26 keyframes (its images offer about 100 features, under the 120-feature
-    floor); by parallax and overlap a still camera needs the first and about one more."""
+    """The real EuRoC micro clip (40 frames, 2 s, the drone still on the ground): a keyframe
+    rule by feature count made 26 keyframes (its images offer about 100 features, under the
+    120-feature floor); by parallax and overlap a still camera needs the first and about one
+    more."""
     from sea3d.pipeline.odometry import session_odometry
     from sea3d.stereo.recipe import DepthConfig
 
