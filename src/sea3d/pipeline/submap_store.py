@@ -52,7 +52,8 @@ class DiskSubmapStore:
         self.root = Path(root)
         self.bytes_written = 0
         self.cache_bytes = int(cache_bytes)
-        self._chunks: OrderedDict[tuple[int, int], dict[str, NDArray[Any]]] = OrderedDict()
+        self._chunks: OrderedDict[tuple[int, int], tuple[dict[str, NDArray[Any]], int]] = (
+            OrderedDict())
         self._held = 0
 
     def _chunk(self, submap_id: int, k: int) -> dict[str, NDArray[Any]]:
@@ -61,15 +62,14 @@ class DiskSubmapStore:
         got = self._chunks.get(key)
         if got is not None:
             self._chunks.move_to_end(key)
-            return got
+            return got[0]
         c, _ = self._read(self._chunk_path(submap_id, k), submap_id)
         size = sum(int(np.asarray(v).nbytes) for v in c.values())
         if size <= self.cache_bytes:
-            self._chunks[key] = c
+            self._chunks[key] = (c, size)
             self._held += size
             while self._held > self.cache_bytes:
-                _, old = self._chunks.popitem(last=False)
-                self._held -= sum(int(np.asarray(v).nbytes) for v in old.values())
+                self._held -= self._chunks.popitem(last=False)[1][1]
         return c
 
     def _forget_chunks(self) -> None:
