@@ -63,19 +63,17 @@ class Reconstruction:
     moved: int
 
 
-def finish_reconstruction(stages: OrderedStages, store: Any, tsdf: Any, *,
-                          tile_m: float | None, cloud_voxel_m: float, progress: Any,
-                          timer: StageTimer, min_piece_triangles: int = 0) -> Reconstruction:
+def finish_reconstruction(stages: OrderedStages, store: Any, tsdf: Any,
+                          options: FinishOptions, *, progress: Any,
+                          timer: StageTimer) -> Reconstruction:
     """Final trajectory, merge of the stored submaps at the final keyframe poses, cloud.
 
     Args:
         stages: the ordered stages after the last frame (fusion finished).
         store: the submap store. tsdf: the TSDF configuration of the submaps.
-        tile_m: edge of the merge's tiles. cloud_voxel_m: the cloud's downsampling voxel.
+        options: the merge's tiles, the cloud's voxel, the smallest mesh piece kept.
         progress: a progress bar factory ``(stage, total) -> bar``.
         timer: where ``merge_s`` and ``cloud_s`` are added.
-        min_piece_triangles: mesh pieces of fewer triangles, and the cloud points nearest to
-            them, are dropped (0 keeps all).
     """
     from sea3d.geometry.mesh import drop_small_pieces
     from sea3d.recon.cloud import CloudConfig, clean_point_cloud
@@ -85,11 +83,11 @@ def finish_reconstruction(stages: OrderedStages, store: Any, tsdf: Any, *,
     tm = time.perf_counter()
     bar = progress("merge", len(store.ids()))
     try:
-        merged = merge_submaps(store, stages.final_keyframes_rect(), tsdf, tile_m=tile_m,
+        merged = merge_submaps(store, stages.final_keyframes_rect(), tsdf, tile_m=options.tile_m,
                                progress=bar.update)
     finally:
         bar.close()
-    mesh, kept = drop_small_pieces(merged.mesh, min_piece_triangles)
+    mesh, kept = drop_small_pieces(merged.mesh, options.min_piece_triangles)
     points, colors, normals = merged.points, merged.colors, merged.normals
     if not kept.all() and len(points):
         from scipy.spatial import cKDTree
@@ -99,7 +97,7 @@ def finish_reconstruction(stages: OrderedStages, store: Any, tsdf: Any, *,
         points, colors, normals = points[on], colors[on], normals[on]
     timer.add("merge_s", time.perf_counter() - tm)
     tc = time.perf_counter()
-    cloud = clean_point_cloud(points, colors, normals, CloudConfig(voxel_m=cloud_voxel_m))
+    cloud = clean_point_cloud(points, colors, normals, CloudConfig(voxel_m=options.cloud_voxel_m))
     timer.add("cloud_s", time.perf_counter() - tc)
     return Reconstruction(t_ns=t, T_world_left=T, mesh=mesh, cloud=cloud,
                           submaps=merged.submaps, moved=merged.moved)
@@ -188,9 +186,7 @@ def finish_run(stages: OrderedStages, store: Any, tsdf: Any, out: Path, rig: Any
     """
     from sea3d.io.process_outputs import write_process_outputs
 
-    rec = finish_reconstruction(stages, store, tsdf, tile_m=options.tile_m,
-                                cloud_voxel_m=options.cloud_voxel_m, progress=progress,
-                                timer=timer, min_piece_triangles=options.min_piece_triangles)
+    rec = finish_reconstruction(stages, store, tsdf, options, progress=progress, timer=timer)
     tw = time.perf_counter()
     files = write_process_outputs(out, t_ns=rec.t_ns, T_world_left=rec.T_world_left,
                                   rows=frame_rows(stages), mesh=rec.mesh, cloud=rec.cloud,
