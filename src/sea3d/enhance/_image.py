@@ -18,8 +18,12 @@ from sea3d._typing import F32
 from sea3d.errors import EnhanceError
 
 __all__ = [
+    "DECODE_SRGB_U8",
     "Encoding",
     "as_unit_float",
+    "decode",
+    "encode",
+    "encode_srgb_table_u8",
     "from_unit_float",
     "linear_to_srgb",
     "luminance",
@@ -115,6 +119,48 @@ def from_linear(lin: np.ndarray, encoding: Encoding) -> F32:
     if encoding == "linear":
         return np.clip(np.asarray(lin, dtype=np.float32), 0.0, 1.0)
     return linear_to_srgb(lin)
+
+
+_CODES = np.arange(256) / 255.0
+DECODE_SRGB_U8: F32 = np.where(
+    _CODES <= 0.04045, _CODES / 12.92, ((_CODES + 0.055) / 1.055) ** 2.4
+).astype(np.float32)
+"""Linear value of each 8-bit sRGB code, correctly rounded to float32 (code 255 is exactly 1;
+:func:`srgb_to_linear`, in float32, differs by at most 2e-7)."""
+
+_ENCODE_SRGB_U8: NDArray[np.uint8] | None = None
+
+
+def decode(image: object, encoding: Encoding = "srgb", what: str = "image") -> tuple[F32, np.dtype]:
+    """An image in ``encoding`` as linear float32 and its original dtype (8-bit sRGB by
+    :data:`DECODE_SRGB_U8`).
+
+    Raises:
+        EnhanceError: as :func:`as_unit_float`, or an unknown encoding.
+    """
+    arr = np.asarray(image)
+    if arr.dtype == np.uint8 and encoding == "srgb" and arr.ndim in (2, 3) and arr.size:
+        if arr.ndim == 2 or arr.shape[2] == 3:
+            return DECODE_SRGB_U8[arr], arr.dtype
+    img, dtype = as_unit_float(arr, what)
+    return to_linear(img, encoding), dtype
+
+
+def encode(lin: np.ndarray, dtype: np.dtype, encoding: Encoding = "srgb") -> np.ndarray:
+    """Linear values back to ``encoding`` in ``dtype`` (clipped to ``[0, 1]``; integers
+    rounded)."""
+    return from_unit_float(from_linear(lin, encoding), dtype)
+
+
+def encode_srgb_table_u8() -> NDArray[np.uint8]:
+    """8-bit sRGB code of each of 65536 linear steps over ``[0, 1]`` (entry ``k``: linear
+    ``k / 65535``, the curve in float64), for per-pixel kernels."""
+    global _ENCODE_SRGB_U8
+    if _ENCODE_SRGB_U8 is None:
+        x = np.linspace(0.0, 1.0, 65536)
+        s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
+        _ENCODE_SRGB_U8 = (s * 255.0 + 0.5).astype(np.uint8)
+    return _ENCODE_SRGB_U8
 
 
 def luminance(lin_rgb: np.ndarray) -> F32:

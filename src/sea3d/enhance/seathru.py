@@ -66,11 +66,20 @@ from scipy.optimize import OptimizeResult, least_squares
 from scipy.sparse.linalg import splu
 
 from sea3d._typing import F32, F64, BoolArray
+from sea3d.enhance._formation import (
+    area_down,
+    backscatter_envelope,
+    fill_range,
+    harmonic_fill,
+    require_range_grid,
+    white_point_exposure,
+    work_size,
+)
 from sea3d.enhance._image import (
     Encoding,
     as_unit_float,
+    encode,
     from_linear,
-    from_unit_float,
     luminance,
     require_rgb,
     saturated_mask,
@@ -352,13 +361,7 @@ def _inputs(image: object, range_m: object, config: SeathruConfig, what: str) ->
     img, dtype = as_unit_float(image, what)
     require_rgb(img, "Sea-thru", what)
     z = np.asarray(range_m, dtype=np.float32)
-    if z.ndim != 2:
-        raise EnhanceError(f"range map must be (H, W), got shape {z.shape}")
-    if z.shape != img.shape[:2]:
-        raise EnhanceError(
-            f"range map is {z.shape[1]}x{z.shape[0]} but {what} is "
-            f"{img.shape[1]}x{img.shape[0]}; it must be in the image's pixel grid"
-        )
+    require_range_grid(z, img.shape, what)
     with np.errstate(invalid="ignore"):
         valid = np.isfinite(z) & (z > 0)
     z = np.where(valid, z, np.float32(np.nan)).astype(np.float32)
@@ -419,27 +422,12 @@ def _fit_backscatter(
         zk = np.array([np.median(b) for b in zs])
         qk = np.array([np.mean(b, axis=0) for b in vals])
         for c in range(3):
-            params.append(_fit_backscatter_envelope(zk, qk[:, c]))
+            b_inf, beta_b = backscatter_envelope(zk, qk[:, c], b_inf_max=1.0, steps=300)
+            params.append((b_inf, beta_b, 0.0, 0.0))
         return tuple(params)
     for c in range(3):
         params.append(_fit_backscatter_channel(z, v[:, c], wt, notes, c))
     return tuple(params)
-
-
-def _fit_backscatter_envelope(zk: F64, qk: F64) -> tuple[float, float, float, float]:
-    """The largest saturating curve ``B_inf (1 - exp(-beta_B z))`` that stays at or below the
-    dark level ``qk`` of every range bin (backscatter cannot exceed the darkest pixels):
-    for each ``beta_B`` on a log grid the highest feasible ``B_inf`` is
-    ``min_k qk / (1 - exp(-beta_B zk))``; the ``beta_B`` whose curve lies highest over the
-    bins (largest sum) wins."""
-    best = (0.0, 0.0, 1.0)
-    for beta_b in np.geomspace(0.01, 5.0, 300):
-        f = 1.0 - np.exp(-beta_b * zk)
-        b_inf = float(np.clip(np.min(qk / np.maximum(f, 1e-9)), 0.0, 1.0))
-        obj = float(np.sum(b_inf * f))
-        if obj > best[0]:
-            best = (obj, b_inf, float(beta_b))
-    return (best[1], best[2], 0.0, 0.0)
 
 
 def _fit_backscatter_channel(
@@ -468,24 +456,6 @@ def _fit_backscatter_channel(
 
 
 # ------------------------------------------------------------------------------ stage 2
-
-
-def _work_size(h: int, w: int, max_side: int) -> tuple[int, int]:
-    s = min(1.0, max_side / max(h, w))
-    return max(2, round(w * s)), max(2, round(h * s))
-
-
-def _down(values: np.ndarray, valid: BoolArray, size: tuple[int, int]) -> tuple[F32, BoolArray]:
-    """Area-average ``values`` over valid pixels only; a working pixel is valid when at least
-    half its area is."""
-    wv = valid.astype(np.float32)
-    vals = np.where(valid[..., None] if values.ndim == 3 else valid, values, 0).astype(np.float32)
-    num = cv2.resize(vals, size, interpolation=cv2.INTER_AREA)
-    den = cv2.resize(wv, size, interpolation=cv2.INTER_AREA)
-    ok = den >= 0.5
-    with np.errstate(invalid="ignore", divide="ignore"):
-        out = num / (den[..., None] if num.ndim == 3 else den)
-    return out.astype(np.float32), ok
 
 
 def local_space_average(
@@ -540,9 +510,9 @@ def _illuminant(
     d_lin: F32, inp: _Inputs, config: SeathruConfig
 ) -> tuple[F32, F32, BoolArray, tuple[int, int]]:
     h, w = inp.valid.shape
-    size = _work_size(h, w, config.work_max_side_px)
-    d_work, ok_d = _down(d_lin, inp.usable, size)
-    z_work, ok_z = _down(inp.z, inp.usable, size)
+    size = work_size(h, w, config.work_max_side_px)
+    d_work, ok_d = area_down(d_lin, inp.usable, size, min_cover=0.5)
+    z_work, ok_z = area_down(inp.z, inp.usable, size, min_cover=0.5)
     ok = ok_d & ok_z
     if ok.sum() < _MIN_POINTS:
         raise EnhanceError("too few pixels with range at the working resolution to fit")
@@ -638,61 +608,9 @@ def _best_fit(resid: Callable[[F64], F64], starts: Sequence[Sequence[float]],
 # ------------------------------------------------------------------------------ holes
 
 
-def harmonic_fill(values: np.ndarray, valid: BoolArray) -> F32:
-    """Fill the invalid pixels of a 2-D map by harmonic (membrane) interpolation of the valid
-    ones: each filled pixel is the mean of its in-image 4-neighbours, solved as one sparse
-    system. Linear ramps are filled exactly.
-
-    Raises:
-        EnhanceError: no valid pixel at all.
-    """
-    v = np.asarray(values, dtype=np.float64)
-    ok = np.asarray(valid, dtype=bool)
-    if not ok.any():
-        raise EnhanceError("nothing to fill from: no valid pixel")
-    out = np.where(ok, v, 0.0)
-    holes = ~ok
-    n = int(holes.sum())
-    if n == 0:
-        return out.astype(np.float32)
-    h, w = v.shape
-    idx = np.full((h, w), -1, dtype=np.int64)
-    idx[holes] = np.arange(n)
-    hy, hx = np.nonzero(holes)
-    deg = np.zeros(n)
-    rhs = np.zeros(n)
-    rows, cols = [], []
-    for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
-        ny, nx = hy + dy, hx + dx
-        inside = (ny >= 0) & (ny < h) & (nx >= 0) & (nx < w)
-        i = np.flatnonzero(inside)
-        deg[i] += 1.0
-        j = idx[ny[inside], nx[inside]]
-        unknown = j >= 0
-        rows.append(i[unknown])
-        cols.append(j[unknown])
-        known = i[~unknown]
-        np.add.at(rhs, known, out[ny[inside][~unknown], nx[inside][~unknown]])
-    r = np.concatenate([np.arange(n), *rows])
-    c = np.concatenate([np.arange(n), *cols])
-    d = np.concatenate([deg + 1e-9, -np.ones(sum(len(x) for x in rows))])
-    # The tiny diagonal term keeps a hole with no valid neighbour anywhere (impossible when
-    # each hole component touches a valid pixel) from making the system singular.
-    a_mat = sp.csr_matrix((d, (r, c)), shape=(n, n)).tocsc()
-    out[holes] = splu(a_mat).solve(rhs + 1e-9 * float(v[ok].mean()))
-    return out.astype(np.float32)
-
-
 def _fill_range(inp: _Inputs, config: SeathruConfig) -> F32:
-    """Range with holes filled by :func:`harmonic_fill` at the working resolution."""
-    if inp.valid.all():
-        return inp.z
-    h, w = inp.valid.shape
-    size = _work_size(h, w, config.work_max_side_px)
-    z_small, ok = _down(inp.z, inp.valid, size)
-    filled = harmonic_fill(np.where(ok, z_small, 0.0), ok)
-    up = cv2.resize(filled, (w, h), interpolation=cv2.INTER_LINEAR)
-    return np.where(inp.valid, inp.z, up).astype(np.float32)
+    """Range with holes filled at the working resolution."""
+    return fill_range(inp.z, inp.valid, config.work_max_side_px, min_cover=0.5)
 
 
 # ------------------------------------------------------------------------------ public
@@ -751,9 +669,7 @@ def _fit(
         gains = channel_gains([j], p=1.0, masks=[inp.usable], max_gain=config.max_restore_gain)
     exposure = 1.0
     if config.exposure == "white-point":
-        top = np.max(j[inp.usable] * gains, axis=1)
-        wp = float(np.percentile(top, config.white_point_percentile)) if top.size else 0.0
-        exposure = float(np.clip(1.0 / wp, 1.0 / 50.0, 50.0)) if wp > 1e-6 else 1.0
+        exposure = white_point_exposure(j[inp.usable], gains, config.white_point_percentile)
     model = SeathruModel(
         backscatter=bs, attenuation=att, attenuation_kind=kind, range_fit_m=z_span,
         wb_gains=(float(gains[0]), float(gains[1]), float(gains[2])), exposure_gain=exposure,
@@ -888,7 +804,7 @@ def _apply(inp: _Inputs, model: SeathruModel, config: SeathruConfig) -> SeathruR
         _log.warning("sea-thru: restoration came out empty; fell back to grey world")
         gains = channel_gains([inp.lin], p=1.0, masks=[inp.usable]).astype(np.float32)
         out_lin = inp.lin * gains
-    out = from_unit_float(from_linear(out_lin, config.encoding), inp.dtype)
+    out = encode(out_lin, inp.dtype, config.encoding)
     return SeathruResult(
         image=out, model=model, restored=where, range_filled=filled, status=status,
         notes=tuple(notes),

@@ -65,7 +65,22 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from sea3d._typing import F64
-from sea3d.enhance._image import as_unit_float, from_unit_float, require_rgb, saturated_mask
+from sea3d.enhance._formation import (
+    backscatter_envelope,
+    fill_range,
+    require_range_grid,
+    white_point_exposure,
+)
+from sea3d.enhance._image import (
+    DECODE_SRGB_U8,
+    as_unit_float,
+    decode,
+    encode,
+    encode_srgb_table_u8,
+    require_rgb,
+    saturated_mask,
+)
+from sea3d.enhance.colour import channel_gains
 from sea3d.errors import EnhanceError
 
 __all__ = [
@@ -225,34 +240,9 @@ class RestoreResult:
     notes: tuple[str, ...] = ()
 
 
-# ------------------------------------------------------------------------------ LUTs
-
-_DECODE_U8: F32 = np.where(
-    (np.arange(256) / 255.0) <= 0.04045,
-    (np.arange(256) / 255.0) / 12.92,
-    (((np.arange(256) / 255.0) + 0.055) / 1.055) ** 2.4,
-).astype(np.float32)
-_ENC_N = 4096
-# Encode through a table indexed by sqrt(linear): fine steps where sRGB is steep (dark).
-_ENCODE_SQRT: F32 = np.where(
-    np.linspace(0, 1, _ENC_N) ** 2 <= 0.0031308,
-    12.92 * np.linspace(0, 1, _ENC_N) ** 2,
-    1.055 * np.linspace(0, 1, _ENC_N) ** (2 / 2.4) - 0.055,
-).astype(np.float32)
-
+# ------------------------------------------------------------------------------ tables
 
 _Z_STEP_M = 0.005  # range table step: a gain error below 0.5 % at beta_D = 1 1/m
-_ENCODE_U8_16: NDArray[np.uint8] | None = None
-
-
-def _encode_table() -> NDArray[np.uint8]:
-    """Linear (65536 steps over [0, 1]) -> 8-bit sRGB."""
-    global _ENCODE_U8_16
-    if _ENCODE_U8_16 is None:
-        x = np.linspace(0.0, 1.0, 65536)
-        s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
-        _ENCODE_U8_16 = (s * 255.0 + 0.5).astype(np.uint8)
-    return _ENCODE_U8_16
 
 
 def _range_tables(
@@ -271,27 +261,6 @@ def _range_tables(
     return (g * sc).astype(np.float32), (b * g * sc).astype(np.float32)
 
 
-def _decode(image: np.ndarray) -> tuple[F32, np.dtype]:
-    """sRGB image -> linear float32 (a table for uint8)."""
-    arr = np.asarray(image)
-    if arr.dtype == np.uint8:
-        return _DECODE_U8[arr], arr.dtype
-    img, dtype = as_unit_float(arr, "image")
-    x = np.clip(img, 0.0, 1.0)
-    lin = np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
-    return lin.astype(np.float32), dtype
-
-
-def _encode(lin: F32, dtype: np.dtype) -> np.ndarray:
-    """Linear float32 -> sRGB in ``dtype`` (a table over sqrt(linear), 4096 steps)."""
-    s = np.sqrt(np.clip(lin, 0.0, 1.0))
-    idx = (s * np.float32(_ENC_N - 1) + np.float32(0.5)).astype(np.int32)
-    enc = _ENCODE_SQRT[idx]
-    if dtype == np.uint8:
-        return (enc * np.float32(255.0) + np.float32(0.5)).astype(np.uint8)
-    return from_unit_float(enc, dtype)
-
-
 # ------------------------------------------------------------------------------ fitting
 
 
@@ -303,13 +272,8 @@ def _frame_samples(
     if arr.ndim != 3 or arr.shape[2] != 3:
         require_rgb(arr[..., 0] if arr.ndim == 3 else arr, "a water model", f"frame {k}")
     z = np.asarray(range_m, dtype=np.float32)
-    if z.shape != arr.shape[:2]:
-        raise EnhanceError(
-            f"frame {k}: range map is {z.shape[1] if z.ndim == 2 else z.shape}x"
-            f"{z.shape[0]} but the image is {arr.shape[1]}x{arr.shape[0]}; it must be in the "
-            "image's pixel grid"
-        )
-    lin, _ = _decode(arr)
+    require_range_grid(z, arr.shape, f"the image of frame {k}")
+    lin, _ = decode(arr)
     img01, _ = as_unit_float(arr, "image")
     with np.errstate(invalid="ignore"):
         ok = np.isfinite(z) & (z > 0) & ~saturated_mask(img01, config.saturation_level)
@@ -326,18 +290,6 @@ def _frame_samples(
     if idx.size > _SAMPLES_PER_FRAME:
         idx = rng.choice(idx, _SAMPLES_PER_FRAME, replace=False)
     return z.ravel()[idx].astype(np.float64), lin.reshape(-1, 3)[idx].astype(np.float64)
-
-
-def _envelope(zk: F64, qk: F64) -> tuple[float, float]:
-    """Highest ``B_inf (1 - exp(-beta_B z))`` at or below every bin's dark level ``qk``."""
-    best = (-1.0, 0.0, LIMITS["beta_B_per_m"][0])
-    for beta_b in np.geomspace(LIMITS["beta_B_per_m"][0], LIMITS["beta_B_per_m"][1], 200):
-        f = 1.0 - np.exp(-beta_b * zk)
-        b_inf = float(np.clip(np.min(qk / np.maximum(f, 1e-9)), 0.0, LIMITS["B_inf"][1]))
-        obj = float(np.sum(b_inf * f))
-        if obj > best[0]:
-            best = (obj, b_inf, float(beta_b))
-    return best[1], best[2]
 
 
 _QUANTILES = (5.0, 15.0, 30.0, 50.0, 70.0, 85.0, 95.0)
@@ -605,7 +557,8 @@ def fit_water_model(
         # Fall back to the dark-pixel envelope for backscatter alone (an upper bound).
         beta_d[:] = 0.0
         for c in range(3):
-            b_inf[c], beta_b[c] = _envelope(zk_a, dark_a[:, c])
+            b_inf[c], beta_b[c] = backscatter_envelope(
+                zk_a, dark_a[:, c], b_inf_max=LIMITS["B_inf"][1], steps=200)
         lo, hi = LIMITS["B_inf"]
         if not np.all((b_inf >= lo) & (b_inf <= hi)):
             checks.append(f"B_inf = {np.round(b_inf, 3).tolist()} outside [{lo}, {hi}]")
@@ -626,14 +579,12 @@ def fit_water_model(
     if wb == "locus" and not model.has_attenuation:
         wb = "grey-world"
     if wb == "grey-world":
-        gains = _grey_world_gains(j, config.max_gain)
+        gains = channel_gains([j], p=1.0, max_gain=config.max_gain)
     elif wb == "locus":
         gains = _locus_gains(j, beta_d, config.max_gain)
     else:
         gains = np.ones(3)
-    top = np.max(j * gains, axis=1)
-    wp = float(np.percentile(top, config.white_point_percentile)) if top.size else 0.0
-    exposure = float(np.clip(1.0 / wp, 1.0 / 50.0, 50.0)) if wp > 1e-6 else 1.0
+    exposure = white_point_exposure(j, gains, config.white_point_percentile)
     for check in checks:
         _log.info("water model: %s", check)
     return WaterModel(
@@ -663,19 +614,6 @@ def _locus_gains(j: F32 | F64, beta_d: F64, max_gain: float) -> F64:
     return np.asarray(g / np.exp(np.mean(np.log(g))))
 
 
-def _grey_world_gains(j: F32 | F64, max_gain: float) -> F64:
-    norms = np.mean(np.asarray(j, dtype=np.float64), axis=0) if len(j) else np.ones(3)
-    if not np.all(norms > 1e-5):
-        # An empty channel (no signal left) cannot be balanced: leave it, say so.
-        _log.info("water model: a channel is empty after restoration; its gain stays 1")
-        out = np.ones(3)
-        full = norms > 1e-5
-        if full.any():
-            out[full] = np.mean(norms[full]) / norms[full]
-        return np.clip(out, 1.0 / max_gain, max_gain)
-    return np.clip(np.mean(norms) / norms, 1.0 / max_gain, max_gain)
-
-
 # ------------------------------------------------------------------------------ restore
 
 
@@ -692,22 +630,6 @@ def _invert(lin: F32, z: F32, model: WaterModel, max_gain: float) -> F32:
         beta_d = np.asarray(model.beta_D_per_m, np.float32)
         out = out * np.exp(np.minimum(beta_d * zz, np.float32(np.log(max_gain))))
     return np.asarray(out, dtype=np.float32)
-
-
-def _fill_holes(z: F32, valid: NDArray[np.bool_], max_side: int) -> F32:
-    """Range with holes filled from their surroundings at a working resolution."""
-    from sea3d.enhance.seathru import harmonic_fill
-
-    h, w = z.shape
-    s = min(1.0, max_side / max(h, w))
-    size = (max(2, round(w * s)), max(2, round(h * s)))
-    num = cv2.resize(np.where(valid, z, 0).astype(np.float32), size, interpolation=cv2.INTER_AREA)
-    den = cv2.resize(valid.astype(np.float32), size, interpolation=cv2.INTER_AREA)
-    ok = den >= 0.25
-    small = np.where(ok, num / np.maximum(den, 1e-6), 0).astype(np.float32)
-    filled = harmonic_fill(small, ok)
-    up = cv2.resize(filled, (w, h), interpolation=cv2.INTER_LINEAR)
-    return np.where(valid, z, up).astype(np.float32)
 
 
 def restore(
@@ -738,12 +660,8 @@ def restore(
     if arr.ndim != 3 or arr.shape[2] != 3:
         require_rgb(arr[..., 0] if arr.ndim == 3 else arr, "restore", "image")
     z = np.asarray(range_m, dtype=np.float32)
-    if z.shape != arr.shape[:2]:
-        raise EnhanceError(
-            f"range map is {z.shape[1] if z.ndim == 2 else z.shape}x{z.shape[0]} but the image "
-            f"is {arr.shape[1]}x{arr.shape[0]}; it must be in the image's pixel grid"
-        )
-    lin, dtype = _decode(arr)
+    require_range_grid(z, arr.shape, "the image")
+    lin, dtype = decode(arr)
     with np.errstate(invalid="ignore"):
         valid = np.isfinite(z) & (z > 0)
     notes: list[str] = list(water_model.checks)
@@ -754,7 +672,7 @@ def restore(
         notes.append(f"range valid on {100 * frac:.1f} % of the pixels: white balance only")
         return _checked(lin, lin * scale, dtype, "no-range", notes, scale)
     if config.holes == "inpaint" and not valid.all():
-        z_use = _fill_holes(z, valid, config.work_max_side_px)
+        z_use = fill_range(z, valid, config.work_max_side_px, min_cover=0.25)
         far = cv2.distanceTransform((~valid).astype(np.uint8), cv2.DIST_L2, 3)
         where = far <= config.max_fill_fraction * max(valid.shape)
         z_use = np.where(where, z_use, np.float32(0))
@@ -767,8 +685,8 @@ def restore(
         z_k = np.where(where, z_use, np.float32(np.nan)).astype(np.float32)
         z_max = float(np.nanmax(z_k)) if where.any() else 1.0
         gain_t, off_t = _range_tables(water_model, scale, z_max, config.max_gain)
-        out = invert_u8(np.ascontiguousarray(arr), z_k, _DECODE_U8, gain_t, off_t,
-                        _Z_STEP_M, _encode_table(), scale.astype(np.float32))
+        out = invert_u8(np.ascontiguousarray(arr), z_k, DECODE_SRGB_U8, gain_t, off_t,
+                        _Z_STEP_M, encode_srgb_table_u8(), scale.astype(np.float32))
         return _checked_u8(lin, out, status, notes, scale)
     j = _invert(lin, z_use, water_model, config.max_gain)
     if not where.all():
@@ -781,10 +699,10 @@ def _checked_u8(
 ) -> RestoreResult:
     """:func:`_checked` for an 8-bit result, on a subsample (every 4th row and column)."""
     sub_in = lin[::4, ::4]
-    sub_out = _DECODE_U8[out[::4, ::4]]
+    sub_out = DECODE_SRGB_U8[out[::4, ::4]]
     res = _checked(sub_in, sub_out, np.dtype(np.float32), status, notes, scale)
     if res.status != status:
-        return _checked(lin, _DECODE_U8[out], np.dtype(np.uint8), status, notes[:-1], scale)
+        return _checked(lin, DECODE_SRGB_U8[out], np.dtype(np.uint8), status, notes[:-1], scale)
     return RestoreResult(image=out, status=status, notes=res.notes)
 
 
@@ -800,13 +718,13 @@ def _checked(
     clipped = float(np.mean(~finite | (np.max(out_lin, axis=2) >= 1.0))) - clipped_in
     if clipped_in > 0.5:
         notes.append(f"{100 * clipped_in:.0f} % of the input is clipped: nothing to restore")
-        return RestoreResult(image=_encode(lin, dtype), status="refused-saturated-input",
+        return RestoreResult(image=encode(lin, dtype), status="refused-saturated-input",
                              notes=tuple(notes))
     if black > 0.5 or clipped > 0.5 or not finite.all():
         why = "black" if black > 0.5 else ("saturated" if clipped > 0.5 else "not finite")
         notes.append(f"restoration came out {why}; gave the white-balanced input instead")
         _log.warning("water restore: result %s; refused", why)
         fallback = lin * (scale / max(float(np.max(lin * scale)), 1.0))
-        return RestoreResult(image=_encode(fallback, dtype), status=f"refused-{why}",
+        return RestoreResult(image=encode(fallback, dtype), status=f"refused-{why}",
                              notes=tuple(notes))
-    return RestoreResult(image=_encode(out_lin, dtype), status=status, notes=tuple(notes))
+    return RestoreResult(image=encode(out_lin, dtype), status=status, notes=tuple(notes))
