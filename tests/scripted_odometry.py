@@ -12,11 +12,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from sea3d.odometry.types import FrameObservation, OdometryEstimate, TrackingStatus
+from sea3d.odometry.types import FrameObservation, LoopChecks, OdometryEstimate, TrackingStatus
 
 
 class ScriptedOdometry:
     name = "scripted test odometry"
+    loop_closures = 0  # the pipeline counts the closures it is told of
+    relinks = 0
+    imu_disabled_reason = None
 
     def __init__(self, t_ns, T_world_left, *, keyframe_every=3, lost=(), drift_from=None,
                  loop_at=None, drift=None, forget_loop=False):
@@ -32,6 +35,11 @@ class ScriptedOdometry:
         self.closed = False
         self.frames: list[int] = []
         self.anchor: int | None = None
+        self.loop_checks = LoopChecks(enabled=False)
+
+    @property
+    def keyframe_count(self):
+        return len(self.kf_est)
 
     def step(self, frame: FrameObservation) -> OdometryEstimate:
         self.k += 1

@@ -7,9 +7,12 @@ import dataclasses
 import functools
 import inspect
 import re
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sea3d._text import plural
+
+if TYPE_CHECKING:
+    from sea3d.odometry.config import OdometryConfig
 
 __all__ = ["add_depth_range", "add_output", "check_output_suffix", "config_default",
            "config_option", "deprecated", "depth_config", "field_help", "image_size",
@@ -153,7 +156,7 @@ def add_loop_closure_flag(parser: Any) -> None:
                         "re-optimised)")
 
 
-def odometry_config(args: argparse.Namespace) -> Any:
+def odometry_config(args: argparse.Namespace) -> OdometryConfig | None:
     """The :class:`~sea3d.odometry.OdometryConfig` of a command's odometry flags
     (``--no-loop-closure``); None, the defaults, when none is given."""
     if not args.no_loop_closure:

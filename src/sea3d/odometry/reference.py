@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from sea3d._typing import F64
 from sea3d.errors import OdometryError
-from sea3d.odometry.types import FrameObservation, OdometryEstimate, TrackingStatus
+from sea3d.odometry.types import FrameObservation, LoopChecks, OdometryEstimate, TrackingStatus
 
 __all__ = ["KnownPoses", "KnownPosesConfig"]
 
@@ -59,6 +59,10 @@ class KnownPoses:
     """
 
     name = "known poses"
+    loop_closures = 0
+    relinks = 0
+    imu_disabled_reason: str | None = None
+    """None: known poses take no measurements, so no IMU is left out."""
 
     def __init__(self, t_ns: NDArray[np.integer], T_world_left: F64,
                  config: KnownPosesConfig | None = None) -> None:
@@ -80,6 +84,12 @@ class KnownPoses:
         self._segment = -1
         self._lost = True
         self._anchor: int | None = None
+        self.loop_checks = LoopChecks(enabled=False)
+
+    @property
+    def keyframe_count(self) -> int:
+        """Keyframes taken so far."""
+        return len(self._kf)
 
     def _lookup(self, t: int) -> tuple[F64, bool]:
         j = int(np.searchsorted(self._t, t))

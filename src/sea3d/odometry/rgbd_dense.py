@@ -40,7 +40,7 @@ from numpy.typing import NDArray
 
 from sea3d._typing import F64
 from sea3d.errors import OdometryError
-from sea3d.odometry.types import FrameObservation, OdometryEstimate, TrackingStatus
+from sea3d.odometry.types import FrameObservation, LoopChecks, OdometryEstimate, TrackingStatus
 
 __all__ = ["DenseRgbdConfig", "DenseRgbdOdometry"]
 
@@ -180,6 +180,8 @@ class DenseRgbdOdometry:
         self.imu_disabled_reason: str | None = "RGB-D mode"
         self.keyframe_count = 0
         self.loop_closures = 0
+        self.relinks = 0  # segments are never re-linked
+        self.loop_checks = LoopChecks(enabled=False)  # loops are counted in loop_closures only
         self._kf: _Keyframe | None = None
         self._kf_poses: dict[int, F64] = {}
         self._prev_image: object | None = None

@@ -211,7 +211,43 @@ class OdometryEstimate:
 
 
 class Odometry(Protocol):
-    """An ordered stage: one state, fed in time order."""
+    """An ordered stage: one state, fed in time order.
+
+    Besides the three methods, an odometry keeps the counters a run's summary reports (read
+    after the run, or at any time for a live status).
+    """
+
+    @property
+    def name(self) -> str:
+        """What it is, for the run's summary (``known poses``, ``dense RGB-D`` ...)."""
+        ...
+
+    @property
+    def keyframe_count(self) -> int:
+        """Keyframes made so far."""
+        ...
+
+    @property
+    def loop_closures(self) -> int:
+        """Loops closed so far (re-links not counted)."""
+        ...
+
+    @property
+    def relinks(self) -> int:
+        """Segments re-linked to a neighbouring keyframe across a lost stretch so far."""
+        ...
+
+    @property
+    def loop_checks(self) -> LoopChecks:
+        """What became of the loop candidates (``enabled=False`` for an odometry that keeps
+        no such counters)."""
+        ...
+
+    @property
+    def imu_disabled_reason(self) -> str | None:
+        """Why the IMU is not used, or None when it is (or when the odometry takes no
+        measurements at all, as known poses)."""
+        ...
 
     def step(self, frame: FrameObservation) -> OdometryEstimate:
         """Process the next frame (stamps strictly increasing) and return its estimate.

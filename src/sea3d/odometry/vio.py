@@ -124,6 +124,8 @@ class StereoInertialOdometry:
         use_right: match features into the right image (False: RGB-D, depth only).
     """
 
+    name = "sea3d stereo odometry"
+
     def __init__(
         self,
         geometry: RectifiedStereo,

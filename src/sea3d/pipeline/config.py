@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any, Literal
 from sea3d.errors import ConfigError
 
 if TYPE_CHECKING:
+    from sea3d.odometry.config import OdometryConfig
     from sea3d.pipeline.colour_stage import DiveColourConfig
     from sea3d.recon.submaps import FusionConfig
 
@@ -113,8 +114,18 @@ class PoseConfig:
     """Give the IMU to the odometry (``--no-imu``: visual only)."""
     poses_path: Path | None = None
     """Known poses (TUM, KITTI or EuRoC CSV of ``T_world_left``) instead of odometry."""
-    odometry_config: Any = None
-    """Passed to ``create_odometry``."""
+    odometry_config: OdometryConfig | None = None
+    """Passed to ``create_odometry`` (None: its defaults)."""
+
+    @property
+    def imu_max_clock_offset_s(self) -> float:
+        """The odometry's tolerance of an IMU clock against the camera's, seconds (the IMU
+        decision checks the stamps with it before any odometry is made)."""
+        if self.odometry_config is not None:
+            return self.odometry_config.imu_max_clock_offset_s
+        from sea3d.odometry.config import OdometryConfig  # the odometry loads when it runs
+
+        return OdometryConfig().imu_max_clock_offset_s
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -1110,7 +1110,7 @@ def run_live_cameras(recorder: Any, config: Any, live: LiveConfig | None = None,
     frames = RecorderFrames(
         recorder, pair_tolerance_ns=pair_tolerance_ns,
         imu_time_offset_s=rig.imu.time_offset_s if rig.imu is not None else 0.0,
-        imu_tolerance_s=getattr(config.poses.odometry_config, "imu_max_clock_offset_s", 1.0),
+        imu_tolerance_s=config.poses.imu_max_clock_offset_s,
         image_size=(rig.width, rig.height))
     result: dict[str, Any] = {}
 

@@ -36,9 +36,10 @@ import shutil
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -47,6 +48,11 @@ from sea3d._typing import F64
 from sea3d.errors import ConfigError
 from sea3d.geometry.mesh import Mesh
 from sea3d.pipeline.ordered import TRUSTED
+
+if TYPE_CHECKING:
+    from sea3d.recon.submaps import SubmapStore
+    from sea3d.recon.tsdf import TsdfConfig
+    from sea3d.recon.types import Submap, VoxelBlocks
 
 __all__ = ["FeedConfig", "LiveFeed"]
 
@@ -109,23 +115,28 @@ class _Finished:
 
 
 class _MeshingStore:
-    """A submap store that also hands each finished submap to the feed."""
+    """A :class:`~sea3d.recon.submaps.SubmapStore` that also hands each finished submap to
+    the feed; every read goes to the store it wraps."""
 
-    def __init__(self, inner: Any, feed: LiveFeed, tsdf: Any) -> None:
+    def __init__(self, inner: SubmapStore, feed: LiveFeed, tsdf: TsdfConfig) -> None:
         self.inner, self.feed, self.tsdf = inner, feed, tsdf
 
-    def put(self, submap: Any) -> None:
+    def put(self, submap: Submap) -> None:
         self.inner.put(submap)
         self.feed._submap_finished(submap, self.tsdf)
 
-    def get(self, submap_id: int) -> Any:
+    def get(self, submap_id: int) -> Submap:
         return self.inner.get(submap_id)
 
     def ids(self) -> list[int]:
         return list(self.inner.ids())
 
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.inner, name)
+    def head(self, submap_id: int) -> tuple[Submap, NDArray[np.int32]]:
+        return self.inner.head(submap_id)
+
+    def blocks_of(self, submap_id: int,
+                  select: Callable[[NDArray[np.int32]], NDArray[np.bool_]]) -> VoxelBlocks:
+        return self.inner.blocks_of(submap_id, select)
 
 
 class _Frame:
@@ -186,12 +197,12 @@ class LiveFeed:
         self._thread.start()
 
     # -- wiring ----------------------------------------------------------------------------
-    def wrap_store(self, store: Any, tsdf: Any) -> Any:
+    def wrap_store(self, store: SubmapStore, tsdf: TsdfConfig) -> SubmapStore:
         """The store to give the ordered stages: ``store``, and each finished submap meshed
         once for the live view (``tsdf``: the submaps' TSDF configuration)."""
         return _MeshingStore(store, self, tsdf)
 
-    def _submap_finished(self, submap: Any, tsdf: Any) -> None:
+    def _submap_finished(self, submap: Submap, tsdf: TsdfConfig) -> None:
         from sea3d.io.mesh_files import write_compact_mesh
         from sea3d.recon.tsdf import TsdfVolume
 

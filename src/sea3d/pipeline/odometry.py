@@ -31,8 +31,7 @@ from sea3d.geometry.rig import ImuSpec, StereoRig
 from sea3d.odometry.config import OdometryConfig
 from sea3d.odometry.observe import Observer, imu_chunks
 from sea3d.odometry.rgbd_dense import DenseRgbdConfig
-from sea3d.odometry.types import FrameObservation, ImuChunk, LoopChecks, TrackingStatus
-from sea3d.odometry.vio import StereoInertialOdometry
+from sea3d.odometry.types import FrameObservation, ImuChunk, Odometry, TrackingStatus
 from sea3d.pipeline.ordered import trusted_path_length_m
 from sea3d.stereo.recipe import DepthConfig
 
@@ -271,7 +270,7 @@ class OdometryRun:
 
 def run_odometry(
     frames: Iterator[FrameObservation],
-    odometry: Any,
+    odometry: Odometry,
     *,
     progress: Callable[[int], None] | None = None,
     notes: list[str] | None = None,
@@ -295,20 +294,19 @@ def run_odometry(
     n = len(statuses)
     summary: dict[str, Any] = {
         "frames": n,
-        "keyframes": int(getattr(odometry, "keyframe_count", 0)),
+        "keyframes": int(odometry.keyframe_count),
         "frames_lost": int(counts.get(TrackingStatus.LOST.value, 0)),
-        "loop_closures": int(getattr(odometry, "loop_closures", 0)),
-        "relinks": int(getattr(odometry, "relinks", 0)),
-        "loop_checks": (odometry.loop_checks if isinstance(odometry, StereoInertialOdometry)
-                        else LoopChecks(enabled=False)).as_dict(),
+        "loop_closures": int(odometry.loop_closures),
+        "relinks": int(odometry.relinks),
+        "loop_checks": odometry.loop_checks.as_dict(),
         "path_length_m": trusted_path_length_m(T, statuses, segments),
         "seconds": time.perf_counter() - t0,
         "seconds_odometry": seconds_odo,
         "ms_per_frame_odometry": 1e3 * seconds_odo / max(n, 1),
         "statuses": {s.value: int(counts.get(s.value, 0)) for s in TrackingStatus},
         "segments": len(set(segments)) if segments else 0,
-        "imu": getattr(odometry, "imu_disabled_reason", None) is None,
-        "imu_note": getattr(odometry, "imu_disabled_reason", None),
+        "imu": odometry.imu_disabled_reason is None,
+        "imu_note": odometry.imu_disabled_reason,
         "notes": list(notes or []),
     }
     if seconds_depth is not None:

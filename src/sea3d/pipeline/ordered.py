@@ -102,13 +102,9 @@ class OrderedStages:
 
     @property
     def loop_checks(self) -> LoopChecks:
-        """What became of the odometry's loop candidates (zeros for an odometry that closes
-        no loops: known poses)."""
-        from sea3d.odometry.vio import StereoInertialOdometry
-
-        if isinstance(self.odometry, StereoInertialOdometry):
-            return self.odometry.loop_checks
-        return LoopChecks(enabled=False)
+        """What became of the odometry's loop candidates (``enabled=False`` for an odometry
+        that closes no loops: known poses)."""
+        return self.odometry.loop_checks
 
     def step(self, res: FrameResult, imu: ImuChunk | None, *, fuse: bool = True
              ) -> OdometryEstimate | None:

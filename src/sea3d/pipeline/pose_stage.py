@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -20,17 +20,28 @@ from sea3d.odometry.types import Odometry
 from sea3d.pipeline.config import PoseConfig
 from sea3d.pipeline.frame_source import SessionFrames
 
+if TYPE_CHECKING:
+    from sea3d.geometry.rig import StereoRig
+    from sea3d.io.trajectory_files import TrajectoryFile
+    from sea3d.odometry.config import OdometryConfig
+    from sea3d.rectify.maps import RectifyMaps
+    from sea3d.stereo.recipe import StereoDepth
+
 __all__ = ["OdometryChoice", "choose_odometry", "choose_session_odometry", "make_odometry"]
 
 log = logging.getLogger(__name__)
+
+OdometryFactory = Callable[["StereoRig", "RectifyMaps"], Odometry]
+"""``factory(rig, maps) -> Odometry``: a pose stage of the caller's own (tests)."""
 
 OdometryChoice = tuple[Odometry, str, bool, str | None]
 """``(odometry, description, imu_used, imu_note)``: the pose stage, what it is, whether it
 gets the IMU, and why not (None when it does, or when nothing was left out)."""
 
 
-def make_odometry(rig: Any, maps: Any, *, use_imu: bool, poses: Any | None,
-                  config: Any = None) -> tuple[Odometry, str]:
+def make_odometry(rig: StereoRig, maps: RectifyMaps, *, use_imu: bool,
+                  poses: TrajectoryFile | None,
+                  config: OdometryConfig | None = None) -> tuple[Odometry, str]:
     """The one place that chooses the ordered pose stage.
 
     Args:
@@ -56,9 +67,9 @@ def make_odometry(rig: Any, maps: Any, *, use_imu: bool, poses: Any | None,
     return odo, f"sea3d {mode} odometry" + (f" ({reason})" if mode == "visual" and reason else "")
 
 
-def choose_odometry(poses: PoseConfig, stereo: Any, frame_t_ns: NDArray[np.int64] | None,
+def choose_odometry(poses: PoseConfig, stereo: StereoDepth, frame_t_ns: NDArray[np.int64] | None,
                     imu_t_ns: NDArray[np.int64] | None, *, where: str,
-                    factory: Callable[[Any, Any], Odometry] | None = None) -> OdometryChoice:
+                    factory: OdometryFactory | None = None) -> OdometryChoice:
     """The pose stage of a run, with the IMU decision of every command.
 
     The IMU is used only when it is switched on, the rig has an ``imu`` block and the IMU
@@ -82,23 +93,22 @@ def choose_odometry(poses: PoseConfig, stereo: Any, frame_t_ns: NDArray[np.int64
     from sea3d.io.trajectory_files import read_trajectory
     from sea3d.pipeline.odometry import imu_decision
 
-    tol_s = getattr(poses.odometry_config, "imu_max_clock_offset_s", 1.0)
     use_imu, note = imu_decision(poses.use_imu, stereo.rig.imu, frame_t_ns, imu_t_ns,
-                                 tolerance_s=tol_s)
+                                 tolerance_s=poses.imu_max_clock_offset_s)
     if poses.use_imu and note is not None:
         log.warning("%s: %s", where, note)
     if factory is not None:
         odo = factory(stereo.rig, stereo.maps)
-        return odo, str(getattr(odo, "name", type(odo).__name__)), use_imu, note
+        return odo, odo.name, use_imu, note
     known = read_trajectory(poses.poses_path) if poses.poses_path else None
     odo, name = make_odometry(stereo.rig, stereo.maps, use_imu=use_imu, poses=known,
                               config=poses.odometry_config)
-    disabled = getattr(odo, "imu_disabled_reason", None)
+    disabled = odo.imu_disabled_reason
     return odo, name, use_imu and known is None and disabled is None, note or disabled
 
 
-def choose_session_odometry(poses: PoseConfig, stereo: Any, source: SessionFrames,
-                            factory: Callable[[Any, Any], Odometry] | None = None
+def choose_session_odometry(poses: PoseConfig, stereo: StereoDepth, source: SessionFrames,
+                            factory: OdometryFactory | None = None
                             ) -> OdometryChoice:
     """:func:`choose_odometry` for a recorded session's pairs and IMU samples (``sea3d
     process``, and ``sea3d live`` replaying a session).

@@ -49,14 +49,14 @@ from numpy.typing import NDArray
 
 from sea3d._typing import F64
 from sea3d.errors import ConfigError, SessionError
-from sea3d.odometry.types import Odometry, TrackingStatus
+from sea3d.odometry.types import TrackingStatus
 from sea3d.pipeline.colour_stage import DiveColours
 from sea3d.pipeline.config import ColourConfig, ExecutorConfig, MapConfig, PoseConfig
 from sea3d.pipeline.depth_scheduler import StageTimer
 from sea3d.pipeline.frame_stage import FrameStageConfig, install_geometry, rectify_pair, stage_depth
 from sea3d.pipeline.lock import clear_stale_temps, locks_out_dir
 from sea3d.pipeline.ordered import TRUSTED, OrderedStages
-from sea3d.pipeline.pose_stage import choose_session_odometry
+from sea3d.pipeline.pose_stage import OdometryFactory, choose_session_odometry
 from sea3d.pipeline.progress import ProgressFactory, no_progress
 from sea3d.recon.submaps import FusionConfig
 from sea3d.stereo.recipe import DepthConfig
@@ -225,7 +225,7 @@ def run_process(
     *,
     progress: ProgressFactory | None = None,
     on_result: Callable[[ProcessResult], None] | None = None,
-    odometry: Callable[[Any, Any], Odometry] | None = None,
+    odometry: OdometryFactory | None = None,
 ) -> ProcessResult:
     """Process a recorded session into a trajectory, mesh, cloud and report (see the module).
 

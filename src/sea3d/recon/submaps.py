@@ -113,6 +113,17 @@ class SubmapStore(Protocol):
         """Ids of every stored submap, ascending."""
         ...
 
+    def head(self, submap_id: int) -> tuple[Submap, NDArray[np.int32]]:
+        """The submap of that id, its voxels left out where the store can (the merge places
+        it from the rest), and its blocks' keys (K, 3) int32."""
+        ...
+
+    def blocks_of(self, submap_id: int,
+                  select: Callable[[NDArray[np.int32]], NDArray[np.bool_]]) -> VoxelBlocks:
+        """The blocks of a submap that ``select(keys) -> (K,) mask`` picks (a store on disk
+        reads only the chunks that hold them)."""
+        ...
+
 
 class MemorySubmapStore:
     """A :class:`SubmapStore` in memory (for short sequences and tests)."""
@@ -131,6 +142,18 @@ class MemorySubmapStore:
 
     def ids(self) -> list[int]:
         return sorted(self._maps)
+
+    def head(self, submap_id: int) -> tuple[Submap, NDArray[np.int32]]:
+        sm = self.get(submap_id)
+        return sm, sm.blocks.keys
+
+    def blocks_of(self, submap_id: int,
+                  select: Callable[[NDArray[np.int32]], NDArray[np.bool_]]) -> VoxelBlocks:
+        b = self.get(submap_id).blocks
+        which = select(b.keys)
+        return VoxelBlocks(keys=b.keys[which], tsdf=b.tsdf[which], weight=b.weight[which],
+                           color=b.color[which], voxel_m=b.voxel_m,
+                           trunc_voxels=b.trunc_voxels)
 
 
 class SubmapFusion:
@@ -307,12 +330,8 @@ def _voxel_samples(blocks: VoxelBlocks) -> tuple[NDArray[np.int64], F64, F64, F6
 
 def _head(store: SubmapStore, sid: int) -> tuple[Submap, NDArray[np.int32]]:
     """A stored submap (its voxels left out where the store can) and its blocks' keys."""
-    head = getattr(store, "head", None)
-    if head is not None:
-        sm, keys = head(sid)
-        return sm, np.asarray(keys)
-    sm = store.get(sid)
-    return sm, sm.blocks.keys
+    sm, keys = store.head(sid)
+    return sm, np.asarray(keys)
 
 
 def _reaching(store: SubmapStore, sid: int, r: int, voxel_m: float, T_world_grid: F64,
@@ -322,13 +341,7 @@ def _reaching(store: SubmapStore, sid: int, r: int, voxel_m: float, T_world_grid
     def select(keys: NDArray[np.int32]) -> NDArray[np.bool_]:
         return _blocks_reaching(keys, r, voxel_m, T_world_grid, moved, m_lo, m_hi)
 
-    part = getattr(store, "blocks_of", None)
-    if part is not None:
-        return part(sid, select)
-    b = store.get(sid).blocks
-    which = select(b.keys)
-    return VoxelBlocks(keys=b.keys[which], tsdf=b.tsdf[which], weight=b.weight[which],
-                       color=b.color[which], voxel_m=b.voxel_m, trunc_voxels=b.trunc_voxels)
+    return store.blocks_of(sid, select)
 
 
 def _blocks_reaching(keys_: NDArray[np.int32], r: int, v: float, T_world_grid: F64,

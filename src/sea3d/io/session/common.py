@@ -28,6 +28,7 @@ from sea3d.errors import SessionError, SessionWriteError
 
 __all__ = [
     "IMAGE_STREAMS",
+    "DamagedChunk",
     "ImuSample",
     "ImuSeries",
     "PairMatch",
@@ -61,6 +62,32 @@ _PNG_FAST_FILTER: tuple[int, ...] = (
     if hasattr(cv2, "IMWRITE_PNG_FILTER")
     else ()
 )
+
+
+@dataclass(frozen=True)
+class DamagedChunk:
+    """A chunk whose bytes failed a check; none of its records is decoded.
+
+    Attributes:
+        offset: byte offset of the chunk record in the file.
+        start_ns, end_ns: stamps of its first and last message (from its header).
+        streams: the streams (topics) its message index names, or ``("unknown",)``.
+        reason: what failed (CRC mismatch, decompression, cut short, ...).
+    """
+
+    offset: int
+    start_ns: int
+    end_ns: int
+    streams: tuple[str, ...]
+    reason: str
+
+    def describe(self, path: Path) -> str:
+        span = (self.end_ns - self.start_ns) * 1e-9
+        return (
+            f"{path}: chunk at byte {self.offset} (t_ns {self.start_ns}..{self.end_ns}, "
+            f"{span:.3f} s; streams {', '.join(self.streams)}) is damaged ({self.reason}); its "
+            "records are skipped"
+        )
 
 
 @dataclass(frozen=True)

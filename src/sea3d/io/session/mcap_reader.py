@@ -32,6 +32,7 @@ from mcap.stream_reader import CRCValidationError, get_chunk_data_stream
 
 from sea3d.errors import SessionError
 from sea3d.io.session.common import (
+    DamagedChunk,
     ImuSeries,
     SonarSeries,
     decode_image,
@@ -72,32 +73,6 @@ __all__ = ["DamagedChunk", "McapSessionReader"]
 _log = logging.getLogger(__name__)
 
 # ----------------------------------------------------------------------------- reader
-
-
-@dataclass(frozen=True)
-class DamagedChunk:
-    """A chunk whose bytes failed a check; none of its records is decoded.
-
-    Attributes:
-        offset: byte offset of the chunk record in the file.
-        start_ns, end_ns: stamps of its first and last message (from its header).
-        streams: the streams (topics) its message index names, or ``("unknown",)``.
-        reason: what failed (CRC mismatch, decompression, cut short, ...).
-    """
-
-    offset: int
-    start_ns: int
-    end_ns: int
-    streams: tuple[str, ...]
-    reason: str
-
-    def describe(self, path: Path) -> str:
-        span = (self.end_ns - self.start_ns) * 1e-9
-        return (
-            f"{path}: chunk at byte {self.offset} (t_ns {self.start_ns}..{self.end_ns}, "
-            f"{span:.3f} s; streams {', '.join(self.streams)}) is damaged ({self.reason}); its "
-            "records are skipped"
-        )
 
 
 @dataclass
@@ -166,7 +141,6 @@ class McapSessionReader(SessionReader):
         self.complete = False
         self.data_end_at: int | None = None
         self.data_section_crc = 0
-        self.damaged_chunks: list[DamagedChunk] = []
         self._summary: _Summary | None = None
         self._cache: OrderedDict[int, bytes] = OrderedDict()
         self._cache_lock = threading.Lock()  # pairs() decodes in worker threads

@@ -17,6 +17,7 @@ import numpy as np
 from sea3d.errors import SessionError
 from sea3d.io.session.common import (
     IMAGE_STREAMS,
+    DamagedChunk,
     ImuSeries,
     PairMatch,
     SonarSeries,
@@ -49,6 +50,8 @@ class SessionReader(ABC):
         # many records of each stream it skipped because of damage.
         self.problems: list[str] = []
         self.skipped: dict[str, int] = {}
+        # The chunks whose bytes failed a check (a layout without chunks has none).
+        self.damaged_chunks: list[DamagedChunk] = []
         self._rig: str | None = None
         self._rig_problem: str | None = None
         self._rig_checked = False
@@ -131,6 +134,15 @@ class SessionReader(ABC):
     @abstractmethod
     def size_bytes(self) -> int:
         """Bytes on disk."""
+
+    @abstractmethod
+    def check(self) -> list[str]:
+        """Read what opening the session did not (every chunk's bytes, the CSVs), so that
+        every problem the readers can see is in :attr:`problems` (``session verify``, and a
+        strict ``session convert``, before they read the records).
+
+        Returns the new problems (also in :attr:`problems`).
+        """
 
     def close(self) -> None:  # noqa: B027 - optional hook
         """Release open files."""

@@ -74,9 +74,7 @@ def convert_session(
 
     with open_session(src) as reader:
         if strict:
-            check = getattr(reader, "check", None)
-            if check is not None:
-                check()
+            reader.check()
             if reader.problems:
                 raise SessionError(
                     f"{reader.problems[0]}; refusing to convert a damaged session (strict)"
@@ -194,9 +192,7 @@ def verify_session(path: str | os.PathLike[str], *, name_unit: str = "ns") -> di
     chunks: list[dict[str, Any]] = []
     try:
         with open_session(path, name_unit=name_unit) as reader:
-            check = getattr(reader, "check", None)
-            if check is not None:
-                check()
+            reader.check()
             for stream in IMAGE_STREAMS:
                 ok = 0
                 stamps = reader.stamps(stream)
@@ -216,7 +212,7 @@ def verify_session(path: str | os.PathLike[str], *, name_unit: str = "ns") -> di
                 _ = reader.rig_yaml  # parsed and checked as a rig; a problem if unusable
             except SessionError as err:
                 problems.append(str(err))
-            chunks = [asdict(c) for c in getattr(reader, "damaged_chunks", [])]
+            chunks = [asdict(c) for c in reader.damaged_chunks]
             for c in chunks:
                 c["streams"] = list(c["streams"])
             problems = reader.problems + problems
