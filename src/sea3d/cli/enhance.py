@@ -41,11 +41,9 @@ def _write_image(path: str | Path, img: Any) -> None:
 
 
 def _seathru_config(args: argparse.Namespace) -> Any:
-    """The per-image Sea-thru settings, or None for the default water model."""
-    from sea3d.enhance.seathru import SeathruConfig
+    """The Sea-thru settings of the flags (the water model by default)."""
+    from sea3d.enhance.config import SeathruConfig
 
-    if args.attenuation == "water-model":
-        return None
     return SeathruConfig(
         holes=args.holes,
         backscatter=not args.no_backscatter,
@@ -210,14 +208,14 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--focal-px", type=float, help="pinhole focal length for depth -> range (centred)"
     )
-    from sea3d.enhance.seathru import SeathruConfig
+    from sea3d.enhance.config import ATTENUATIONS, SeathruConfig
     from sea3d.stereo.recipe import DepthConfig
 
     config_option(p, SeathruConfig, "holes", choices=("inpaint", "mask"),
                   help="pixels without depth: restore with inpainted range, or only "
                   "white-balance them")
     p.add_argument(
-        "--attenuation", choices=("water-model", "fit", "fit-scaled", "illuminant", "none"),
+        "--attenuation", choices=ATTENUATIONS,
         default="water-model",
         help="Sea-thru: water-model (default: one water model fitted to the image, or once to "
         "a session's pairs, then inverted) or a per-image Sea-thru attenuation stage (fit: "

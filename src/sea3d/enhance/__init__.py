@@ -10,6 +10,7 @@ are in :mod:`sea3d.enhance.stage`.
 from sea3d.enhance.api import METHODS, EnhanceOutcome, enhance_image, enhance_pair
 from sea3d.enhance.caustics import CausticConfig, CausticResult, remove_caustics
 from sea3d.enhance.colour import grey_world, red_compensation, shades_of_grey, white_balance_pair
+from sea3d.enhance.config import SeathruConfig
 from sea3d.enhance.contrast import clahe
 from sea3d.enhance.metrics import (
     ReferenceMetrics,
@@ -25,7 +26,6 @@ from sea3d.enhance.metrics import (
 )
 from sea3d.enhance.registry import ENHANCEMENTS
 from sea3d.enhance.seathru import (
-    SeathruConfig,
     SeathruModel,
     SeathruResult,
     apply_seathru,

@@ -8,8 +8,9 @@ from typing import Any
 import numpy as np
 
 from sea3d.enhance.colour import white_balance_pair
+from sea3d.enhance.config import SeathruConfig
 from sea3d.enhance.registry import METHODS, enhancement, resolve
-from sea3d.enhance.seathru import SeathruConfig, SeathruModel, apply_seathru, fit_seathru
+from sea3d.enhance.seathru import SeathruModel, apply_seathru, fit_seathru
 from sea3d.enhance.water import WaterFitConfig, WaterModel, fit_water_model, restore
 from sea3d.errors import EnhanceError
 
@@ -38,11 +39,12 @@ class EnhanceOutcome:
 
 
 def _water(
-    frames: list[tuple[np.ndarray, np.ndarray]], water_model: WaterModel | None
+    frames: list[tuple[np.ndarray, np.ndarray]], water_model: WaterModel | None,
+    config: SeathruConfig | None,
 ) -> EnhanceOutcome:
     """The default Sea-thru: the given water model (fitted once per dive), or one fitted to
     these frames; each frame restored with its own range."""
-    cfg = WaterFitConfig()
+    cfg = config or WaterFitConfig()
     model = water_model if water_model is not None else fit_water_model(frames, cfg)
     outs = [restore(img, rng, model, cfg) for img, rng in frames]
     bad = [o.status for o in outs if o.status != "ok"]
@@ -74,14 +76,16 @@ def enhance_image(
     ``seathru`` inverts a :class:`~sea3d.enhance.water.WaterModel` (``water_model``, fitted
     once per dive by :func:`~sea3d.enhance.water.fit_water_model`, or fitted to this image
     alone when None): measured well below grey world where the per-image Sea-thru of
-    :mod:`sea3d.enhance.seathru` was not (``docs/enhance.md``). Give a ``seathru_config`` to
-    run that per-image Sea-thru instead.
+    :mod:`sea3d.enhance.seathru` was not (``docs/enhance.md``). A ``seathru_config`` with
+    another attenuation than ``water-model`` runs that per-image Sea-thru instead.
 
     Args:
         image: ``(H, W, 3)`` RGB (``(H, W)`` grey for ``clahe``), ``uint8``/``uint16``/float.
         method: one of :data:`METHODS` (:mod:`sea3d.enhance.registry`).
         range_m: ``(H, W)`` range in metres, NaN invalid (``seathru`` only, required there).
-        seathru_config: per-image Sea-thru settings (then ``water_model`` is not used).
+        seathru_config: the Sea-thru settings (:class:`~sea3d.enhance.config.SeathruConfig`;
+            None: the water model's defaults); ``water_model`` is used only with
+            ``attenuation="water-model"``.
         water_model: the dive's water model (``seathru``).
         **params: keyword parameters of the method's function (e.g. ``clip_limit``).
 
@@ -93,9 +97,9 @@ def enhance_image(
     if method == "seathru":
         if range_m is None:
             raise EnhanceError("seathru needs a range or depth map (range_m)")
-        if seathru_config is None:
-            return _water([(image, range_m)], water_model)
-        cfg = seathru_config or SeathruConfig()
+        cfg = seathru_config
+        if cfg is None or cfg.water_model:
+            return _water([(image, range_m)], water_model, cfg)
         model = fit_seathru(image, range_m, cfg)
         res = apply_seathru(image, range_m, model, cfg)
         return EnhanceOutcome(
@@ -130,9 +134,9 @@ def enhance_pair(
     if method == "seathru":
         if range_left_m is None or range_right_m is None:
             raise EnhanceError("seathru needs a range map for each image of the pair")
-        if seathru_config is None:
-            return _water([(left, range_left_m), (right, range_right_m)], water_model)
-        cfg = seathru_config or SeathruConfig()
+        cfg = seathru_config
+        if cfg is None or cfg.water_model:
+            return _water([(left, range_left_m), (right, range_right_m)], water_model, cfg)
         model = fit_seathru(left, range_left_m, cfg)
         rl = apply_seathru(left, range_left_m, model, cfg)
         rr = apply_seathru(right, range_right_m, model, cfg)

@@ -57,7 +57,6 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Literal
 
 import cv2
 import numpy as np
@@ -76,7 +75,6 @@ from sea3d.enhance._formation import (
     work_size,
 )
 from sea3d.enhance._image import (
-    Encoding,
     as_unit_float,
     encode,
     from_linear,
@@ -86,6 +84,7 @@ from sea3d.enhance._image import (
     to_linear,
 )
 from sea3d.enhance.colour import channel_gains
+from sea3d.enhance.config import SeathruConfig
 from sea3d.errors import EnhanceError
 
 __all__ = [
@@ -105,96 +104,6 @@ _log = logging.getLogger(__name__)
 _MIN_POINTS = 64
 # Linear luminance below which a pixel counts as black (about 6/255 in sRGB).
 _BLACK = 2e-3
-
-
-@dataclass(frozen=True, kw_only=True)
-class SeathruConfig:
-    """Sea-thru settings; every stage can be switched off."""
-
-    backscatter: bool = True
-    """Estimate and remove backscatter (stage 1)."""
-    attenuation: Literal["fit", "fit-scaled", "illuminant", "none"] = "illuminant"
-    """Stage 2: divide by the range-gated ``illuminant`` map (the paper's coarse estimate,
-    Eq. 12-13; measured the most robust, ``docs/enhance.md``), ``fit`` the paper's
-    ``beta_D(z)`` to it (Eq. 14), ``fit-scaled`` (the same with a free per-channel scale of the
-    illuminant instead of ``f``), or ``none``."""
-    white_balance: Literal["grey-world", "none"] = "grey-world"
-    """Stage 3: grey-world balance of the restored image, or none."""
-    exposure: Literal["white-point", "none"] = "white-point"
-    """Scale the result so the ``white_point_percentile`` of its brightest channel is 1."""
-    holes: Literal["inpaint", "mask"] = "inpaint"
-    """Pixels without range: restore with inpainted range, or leave them out (``mask``)."""
-    backscatter_fit: Literal["eq10", "envelope"] = "envelope"
-    """``envelope``: the highest backscatter curve that stays below the dark level of every
-    range bin (measured robust where the darkest pixels are not black); ``eq10``: the paper's
-    least-squares fit of Eq. 10 to the dark pixels."""
-    range_bins: int = 10
-    """Range bins for the dark-pixel search (the paper's 10)."""
-    dark_percentile: float = 1.0
-    """Per bin, the share (percent) of darkest pixels taken as backscatter (the paper's 1)."""
-    lsac_p: float = 0.002
-    """LSAC update weight ``p`` at the working resolution: the averaging support spans about
-    ``1 / sqrt(p)`` working pixels."""
-    lsac_range_tolerance: float = 0.05
-    """LSAC neighbours must lie within this fraction of the pixel's range."""
-    lsac_f: float = 2.0
-    """Illuminant = ``f`` x local average (the paper's f = 2)."""
-    work_max_side_px: int = 400
-    """Longer image side at which the LSAC and the range inpainting run."""
-    denoise: bool = True
-    """Smooth the restored image where the restoration amplified it (stage 4): the noise of
-    far, attenuated pixels grows with the gain, chroma noise most."""
-    denoise_chroma_sigma_px: float = 2.0
-    """Gaussian of the chroma (linear RGB minus luminance), pixels."""
-    denoise_luma_sigma_px: float = 0.8
-    """Gaussian of the luminance, pixels."""
-    denoise_full_gain: float = 8.0
-    """Noise gain (largest channel gain of restoration, white balance and exposure) at which
-    the smoothed image fully replaces the restored one (blend weight
-    ``log2(gain) / log2(denoise_full_gain)``, 0 at gain 1)."""
-    white_point_percentile: float = 99.5
-    """Percentile of the brightest channel mapped to 1 by ``exposure="white-point"``."""
-    max_restore_gain: float = 30.0
-    """Cap on the attenuation compensation ``exp(beta_D z)``."""
-    saturation_level: float = 0.98
-    """Pixels with a channel at or above this (``[0, 1]``) are left out of every fit."""
-    min_valid_fraction: float = 0.02
-    """Least share of pixels with range (and unclipped colour) needed to fit."""
-    fit_pixels: int = 4000
-    """Pixels sampled (evenly over the image) for the attenuation fit."""
-    encoding: Encoding = "srgb"
-    """Encoding of input and output: ``srgb`` (decoded to linear inside) or ``linear``."""
-
-    @classmethod
-    def as_published(cls, **overrides: object) -> SeathruConfig:
-        """Sea-thru as the paper describes it: Eq. 10 backscatter, Eq. 14 ``beta_D(z)`` fit."""
-        kw: dict[str, object] = {"backscatter_fit": "eq10", "attenuation": "fit", **overrides}
-        return cls(**kw)  # type: ignore[arg-type]
-
-    def __post_init__(self) -> None:
-        if self.attenuation not in ("fit", "fit-scaled", "illuminant", "none"):
-            raise EnhanceError(f"unknown attenuation mode {self.attenuation!r}")
-        if self.white_balance not in ("grey-world", "none"):
-            raise EnhanceError(f"unknown white balance {self.white_balance!r}")
-        if self.exposure not in ("white-point", "none"):
-            raise EnhanceError(f"unknown exposure mode {self.exposure!r}")
-        if self.backscatter_fit not in ("eq10", "envelope"):
-            raise EnhanceError(f"unknown backscatter fit {self.backscatter_fit!r}")
-        if self.holes not in ("inpaint", "mask"):
-            raise EnhanceError(f"holes must be 'inpaint' or 'mask', got {self.holes!r}")
-        if self.range_bins < 1 or not (0 < self.dark_percentile < 50):
-            raise EnhanceError("need range_bins >= 1 and 0 < dark_percentile < 50")
-        if not (0 < self.lsac_p < 1) or self.lsac_range_tolerance <= 0 or self.lsac_f <= 0:
-            raise EnhanceError("need 0 < lsac_p < 1, lsac_range_tolerance > 0, lsac_f > 0")
-        if self.work_max_side_px < 16 or self.max_restore_gain < 1:
-            raise EnhanceError("need work_max_side_px >= 16 and max_restore_gain >= 1")
-        if not (50 < self.white_point_percentile <= 100):
-            raise EnhanceError("white_point_percentile must be in (50, 100]")
-        if self.denoise_full_gain <= 1 or min(self.denoise_chroma_sigma_px,
-                                              self.denoise_luma_sigma_px) < 0:
-            raise EnhanceError("need denoise_full_gain > 1 and non-negative denoise sigmas")
-        if not (0 < self.min_valid_fraction <= 1):
-            raise EnhanceError("min_valid_fraction must be in (0, 1]")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -358,6 +267,9 @@ class _Inputs:
 
 
 def _inputs(image: object, range_m: object, config: SeathruConfig, what: str) -> _Inputs:
+    if config.water_model:
+        raise EnhanceError("attenuation 'water-model' is fitted to a dive's frames by "
+                           "fit_water_model and applied by restore")
     img, dtype = as_unit_float(image, what)
     require_rgb(img, "Sea-thru", what)
     z = np.asarray(range_m, dtype=np.float32)

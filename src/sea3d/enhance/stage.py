@@ -23,8 +23,9 @@ from typing import Literal
 import numpy as np
 
 from sea3d.enhance.colour import grey_world
-from sea3d.enhance.seathru import SeathruConfig, SeathruModel, seathru
-from sea3d.enhance.water import WaterModel, fit_water_model, restore
+from sea3d.enhance.config import SeathruConfig
+from sea3d.enhance.seathru import SeathruModel, seathru
+from sea3d.enhance.water import WaterFitConfig, WaterModel, fit_water_model, restore
 from sea3d.errors import EnhanceError
 
 __all__ = ["ColourRestoreConfig", "ColourResult", "restore_colours_with_range"]
@@ -50,7 +51,9 @@ class ColourRestoreConfig:
     water_model: WaterModel | None = None
     """The dive's water model (fitted once, :func:`fit_water_model`)."""
     seathru: SeathruConfig = field(default_factory=SeathruConfig)
-    """Per-image Sea-thru settings (``method="seathru-per-image"``)."""
+    """Sea-thru settings: of the per-image Sea-thru (``method="seathru-per-image"``), or of
+    the water model when its attenuation is ``water-model`` (else the water model's
+    defaults)."""
     fallback: Literal["grey-world", "none"] = "grey-world"
     """What a frame gets when Sea-thru cannot run (too little depth, saturated image)."""
 
@@ -111,8 +114,9 @@ def restore_colours_with_range(
                             notes=("a grey image has no colour to restore",))
     try:
         if config.method == "water-model":
-            model = config.water_model or fit_water_model([(img, range_m)])
-            got = restore(img, range_m, model)
+            water_cfg = config.seathru if config.seathru.water_model else WaterFitConfig()
+            model = config.water_model or fit_water_model([(img, range_m)], water_cfg)
+            got = restore(img, range_m, model, water_cfg)
             if got.status.startswith("refused") or got.status == "no-range":
                 raise EnhanceError("; ".join(got.notes) or got.status)
             return ColourResult(image=got.image, status=got.status, water_model=model,

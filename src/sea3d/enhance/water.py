@@ -21,7 +21,7 @@ at many ranges; one image rarely spans enough range to separate attenuation from
 3. **White balance and exposure** over the restored samples of every frame (so the pair and
    the dive keep one colour): grey world by default, as Sea-thru balances its ``J`` (the
    inversion gives the scene under the light that reached it, which crossed the water above;
-   other choices in :attr:`WaterFitConfig.white_balance`); then the
+   other choices in :attr:`~sea3d.enhance.config.SeathruConfig.white_balance`); then the
    ``white_point_percentile`` of the brightest channel to 1.
 
 Each fitted parameter is checked for physical plausibility (:data:`LIMITS`, and for metric
@@ -32,7 +32,7 @@ the fit fall back in stated steps, each with its status:
 - ``ok``: everything fitted, no fatal check;
 - some channel's ``beta_D`` came out below what any natural water has (or at 0): the fit
   could not see the direct signal under the backscatter, so the water is not inverted
-  (``backscatter-unidentified``, below); with ``WaterFitConfig.below_floor="floor"`` those
+  (``backscatter-unidentified``, below); with ``below_floor="floor"`` those
   channels are raised to that floor instead, the other channels and the backscatter kept
   (``attenuation-floor``);
 - ``attenuation-unidentified``: ``beta_D`` not identified (range span too narrow, too few
@@ -57,7 +57,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Literal
+from typing import Any
 
 import cv2
 import numpy as np
@@ -73,6 +73,7 @@ from sea3d.enhance._formation import (
 )
 from sea3d.enhance._image import (
     DECODE_SRGB_U8,
+    Encoding,
     as_unit_float,
     decode,
     encode,
@@ -81,6 +82,7 @@ from sea3d.enhance._image import (
     saturated_mask,
 )
 from sea3d.enhance.colour import channel_gains
+from sea3d.enhance.config import SeathruConfig
 from sea3d.errors import EnhanceError
 
 __all__ = [
@@ -111,75 +113,14 @@ _SAMPLES_PER_FRAME = 60_000
 _MIN_PIXELS = 500
 
 
-@dataclass(frozen=True, kw_only=True)
-class WaterFitConfig:
-    """How :func:`fit_water_model` fits and :func:`restore` applies the model."""
+def WaterFitConfig(**settings: Any) -> SeathruConfig:
+    """The water model's settings: a :class:`~sea3d.enhance.config.SeathruConfig` with
+    ``attenuation="water-model"`` and ``settings``.
 
-    range_bins: int = 12
-    """Range bins over the pooled span."""
-    dark_percentile: float = 1.0
-    """Per bin, the share (percent) of darkest pixels that bound the backscatter."""
-    min_range_ratio: float = 1.25
-    """``beta_D`` is identified only if the 95th percentile of range is at least this many
-    times the 5th (a narrow span cannot tell attenuation from albedo)."""
-    min_bins: int = 4
-    """Least populated range bins for the fits."""
-    white_point_percentile: float = 99.5
-    """Percentile of the brightest restored channel mapped to 1."""
-    max_gain: float = 20.0
-    """Cap on the attenuation compensation ``exp(beta_D z)`` and the white-balance gains."""
-    saturation_level: float = 0.98
-    """Pixels with a channel at or above this are left out of the fits."""
-    min_texture: float = 0.5 / 255.0
-    """Pixels whose 5x5 standard deviation of brightness (``[0, 1]``) is below this are left
-    out of the fits: a flat region (open water) holds no albedo, and stereo range there is
-    unreliable."""
-    holes: Literal["inpaint", "mask"] = "inpaint"
-    """Pixels without range: restore with range filled from around them, or white-balance
-    them only (``mask``)."""
-    work_max_side_px: int = 240
-    """Longer side at which range holes are filled."""
-    max_fill_fraction: float = 0.03
-    """With ``holes="inpaint"``, pixels farther than this fraction of the longer image side
-    from any pixel with range (open water, where there is no surface to give range) are not
-    filled: they get the white balance and exposure only, never an invented range."""
-    white_balance: Literal["auto", "locus", "grey-world", "none"] = "grey-world"
-    """After the inversion, which gives ``J``: the scene under the light that reached it
-    (sunlight that crossed the water above the scene is blue-green): ``grey-world`` (default)
-    three gains pooled over every fitted frame's restored pixels with range, as Sea-thru
-    white-balances its ``J`` (Akkaynak and Treibitz, CVPR 2019, Sec. 4), so the dive keeps
-    one balance; ``locus`` removes an ambient light that crossed ``d >= 0`` metres of the
-    same water (gains ``exp(beta_D d)``, the ``d`` that brings the scene closest to grey);
-    ``none`` keeps ``J``; ``auto`` keeps ``J`` where ``beta_D`` is identified and balances by
-    grey world where not (the default before the real board frames: it leaves the light's
-    cast on a real neutral target, ``docs/enhance.md``)."""
-
-    below_floor: Literal["white-balance", "floor"] = "white-balance"
-    """A fitted ``beta_D`` below what any natural water has (metric range): ``white-balance``
-    (default) does not invert the water at all (status ``backscatter-unidentified``: the fit
-    could not tell the direct signal from the backscatter, so neither fitted term is
-    trusted); ``floor`` raises those channels to the floor and keeps the backscatter fitted
-    again with it (``attenuation-floor``, the default before the simulated dives' per-term
-    breakdown, ``docs/enhance.md``)."""
-
-    metric_range: bool = True
-    """The range is in metres: the fitted ``beta_D`` is then also checked against what any
-    natural water has (:data:`PURE_WATER_KD_PER_M`). False for range in other units (a
-    board's squares), where only the unit-free limits hold."""
-    def __post_init__(self) -> None:
-        if self.range_bins < 3:
-            raise EnhanceError(f"range_bins must be >= 3, got {self.range_bins}")
-        if not 0 < self.dark_percentile < 50:
-            raise EnhanceError(f"dark_percentile must be in (0, 50), got {self.dark_percentile}")
-        if self.holes not in ("inpaint", "mask"):
-            raise EnhanceError(f"holes must be inpaint or mask, got {self.holes!r}")
-        if self.white_balance not in ("auto", "locus", "grey-world", "none"):
-            raise EnhanceError(f"unknown white balance {self.white_balance!r}")
-        if self.below_floor not in ("white-balance", "floor"):
-            raise EnhanceError(f"below_floor must be white-balance or floor, got "
-                               f"{self.below_floor!r}")
-        if not self.max_gain >= 1:
-            raise EnhanceError(f"max_gain must be >= 1, got {self.max_gain}")
+    Raises:
+        EnhanceError: as :class:`~sea3d.enhance.config.SeathruConfig`.
+    """
+    return SeathruConfig(attenuation="water-model", **settings)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -265,7 +206,7 @@ def _range_tables(
 
 
 def _frame_samples(
-    image: np.ndarray, range_m: np.ndarray, config: WaterFitConfig, k: int,
+    image: np.ndarray, range_m: np.ndarray, config: SeathruConfig, k: int,
     rng: np.random.Generator,
 ) -> tuple[F64, F64] | None:
     arr = np.asarray(image)
@@ -273,7 +214,7 @@ def _frame_samples(
         require_rgb(arr[..., 0] if arr.ndim == 3 else arr, "a water model", f"frame {k}")
     z = np.asarray(range_m, dtype=np.float32)
     require_range_grid(z, arr.shape, f"the image of frame {k}")
-    lin, _ = decode(arr)
+    lin, _ = decode(arr, config.encoding)
     img01, _ = as_unit_float(arr, "image")
     with np.errstate(invalid="ignore"):
         ok = np.isfinite(z) & (z > 0) & ~saturated_mask(img01, config.saturation_level)
@@ -386,7 +327,7 @@ wide bands) is implausible for any water and is reported as such."""
 
 
 def _implausible(
-    b_inf: F64, beta_b: F64, beta_d: F64, config: WaterFitConfig
+    b_inf: F64, beta_b: F64, beta_d: F64, config: SeathruConfig
 ) -> tuple[list[str], list[str]]:
     """The failed checks of a fit, as ``(fatal, reported)``.
 
@@ -421,7 +362,7 @@ def _implausible(
 
 
 def _fit_ladder(
-    zk: F64, qcs: list[F64], wk: F64, dark: F64, config: WaterFitConfig
+    zk: F64, qcs: list[F64], wk: F64, dark: F64, config: SeathruConfig
 ) -> tuple[F64, F64, F64, str, list[str], bool]:
     """The fit and its first fallback: every parameter free (``ok`` if no fatal check, the
     reported ones in ``checks``); else, where the only fatal checks are a ``beta_D`` below
@@ -466,7 +407,7 @@ def _fit_ladder(
 
 def fit_water_model(
     frames: Iterable[tuple[np.ndarray, np.ndarray]],
-    config: WaterFitConfig | None = None,
+    config: SeathruConfig | None = None,
 ) -> WaterModel:
     """Fit one :class:`WaterModel` to many frames of the same water (module docstring).
 
@@ -475,7 +416,8 @@ def fit_water_model(
             ``[0, 1]`` and ``(H, W)`` float range along the line of sight in the image's own
             pixel grid, metres, NaN (or <= 0) where unknown. Both images of a stereo pair
             may be given, each with its own range.
-        config: :class:`WaterFitConfig`.
+        config: :class:`~sea3d.enhance.config.SeathruConfig` with
+            ``attenuation="water-model"`` (the default when None).
 
     Returns:
         :class:`WaterModel` with a status; parameters that failed a plausibility check are
@@ -486,7 +428,7 @@ def fit_water_model(
             frame with at least 500 pixels with range and unclipped colour (then neither
             ``B_inf`` nor ``beta_D`` can be fitted).
     """
-    config = config or WaterFitConfig()
+    config = _water_config(config)
     rng = np.random.default_rng(0)
     zs, rgbs = [], []
     n_frames = 0
@@ -572,16 +514,16 @@ def fit_water_model(
         B_inf_rgb=_t3(b_inf), beta_B_per_m=_t3(beta_b), beta_D_per_m=_t3(beta_d),
         range_span_m=span, frames=n_frames, status=status, checks=tuple(checks),
     )
-    j = _invert(rgb.astype(np.float32), z.astype(np.float32), model, config.max_gain)
+    j = _invert(rgb.astype(np.float32), z.astype(np.float32), model, config.max_restore_gain)
     wb = config.white_balance
     if wb == "auto":
         wb = "none" if model.has_attenuation else "grey-world"
     if wb == "locus" and not model.has_attenuation:
         wb = "grey-world"
     if wb == "grey-world":
-        gains = channel_gains([j], p=1.0, max_gain=config.max_gain)
+        gains = channel_gains([j], p=1.0, max_gain=config.max_restore_gain)
     elif wb == "locus":
-        gains = _locus_gains(j, beta_d, config.max_gain)
+        gains = _locus_gains(j, beta_d, config.max_restore_gain)
     else:
         gains = np.ones(3)
     exposure = white_point_exposure(j, gains, config.white_point_percentile)
@@ -592,6 +534,20 @@ def fit_water_model(
         beta_D_per_m=model.beta_D_per_m, wb_gains=_t3(gains), exposure_gain=exposure,
         range_span_m=span, frames=n_frames, status=status, checks=tuple(checks),
     )
+
+
+def _water_config(config: SeathruConfig | None) -> SeathruConfig:
+    """``config``, or the water model's defaults for None.
+
+    Raises:
+        EnhanceError: a config of another attenuation mode.
+    """
+    if config is None:
+        return WaterFitConfig()
+    if not config.water_model:
+        raise EnhanceError(f"the water model needs attenuation 'water-model', got "
+                           f"{config.attenuation!r}")
+    return config
 
 
 def _t3(v: Sequence[float] | F64) -> tuple[float, float, float]:
@@ -636,7 +592,7 @@ def restore(
     image: np.ndarray,
     range_m: np.ndarray,
     water_model: WaterModel,
-    config: WaterFitConfig | None = None,
+    config: SeathruConfig | None = None,
 ) -> RestoreResult:
     """Restore one image with a dive's water model and the image's own range.
 
@@ -655,22 +611,22 @@ def restore(
     Raises:
         EnhanceError: a one-channel image, or a range map of another size (another grid).
     """
-    config = config or WaterFitConfig()
+    config = _water_config(config)
     arr = np.asarray(image)
     if arr.ndim != 3 or arr.shape[2] != 3:
         require_rgb(arr[..., 0] if arr.ndim == 3 else arr, "restore", "image")
     z = np.asarray(range_m, dtype=np.float32)
     require_range_grid(z, arr.shape, "the image")
-    lin, dtype = decode(arr)
+    lin, dtype = decode(arr, config.encoding)
     with np.errstate(invalid="ignore"):
         valid = np.isfinite(z) & (z > 0)
     notes: list[str] = list(water_model.checks)
     status = water_model.status
     frac = float(valid.mean())
     scale = np.asarray(water_model.wb_gains, np.float32) * np.float32(water_model.exposure_gain)
-    if frac < 0.02:
+    if frac < config.min_valid_fraction:
         notes.append(f"range valid on {100 * frac:.1f} % of the pixels: white balance only")
-        return _checked(lin, lin * scale, dtype, "no-range", notes, scale)
+        return _checked(lin, lin * scale, dtype, "no-range", notes, scale, config.encoding)
     if config.holes == "inpaint" and not valid.all():
         z_use = fill_range(z, valid, config.work_max_side_px, min_cover=0.25)
         far = cv2.distanceTransform((~valid).astype(np.uint8), cv2.DIST_L2, 3)
@@ -679,19 +635,19 @@ def restore(
     else:
         z_use = np.where(valid, z, np.float32(0))
         where = valid
-    if arr.dtype == np.uint8:
+    if arr.dtype == np.uint8 and config.encoding == "srgb":
         from sea3d.enhance._water_kernel import invert_u8
 
         z_k = np.where(where, z_use, np.float32(np.nan)).astype(np.float32)
         z_max = float(np.nanmax(z_k)) if where.any() else 1.0
-        gain_t, off_t = _range_tables(water_model, scale, z_max, config.max_gain)
+        gain_t, off_t = _range_tables(water_model, scale, z_max, config.max_restore_gain)
         out = invert_u8(np.ascontiguousarray(arr), z_k, DECODE_SRGB_U8, gain_t, off_t,
                         _Z_STEP_M, encode_srgb_table_u8(), scale.astype(np.float32))
         return _checked_u8(lin, out, status, notes, scale)
-    j = _invert(lin, z_use, water_model, config.max_gain)
+    j = _invert(lin, z_use, water_model, config.max_restore_gain)
     if not where.all():
         j = np.where(where[..., None], j, lin)
-    return _checked(lin, j * scale, dtype, status, notes, scale)
+    return _checked(lin, j * scale, dtype, status, notes, scale, config.encoding)
 
 
 def _checked_u8(
@@ -707,9 +663,11 @@ def _checked_u8(
 
 
 def _checked(
-    lin: F32, out_lin: F32, dtype: np.dtype, status: str, notes: list[str], scale: F32
+    lin: F32, out_lin: F32, dtype: np.dtype, status: str, notes: list[str], scale: F32,
+    encoding: Encoding = "srgb",
 ) -> RestoreResult:
-    """Refuse a result that is mostly black, NaN or clipped where the input was not."""
+    """Refuse a result that is mostly black, NaN or clipped where the input was not; encode
+    what is given back in ``encoding`` and ``dtype``."""
     y_in = lin.mean(axis=2)
     y_out = out_lin.mean(axis=2)
     finite = np.isfinite(y_out)
@@ -718,13 +676,13 @@ def _checked(
     clipped = float(np.mean(~finite | (np.max(out_lin, axis=2) >= 1.0))) - clipped_in
     if clipped_in > 0.5:
         notes.append(f"{100 * clipped_in:.0f} % of the input is clipped: nothing to restore")
-        return RestoreResult(image=encode(lin, dtype), status="refused-saturated-input",
+        return RestoreResult(image=encode(lin, dtype, encoding), status="refused-saturated-input",
                              notes=tuple(notes))
     if black > 0.5 or clipped > 0.5 or not finite.all():
         why = "black" if black > 0.5 else ("saturated" if clipped > 0.5 else "not finite")
         notes.append(f"restoration came out {why}; gave the white-balanced input instead")
         _log.warning("water restore: result %s; refused", why)
         fallback = lin * (scale / max(float(np.max(lin * scale)), 1.0))
-        return RestoreResult(image=encode(fallback, dtype), status=f"refused-{why}",
+        return RestoreResult(image=encode(fallback, dtype, encoding), status=f"refused-{why}",
                              notes=tuple(notes))
-    return RestoreResult(image=encode(out_lin, dtype), status=status, notes=tuple(notes))
+    return RestoreResult(image=encode(out_lin, dtype, encoding), status=status, notes=tuple(notes))

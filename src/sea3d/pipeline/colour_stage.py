@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sea3d.enhance.config import SeathruConfig
 from sea3d.enhance.seathru import depth_to_range
 from sea3d.enhance.stage import ColourRestoreConfig, restore_colours_with_range
 from sea3d.enhance.water import WaterFitConfig, WaterModel, fit_water_model
@@ -61,7 +62,7 @@ class DiveColourConfig:
     """Take every n-th frame of the start of the dive for the fit (8 frames spread over the
     first 16), so the fit sees more ranges than one instant; the frames between are held
     until the model exists."""
-    water: WaterFitConfig = field(default_factory=WaterFitConfig)
+    water: SeathruConfig = field(default_factory=WaterFitConfig)
     """The fit's own settings."""
     more_frames: int = 8
     """Fallback step before the fit's own (:func:`~sea3d.enhance.water.fit_water_model`):

@@ -12,7 +12,8 @@ from typing import Any
 import numpy as np
 
 from sea3d.enhance.api import enhance_pair
-from sea3d.enhance.seathru import SeathruConfig, range_from_points
+from sea3d.enhance.config import SeathruConfig
+from sea3d.enhance.seathru import range_from_points
 from sea3d.enhance.water import WaterModel, fit_water_model
 from sea3d.errors import EnhanceError
 from sea3d.io.session import SessionReader
@@ -60,9 +61,11 @@ def stereo_ranges(stereo: StereoDepth) -> RangeFn:
     return ranges
 
 
-def session_water_model(session: SessionReader, ranges: RangeFn, most: int = 8) -> WaterModel:
+def session_water_model(session: SessionReader, ranges: RangeFn, most: int = 8,
+                        config: SeathruConfig | None = None) -> WaterModel:
     """One water model for the whole dive, fitted to up to ``most`` pairs spread over it (both
-    images, each with its own stereo range).
+    images, each with its own stereo range), with ``config`` (the water model's defaults when
+    None).
 
     Raises:
         EnhanceError: the frames cannot be fitted (:func:`~sea3d.enhance.water.fit_water_model`).
@@ -74,7 +77,7 @@ def session_water_model(session: SessionReader, ranges: RangeFn, most: int = 8) 
         if k in pick:
             rl, rr = ranges(pair.left, pair.right)
             frames += [(pair.left, rl), (pair.right, rr)]
-    model = fit_water_model(frames)
+    model = fit_water_model(frames, config)
     log.info("water model of the dive (%d frames): %s", len(frames), model.as_dict())
     return model
 
@@ -88,7 +91,9 @@ class SessionEnhancement:
         session: an open session.
         method: an enhancement name (:data:`sea3d.enhance.registry.METHODS`).
         stereo: the stereo depth of the session's rig (needed by ``seathru``).
-        seathru_config: a per-image Sea-thru stage; None: one water model fitted to the dive.
+        seathru_config: the Sea-thru settings; with ``attenuation="water-model"`` (or None,
+            its defaults) one water model is fitted to the dive, else each left image fits
+            its own per-image Sea-thru.
         params: keyword parameters of the method (e.g. ``clip_limit``).
         name: the session as messages name it (default its path).
 
@@ -111,8 +116,9 @@ class SessionEnhancement:
                 raise EnhanceError(f"{self.name}: Sea-thru needs stereo depth of the session's "
                                    "rig")
             self.ranges = stereo_ranges(stereo)
-            if seathru_config is None:
-                self.water_model = session_water_model(session, self.ranges)
+            if seathru_config is None or seathru_config.water_model:
+                self.water_model = session_water_model(session, self.ranges,
+                                                       config=seathru_config)
         self.pairs = len(session.match_pairs())
         if self.pairs == 0:
             raise EnhanceError(f"{self.name}: no stereo pairs to enhance")
