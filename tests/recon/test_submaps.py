@@ -8,7 +8,13 @@ import pytest
 from sea3d.errors import ReconError
 from sea3d.geometry.se3 import rotvec_to_R
 from sea3d.pipeline.submap_store import DiskSubmapStore
-from sea3d.recon.submaps import FusionConfig, MemorySubmapStore, SubmapFusion, merge_submaps
+from sea3d.recon.submaps import (
+    FusionConfig,
+    MemorySubmapStore,
+    SubmapFusion,
+    merge_submaps,
+    submap_placement,
+)
 from sea3d.recon.tsdf import TsdfConfig, TsdfVolume
 from synthetic_views import BOX_HI, K, render, survey_poses
 
@@ -115,6 +121,73 @@ def test_a_loop_closure_moves_the_submaps_anchor_not_its_voxels():
     assert n > 100
     assert top_after[2] == pytest.approx(BOX_HI[2], abs=PLACE_TOL_M)
     assert abs(top_after[0]) < 0.02
+
+
+def _late_submap(store):
+    """Frames 6-11 integrated at their true poses into one submap (keyframes 3, 4, 5 at
+    frames 6, 8, 10); returns its keyframe poses."""
+    fusion = SubmapFusion(FusionConfig(tsdf=TSDF, keyframes_per_submap=3))
+    kf: dict[int, np.ndarray] = {}
+    for i in range(6, 12):
+        d, c = render(_TRUE[i])
+        kid = _KEYFRAMES.get(i)
+        if kid is not None:
+            kf[kid] = _TRUE[i]
+        for sm in fusion.step(t_ns=i, trusted=True, keyframe_id=kid, depth_m=d, color_rgb=c,
+                              K=K, T_world_cam=_TRUE[i], keyframe_poses=kf).finished:
+            store.put(sm)
+    store.put(fusion.finish())
+    return kf
+
+
+def _raised(T, dz):
+    out = T.copy()
+    out[2, 3] += dz
+    return out
+
+
+def test_a_submap_is_placed_where_it_fits_all_its_keyframes():
+    store = MemorySubmapStore()
+    kf = _late_submap(store)
+    sm = store.get(0)
+    assert sm.view_keyframe_ids == (3, 4, 5) and sm.T_grid_views.shape == (3, 4, 4)
+    assert np.all(sm.view_depth_m > 0.3)
+    # Unmoved: the identity, so the merge stays exact.
+    np.testing.assert_allclose(submap_placement(sm, kf), np.eye(4), atol=1e-12)
+    # Every keyframe moved alike: the submap moves with them, as its anchor would move it.
+    up = {k: _raised(T, 0.03) for k, T in kf.items()}
+    np.testing.assert_allclose(submap_placement(sm, up)[:3, 3], (0, 0, 0.03), atol=1e-9)
+    # Only the anchor corrected by 3 cm (the other two keyframes stay): placed by its anchor,
+    # the whole submap would move 3 cm; it moves by the least-squares fit of all three views,
+    # a third of that where its keyframes looked, and the box top follows.
+    anchor_only = {**kf, 3: _raised(kf[3], 0.03)}
+    T = submap_placement(sm, anchor_only)
+    seen = np.array([Tv[:3, :3] @ (0.0, 0.0, z) + Tv[:3, 3]
+                     for Tv, z in zip(sm.T_grid_views, sm.view_depth_m, strict=True)])
+    shift = (seen @ T[:3, :3].T + T[:3, 3] - seen).mean(axis=0)
+    np.testing.assert_allclose(shift, (0, 0, 0.01), atol=1e-3)
+    top, n = _box_top(merge_submaps(store, anchor_only, TSDF, tile_m=None).mesh)
+    assert n > 100
+    assert top[2] == pytest.approx(BOX_HI[2] + 0.01, abs=PLACE_TOL_M)
+
+
+def test_a_submap_without_views_is_placed_by_its_anchor(tmp_path):
+    store = MemorySubmapStore()
+    kf = _late_submap(store)
+    sm = replace(store.get(0), view_keyframe_ids=(), T_grid_views=np.zeros((0, 4, 4)),
+                 view_depth_m=np.zeros(0))
+    anchor_only = {**kf, 3: _raised(kf[3], 0.03)}
+    np.testing.assert_allclose(submap_placement(sm, anchor_only)[:3, 3], (0, 0, 0.03),
+                               atol=1e-9)
+    # The disk store keeps the views (and reads a submap written without them).
+    disk = DiskSubmapStore(tmp_path / "submaps")
+    disk.put(store.get(0))
+    disk.put(replace(sm, submap_id=1))
+    back, _ = disk.head(0)
+    assert back.view_keyframe_ids == (3, 4, 5)
+    np.testing.assert_array_equal(back.T_grid_views, store.get(0).T_grid_views)
+    np.testing.assert_array_equal(disk.get(0).view_depth_m, store.get(0).view_depth_m)
+    assert disk.get(1).view_keyframe_ids == ()
 
 
 def test_a_moved_merge_in_small_batches_equals_the_whole_merge(monkeypatch):

@@ -287,7 +287,7 @@ def align_by_trajectories(
     Raises:
         ReconError: fewer than 3 pairs, or an estimate that does not move.
     """
-    from sea3d.errors import OdometryError
+    from sea3d.errors import GeometryError
     from sea3d.eval.trajectory import associate, umeyama
 
     Te = np.asarray(T_est, dtype=np.float64)
@@ -309,7 +309,7 @@ def align_by_trajectories(
             return np.concatenate([p, *(p + axis_m * T[:, :3, a] for a in range(3))])
 
         R, t, _ = umeyama(points(s * pe, Te[i]), points(pr, Tr[j]), with_scale=False)
-    except OdometryError as err:
+    except GeometryError as err:
         raise ReconError(f"cannot align the trajectories: {err}") from err
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = s * R, t

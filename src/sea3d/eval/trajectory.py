@@ -39,7 +39,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sea3d._typing import F64
-from sea3d.errors import OdometryError
+from sea3d.errors import GeometryError, OdometryError
+from sea3d.geometry.se3 import umeyama
 
 __all__ = [
     "ErrorStats",
@@ -184,39 +185,6 @@ def associate(t_est_ns: NDArray[np.integer], t_ref_ns: NDArray[np.integer],
     i_short = np.flatnonzero(ok).astype(np.int64)
     i_long = pick[ok].astype(np.int64)
     return (i_long, i_short) if swap else (i_short, i_long)
-
-
-def umeyama(src: F64, dst: F64, *, with_scale: bool) -> tuple[F64, F64, float]:
-    """Least-squares similarity ``dst ~ s R src + t`` (Umeyama 1991).
-
-    Args:
-        src, dst: (N, 3) matched points, N >= 3 not all collinear for a unique rotation.
-        with_scale: estimate ``s``; otherwise ``s = 1``.
-
-    Returns:
-        ``(R (3, 3), t (3,), s)``.
-
-    Raises:
-        OdometryError: fewer than 3 points or a degenerate (zero-spread) source.
-    """
-    x = np.asarray(src, dtype=np.float64)
-    y = np.asarray(dst, dtype=np.float64)
-    if x.shape != y.shape or x.ndim != 2 or x.shape[1] != 3 or len(x) < 3:
-        raise OdometryError(f"alignment needs at least 3 matched positions, got {len(x)}")
-    mx, my = x.mean(axis=0), y.mean(axis=0)
-    xc, yc = x - mx, y - my
-    var_x = float(np.mean(np.sum(xc * xc, axis=1)))
-    if var_x <= 1e-18:
-        raise OdometryError("alignment is undefined: the estimated positions do not move")
-    cov = yc.T @ xc / len(x)
-    U, D, Vt = np.linalg.svd(cov)
-    S = np.eye(3)
-    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
-        S[2, 2] = -1.0
-    R = U @ S @ Vt
-    s = float(np.trace(np.diag(D) @ S) / var_x) if with_scale else 1.0
-    t = my - s * R @ mx
-    return R, t, s
 
 
 def path_length_m(positions: F64, trusted: NDArray[np.bool_] | None = None,
@@ -420,7 +388,10 @@ def evaluate_trajectory(
     S = np.eye(4)
     scale = 1.0
     if align != "none":
-        R, t_align, scale = umeyama(P[:, :3, 3], Q[:, :3, 3], with_scale=align == "sim3")
+        try:
+            R, t_align, scale = umeyama(P[:, :3, 3], Q[:, :3, 3], with_scale=align == "sim3")
+        except GeometryError as err:
+            raise OdometryError(str(err)) from err
         S[:3, :3] = scale * R
         S[:3, 3] = t_align
         Pa = P.copy()

@@ -24,6 +24,7 @@ __all__ = [
     "quat_wxyz_to_R",
     "rotvec_to_R",
     "transform_points",
+    "umeyama",
 ]
 
 
@@ -146,3 +147,36 @@ def look_at(eye_m: object, target_m: object, up: object = (0.0, 0.0, 1.0)) -> Fl
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     return make_T(np.stack([x, y, z], axis=1), eye)
+
+
+def umeyama(src: object, dst: object, *, with_scale: bool) -> tuple[FloatArray, FloatArray, float]:
+    """Least-squares similarity ``dst ~ s R src + t`` (Umeyama 1991).
+
+    Args:
+        src, dst: (N, 3) matched points, N >= 3 not all collinear for a unique rotation.
+        with_scale: estimate ``s``; otherwise ``s = 1``.
+
+    Returns:
+        ``(R (3, 3), t (3,), s)``.
+
+    Raises:
+        GeometryError: fewer than 3 points or a degenerate (zero-spread) source.
+    """
+    x = np.asarray(src, dtype=np.float64)
+    y = np.asarray(dst, dtype=np.float64)
+    if x.shape != y.shape or x.ndim != 2 or x.shape[1] != 3 or len(x) < 3:
+        raise GeometryError(f"alignment needs at least 3 matched positions, got {len(x)}")
+    mx, my = x.mean(axis=0), y.mean(axis=0)
+    xc, yc = x - mx, y - my
+    var_x = float(np.mean(np.sum(xc * xc, axis=1)))
+    if var_x <= 1e-18:
+        raise GeometryError("alignment is undefined: the estimated positions do not move")
+    cov = yc.T @ xc / len(x)
+    U, D, Vt = np.linalg.svd(cov)
+    S = np.eye(3)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        S[2, 2] = -1.0
+    R = U @ S @ Vt
+    s = float(np.trace(np.diag(D) @ S) / var_x) if with_scale else 1.0
+    t = my - s * R @ mx
+    return R, t, s

@@ -35,6 +35,17 @@ CHUNK_CACHE_BYTES = 256 << 20
 """Decoded chunks a store keeps for the merge's next reads (about 12 chunks)."""
 
 
+def _views(a: dict[str, NDArray[Any]], m: dict[str, Any]) -> dict[str, Any]:
+    """The keyframe views a submap is placed by (none in a store written before they were
+    kept: such a submap is placed by its anchor)."""
+    ids = tuple(int(k) for k in m.get("view_keyframe_ids", ()))
+    T = np.asarray(a.get("T_grid_views", np.zeros((0, 4, 4))), np.float64)
+    z = np.asarray(a.get("view_depth_m", np.zeros(0)), np.float64)
+    if T.shape != (len(ids), 4, 4) or z.shape != (len(ids),):
+        raise ValueError(f"{len(ids)} views with poses {T.shape} and depths {z.shape}")
+    return {"view_keyframe_ids": ids, "T_grid_views": T, "view_depth_m": z}
+
+
 class DiskSubmapStore:
     """Finished TSDF submaps on disk (see the module): a
     :class:`~sea3d.recon.submaps.SubmapStore`.
@@ -100,6 +111,7 @@ class DiskSubmapStore:
             "anchor_keyframe_id": submap.anchor_keyframe_id,
             "frames": submap.frames,
             "keyframe_ids": list(submap.keyframe_ids),
+            "view_keyframe_ids": list(submap.view_keyframe_ids),
             "t_first_ns": submap.t_first_ns,
             "t_last_ns": submap.t_last_ns,
             "voxel_m": b.voxel_m,
@@ -110,7 +122,8 @@ class DiskSubmapStore:
         # the header last: a submap is listed (ids) once all its chunks are on disk
         self.bytes_written += write_entry(
             self.root / f"{sid}{_SUFFIX}",
-            {"keys": b.keys[order], "T_anchor_grid": submap.T_anchor_grid}, meta)
+            {"keys": b.keys[order], "T_anchor_grid": submap.T_anchor_grid,
+             "T_grid_views": submap.T_grid_views, "view_depth_m": submap.view_depth_m}, meta)
 
     def _chunk_path(self, submap_id: int, k: int) -> Path:
         return self.root / f"{int(submap_id)}.c{int(k)}{_SUFFIX}"
@@ -164,6 +177,7 @@ class DiskSubmapStore:
                 keyframe_ids=tuple(int(k) for k in m["keyframe_ids"]),
                 t_first_ns=int(m["t_first_ns"]),
                 t_last_ns=int(m["t_last_ns"]),
+                **_views(a, m),
             )
         except (KeyError, ValueError) as err:
             raise ReconError(f"submap {submap_id} in {self.root} is damaged: {err}") from err
@@ -184,7 +198,7 @@ class DiskSubmapStore:
                 submap_id=int(m["submap_id"]), anchor_keyframe_id=int(m["anchor_keyframe_id"]),
                 T_anchor_grid=np.asarray(a["T_anchor_grid"], np.float64), blocks=none,
                 frames=int(m["frames"]), keyframe_ids=tuple(int(k) for k in m["keyframe_ids"]),
-                t_first_ns=int(m["t_first_ns"]), t_last_ns=int(m["t_last_ns"]),
+                t_first_ns=int(m["t_first_ns"]), t_last_ns=int(m["t_last_ns"]), **_views(a, m),
             ), np.asarray(a["keys"])
         except (KeyError, ValueError, IndexError) as err:
             raise ReconError(f"submap {submap_id} in {self.root} is damaged: {err}") from err

@@ -14,12 +14,13 @@ holds stays below ``2 (max_blocks + b) B`` with ``b`` the blocks one frame adds 
 bytes of a block (``block_resolution^3`` voxels of 20 bytes: tsdf, weight, RGB as float32;
 10 KB at 8^3). :meth:`SubmapFusion.memory_bytes` reports what is held.
 
-After the last frame, :func:`merge_submaps` places every submap at ``T_world_anchor @
-T_anchor_grid`` with the keyframe poses the odometry holds *then* (after every loop closure)
-and fuses them into one world grid: voxel values are combined by their observation weights
-(the weighted mean a single volume would have computed), exactly where a submap's grid still
-coincides with the world grid, and by trilinear splatting where a loop closure moved it.
-Spatial tiles bound the memory of that merge as well.
+After the last frame, :func:`merge_submaps` places every submap with the keyframe poses the
+odometry holds *then* (after every loop closure): where it best fits the views of all the
+keyframes it integrated (:func:`submap_placement`; at ``T_world_anchor @ T_anchor_grid``
+when it integrated none), and fuses them into one world grid: voxel values are combined by
+their observation weights (the weighted mean a single volume would have computed), exactly
+where a submap's grid still coincides with the world grid, and by trilinear splatting where
+the odometry moved it. Spatial tiles bound the memory of that merge as well.
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ from numpy.typing import NDArray
 from sea3d._typing import F64
 from sea3d.errors import ReconError
 from sea3d.geometry.mesh import Mesh
-from sea3d.geometry.se3 import invert_T
+from sea3d.geometry.se3 import invert_T, make_T, umeyama
 from sea3d.recon.tsdf import TsdfConfig, TsdfVolume
 from sea3d.recon.types import Submap, VoxelBlocks
 
@@ -48,6 +49,7 @@ __all__ = [
     "SubmapFusion",
     "SubmapStore",
     "merge_submaps",
+    "submap_placement",
 ]
 
 log = logging.getLogger(__name__)
@@ -170,6 +172,7 @@ class SubmapFusion:
         self._anchor_id = -1
         self._T_anchor_grid = np.eye(4)
         self._keyframes: list[int] = []
+        self._views: list[tuple[int, F64, float]] = []
         self._t_first = 0
         self._t_last = 0
         self.submaps_finished = 0
@@ -193,6 +196,7 @@ class SubmapFusion:
         self._anchor_id = anchor_id
         self._T_anchor_grid = invert_T(T_world_anchor)  # grid = world, now
         self._keyframes = []
+        self._views = []
         self._t_first = t_ns
 
     def _finish(self) -> Submap | None:
@@ -210,6 +214,10 @@ class SubmapFusion:
             keyframe_ids=tuple(self._keyframes),
             t_first_ns=self._t_first,
             t_last_ns=self._t_last,
+            view_keyframe_ids=tuple(v[0] for v in self._views),
+            T_grid_views=(np.stack([v[1] for v in self._views]) if self._views
+                          else np.zeros((0, 4, 4))),
+            view_depth_m=np.array([v[2] for v in self._views], np.float64),
         )
 
     def step(
@@ -288,6 +296,8 @@ class SubmapFusion:
         T_grid_cam = invert_T(T_world_grid) @ np.asarray(T_world_cam, np.float64)
         touched = self._active.integrate(depth_m, color_rgb, K, T_grid_cam, confidence)
         self.frames_integrated += 1
+        if keyframe_id is not None:
+            self._views.append((int(keyframe_id), T_grid_cam, _median_depth(depth_m)))
         self.peak_memory_bytes = max(self.peak_memory_bytes, self._active.memory_bytes)
         return FusionStep(status="integrated", submap_id=self._active_id,
                           finished=tuple(finished), blocks_touched=touched)
@@ -311,6 +321,56 @@ class SubmapFusion:
 
 
 # ------------------------------------------------------------------------------------ merging
+
+# Points of a keyframe's view that place its submap: the optical axis and four rays towards the
+# corners of a typical view, at the view's median depth (camera frame, per metre of depth).
+_VIEW_RAYS = np.array([[0.0, 0.0, 1.0], [-0.4, -0.25, 1.0], [0.4, -0.25, 1.0],
+                       [0.4, 0.25, 1.0], [-0.4, 0.25, 1.0]])
+
+
+def _median_depth(depth_m: NDArray[np.floating]) -> float:
+    """Median of a depth map's valid pixels (every 4th row and column; all where that
+    sample holds none); NaN where none is valid."""
+    for d in (depth_m[::4, ::4], depth_m):
+        v = d[np.isfinite(d) & (d > 0)]
+        if len(v):
+            return float(np.median(v))
+    return float("nan")
+
+
+def submap_placement(submap: Submap, keyframe_poses: dict[int, F64]) -> F64:
+    """``T_world_grid`` of a submap at the keyframe poses given.
+
+    A submap is rigid, while the odometry may since have corrected each of its keyframes a
+    little differently (a loop closure, the smoother's later estimates). It is placed where
+    it best fits all of them: the rigid motion that carries the surface points each keyframe
+    saw (five points of its view at its median depth, :data:`_VIEW_RAYS`) from where they
+    were fused to where the keyframe's pose puts them now, by least squares
+    (:func:`~sea3d.geometry.se3.umeyama`). Where nothing moved, that is the identity (the
+    grid is the world as it stood when the submap started), so the merge stays exact. A
+    submap without such views (no keyframe integrated with depth) is placed by its anchor.
+
+    Raises:
+        ReconError: the anchor keyframe has no pose.
+    """
+    T_wa = keyframe_poses.get(submap.anchor_keyframe_id)
+    if T_wa is None:
+        raise ReconError(f"submap {submap.submap_id}: its anchor keyframe "
+                         f"{submap.anchor_keyframe_id} has no pose")
+    src, dst = [], []
+    for kf, T_gc, z in zip(submap.view_keyframe_ids, submap.T_grid_views, submap.view_depth_m,
+                           strict=True):
+        T_wc = keyframe_poses.get(kf)
+        if T_wc is None or not z > 0:
+            continue
+        q = z * _VIEW_RAYS
+        src.append(q @ T_gc[:3, :3].T + T_gc[:3, 3])
+        dst.append(q @ np.asarray(T_wc)[:3, :3].T + np.asarray(T_wc)[:3, 3])
+    if not src:
+        return np.asarray(T_wa, np.float64) @ submap.T_anchor_grid
+    R, t, _ = umeyama(np.concatenate(src), np.concatenate(dst), with_scale=False)
+    return make_T(R, t)
+
 
 
 def _voxel_samples(blocks: VoxelBlocks) -> tuple[NDArray[np.int64], F64, F64, F64]:
@@ -668,11 +728,7 @@ def merge_submaps(
             len(keys) and sm.blocks.block_resolution != config.block_resolution
         ):
             raise ReconError(f"submap {sid} has another voxel layout than the merge's config")
-        T_wa = keyframe_poses.get(sm.anchor_keyframe_id)
-        if T_wa is None:
-            raise ReconError(f"submap {sid}: its anchor keyframe {sm.anchor_keyframe_id} has no "
-                             "pose")
-        T_wg = np.asarray(T_wa, np.float64) @ sm.T_anchor_grid
+        T_wg = submap_placement(sm, keyframe_poses)
         moved = not np.allclose(T_wg, np.eye(4), atol=_IDENTITY_TOL)
         if len(keys):
             lo, hi = _submap_bounds(keys, sm.blocks.block_resolution, sm.blocks.voxel_m, T_wg)

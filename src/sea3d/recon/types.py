@@ -82,6 +82,10 @@ class Submap:
         frames: frames integrated.
         keyframe_ids: keyframes integrated (the anchor first).
         t_first_ns, t_last_ns: stamps of the first and last integrated frame.
+        view_keyframe_ids: the keyframes integrated with depth, in order;
+        T_grid_views: (K, 4, 4) their cameras' poses in the grid frame as they were
+            integrated; view_depth_m: (K,) the median depth of each: what
+            :func:`~sea3d.recon.submaps.merge_submaps` places the submap by.
     """
 
     submap_id: int
@@ -92,3 +96,6 @@ class Submap:
     keyframe_ids: tuple[int, ...] = field(default_factory=tuple)
     t_first_ns: int = 0
     t_last_ns: int = 0
+    view_keyframe_ids: tuple[int, ...] = field(default_factory=tuple)
+    T_grid_views: F64 = field(default_factory=lambda: np.zeros((0, 4, 4)))
+    view_depth_m: F64 = field(default_factory=lambda: np.zeros(0))
