@@ -442,7 +442,7 @@ def bench_chess(args: argparse.Namespace) -> None:
           f"{'kf':>5}{'lost':>6}")
     for label, m, w, c, summ in rows:
         print(f"  {label:<34}{m['ate_m'] * 100:>9.2f}{m['rpe_pct']:>8.2f}{m['rpe_deg']:>8.2f}"
-              f"{w * 1e3:>9.1f}{c * 1e3:>8.1f}{summ['keyframes']:>5}{summ['frames_lost']:>6}")
+              f"{w * 1e3:>9.1f}{c * 1e3:>8.1f}{summ.keyframes:>5}{summ.frames_lost:>6}")
     print(f"  {'Open3D rgbd_odometry_multi_scale':<34}{m_ref['ate_m'] * 100:>9.2f}"
           f"{m_ref['rpe_pct']:>8.2f}{m_ref['rpe_deg']:>8.2f}{w_r * 1e3:>9.1f}{c_r * 1e3:>8.1f}")
     for label, m, w, c, _ in rows:

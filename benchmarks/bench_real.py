@@ -143,7 +143,7 @@ def bench_chess(patterns: list) -> list[dict]:
             out = {}
             for method in methods:
                 run, w, c = _timed(sea3d_rgbd, cols, deps, CHESS_K, method, Path(td) / "f")
-                out[method] = (ate_cm(run.T_world_left, gt), run.summary["frames_lost"], w, c)
+                out[method] = (ate_cm(run.T_world_left, gt), run.summary.frames_lost, w, c)
             a_ref = ate_cm(ref, gt)
             d, n, f = out["dense"], out["dense-nofeat"], out["features"]
             label = pat if isinstance(pat, str) else f"step {pat}"
@@ -301,7 +301,7 @@ def _stereo_row(name: str, root: Path) -> None:
     print(f"{name}: {len(seq['t_ns'])} frames, path {path:.2f} m (ground truth moves "
           f"{gt_moved:.1f} mm start to end); ATE m (SE3) and start-to-end displacement mm:")
     print(f"  sea3d odometry (defaults)      {a_s:.4f}  {moved_mm(run.T_world_left):7.1f} mm  "
-          f"lost {run.summary['frames_lost']}  {w:.0f} s wall {c:.0f} s CPU")
+          f"lost {run.summary.frames_lost}  {w:.0f} s wall {c:.0f} s CPU")
     print(f"  OpenCV SGBM + KLT + PnP f2f    {a_b:.4f}  {moved_mm(base):7.1f} mm  "
           f"        {w_b:.0f} s wall {c_b:.0f} s CPU")
 

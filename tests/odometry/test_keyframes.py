@@ -106,5 +106,5 @@ def test_a_still_real_camera_makes_few_keyframes(data_dir) -> None:
     run = session_odometry(data_dir / "vio/euroc_v101_micro",
                            observe=DepthConfig(engine="opencv"))
     s = run.summary
-    assert s["frames"] == 40 and s["frames_lost"] == 0 and s["imu"]
-    assert 1 <= s["keyframes"] <= 3
+    assert s.frames == 40 and s.frames_lost == 0 and s.imu
+    assert 1 <= s.keyframes <= 3

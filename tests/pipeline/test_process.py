@@ -190,9 +190,9 @@ def test_odometry_and_process_report_one_path_length(sim_session, first_run, tmp
     step = np.linalg.norm(np.diff(gt.T_world_x[:, :3, 3], axis=0), axis=1)
     counted = [i for i in range(len(step)) if i not in lost and i + 1 not in lost]
     assert len(counted) == len(step) - 6
-    assert odometry["frames_lost"] == processed["frames_lost"] == len(lost)
-    assert odometry["path_length_m"] == pytest.approx(float(step[counted].sum()), rel=1e-12)
-    assert processed["path_length_m"] == odometry["path_length_m"]
+    assert odometry.frames_lost == processed["frames_lost"] == len(lost)
+    assert odometry.path_length_m == pytest.approx(float(step[counted].sum()), rel=1e-12)
+    assert processed["path_length_m"] == odometry.path_length_m
 
 
 def test_an_interrupted_run_resumes_from_its_cache(sim_session, first_run, tmp_path):

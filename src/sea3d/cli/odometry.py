@@ -14,7 +14,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sea3d._text import loop_checks_text
 from sea3d.cli import error_line
@@ -27,6 +27,9 @@ from sea3d.cli._args import (
     param_option,
 )
 from sea3d.errors import ConfigError
+
+if TYPE_CHECKING:
+    from sea3d.pipeline.odometry_session import OdometryFiles
 
 __all__ = ["register", "register_calibrate_imu"]
 
@@ -96,28 +99,28 @@ def _progress(total: int | None, desc: str, enabled: bool = True) -> Any:
     return bar(total, desc, enabled=enabled)
 
 
-def _report(args: argparse.Namespace, out: Any) -> int:
+def _report(args: argparse.Namespace, out: OdometryFiles) -> int:
     s = out.summary
     if args.json:
-        json.dump(s, sys.stdout, indent=2)
+        json.dump(s.to_json(), sys.stdout, indent=2)
         sys.stdout.write("\n")
     else:
-        for note in s.get("notes", []):
+        for note in s.notes:
             print(f"note: {error_line(note)}")
-        st = s["statuses"]
+        st = s.statuses
         print(
-            f"wrote {s['frames']} poses to {args.output}: {s['keyframes']} keyframes, "
-            f"{s['loop_closures']} loop closures ({s.get('relinks', 0)} re-links across lost "
-            f"frames apart){loop_checks_text(s.get('loop_checks', {}))}, path "
-            f"{s['path_length_m']:.2f} m; frames "
+            f"wrote {s.frames} poses to {args.output}: {s.keyframes} keyframes, "
+            f"{s.loop_closures} loop closures ({s.relinks} re-links across lost "
+            f"frames apart){loop_checks_text(s.loop_checks)}, path "
+            f"{s.path_length_m:.2f} m; frames "
             f"tracking {st['tracking']}, imu_only {st['imu_only']}, lost {st['lost']}, "
             f"relocalised {st['relocalised']}, initialising {st['initialising']}; "
-            f"{'with IMU' if s['imu'] else 'visual-only'}; {s['seconds']:.1f} s"
+            f"{'with IMU' if s.imu else 'visual-only'}; {s.seconds:.1f} s"
         )
     bad = out.untrusted_frames
     if bad:
         print(
-            f"sea3d: warning: {bad} of {s['frames']} frames have no trustworthy pose (status "
+            f"sea3d: warning: {bad} of {s.frames} frames have no trustworthy pose (status "
             f"lost/initialising{'; see --status' if not args.status else ''})",
             file=sys.stderr,
         )

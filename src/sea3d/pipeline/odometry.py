@@ -18,7 +18,7 @@ import os
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +37,7 @@ from sea3d.stereo.recipe import DepthConfig
 
 __all__ = [
     "OdometryRun",
+    "OdometrySummary",
     "StereoSource",
     "imu_clock_check",
     "imu_decision",
@@ -247,6 +248,65 @@ def imu_decision(use_imu: bool, rig_imu: ImuSpec | None, frame_t_ns: NDArray[np.
     return True, None
 
 
+@dataclass(frozen=True, kw_only=True)
+class OdometrySummary:
+    """The figures of an odometry run: what ``sea3d odometry`` prints, and with ``--json``
+    :meth:`to_json`'s object.
+
+    The last five fields belong to some runs only (None elsewhere, and left out of the
+    JSON): ``seconds_depth`` to runs that compute depth, ``frame_gaps``,
+    ``frames_without_depth`` and ``depth_range_m`` to stereo sessions, ``trajectory`` to a
+    run written to a file.
+    """
+
+    frames: int
+    """Frames fed to the odometry."""
+    keyframes: int
+    frames_lost: int
+    loop_closures: int
+    relinks: int
+    """Closures that only re-link neighbouring keyframes across a lost stretch."""
+    loop_checks: dict[str, int | bool]
+    """What became of the loop candidates (:meth:`~sea3d.odometry.types.LoopChecks.as_dict`)."""
+    path_length_m: float
+    """Length of the trusted parts of the trajectory, metres."""
+    seconds: float
+    """Wall seconds of the run (reading, depth and odometry)."""
+    seconds_odometry: float
+    """Of ``seconds``: the odometry's steps."""
+    ms_per_frame_odometry: float
+    statuses: dict[str, int]
+    """Frames by :class:`~sea3d.odometry.types.TrackingStatus` value, every status named."""
+    segments: int
+    """Connected segments the frames fell into."""
+    imu: bool
+    """Whether the IMU was used."""
+    imu_note: str | None
+    """Why it was not (None when it was)."""
+    notes: tuple[str, ...]
+    """What was noticed about the input and decided about it, for the user."""
+    seconds_depth: float | None = None
+    """Of ``seconds``: the depth maps'."""
+    frame_gaps: int | None = None
+    """Frame intervals longer than 1.5 times the median (dropped frames)."""
+    frames_without_depth: int | None = None
+    """Frames with no valid depth in ``depth_range_m``."""
+    depth_range_m: tuple[float, float] | None = None
+    """The stereo depth range, metres."""
+    trajectory: str | None = None
+    """The TUM file the trajectory was written to."""
+
+    def to_json(self) -> dict[str, Any]:
+        """The summary as a JSON object (the figures in the order above; the fields of other
+        runs left out)."""
+        out = asdict(self)
+        for key in ("seconds_depth", "frame_gaps", "frames_without_depth", "depth_range_m",
+                    "trajectory"):
+            if out[key] is None:
+                del out[key]
+        return out
+
+
 @dataclass(frozen=True, kw_only=True, eq=False)
 class OdometryRun:
     """The result of a run.
@@ -256,16 +316,14 @@ class OdometryRun:
         T_world_left: (N, 4, 4) final poses (after the last loop closure).
         statuses: per frame :class:`TrackingStatus`.
         segments: per frame segment id (as reported when the frame was processed).
-        summary: ``frames``, ``keyframes``, ``frames_lost``, ``loop_closures``, ``relinks``
-            (closures that only re-link neighbouring keyframes across a lost stretch),
-            ``path_length_m``, ``seconds``, per-status counts, IMU use, notes.
+        summary: the run's figures.
     """
 
     t_ns: NDArray[np.int64]
     T_world_left: F64
     statuses: list[TrackingStatus]
     segments: list[int]
-    summary: dict[str, Any]
+    summary: OdometrySummary
 
 
 def run_odometry(
@@ -292,25 +350,24 @@ def run_odometry(
     t_ns, T = odometry.trajectory()
     counts = Counter(s.value for s in statuses)
     n = len(statuses)
-    summary: dict[str, Any] = {
-        "frames": n,
-        "keyframes": int(odometry.keyframe_count),
-        "frames_lost": int(counts.get(TrackingStatus.LOST.value, 0)),
-        "loop_closures": int(odometry.loop_closures),
-        "relinks": int(odometry.relinks),
-        "loop_checks": odometry.loop_checks.as_dict(),
-        "path_length_m": trusted_path_length_m(T, statuses, segments),
-        "seconds": time.perf_counter() - t0,
-        "seconds_odometry": seconds_odo,
-        "ms_per_frame_odometry": 1e3 * seconds_odo / max(n, 1),
-        "statuses": {s.value: int(counts.get(s.value, 0)) for s in TrackingStatus},
-        "segments": len(set(segments)) if segments else 0,
-        "imu": odometry.imu_disabled_reason is None,
-        "imu_note": odometry.imu_disabled_reason,
-        "notes": list(notes or []),
-    }
-    if seconds_depth is not None:
-        summary["seconds_depth"] = seconds_depth()
+    summary = OdometrySummary(
+        frames=n,
+        keyframes=int(odometry.keyframe_count),
+        frames_lost=int(counts.get(TrackingStatus.LOST.value, 0)),
+        loop_closures=int(odometry.loop_closures),
+        relinks=int(odometry.relinks),
+        loop_checks=odometry.loop_checks.as_dict(),
+        path_length_m=trusted_path_length_m(T, statuses, segments),
+        seconds=time.perf_counter() - t0,
+        seconds_odometry=seconds_odo,
+        ms_per_frame_odometry=1e3 * seconds_odo / max(n, 1),
+        statuses={s.value: int(counts.get(s.value, 0)) for s in TrackingStatus},
+        segments=len(set(segments)) if segments else 0,
+        imu=odometry.imu_disabled_reason is None,
+        imu_note=odometry.imu_disabled_reason,
+        notes=tuple(notes or ()),
+        seconds_depth=seconds_depth() if seconds_depth is not None else None,
+    )
     return OdometryRun(
         t_ns=t_ns, T_world_left=T, statuses=statuses, segments=segments, summary=summary
     )
@@ -376,17 +433,15 @@ def session_odometry(
         run = run_odometry(
             frames(), odo, progress=progress, notes=notes, seconds_depth=lambda: depth_s[0]
         )
-        run.summary["frame_gaps"] = src.frame_gaps
-        run.summary["frames_without_depth"] = no_depth[0]
         lo, hi = observer.depth_range_m
-        run.summary["depth_range_m"] = [lo, hi]
-        if no_depth[0]:
-            run.summary["notes"].append(
-                f"{no_depth[0]} of {n} frames have no valid depth in the depth range "
-                f"{lo:.3g}..{hi:.3g} m: the range may exclude the scene (set "
-                "min_depth_m/max_depth_m)"
-            )
-        return run
+        notes_after = () if not no_depth[0] else (
+            f"{no_depth[0]} of {n} frames have no valid depth in the depth range "
+            f"{lo:.3g}..{hi:.3g} m: the range may exclude the scene (set "
+            "min_depth_m/max_depth_m)",
+        )
+        return replace(run, summary=replace(
+            run.summary, frame_gaps=src.frame_gaps, frames_without_depth=no_depth[0],
+            depth_range_m=(lo, hi), notes=run.summary.notes + notes_after))
     finally:
         src.close()
 

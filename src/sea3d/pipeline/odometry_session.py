@@ -25,7 +25,7 @@ from sea3d.errors import ConfigError, OdometryError
 from sea3d.geometry.rig import StereoRig
 from sea3d.odometry.config import OdometryConfig
 from sea3d.odometry.types import TrackingStatus
-from sea3d.pipeline.odometry import OdometryRun
+from sea3d.pipeline.odometry import OdometryRun, OdometrySummary
 from sea3d.stereo.recipe import DepthConfig
 
 if TYPE_CHECKING:
@@ -54,14 +54,14 @@ class OdometryFiles:
         run: the trajectory, statuses and summary.
         trajectory: the TUM file written.
         status_csv: the per-frame status file, or None when none was asked for.
-        summary: ``run.summary`` with ``trajectory`` (the TUM path as text) added.
+        summary: ``run.summary`` with ``trajectory`` (the TUM path as text).
         untrusted_frames: frames with no trustworthy pose (status lost or initialising).
     """
 
     run: OdometryRun
     trajectory: Path
     status_csv: Path | None
-    summary: dict[str, Any]
+    summary: OdometrySummary
     untrusted_frames: int
 
 
@@ -80,8 +80,8 @@ def check_poses(run: OdometryRun) -> None:
     """
     n = len(run.statuses)
     trusted = [s in _TRUSTED for s in run.statuses]
-    no_depth = int(run.summary.get("frames_without_depth", 0))
-    rng = run.summary.get("depth_range_m")
+    no_depth = run.summary.frames_without_depth or 0
+    rng = run.summary.depth_range_m
     within = f" {rng[0]:.3g}..{rng[1]:.3g} m" if rng else ""
     if n and no_depth == n:
         raise OdometryError(
@@ -121,9 +121,8 @@ def save_odometry(run: OdometryRun, trajectory: str | os.PathLike[str],
     status = Path(status_csv) if status_csv is not None else None
     if status is not None:
         write_odometry_status(status, run.t_ns.tolist(), run.statuses, run.segments)
-    summary = run.summary
-    summary["trajectory"] = str(traj)
-    bad = int(summary["frames_lost"]) + int(summary["statuses"]["initialising"])
+    summary = dataclasses.replace(run.summary, trajectory=str(traj))
+    bad = summary.frames_lost + summary.statuses["initialising"]
     return OdometryFiles(run=run, trajectory=traj, status_csv=status, summary=summary,
                          untrusted_frames=bad)
 
