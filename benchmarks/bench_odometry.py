@@ -540,7 +540,8 @@ def cache_observations(session: Path, obs_cache: Path) -> Path:
 
     src = open_stereo_source(session, None, imu=True)
     try:
-        imu_ok, _ = imu_decision(src, True, None, OdometryConfig().imu_max_clock_offset_s)
+        imu_ok, _ = imu_decision(True, src.rig.imu, src.t_ns, src.imu_t_ns,
+                                 tolerance_s=OdometryConfig().imu_max_clock_offset_s)
         stereo = StereoDepth(src.rig, None)
         observer = Observer(stereo)
         n = src.t_ns.size
