@@ -57,6 +57,7 @@ def start_foxglove(
     """
     from sea3d.capture.foxglove_live import FoxgloveBridge, FoxgloveConfig, FoxglovePublisher
     from sea3d.capture.monitor import parse_address
+    from sea3d.capture.recorder import Recorder
     from sea3d.errors import CaptureError
     from sea3d.pipeline.live_preview import DepthPreview
 
@@ -76,9 +77,8 @@ def start_foxglove(
         restamp=replay is not None,
         depth=DepthPreview(publisher.rig, publisher.config.depth_width_px),
     )
-    add_listener = getattr(provider, "add_listener", None)
-    if replay is None and callable(add_listener):
-        add_listener(bridge.on_record)
+    if replay is None and isinstance(provider, Recorder):  # a live feed hands no records on
+        provider.add_listener(bridge.on_record)
     bridge.start()
     print(f"Foxglove at {publisher.url}", file=sys.stderr, flush=True)
     return publisher, bridge

@@ -10,7 +10,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sea3d.cli._args import (
     add_loop_closure_flag,
@@ -23,11 +23,15 @@ from sea3d.cli._args import (
     stall_limits,
 )
 
+if TYPE_CHECKING:
+    from sea3d.capture.recorder import Recorder
+
 __all__ = ["register"]
 
 
-def _recorder(args: argparse.Namespace) -> Any:
+def _recorder(args: argparse.Namespace) -> Recorder:
     from sea3d.capture.recorder import Recorder, RecorderConfig
+    from sea3d.capture.sources import SessionReplaySource
     from sea3d.capture.spec import open_source
     from sea3d.io.rig_file import read_rig_text
 
@@ -35,10 +39,11 @@ def _recorder(args: argparse.Namespace) -> Any:
                for role, spec in (("left", args.left), ("right", args.right),
                                   ("imu", args.imu)) if spec}
     rig_yaml = read_rig_text(args.rig) if args.rig else None
-    if rig_yaml is None and hasattr(sources["left"], "stream"):  # a session replay: its rig
+    left = sources["left"]
+    if rig_yaml is None and isinstance(left, SessionReplaySource):  # a session replay: its rig
         from sea3d.io.session import open_session
 
-        with open_session(sources["left"].path) as replayed:  # type: ignore[attr-defined]
+        with open_session(left.path) as replayed:
             rig_yaml = replayed.rig_yaml
     return Recorder(RecorderConfig(out_path=args.record, duration_s=args.duration,
                                    rig_yaml=rig_yaml, **stall_limits(args)), sources)

@@ -148,6 +148,7 @@ def _record(args: argparse.Namespace) -> int:
     import math
 
     from sea3d.capture.recorder import Recorder, RecorderConfig
+    from sea3d.capture.sources import SessionReplaySource
     from sea3d.capture.spec import open_source
     from sea3d.errors import ConfigError
 
@@ -188,10 +189,11 @@ def _record(args: argparse.Namespace) -> int:
         "left": open_source(args.left, "left", replay_speed=args.replay_speed),
         "right": open_source(args.right, "right", replay_speed=args.replay_speed),
     }
-    if rig_yaml is None and hasattr(sources["left"], "stream"):  # session replay: keep its rig
+    left = sources["left"]
+    if rig_yaml is None and isinstance(left, SessionReplaySource):  # session replay: keep its rig
         from sea3d.io.session import open_session
 
-        with open_session(sources["left"].path) as replayed:  # type: ignore[attr-defined]
+        with open_session(left.path) as replayed:
             rig_yaml = replayed.rig_yaml
     if args.imu:
         sources["imu"] = open_source(args.imu, "imu", replay_speed=args.replay_speed)

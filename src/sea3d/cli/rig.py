@@ -289,7 +289,7 @@ def _unproject(args: argparse.Namespace) -> int:
     from sea3d.io.rig_file import load_rig
 
     rig = load_rig(args.rig)
-    cam = getattr(rig, args.camera)
+    cam = rig.left if args.camera == "left" else rig.right
     uv = read_columns(args.pixels, ["u", "v"])
     rays = cam.unproject(uv)
     write_columns(
@@ -311,7 +311,7 @@ def _project(args: argparse.Namespace) -> int:
     from sea3d.io.rig_file import load_rig
 
     rig = load_rig(args.rig)
-    cam = getattr(rig, args.camera)
+    cam = rig.left if args.camera == "left" else rig.right
     pts = read_columns(args.points, ["x", "y", "z"])
     uv, valid = cam.project(pts)
     table = np.concatenate([pts, uv, valid[:, None].astype(np.float64)], axis=1)

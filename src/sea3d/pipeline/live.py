@@ -42,11 +42,12 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from abc import ABC, abstractmethod
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -60,7 +61,10 @@ from sea3d.pipeline.lock import locks_out_dir
 from sea3d.pipeline.ordered import TRUSTED, OrderedStages
 from sea3d.pipeline.pose_stage import OdometryChoice, choose_odometry, choose_session_odometry
 
-__all__ = ["LiveConfig", "LiveFrame", "LiveStats", "LiveUpdate", "RecorderFrames",
+if TYPE_CHECKING:
+    from sea3d.capture.recorder import Recorder
+
+__all__ = ["LiveConfig", "LiveFrame", "LiveSource", "LiveStats", "LiveUpdate", "RecorderFrames",
            "ReplayFrames", "run_live", "run_live_cameras", "run_live_replay"]
 
 log = logging.getLogger(__name__)
@@ -247,7 +251,38 @@ class LiveUpdate:
     images came with an earlier update, ``fused`` False)."""
 
 
-class ReplayFrames:
+class LiveSource(ABC):
+    """A live source of frames (:class:`ReplayFrames`, :class:`RecorderFrames`): iterated
+    once by the live loop, which reads :attr:`backlog` after each frame and
+    :attr:`stop_reason` at the end. :func:`run_live` takes any iterable of frames; one that
+    is not a source is read as a source that hands one frame at a time and gives no reason
+    to stop."""
+
+    backlog: int = 1
+    """Frames waiting to be handed on, the current one included."""
+    stop_reason: str = ""
+    """Why the source ended ("" until it has, or when it gives no reason)."""
+
+    @abstractmethod
+    def __iter__(self) -> Iterator[LiveFrame]:
+        """The frames, in time order."""
+
+
+class _PlainFrames(LiveSource):
+    """An iterable of frames as a :class:`LiveSource`."""
+
+    def __init__(self, frames: Iterable[LiveFrame]) -> None:
+        self.frames = frames
+
+    def __iter__(self) -> Iterator[LiveFrame]:
+        return iter(self.frames)
+
+
+def _as_source(frames: Iterable[LiveFrame]) -> LiveSource:
+    return frames if isinstance(frames, LiveSource) else _PlainFrames(frames)
+
+
+class ReplayFrames(LiveSource):
     """A session's pairs at their recorded rate (``rate`` times faster), as a live source.
 
     Frames are never skipped: when the consumer is late, the next frame is handed on at once.
@@ -308,7 +343,7 @@ def _read_only(image: NDArray[Any]) -> NDArray[Any]:
     return view
 
 
-class RecorderFrames:
+class RecorderFrames(LiveSource):
     """Stereo pairs of a running :class:`~sea3d.capture.recorder.Recorder`, as a live source.
 
     Registered as the recorder's listener (``recorder.add_listener``): the capture threads
@@ -342,7 +377,7 @@ class RecorderFrames:
             stopped there, with one warning naming the frame and both sizes. None: no check.
     """
 
-    def __init__(self, recorder: Any, *, pair_tolerance_ns: int | None = None,
+    def __init__(self, recorder: Recorder, *, pair_tolerance_ns: int | None = None,
                  imu_wait_s: float = 0.2, imu_time_offset_s: float = 0.0,
                  imu_tolerance_s: float = 1.0,
                  image_size: tuple[int, int] | None = None) -> None:
@@ -350,7 +385,7 @@ class RecorderFrames:
             raise ConfigError(f"pair_tolerance_ns must be >= 0, got {pair_tolerance_ns}")
         self.pair_tolerance_ns = pair_tolerance_ns
         self.imu_wait_s = float(imu_wait_s)
-        self.has_imu = "imu" in getattr(recorder, "sources", {})
+        self.has_imu = "imu" in recorder.sources
         self.imu_time_offset_s, self.imu_tolerance_s = imu_time_offset_s, imu_tolerance_s
         self.imu_clock_note: str | None = None
         self._imu_first_t: int | None = None
@@ -370,8 +405,7 @@ class RecorderFrames:
         self.backlog = 0
         self.stop_reason = ""
         self.image_size = image_size
-        self._stop_recorder: Callable[[str], Any] | None = getattr(recorder, "request_stop",
-                                                                   None)
+        self._recorder = recorder
         self._size_fault: str | None = None
         recorder.add_listener(self.on_record)
 
@@ -416,8 +450,7 @@ class RecorderFrames:
                 self._size_fault = fault
         if first:
             log.warning("live: %s", fault)
-            if self._stop_recorder is not None:
-                self._stop_recorder(fault)
+            self._recorder.request_stop(fault)
         return False
 
     def end(self, reason: str) -> None:
@@ -578,7 +611,7 @@ class _Prefetch:
                  max_frames: int | None = None,
                  start_depth: Callable[[LiveFrame, float, int], _Depth | None] | None = None
                  ) -> None:
-        self.source = frames
+        self.source = _as_source(frames)
         self.max_bytes, self.max_frames = float(max_bytes), max_frames
         self.start_depth = start_depth
         self._items: deque[tuple[LiveFrame, Any, _Depth | None, int] | None] = deque()
@@ -614,7 +647,7 @@ class _Prefetch:
             first = next((it[0] for it in self._items if it is not None), frame)
             n = sum(1 for it in self._items if it is not None)
         arrival = first.arrival_s if first.arrival_s is not None else now
-        return max(0.0, now - arrival), n + int(getattr(self.source, "backlog", 1) or 1)
+        return max(0.0, now - arrival), n + int(self.source.backlog or 1)
 
     def _run(self, stereo: Any) -> None:
         c0 = time.thread_time()
@@ -636,7 +669,7 @@ class _Prefetch:
     def backlog(self) -> int:
         with self._cv:
             n = sum(1 for it in self._items if it is not None)
-        return n + int(getattr(self.source, "backlog", 1) or 1)
+        return n + int(self.source.backlog or 1)
 
     def __iter__(self) -> Iterator[tuple[LiveFrame, Any, _Depth | None]]:
         while True:
@@ -699,7 +732,7 @@ def run_live(frames: Iterable[LiveFrame], stage: FrameStageConfig, stereo: Any,
         loop.drain(block=True)
     finally:
         source.close()
-    stats.stop_reason = str(getattr(frames, "stop_reason", "") or "source ended")
+    stats.stop_reason = source.source.stop_reason or "source ended"
     stats.cpu_s = time.process_time() - c0
     stats.loop_thread_cpu_s = time.thread_time() - t0
     stats.read_cpu_s = source.cpu_s

@@ -50,6 +50,7 @@ from sea3d.geometry.mesh import Mesh
 from sea3d.pipeline.ordered import TRUSTED
 
 if TYPE_CHECKING:
+    from sea3d.pipeline.live import LiveUpdate
     from sea3d.recon.submaps import SubmapStore
     from sea3d.recon.tsdf import TsdfConfig
     from sea3d.recon.types import Submap, VoxelBlocks
@@ -224,11 +225,11 @@ class LiveFeed:
             self._dirty.add(sid)
 
     # -- the live loop's side --------------------------------------------------------------
-    def on_update(self, u: Any) -> None:
+    def on_update(self, u: LiveUpdate) -> None:
         """The hook (see :class:`~sea3d.pipeline.live.LiveUpdate`)."""
         est, stages = u.estimate, u.stages
         self._stats, self._stages = u.stats, stages
-        late = bool(getattr(u, "late", False))  # a late fusion: its frame was handed on
+        late = u.late  # a late fusion: its frame was handed on
         t = int(est.t_ns) if not late or not self._poses else int(self._poses[-1][0])
         if not late:
             with self._lock:
