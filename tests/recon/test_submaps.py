@@ -90,6 +90,24 @@ def _box_top(mesh):
     return np.median(top, axis=0), len(top)
 
 
+def _fuse_frames(store, poses=_TRUE, frames=range(6, 12)):
+    """``frames`` (rendered at their true poses; by default 6-11: one submap of keyframes
+    3, 4, 5 at frames 6, 8, 10) integrated at ``poses`` into submaps of three keyframes;
+    returns their keyframe poses."""
+    fusion = SubmapFusion(FusionConfig(tsdf=TSDF, keyframes_per_submap=3))
+    kf: dict[int, np.ndarray] = {}
+    for i in frames:
+        d, c = render(_TRUE[i])
+        kid = _KEYFRAMES.get(i)
+        if kid is not None:
+            kf[kid] = poses[i]
+        for sm in fusion.step(t_ns=i, trusted=True, keyframe_id=kid, depth_m=d, color_rgb=c,
+                              K=K, T_world_cam=poses[i], keyframe_poses=kf).finished:
+            store.put(sm)
+    store.put(fusion.finish())
+    return kf
+
+
 def test_a_loop_closure_moves_the_submaps_anchor_not_its_voxels():
     # The odometry drifted: from frame 6 on every pose is 10 cm too high and turned 3 degrees.
     drift = np.eye(4)
@@ -98,18 +116,8 @@ def test_a_loop_closure_moves_the_submaps_anchor_not_its_voxels():
     drifted = [T if i < 6 else drift @ T for i, T in enumerate(_TRUE)]
     only_late = {i: k for i, k in _KEYFRAMES.items() if i >= 6}
     store = MemorySubmapStore()
-    fusion = SubmapFusion(FusionConfig(tsdf=TSDF, keyframes_per_submap=3))
     # Frames 6-11 only, so the drifted part is one submap we can look at alone.
-    kf: dict[int, np.ndarray] = {}
-    for i in range(6, 12):
-        d, c = render(_TRUE[i])
-        kid = only_late.get(i)
-        if kid is not None:
-            kf[kid] = drifted[i]
-        for sm in fusion.step(t_ns=i, trusted=True, keyframe_id=kid, depth_m=d, color_rgb=c,
-                              K=K, T_world_cam=drifted[i], keyframe_poses=kf).finished:
-            store.put(sm)
-    store.put(fusion.finish())
+    kf = _fuse_frames(store, drifted)
     before = merge_submaps(store, kf, TSDF, tile_m=None)
     top_before, _ = _box_top(before.mesh)
     assert top_before[2] == pytest.approx(BOX_HI[2] + 0.10, abs=PLACE_TOL_M)
@@ -123,23 +131,6 @@ def test_a_loop_closure_moves_the_submaps_anchor_not_its_voxels():
     assert abs(top_after[0]) < 0.02
 
 
-def _late_submap(store):
-    """Frames 6-11 integrated at their true poses into one submap (keyframes 3, 4, 5 at
-    frames 6, 8, 10); returns its keyframe poses."""
-    fusion = SubmapFusion(FusionConfig(tsdf=TSDF, keyframes_per_submap=3))
-    kf: dict[int, np.ndarray] = {}
-    for i in range(6, 12):
-        d, c = render(_TRUE[i])
-        kid = _KEYFRAMES.get(i)
-        if kid is not None:
-            kf[kid] = _TRUE[i]
-        for sm in fusion.step(t_ns=i, trusted=True, keyframe_id=kid, depth_m=d, color_rgb=c,
-                              K=K, T_world_cam=_TRUE[i], keyframe_poses=kf).finished:
-            store.put(sm)
-    store.put(fusion.finish())
-    return kf
-
-
 def _raised(T, dz):
     out = T.copy()
     out[2, 3] += dz
@@ -148,7 +139,7 @@ def _raised(T, dz):
 
 def test_a_submap_is_placed_where_it_fits_all_its_keyframes():
     store = MemorySubmapStore()
-    kf = _late_submap(store)
+    kf = _fuse_frames(store)
     sm = store.get(0)
     assert sm.view_keyframe_ids == (3, 4, 5) and sm.T_grid_views.shape == (3, 4, 4)
     assert np.all(sm.view_depth_m > 0.3)
@@ -173,7 +164,7 @@ def test_a_submap_is_placed_where_it_fits_all_its_keyframes():
 
 def test_a_submap_without_views_is_placed_by_its_anchor(tmp_path):
     store = MemorySubmapStore()
-    kf = _late_submap(store)
+    kf = _fuse_frames(store)
     sm = replace(store.get(0), view_keyframe_ids=(), T_grid_views=np.zeros((0, 4, 4)),
                  view_depth_m=np.zeros(0))
     anchor_only = {**kf, 3: _raised(kf[3], 0.03)}
@@ -196,17 +187,7 @@ def test_a_moved_merge_in_small_batches_equals_the_whole_merge(monkeypatch):
     import sea3d.recon.submaps as submaps
 
     store = MemorySubmapStore()
-    fusion = SubmapFusion(FusionConfig(tsdf=TSDF, keyframes_per_submap=3))
-    kf: dict[int, np.ndarray] = {}
-    for i in range(6):
-        d, c = render(_TRUE[i])
-        kid = _KEYFRAMES.get(i)
-        if kid is not None:
-            kf[kid] = _TRUE[i]
-        for sm in fusion.step(t_ns=i, trusted=True, keyframe_id=kid, depth_m=d, color_rgb=c,
-                              K=K, T_world_cam=_TRUE[i], keyframe_poses=kf).finished:
-            store.put(sm)
-    store.put(fusion.finish())
+    kf = _fuse_frames(store, frames=range(6))
     nudge = np.eye(4)
     nudge[:3, :3] = rotvec_to_R(np.array([0.0, 0.0, np.deg2rad(1.0)]))
     nudge[:3, 3] = (0.013, 0.0, 0.0)
