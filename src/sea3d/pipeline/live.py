@@ -45,7 +45,7 @@ import time
 from abc import ABC, abstractmethod
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -64,8 +64,9 @@ from sea3d.pipeline.pose_stage import OdometryChoice, choose_odometry, choose_se
 if TYPE_CHECKING:
     from sea3d.capture.recorder import Recorder
 
-__all__ = ["LiveConfig", "LiveFrame", "LiveSource", "LiveStats", "LiveUpdate", "RecorderFrames",
-           "ReplayFrames", "run_live", "run_live_cameras", "run_live_replay"]
+__all__ = ["CameraSource", "LiveConfig", "LiveFrame", "LiveSource", "LiveStats", "LiveSummary",
+           "LiveUpdate", "Percentiles", "RecorderFrames", "ReplayFrames", "ReplaySource",
+           "run_live", "run_live_cameras", "run_live_replay"]
 
 log = logging.getLogger(__name__)
 
@@ -153,6 +154,86 @@ class LiveFrame:
     so the time a frame waits for the odometry is in it."""
 
 
+@dataclass(frozen=True, kw_only=True)
+class Percentiles:
+    """The median and 99th percentile of a per-frame figure (None: no frame had one)."""
+
+    p50: float | None
+    p99: float | None
+
+    @classmethod
+    def of(cls, values: list[float]) -> Percentiles:
+        a = np.asarray(values, np.float64)
+        return cls(p50=float(np.percentile(a, 50)) if a.size else None,
+                   p99=float(np.percentile(a, 99)) if a.size else None)
+
+
+@dataclass(frozen=True, kw_only=True)
+class ReplaySource:
+    """What ``sea3d live --replay`` adds to the live block: the replay's speed, the depth
+    worker's warm-up and the frames that could not be read."""
+
+    rate: float
+    warmup_s: float
+    frames_unreadable: int
+
+
+@dataclass(frozen=True, kw_only=True)
+class CameraSource:
+    """What ``sea3d live --record`` adds to the live block: frames without a partner, the
+    warm-up, and the IMU clock check's note (None: the clocks agree, or no IMU)."""
+
+    unpaired_frames: int
+    source: str = "cameras"
+    warmup_s: float
+    imu_clock: str | None
+
+
+@dataclass(frozen=True, kw_only=True)
+class LiveSummary:
+    """summary.json's ``live`` block: what the live loop did (:class:`LiveStats`'s figures,
+    per-frame lists as :class:`Percentiles`), what its source adds, and the depth frames
+    in flight. :meth:`to_json` keeps the block's key order."""
+
+    frames: int
+    tracked: int
+    fused: int
+    depth_dropped: int
+    depth_stale: int
+    seeds_moved: int
+    depth_after_odometry: int
+    behind: tuple[str, ...]
+    fraction_tracked: float
+    fraction_fused: float
+    latency_s: Percentiles
+    mesh_latency_s: Percentiles
+    wait_s: Percentiles
+    depth_s: Percentiles
+    hold_s: Percentiles
+    pose_latency_s: Percentiles
+    backlog_max: int
+    depth_frames: int
+    cpu_s_per_frame: float
+    loop_thread_cpu_s_per_frame: float
+    read_cpu_s_per_frame: float
+    depth_cpu_s_per_depth_frame: float | None
+    stop_reason: str
+    source: ReplaySource | CameraSource | None = None
+    """The source's own figures (None: a run of :func:`run_live` alone)."""
+    depth_in_flight: int | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """The block as summary.json holds it: the loop's figures, the source's, then
+        ``depth_in_flight`` (the last two left out when None)."""
+        out = asdict(self)
+        source, in_flight = out.pop("source"), out.pop("depth_in_flight")
+        if source is not None:
+            out.update(source)
+        if in_flight is not None:
+            out["depth_in_flight"] = in_flight
+        return out
+
+
 @dataclass(kw_only=True)
 class LiveStats:
     """What the live loop did (frames, drops, latency)."""
@@ -206,31 +287,30 @@ class LiveStats:
         self.behind.append(stage)
         log.warning("live: %s is behind the camera: %s", stage, why)
 
-    def as_dict(self) -> dict[str, Any]:
-        def pct(values: list[float]) -> dict[str, float | None]:
-            a = np.asarray(values, np.float64)
-            return {"p50": float(np.percentile(a, 50)) if a.size else None,
-                    "p99": float(np.percentile(a, 99)) if a.size else None}
-
+    def summary(self, source: ReplaySource | CameraSource | None = None,
+                depth_in_flight: int | None = None) -> LiveSummary:
+        """The figures so far as a :class:`LiveSummary` (with the source's own and the depth
+        frames in flight, when given)."""
         n = max(self.frames, 1)
-        return {"frames": self.frames, "tracked": self.tracked, "fused": self.fused,
-                "depth_dropped": self.depth_dropped, "depth_stale": self.depth_stale,
-                "seeds_moved": self.seeds_moved,
-                "depth_after_odometry": self.depth_after_odometry, "behind": list(self.behind),
-                "fraction_tracked": self.tracked / self.frames if self.frames else 0.0,
-                "fraction_fused": self.fused / self.frames if self.frames else 0.0,
-                "latency_s": pct(self.latency_s), "mesh_latency_s": pct(self.mesh_latency_s),
-                "wait_s": pct(self.wait_s), "depth_s": pct(self.depth_s),
-                "hold_s": pct(self.hold_s),
-                "pose_latency_s": pct(self.pose_latency_s),
-                "backlog_max": self.backlog_max,
-                "depth_frames": self.depth_frames,
-                "cpu_s_per_frame": self.cpu_s / n,
-                "loop_thread_cpu_s_per_frame": self.loop_thread_cpu_s / n,
-                "read_cpu_s_per_frame": self.read_cpu_s / n,
-                "depth_cpu_s_per_depth_frame": (float(np.mean(self.depth_cpu_s))
-                                                if self.depth_cpu_s else None),
-                "stop_reason": self.stop_reason}
+        return LiveSummary(
+            frames=self.frames, tracked=self.tracked, fused=self.fused,
+            depth_dropped=self.depth_dropped, depth_stale=self.depth_stale,
+            seeds_moved=self.seeds_moved, depth_after_odometry=self.depth_after_odometry,
+            behind=tuple(self.behind),
+            fraction_tracked=self.tracked / self.frames if self.frames else 0.0,
+            fraction_fused=self.fused / self.frames if self.frames else 0.0,
+            latency_s=Percentiles.of(self.latency_s),
+            mesh_latency_s=Percentiles.of(self.mesh_latency_s),
+            wait_s=Percentiles.of(self.wait_s), depth_s=Percentiles.of(self.depth_s),
+            hold_s=Percentiles.of(self.hold_s),
+            pose_latency_s=Percentiles.of(self.pose_latency_s),
+            backlog_max=self.backlog_max, depth_frames=self.depth_frames,
+            cpu_s_per_frame=self.cpu_s / n,
+            loop_thread_cpu_s_per_frame=self.loop_thread_cpu_s / n,
+            read_cpu_s_per_frame=self.read_cpu_s / n,
+            depth_cpu_s_per_depth_frame=(float(np.mean(self.depth_cpu_s))
+                                         if self.depth_cpu_s else None),
+            stop_reason=self.stop_reason, source=source, depth_in_flight=depth_in_flight)
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -1015,8 +1095,8 @@ class _Run:
         finally:
             self.executor.close()
 
-    def finish(self, stats: LiveStats, live: LiveConfig | None, live_extra: dict[str, Any],
-               **extra: Any) -> dict[str, Any]:
+    def finish(self, stats: LiveStats, live: LiveConfig | None,
+               source: ReplaySource | CameraSource, **extra: Any) -> dict[str, Any]:
         """The finish step of ``process`` (merge, outputs, summary.json with its ``fusion``
         block) and summary.json's ``live`` block; the feed publishes the merged mesh and the
         final status."""
@@ -1035,8 +1115,8 @@ class _Run:
         summary["fusion"] = fusion_summary(config.map, self.fusion_cfg.tsdf)
         if self.feed is not None:
             self.feed.finish(stats, rec)
-        summary["live"] = {**stats.as_dict(), **live_extra,
-                           "depth_in_flight": (live or LiveConfig()).depth_in_flight}
+        summary["live"] = stats.summary(
+            source, depth_in_flight=(live or LiveConfig()).depth_in_flight).to_json()
         summary["timings_s"] = dict(self.timer.s)
         write_summary_json(files["summary"], summary)
         return summary
@@ -1084,8 +1164,8 @@ def run_live_replay(session_path: Any, config: Any, live: LiveConfig | None = No
         stats = run.run(replay, live)
     summary = run.finish(stats, live, session=str(path),
                          pairs_in_session=source.pairs_in_session,
-                         live_extra={"rate": rate, "warmup_s": warm_s,
-                                     "frames_unreadable": replay.unreadable})
+                         source=ReplaySource(rate=rate, warmup_s=warm_s,
+                                             frames_unreadable=replay.unreadable))
     return summary, stats
 
 
@@ -1170,6 +1250,6 @@ def run_live_cameras(recorder: Any, config: Any, live: LiveConfig | None = None,
     if "error" in result:
         raise result["error"]
     summary = run.finish(stats, live, session=str(rc.out_path), pairs_in_session=frames.pairs_made,
-                         live_extra={"unpaired_frames": frames.unpaired, "source": "cameras",
-                                     "warmup_s": warm_s, "imu_clock": frames.imu_clock_note})
+                         source=CameraSource(unpaired_frames=frames.unpaired, warmup_s=warm_s,
+                                             imu_clock=frames.imu_clock_note))
     return summary, stats, result["summary"]
