@@ -6,18 +6,33 @@ import argparse
 import dataclasses
 import functools
 import inspect
+import os
 import re
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, Protocol
 
 from sea3d._text import plural
 
 if TYPE_CHECKING:
     from sea3d.odometry.config import OdometryConfig
+    from sea3d.stereo.recipe import DepthConfig
 
 __all__ = ["add_depth_range", "add_output", "check_output_suffix", "config_default",
            "config_option", "deprecated", "depth_config", "field_help", "image_size",
            "param_default", "param_option", "plural",
            "positive_depth", "positive_float"]
+
+
+class Subcommands(Protocol):
+    """What a command's ``register`` adds its subcommands to (``add_subparsers()``)."""
+
+    def add_parser(self, name: str, **kwargs: Any) -> argparse.ArgumentParser: ...
+
+
+class ArgumentAdder(Protocol):
+    """A parser, subparser or argument group: what the helpers add options to."""
+
+    def add_argument(self, *name_or_flags: str, **kwargs: Any) -> argparse.Action: ...
 
 
 def image_size(text: str) -> tuple[int, int]:
@@ -33,7 +48,8 @@ def image_size(text: str) -> tuple[int, int]:
 
 
 
-def check_output_suffix(path: Any, flag: str, suffixes: tuple[str, ...], what: str) -> None:
+def check_output_suffix(path: str | os.PathLike[str], flag: str, suffixes: tuple[str, ...],
+                        what: str) -> None:
     """Refuse an output whose suffix no writer of the command accepts, before any work.
 
     Args:
@@ -57,7 +73,7 @@ def check_output_suffix(path: Any, flag: str, suffixes: tuple[str, ...], what: s
         raise ConfigError(f"{flag} {path}: {got}; {what} is written as {known}")
 
 
-def check_session_output(path: Any, flag: str, format: str | None = None, *,
+def check_session_output(path: str | os.PathLike[str], flag: str, format: str | None = None, *,
                          format_flag: bool = True) -> None:
     """Refuse, before any work, a session output the command should not write: a name with
     a file suffix other than ``.mcap`` (it would become a folder of that name), ``.mcap`` with
@@ -112,8 +128,9 @@ def positive_depth(text: str) -> float:
     return _finite_positive(text, "a depth in metres", "a depth > 0 m")
 
 
-def add_depth_range(parser: Any, *, near: str = "nearest depth to resolve (sets the disparity "
-                    "range)", far: str = "farthest depth kept") -> None:
+def add_depth_range(parser: ArgumentAdder, *,
+                    near: str = "nearest depth to resolve (sets the disparity range)",
+                    far: str = "farthest depth kept") -> None:
     """``--min-depth M`` and ``--max-depth M`` (metres) of a stereo depth range, default from the
     rig (:mod:`sea3d.stereo.recipe`); ``--min-depth-m``/``--max-depth-m`` are hidden aliases."""
     rule = "default: from the rig's focal length, baseline and disparity range"
@@ -127,7 +144,7 @@ def add_depth_range(parser: Any, *, near: str = "nearest depth to resolve (sets 
                         help=argparse.SUPPRESS)
 
 
-def depth_config(args: argparse.Namespace, **extra: Any) -> Any:
+def depth_config(args: argparse.Namespace, **extra: Any) -> DepthConfig:
     """The :class:`~sea3d.stereo.recipe.DepthConfig` of a command's flags (``--engine``,
     ``--max-disparity``, ``--min-depth``, ``--max-depth``, ``--min-confidence`` where it has
     them).
@@ -149,7 +166,7 @@ def depth_config(args: argparse.Namespace, **extra: Any) -> Any:
     return DepthConfig(**kw)
 
 
-def add_loop_closure_flag(parser: Any) -> None:
+def add_loop_closure_flag(parser: ArgumentAdder) -> None:
     """``--no-loop-closure``: the odometry without place recognition and pose-graph loops."""
     parser.add_argument("--no-loop-closure", action="store_true",
                         help="odometry without loop closure (the keyframe pose graph is never "
@@ -206,8 +223,9 @@ def field_help(cls: type, name: str) -> str:
     return str(f.metadata.get("help") or _attribute_docs(cls).get(name, ""))
 
 
-def _tagged_option(parser: Any, source: Any, name: str, default: Any, flags: tuple[str, ...],
-                   text: str, shown: str | None, kwargs: dict[str, Any]) -> Any:
+def _tagged_option(parser: ArgumentAdder, source: object, name: str, default: Any,
+                   flags: tuple[str, ...], text: str, shown: str | None,
+                   kwargs: dict[str, Any]) -> argparse.Action:
     if "default" in kwargs:
         raise TypeError(f"{name}: the default comes from {source!r}; do not pass default=")
     if shown is None:
@@ -217,7 +235,8 @@ def _tagged_option(parser: Any, source: Any, name: str, default: Any, flags: tup
         text = f"{text} (default {shown})".strip()
     action = parser.add_argument(*(flags or ("--" + name.replace("_", "-"),)), default=default,
                                  help=text.replace("%", "%%"), **kwargs)
-    action.sea3d_default_from = (source, name)  # for the test that defaults cannot drift
+    # for the test that defaults cannot drift
+    action.sea3d_default_from = (source, name)  # type: ignore[attr-defined]
     return action
 
 
@@ -231,14 +250,14 @@ def config_default(cls: type, name: str) -> Any:
     return None
 
 
-def param_default(func: Any, name: str) -> Any:
+def param_default(func: Callable[..., object], name: str) -> Any:
     """The default of parameter ``name`` of the library function ``func``."""
     p = inspect.signature(func).parameters[name]
     return None if p.default is inspect.Parameter.empty else p.default
 
 
-def config_option(parser: Any, cls: type, name: str, *flags: str, help: str | None = None,
-                  shown: str | None = None, **kwargs: Any) -> Any:
+def config_option(parser: ArgumentAdder, cls: type, name: str, *flags: str, help: str | None = None,
+                  shown: str | None = None, **kwargs: Any) -> argparse.Action:
     """An option whose default and help come from the config dataclass ``cls``'s field
     ``name``: the default is written once, in the dataclass; the help is its documentation
     with "(default X)" added. ``dest`` is the field name unless given.
@@ -261,8 +280,8 @@ def config_option(parser: Any, cls: type, name: str, *flags: str, help: str | No
                           kwargs)
 
 
-def param_option(parser: Any, func: Any, name: str, *flags: str, help: str,
-                 shown: str | None = None, **kwargs: Any) -> Any:
+def param_option(parser: ArgumentAdder, func: Callable[..., object], name: str, *flags: str,
+                 help: str, shown: str | None = None, **kwargs: Any) -> argparse.Action:
     """An option whose value is passed to parameter ``name`` of the library function ``func``:
     its default is the parameter's (written once, in the function), added to ``help``.
 
@@ -273,7 +292,7 @@ def param_option(parser: Any, func: Any, name: str, *flags: str, help: str,
                           kwargs)
 
 
-def add_port_options(parser: Any, *, flat_help: str) -> None:
+def add_port_options(parser: ArgumentAdder, *, flat_help: str) -> None:
     """The port options of ``sea3d rig create`` and ``sea3d calibrate port``: ``--inner-radius-mm``
     (default the paper's dome), ``--thickness-mm``, ``--n-glass``/``--n-water``/``--n-air`` (the
     defaults of :class:`~sea3d.refraction.ports.DomePort`) and ``--flat-distance-mm`` (that of
@@ -294,7 +313,7 @@ def add_port_options(parser: Any, *, flat_help: str) -> None:
                         help=f"{flat_help} (default {flat_mm:g})")
 
 
-def add_stall_options(parser: Any) -> None:
+def add_stall_options(parser: ArgumentAdder) -> None:
     """``--stall-warn S`` and ``--stall-stop S`` (0: never) of ``sea3d record`` and ``sea3d
     live --record``: a camera that delivers nothing for that long is warned about once, or
     stops the recording (the defaults are :class:`~sea3d.capture.recorder.RecorderConfig`'s)."""

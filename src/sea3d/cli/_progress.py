@@ -10,7 +10,12 @@ import logging
 import sys
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from tqdm import tqdm
+
+    from sea3d.pipeline.progress import ProgressBar
 
 __all__ = ["bar", "once_per_message", "stage_bars"]
 
@@ -24,7 +29,7 @@ def _enabled(enabled: bool) -> bool | None:
 
 
 def bar(total: int | None = None, desc: str = "", *, unit: str = "frame", enabled: bool = True,
-        iterable: Iterable[Any] | None = None, leave: bool = False) -> Any:
+        iterable: Iterable[object] | None = None, leave: bool = False) -> tqdm[object]:
     """A tqdm bar on stderr; ``enabled=False`` (for ``--json``) or ``-q`` turns it off."""
     from tqdm import tqdm
 
@@ -32,13 +37,13 @@ def bar(total: int | None = None, desc: str = "", *, unit: str = "frame", enable
                 disable=_enabled(enabled), dynamic_ncols=True)
 
 
-def stage_bars(enabled: bool) -> Callable[[str, int], Any]:
+def stage_bars(enabled: bool) -> Callable[[str, int], ProgressBar]:
     """A ``progress(stage, total)`` factory of stacked bars, one line per stage."""
     from tqdm import tqdm
 
     position = [0]
 
-    def make(stage: str, total: int) -> Any:
+    def make(stage: str, total: int) -> ProgressBar:
         b = tqdm(total=total, desc=f"{stage:>9}", unit="frame" if stage != "merge" else "map",
                  position=position[0], leave=True, disable=_enabled(enabled),
                  dynamic_ncols=True, file=sys.stderr)

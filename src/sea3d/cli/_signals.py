@@ -6,7 +6,7 @@ from __future__ import annotations
 import signal
 import threading
 from collections.abc import Callable
-from typing import Any
+from types import FrameType
 
 __all__ = ["StopOnSignals"]
 
@@ -19,9 +19,9 @@ class StopOnSignals:
         received: the last signal number received, or None.
     """
 
-    def __init__(self, stop: Callable[[str], Any]) -> None:
+    def __init__(self, stop: Callable[[str], object]) -> None:
         self.stop = stop
-        self.old: dict[int, Any] = {}
+        self.old: dict[int, Callable[[int, FrameType | None], object] | int | None] = {}
         self.received: int | None = None
 
     def __enter__(self) -> StopOnSignals:
@@ -30,7 +30,7 @@ class StopOnSignals:
                 self.old[sig] = signal.signal(sig, self._handle)
         return self
 
-    def _handle(self, signum: int, frame: Any) -> None:
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
         del frame
         self.received = signum
         self.stop(f"stopped by {signal.Signals(signum).name}")

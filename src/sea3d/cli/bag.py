@@ -15,7 +15,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from sea3d.cli._args import Subcommands
 
 __all__ = ["register"]
 
@@ -33,7 +36,7 @@ def _map_args(p: Any) -> None:
     )
 
 
-def register(sub: Any) -> None:
+def register(sub: Subcommands) -> None:
     """Add ``bag info`` and ``bag export``."""
     p = sub.add_parser(
         "bag",
@@ -43,7 +46,12 @@ def register(sub: Any) -> None:
         "RGB-D frames (color/, depth/ 16-bit mm, intrinsics.json) for the RGB-D tools.",
     )
     bsub = p.add_subparsers(dest="bag_command", metavar="ACTION")
-    p.set_defaults(handler=lambda _a: (p.print_help(sys.stderr), 2)[1])
+
+    def usage(_args: argparse.Namespace) -> int:  # the command without a subcommand
+        p.print_help(sys.stderr)
+        return 2
+
+    p.set_defaults(handler=usage)
     info = bsub.add_parser("info", help="topics and types; what a map picks")
     _map_args(info)
     info.add_argument("--json", action="store_true")

@@ -10,16 +10,19 @@ import logging
 import re
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sea3d.cli import error_line
 from sea3d.cli._args import add_port_options, config_option, param_option
 from sea3d.errors import CalibrationError, ConfigError
 
+if TYPE_CHECKING:
+    from sea3d.cli._args import Subcommands
+
 log = logging.getLogger(__name__)
 
 
-def register(sub: Any) -> None:
+def register(sub: Subcommands) -> None:
     """Add ``sea3d calibrate ...``."""
     cal = sub.add_parser("calibrate", help="calibration boards, stereo and port calibration")
     csub = cal.add_subparsers(dest="calibrate_command", metavar="ACTION", required=True)

@@ -6,12 +6,15 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from sea3d.cli._args import add_output, config_default, config_option, image_size
 
+if TYPE_CHECKING:
+    from sea3d.cli._args import Subcommands
 
-def register(sub: Any) -> None:
+
+def register(sub: Subcommands) -> None:
     """Add ``sea3d demo``."""
     p = sub.add_parser(
         "demo",

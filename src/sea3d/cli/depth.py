@@ -11,7 +11,7 @@ import argparse
 import json
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sea3d.cli._args import (
     add_depth_range,
@@ -21,6 +21,9 @@ from sea3d.cli._args import (
     plural,
     positive_float,
 )
+
+if TYPE_CHECKING:
+    from sea3d.cli._args import Subcommands
 
 __all__ = ["register"]
 
@@ -293,7 +296,7 @@ def _cmd_depth(args: argparse.Namespace) -> int:
     return 0
 
 
-def register(sub: Any) -> None:
+def register(sub: Subcommands) -> None:
     """Add ``stereo`` and ``depth`` to the top-level parser."""
     p = sub.add_parser(
         "stereo",
@@ -386,7 +389,7 @@ def register(sub: Any) -> None:
     d.set_defaults(handler=_cmd_depth)
 
 
-def register_eval(esub: Any) -> None:
+def register_eval(esub: Subcommands) -> None:
     """Add ``eval disparity`` to the ``eval`` command's subparsers."""
     ed = esub.add_parser(
         "disparity",

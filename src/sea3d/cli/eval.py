@@ -8,17 +8,27 @@ from __future__ import annotations
 
 import importlib
 import sys
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import argparse
+
+    from sea3d.cli._args import Subcommands
 
 __all__ = ["register"]
 
 _EVAL_MODULES = ("depth", "enhance", "sonar", "recon")
 
 
-def register(sub: Any) -> None:
+def register(sub: Subcommands) -> None:
     """Add ``eval`` and every area's ``eval`` subcommands to the top-level parser."""
     e = sub.add_parser("eval", help="evaluate results against ground truth")
     esub = e.add_subparsers(dest="eval_command", metavar="WHAT")
     for name in _EVAL_MODULES:
         importlib.import_module(f"sea3d.cli.{name}").register_eval(esub)
-    e.set_defaults(handler=lambda a: (e.print_help(sys.stderr), 2)[1])
+
+    def usage(_args: argparse.Namespace) -> int:  # the command without a subcommand
+        e.print_help(sys.stderr)
+        return 2
+
+    e.set_defaults(handler=usage)

@@ -12,16 +12,19 @@ import argparse
 import json
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sea3d.cli._args import add_depth_range, config_option
+
+if TYPE_CHECKING:
+    from sea3d.cli._args import Subcommands
 
 __all__ = ["register"]
 
 _FLOAT_SUFFIXES = (".npy", ".pfm", ".tif", ".tiff")
 
 
-def register(sub: Any) -> None:
+def register(sub: Subcommands) -> None:
     """Add ``mono-depth`` to the top-level parser."""
     p = sub.add_parser(
         "mono-depth",

@@ -29,6 +29,7 @@ from sea3d.cli._args import (
 from sea3d.errors import ConfigError
 
 if TYPE_CHECKING:
+    from sea3d.cli._args import Subcommands
     from sea3d.pipeline.odometry_session import OdometryFiles
 
 __all__ = ["register", "register_calibrate_imu"]
@@ -40,7 +41,7 @@ _USAGE = (
 )
 
 
-def register(sub: Any) -> None:
+def register(sub: Subcommands) -> None:
     """Add ``sea3d odometry``."""
     from sea3d.odometry.rgbd_dense import DenseRgbdConfig
 
@@ -205,7 +206,7 @@ def _run_rgbd(args: argparse.Namespace) -> int:
 
 
 # ---------------------------------------------------------------------- calibrate imu
-def register_calibrate_imu(csub: Any) -> None:
+def register_calibrate_imu(csub: Subcommands) -> None:
     """Add ``sea3d calibrate imu`` (called from :mod:`sea3d.cli.calibrate`)."""
     p = csub.add_parser(
         "imu",

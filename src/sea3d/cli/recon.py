@@ -12,7 +12,7 @@ import json
 import logging
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from sea3d._text import loop_checks_text
 from sea3d.cli import error_line
@@ -25,6 +25,9 @@ from sea3d.cli._args import (
     param_option,
     plural,
 )
+
+if TYPE_CHECKING:
+    from sea3d.cli._args import Subcommands
 
 __all__ = ["register", "register_eval"]
 
@@ -272,7 +275,7 @@ def _cmd_eval_surface(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------------------------- register
 
 
-def register(sub: Any) -> None:
+def register(sub: Subcommands) -> None:
     """Add ``process`` and ``fuse``."""
     p = sub.add_parser(
         "process",
@@ -393,7 +396,7 @@ def register(sub: Any) -> None:
     f.set_defaults(handler=_cmd_fuse)
 
 
-def register_eval(esub: Any) -> None:
+def register_eval(esub: Subcommands) -> None:
     """Add ``eval trajectory`` and ``eval surface``."""
     t = esub.add_parser(
         "trajectory",

@@ -8,7 +8,7 @@ import json
 import sys
 import threading
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sea3d.cli._args import (
     add_output,
@@ -22,6 +22,9 @@ from sea3d.cli._args import (
 from sea3d.cli._foxglove import FOXGLOVE_HELP as _FOXGLOVE_HELP
 from sea3d.cli._signals import StopOnSignals
 
+if TYPE_CHECKING:
+    from sea3d.cli._args import Subcommands
+
 __all__ = ["register"]
 
 _SOURCE_HELP = (
@@ -30,7 +33,7 @@ _SOURCE_HELP = (
 )
 
 
-def register(sub: Any) -> None:
+def register(sub: Subcommands) -> None:
     """Add ``record`` and ``monitor`` to the top-level subparsers."""
     rec = sub.add_parser(
         "record",

@@ -6,13 +6,16 @@ import argparse
 import dataclasses
 import json
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sea3d.cli._args import add_port_options, image_size
 from sea3d.errors import ConfigError
 
+if TYPE_CHECKING:
+    from sea3d.cli._args import Subcommands
 
-def register(sub: Any) -> None:
+
+def register(sub: Subcommands) -> None:
     """Add ``sea3d rig ...``."""
     rig = sub.add_parser("rig", help="create, inspect and convert stereo rig files")
     rsub = rig.add_subparsers(dest="rig_command", metavar="ACTION", required=True)

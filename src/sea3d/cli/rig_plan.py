@@ -8,14 +8,17 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sea3d.cli._args import config_option, image_size
+
+if TYPE_CHECKING:
+    from sea3d.cli._args import Subcommands
 
 __all__ = ["register_plan"]
 
 
-def register_plan(rsub: Any) -> None:
+def register_plan(rsub: Subcommands) -> None:
     """Add ``plan`` to the ``sea3d rig`` subparsers."""
     p = rsub.add_parser(
         "plan",

@@ -5,14 +5,17 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from typing import Any
+from typing import TYPE_CHECKING
 
 from sea3d.cli._args import param_option, plural
+
+if TYPE_CHECKING:
+    from sea3d.cli._args import Subcommands
 
 __all__ = ["register"]
 
 
-def register(sub: Any) -> None:
+def register(sub: Subcommands) -> None:
     """Add ``session info``, ``session verify`` and ``session convert`` to the subparsers."""
     parser = sub.add_parser(
         "session",
@@ -21,7 +24,12 @@ def register(sub: Any) -> None:
         "or a folder of left/<t_ns>.png, right/<t_ns>.png, imu.csv, sonar.csv, rig.yaml.",
     )
     ssub = parser.add_subparsers(dest="session_command", metavar="SUBCOMMAND")
-    parser.set_defaults(handler=lambda _args: (parser.print_help(), 2)[1])
+
+    def usage(_args: argparse.Namespace) -> int:  # the command without a subcommand
+        parser.print_help()
+        return 2
+
+    parser.set_defaults(handler=usage)
 
     info = ssub.add_parser("info", help="streams, counts, rates, gaps, duration, size")
     info.add_argument("path", help="session: .mcap file or folder")

@@ -12,7 +12,7 @@ import argparse
 import logging
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sea3d._text import plural, size_text
 from sea3d.cli._args import add_output, config_option, image_size
@@ -23,8 +23,11 @@ _log = logging.getLogger(__name__)
 
 _WATERS = ["none", "clear", "coastal", "turbid"]
 
+if TYPE_CHECKING:
+    from sea3d.cli._args import Subcommands
 
-def register(sub: Any) -> None:
+
+def register(sub: Subcommands) -> None:
     """Add ``sim`` (survey) and ``sim calibration`` to the top-level subparsers."""
     p = sub.add_parser(
         "sim",

@@ -5,14 +5,17 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sea3d.cli._args import add_depth_range, depth_config, param_option
+
+if TYPE_CHECKING:
+    from sea3d.cli._args import Subcommands
 
 __all__ = ["register_eval"]
 
 
-def register_eval(esub: Any) -> None:
+def register_eval(esub: Subcommands) -> None:
     """Add ``eval sonar`` to the ``eval`` command's subparsers."""
     p = esub.add_parser(
         "sonar",

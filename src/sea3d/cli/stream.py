@@ -16,10 +16,13 @@ import json
 import sys
 import threading
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sea3d.cli._args import config_option, image_size, param_option
 from sea3d.cli._signals import StopOnSignals
+
+if TYPE_CHECKING:
+    from sea3d.cli._args import Subcommands
 
 __all__ = ["register"]
 
@@ -29,7 +32,7 @@ _SOURCE_HELP = (
 )
 
 
-def register(sub: Any) -> None:
+def register(sub: Subcommands) -> None:
     """Add ``stream`` (send) and ``stream receive``."""
     p = sub.add_parser(
         "stream",

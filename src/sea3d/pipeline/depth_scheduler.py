@@ -13,13 +13,21 @@ import dataclasses
 import logging
 import time
 from collections.abc import Callable, Iterator
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from sea3d.errors import ExecutorError, SessionError
 from sea3d.pipeline.frame_source import FramePair, SessionFrames
 from sea3d.pipeline.frame_stage import FrameResult, FrameStageConfig, process_frame
+
+if TYPE_CHECKING:
+    from numpy.typing import NDArray
+
+    from sea3d.io.result_cache import FrameCache
+    from sea3d.pipeline.depth_rate import DepthRate
+    from sea3d.pipeline.executors import Executor
+    from sea3d.stereo.recipe import StereoDepth
 
 __all__ = ["DepthScheduler", "StageTimer"]
 
@@ -59,11 +67,13 @@ class DepthScheduler:
     pose: :meth:`~sea3d.pipeline.depth_rate.DepthRate.seed`). It is not cached.
     """
 
-    def __init__(self, source: SessionFrames, executor: Any, stage: FrameStageConfig,
-                 stereo: Any, cache: Any, *, window: int, timer: StageTimer,
-                 on_depth: Callable[[int], Any] = lambda n: None,
-                 depth_rate: Any = None,
-                 rectify: Callable[[Any, Any], tuple[Any, Any]] | None = None) -> None:
+    def __init__(self, source: SessionFrames, executor: Executor, stage: FrameStageConfig,
+                 stereo: StereoDepth, cache: FrameCache, *, window: int, timer: StageTimer,
+                 on_depth: Callable[[int], object] = lambda n: None,
+                 depth_rate: DepthRate | None = None,
+                 rectify: Callable[[NDArray[Any], NDArray[Any]],
+                                   tuple[NDArray[np.uint8], NDArray[np.uint8]]] | None = None
+                 ) -> None:
         if depth_rate is not None and rectify is None:
             raise ValueError("a depth rate needs rectify for the frames without depth")
         self.depth_rate, self.rectify = depth_rate, rectify

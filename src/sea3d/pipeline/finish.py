@@ -12,7 +12,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,6 +22,15 @@ from sea3d.io.process_outputs import FrameRow
 from sea3d.odometry.types import TrackingStatus
 from sea3d.pipeline.depth_scheduler import StageTimer
 from sea3d.pipeline.ordered import OrderedStages, trusted_path_length_m
+from sea3d.pipeline.progress import ProgressFactory
+
+if TYPE_CHECKING:
+    from sea3d.geometry.mesh import Mesh
+    from sea3d.geometry.rig import StereoRig
+    from sea3d.pipeline.config import MapConfig
+    from sea3d.recon.cloud import CleanCloud
+    from sea3d.recon.submaps import SubmapStore
+    from sea3d.recon.tsdf import TsdfConfig
 
 __all__ = ["FinishOptions", "FinishedRun", "Reconstruction", "finish_reconstruction",
            "finish_run", "frame_rows", "fusion_summary", "run_summary"]
@@ -43,7 +52,7 @@ class FinishOptions:
     min_piece_triangles: int = 0
 
     @classmethod
-    def of_map(cls, map_cfg: Any) -> FinishOptions:
+    def of_map(cls, map_cfg: MapConfig) -> FinishOptions:
         """The options of a run's map configuration (``ProcessConfig.map``); the cloud's voxel
         is half the TSDF's unless set."""
         return cls(tile_m=map_cfg.merge_tile_m,
@@ -57,14 +66,14 @@ class Reconstruction:
 
     t_ns: NDArray[np.int64]
     T_world_left: F64
-    mesh: Any
-    cloud: Any
+    mesh: Mesh
+    cloud: CleanCloud
     submaps: int
     moved: int
 
 
-def finish_reconstruction(stages: OrderedStages, store: Any, tsdf: Any,
-                          options: FinishOptions, *, progress: Any,
+def finish_reconstruction(stages: OrderedStages, store: SubmapStore, tsdf: TsdfConfig,
+                          options: FinishOptions, *, progress: ProgressFactory,
                           timer: StageTimer) -> Reconstruction:
     """Final trajectory, merge of the stored submaps at the final keyframe poses, cloud.
 
@@ -166,8 +175,9 @@ class FinishedRun:
     summary: dict[str, Any]
 
 
-def finish_run(stages: OrderedStages, store: Any, tsdf: Any, out: Path, rig: Any,
-               options: FinishOptions, *, progress: Any, timer: StageTimer,
+def finish_run(stages: OrderedStages, store: SubmapStore, tsdf: TsdfConfig, out: Path,
+               rig: StereoRig, options: FinishOptions, *, progress: ProgressFactory,
+               timer: StageTimer,
                summary_extra: dict[str, Any]) -> FinishedRun:
     """The finish step after the last frame: merge and cloud (:func:`finish_reconstruction`),
     the outputs (trajectory, mesh, cloud, status.csv, results.mcap; timed as ``write_s``)
@@ -195,7 +205,7 @@ def finish_run(stages: OrderedStages, store: Any, tsdf: Any, out: Path, rig: Any
     return FinishedRun(rec=rec, files=files, summary=run_summary(stages, rec, **summary_extra))
 
 
-def fusion_summary(map_cfg: Any, tsdf: Any) -> dict[str, Any]:
+def fusion_summary(map_cfg: MapConfig, tsdf: TsdfConfig) -> dict[str, Any]:
     """summary.json's ``fusion`` block: the settings that decided what the mesh keeps.
 
     Args:

@@ -25,7 +25,7 @@ import pickle
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import cv2
 import numpy as np
@@ -35,6 +35,9 @@ from sea3d.errors import ConfigError, Sea3dError
 from sea3d.geometry.rig import StereoRig
 from sea3d.recon.depth_resample import ResampleMethod, virtual_pinhole_depth_confidence
 from sea3d.stereo.recipe import DepthConfig, StereoDepth
+
+if TYPE_CHECKING:
+    from sea3d.rectify.maps import RectifyMaps
 
 __all__ = ["FrameResult", "FrameStageConfig", "install_geometry", "process_frame",
            "rectify_pair", "stage_depth", "stage_geometry"]
@@ -251,7 +254,7 @@ def stage_depth(config: FrameStageConfig) -> StereoDepth:
     return stereo
 
 
-def stage_geometry(config: FrameStageConfig) -> tuple[Any, Any]:
+def stage_geometry(config: FrameStageConfig) -> tuple[StereoRig, RectifyMaps]:
     """``(rig, maps)`` of :func:`stage_depth`: the (scaled)
     :class:`~sea3d.geometry.rig.StereoRig` and its :class:`~sea3d.rectify.maps.RectifyMaps`.
 
@@ -414,7 +417,8 @@ def process_frame(config: FrameStageConfig, t_ns: int, left: NDArray[Any],
 
 
 def _restore_colours(rect_left: NDArray[np.uint8], depth_m: NDArray[np.float32],
-                     points_left: NDArray[np.float64], maps: Any) -> tuple[NDArray[np.uint8], str]:
+                     points_left: NDArray[np.float64], maps: RectifyMaps
+                     ) -> tuple[NDArray[np.uint8], str]:
     """Sea-thru of the rectified left image with the range of the stereo points (their norms
     in the left camera frame: exact through the ports), on the pixels that have depth."""
     from sea3d.enhance.seathru import depth_to_range

@@ -40,6 +40,7 @@ published mesh update that holds it.
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from abc import ABC, abstractmethod
@@ -62,7 +63,16 @@ from sea3d.pipeline.ordered import TRUSTED, OrderedStages
 from sea3d.pipeline.pose_stage import OdometryChoice, choose_odometry, choose_session_odometry
 
 if TYPE_CHECKING:
-    from sea3d.capture.recorder import Recorder
+    from sea3d.capture.recorder import Recorder, RecordSummary
+    from sea3d.geometry.rig import StereoRig
+    from sea3d.pipeline.executors import Executor
+    from sea3d.pipeline.live_publish import LiveFeed
+    from sea3d.pipeline.process import ProcessConfig
+    from sea3d.recon.submaps import SubmapStore
+    from sea3d.stereo.recipe import StereoDepth
+
+_Rect = tuple[NDArray[np.uint8], NDArray[np.uint8]]
+"""A rectified pair ``(left, right)``."""
 
 __all__ = ["CameraSource", "LiveConfig", "LiveFrame", "LiveSource", "LiveStats", "LiveSummary",
            "LiveUpdate", "Percentiles", "RecorderFrames", "ReplayFrames", "ReplaySource",
@@ -374,7 +384,7 @@ class ReplayFrames(LiveSource):
 
     def __init__(self, source: SessionFrames, *, rate: float = 1.0,
                  clock: Callable[[], float] = time.monotonic,
-                 sleep: Callable[[float], Any] = time.sleep,
+                 sleep: Callable[[float], object] = time.sleep,
                  stop: Callable[[], str | None] | None = None) -> None:
         if not rate > 0:
             raise ConfigError(f"rate must be > 0, got {rate}")
@@ -665,7 +675,7 @@ class _Pending:
 
 
 def _depth_frame(config: FrameStageConfig, t_ns: int, left: NDArray[Any], right: NDArray[Any],
-                 geometry: Any = None) -> FrameResult:
+                 geometry: StereoDepth | None = None) -> FrameResult:
     """:func:`~sea3d.pipeline.frame_stage.process_frame` on the worker, with the worker's CPU
     for it in ``timings_s["worker_cpu_s"]`` (taken out by the loop before the stages see it)."""
     c0 = time.process_time()
@@ -674,7 +684,7 @@ def _depth_frame(config: FrameStageConfig, t_ns: int, left: NDArray[Any], right:
     return res
 
 
-def _nbytes(frame: LiveFrame, rect: Any) -> int:
+def _nbytes(frame: LiveFrame, rect: _Rect) -> int:
     return int(frame.left.nbytes + frame.right.nbytes + sum(int(r.nbytes) for r in rect))
 
 
@@ -687,14 +697,14 @@ class _Prefetch:
     (itself included) and the frames waiting (itself included): the depth it starts goes
     with the frame. ``backlog``: the frames waiting here plus the source's own."""
 
-    def __init__(self, frames: Iterable[LiveFrame], stereo: Any, *, max_bytes: float,
+    def __init__(self, frames: Iterable[LiveFrame], stereo: StereoDepth, *, max_bytes: float,
                  max_frames: int | None = None,
                  start_depth: Callable[[LiveFrame, float, int], _Depth | None] | None = None
                  ) -> None:
         self.source = _as_source(frames)
         self.max_bytes, self.max_frames = float(max_bytes), max_frames
         self.start_depth = start_depth
-        self._items: deque[tuple[LiveFrame, Any, _Depth | None, int] | None] = deque()
+        self._items: deque[tuple[LiveFrame, _Rect, _Depth | None, int] | None] = deque()
         self._bytes = 0
         self._cv = threading.Condition()
         self._stop = False
@@ -704,7 +714,7 @@ class _Prefetch:
                                         name="sea3d-live-prefetch")
         self._thread.start()
 
-    def _put(self, item: tuple[LiveFrame, Any, _Depth | None, int] | None) -> bool:
+    def _put(self, item: tuple[LiveFrame, _Rect, _Depth | None, int] | None) -> bool:
         with self._cv:
             size = item[3] if item is not None else 0
             while (not self._stop and self._items and item is not None
@@ -729,7 +739,7 @@ class _Prefetch:
         arrival = first.arrival_s if first.arrival_s is not None else now
         return max(0.0, now - arrival), n + int(self.source.backlog or 1)
 
-    def _run(self, stereo: Any) -> None:
+    def _run(self, stereo: StereoDepth) -> None:
         c0 = time.thread_time()
         try:
             for frame in self.source:
@@ -751,7 +761,7 @@ class _Prefetch:
             n = sum(1 for it in self._items if it is not None)
         return n + int(self.source.backlog or 1)
 
-    def __iter__(self) -> Iterator[tuple[LiveFrame, Any, _Depth | None]]:
+    def __iter__(self) -> Iterator[tuple[LiveFrame, _Rect, _Depth | None]]:
         while True:
             with self._cv:
                 while not self._items:
@@ -773,9 +783,9 @@ class _Prefetch:
         self._thread.join(timeout=1)
 
 
-def run_live(frames: Iterable[LiveFrame], stage: FrameStageConfig, stereo: Any,
-             stages: OrderedStages, executor: Any, config: LiveConfig | None = None, *,
-             on_update: Callable[[LiveUpdate], Any] | None = None) -> LiveStats:
+def run_live(frames: Iterable[LiveFrame], stage: FrameStageConfig, stereo: StereoDepth,
+             stages: OrderedStages, executor: Executor, config: LiveConfig | None = None, *,
+             on_update: Callable[[LiveUpdate], object] | None = None) -> LiveStats:
     """Odometry on every frame, depth and fusion on those the depth worker keeps up with.
 
     The source is read and rectified ahead by a thread (:class:`_Prefetch`). A frame's
@@ -822,9 +832,9 @@ def run_live(frames: Iterable[LiveFrame], stage: FrameStageConfig, stereo: Any,
 class _Loop:
     """The live loop's state: frames waiting for their odometry, then for their fusion."""
 
-    def __init__(self, stage: FrameStageConfig, stereo: Any, stages: OrderedStages,
-                 executor: Any, cfg: LiveConfig, stats: LiveStats,
-                 on_update: Callable[[LiveUpdate], Any] | None) -> None:
+    def __init__(self, stage: FrameStageConfig, stereo: StereoDepth, stages: OrderedStages,
+                 executor: Executor, cfg: LiveConfig, stats: LiveStats,
+                 on_update: Callable[[LiveUpdate], object] | None) -> None:
         from sea3d.pipeline.depth_rate import DepthRate
 
         self.stage, self.stages, self.executor, self.cfg, self.stats = (
@@ -840,7 +850,7 @@ class _Loop:
         # seeds of a frame without depth: the last depth map moved to its predicted pose
         self.seeder = DepthRate("all", K=stages.K, width_px=int(stereo.maps.width),
                                 trusted=TRUSTED)
-        self.hook: list[Callable[[LiveUpdate], Any]] = [on_update] if on_update else []
+        self.hook: list[Callable[[LiveUpdate], object]] = [on_update] if on_update else []
 
     def start_depth(self, frame: LiveFrame, lag_s: float, backlog: int) -> _Depth | None:
         """Depth for ``frame`` if the worker has room and the frame is not stale (see
@@ -879,7 +889,7 @@ class _Loop:
         with self._lock:
             self._in_flight -= 1
 
-    def take(self, frame: LiveFrame, rect: Any, backlog: int,
+    def take(self, frame: LiveFrame, rect: _Rect, backlog: int,
              depth: _Depth | None = None) -> None:
         """A frame from the source (with the depth started for it as it was read, or, with
         ``depth_pick="in-order"``, depth for it now if the worker has room), then the loop."""
@@ -1029,8 +1039,9 @@ class _Loop:
 class _Run:
     """The stages of one live run over a rig (shared by replay and cameras)."""
 
-    def __init__(self, config: Any, native_rig: Any, out: Path, *,
-                 choose_odometry: Callable[[Any], OdometryChoice], feed: Any = None) -> None:
+    def __init__(self, config: ProcessConfig, native_rig: StereoRig, out: Path, *,
+                 choose_odometry: Callable[[StereoDepth], OdometryChoice],
+                 feed: LiveFeed | None = None) -> None:
         from sea3d.pipeline.depth_scheduler import StageTimer
         from sea3d.pipeline.executors import ProcessExecutor
         from sea3d.pipeline.frame_stage import install_geometry, stage_depth
@@ -1046,8 +1057,9 @@ class _Run:
         self.stereo = stage_depth(self.stage)
         odometry = choose_odometry(self.stereo)
         self.odo, self.odometry_name, self.imu_used, self.imu_note = odometry
-        self.store: Any = DiskSubmapStore(out / "submaps")
-        self.store.clear()
+        disk = DiskSubmapStore(out / "submaps")
+        disk.clear()
+        self.store: SubmapStore = disk
         # every voxel seen: live fuses only the depth frames it keeps up with, so a surface
         # may reach one of them (process keeps voxels seen twice, MapConfig.min_observations)
         self.fusion_cfg = config.map.fusion(self.stereo.depth_range_m, min_observations=1)
@@ -1123,8 +1135,9 @@ class _Run:
 
 
 @locks_out_dir  # as process: a second run into the folder is refused (OutputInUseError)
-def run_live_replay(session_path: Any, config: Any, live: LiveConfig | None = None, *,
-                    rate: float = 1.0, feed: Any = None,
+def run_live_replay(session_path: str | os.PathLike[str], config: ProcessConfig,
+                    live: LiveConfig | None = None, *, rate: float = 1.0,
+                    feed: LiveFeed | None = None,
                     stop: Callable[[], str | None] | None = None,
                     ) -> tuple[dict[str, Any], LiveStats]:
     """``sea3d live --replay``: a recorded session replayed at its rate through the live loop,
@@ -1172,14 +1185,15 @@ def run_live_replay(session_path: Any, config: Any, live: LiveConfig | None = No
 class _RigText:
     """What :func:`~sea3d.io.rig_file.resolve_rig` reads of a session: its stored rig."""
 
-    def __init__(self, path: Any, rig_yaml: str | None) -> None:
+    def __init__(self, path: Path, rig_yaml: str | None) -> None:
         self.path, self.rig_yaml = path, rig_yaml
 
 
 @locks_out_dir
-def run_live_cameras(recorder: Any, config: Any, live: LiveConfig | None = None, *,
-                     feed: Any = None, pair_tolerance_ns: int | None = None,
-                     ) -> tuple[dict[str, Any], LiveStats, Any]:
+def run_live_cameras(recorder: Recorder, config: ProcessConfig,
+                     live: LiveConfig | None = None, *, feed: LiveFeed | None = None,
+                     pair_tolerance_ns: int | None = None,
+                     ) -> tuple[dict[str, Any], LiveStats, RecordSummary]:
     """``sea3d live --record``: record the cameras (the recorder writes its session as it
     would alone) and reconstruct them live through the recorder's listener hook; when the
     recording stops (a camera that stops, the duration, Ctrl-C, a full disk), the frames

@@ -50,7 +50,10 @@ from sea3d.geometry.mesh import Mesh
 from sea3d.pipeline.ordered import TRUSTED
 
 if TYPE_CHECKING:
-    from sea3d.pipeline.live import LiveUpdate
+    from sea3d.capture.foxglove_live import FoxglovePublisher
+    from sea3d.pipeline.finish import Reconstruction
+    from sea3d.pipeline.live import LiveStats, LiveUpdate
+    from sea3d.pipeline.ordered import OrderedStages
     from sea3d.recon.submaps import SubmapStore
     from sea3d.recon.tsdf import TsdfConfig
     from sea3d.recon.types import Submap, VoxelBlocks
@@ -158,7 +161,8 @@ class LiveFeed:
             by :meth:`close`).
     """
 
-    def __init__(self, publisher: Any = None, config: FeedConfig | None = None, *,
+    def __init__(self, publisher: FoxglovePublisher | None = None,
+                 config: FeedConfig | None = None, *,
                  mesh_dir: Path | None = None) -> None:
         self.publisher = publisher
         self.config = config or FeedConfig()
@@ -180,8 +184,8 @@ class LiveFeed:
         self._last_status = -1e9
         self._last_full = time.monotonic()
         self._clients = 0
-        self._stats: Any = None
-        self._stages: Any = None
+        self._stats: LiveStats | None = None
+        self._stages: OrderedStages | None = None
         self._last_status_text: str | None = None
         self._frames: dict[str, tuple[int, _Frame]] = {}
         self._state: dict[str, Any] = {"running": True, "frames": 0, "mesh_vertices": 0,
@@ -261,7 +265,7 @@ class LiveFeed:
             snap.arrivals, self._arrivals = self._arrivals, []
         self._hand_over(snap)
 
-    def _mesh_changes(self, stages: Any) -> dict[str, Mesh]:
+    def _mesh_changes(self, stages: OrderedStages) -> dict[str, Mesh]:
         """The submap meshes to send: the active one, and finished ones not sent at their
         current pose (all of them every ``full_scene_interval_s`` or for a new client)."""
         kf = stages.kf_rect
@@ -324,7 +328,7 @@ class LiveFeed:
             self._pending = snap
             self._lock.notify_all()
 
-    def finish(self, stats: Any, reconstruction: Any) -> None:
+    def finish(self, stats: LiveStats, reconstruction: Reconstruction) -> None:
         """After the run: the merged mesh replaces the submaps, the status says why it
         stopped; waits until that is sent, then stops the feed's thread."""
         self._stats = stats

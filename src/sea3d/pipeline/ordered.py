@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,6 +28,10 @@ from sea3d.odometry.types import (
 from sea3d.odometry.types import TrackingStatus as TS
 from sea3d.pipeline.depth_scheduler import StageTimer
 from sea3d.pipeline.frame_stage import FrameResult
+
+if TYPE_CHECKING:
+    from sea3d.recon.submaps import SubmapFusion, SubmapStore
+    from sea3d.rectify.maps import RectifyMaps
 
 __all__ = ["TRUSTED", "OrderedStages", "T_left_rect", "trusted_path_length_m"]
 
@@ -60,7 +64,7 @@ def trusted_path_length_m(T_world_left: F64, statuses: Sequence[TS],
                          np.asarray(segments, np.int64))
 
 
-def T_left_rect(maps: Any) -> F64:
+def T_left_rect(maps: RectifyMaps) -> F64:
     """``T_left_rect``: the rectified left camera in the raw left camera's frame."""
     T = np.eye(4)
     T[:3, :3] = np.asarray(maps.R_rect_left_left, np.float64).T
@@ -79,7 +83,8 @@ class OrderedStages:
         timer: where ``odometry_s`` and ``fusion_s`` are added.
     """
 
-    def __init__(self, odometry: Odometry, fusion: Any, store: Any, maps: Any, *,
+    def __init__(self, odometry: Odometry, fusion: SubmapFusion, store: SubmapStore,
+                 maps: RectifyMaps, *,
                  use_imu: bool, timer: StageTimer) -> None:
         self.odometry, self.fusion, self.store = odometry, fusion, store
         self.use_imu, self.timer = use_imu, timer
@@ -94,7 +99,7 @@ class OrderedStages:
         self.valid_fraction: list[float] = []
         self.colour_status: dict[str, int] = {}
         self.colour_frames: list[tuple[int, str]] = []  # (t_ns, colour status) for report.html
-        self.colour_pictures: list[Any] = []  # one frame's rectified left before and after
+        self.colour_pictures: list[NDArray[np.uint8]] = []  # a rectified left, before and after
         self.worker_timings_s: dict[str, float] = {}
         self.failed = 0
         self.loop_closures = 0

@@ -42,7 +42,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -60,6 +60,18 @@ from sea3d.pipeline.pose_stage import OdometryFactory, choose_session_odometry
 from sea3d.pipeline.progress import ProgressFactory, no_progress
 from sea3d.recon.submaps import FusionConfig
 from sea3d.stereo.recipe import DepthConfig
+
+if TYPE_CHECKING:
+    from sea3d.geometry.mesh import Mesh
+    from sea3d.geometry.rig import StereoRig
+    from sea3d.io.result_cache import FrameCache
+    from sea3d.pipeline.depth_rate import DepthRate
+    from sea3d.pipeline.depth_scheduler import DepthScheduler
+    from sea3d.pipeline.executors import Executor
+    from sea3d.pipeline.frame_source import SessionFrames
+    from sea3d.pipeline.frame_stage import FrameResult
+    from sea3d.recon.submaps import SubmapStore
+    from sea3d.stereo.recipe import StereoDepth
 
 __all__ = [
     "ColourConfig",
@@ -115,7 +127,7 @@ class ProcessConfig:
     every N-th frame. The odometry sees every frame (a frame without depth takes the latest
     depth map as its stereo seeds); fusion integrates the depth frames."""
 
-    def frame_stage(self, rig: Any) -> FrameStageConfig:
+    def frame_stage(self, rig: StereoRig) -> FrameStageConfig:
         """The per-frame stage's configuration for ``rig`` (at the recorded size; threads per
         worker: the cores shared among the local workers; a Dask worker keeps its own)."""
         ex = self.executor
@@ -172,7 +184,7 @@ class ProcessResult:
     t_ns: NDArray[np.int64]
     T_world_left: F64
     statuses: list[TrackingStatus]
-    mesh: Any
+    mesh: Mesh
     cloud_points: F64
     cloud_colors: NDArray[np.uint8]
     summary: dict[str, Any]
@@ -194,7 +206,7 @@ def _rss_mb(who: int) -> float:
 
 
 def _frame_cache(out: Path, stage: FrameStageConfig, session_path: Path, fresh: bool,
-                 rebuild: bool = False) -> Any:
+                 rebuild: bool = False) -> FrameCache:
     from sea3d.io.result_cache import FrameCache
 
     cache = FrameCache(out / "cache", {"stage": stage.fingerprint(),
@@ -207,7 +219,7 @@ def _frame_cache(out: Path, stage: FrameStageConfig, session_path: Path, fresh: 
     return cache
 
 
-def _depth_rate(config: ProcessConfig, stereo: Any) -> Any:
+def _depth_rate(config: ProcessConfig, stereo: StereoDepth) -> DepthRate | None:
     """The :class:`~sea3d.pipeline.depth_rate.DepthRate` of ``config`` (None: every frame)."""
     from sea3d.pipeline.depth_rate import DepthRate
 
@@ -297,7 +309,7 @@ def run_process(
                        if config.colours.per_dive else None)
             t_loop, t_prev = time.perf_counter(), None
 
-            def step(res: Any) -> None:
+            def step(res: FrameResult) -> None:
                 nonlocal t_prev
                 if res.seeded and rate is not None:  # seeds moved to where it looks
                     seed = rate.seed(res.depth_m)
@@ -341,7 +353,8 @@ def run_process(
 
 
 def _finish(session_path: Path, out: Path, config: ProcessConfig, stages: OrderedStages,
-            store: Any, fusion_cfg: Any, stereo: Any, source: Any, depth: Any, executor: Any,
+            store: SubmapStore, fusion_cfg: FusionConfig, stereo: StereoDepth,
+            source: SessionFrames, depth: DepthScheduler, executor: Executor,
             window: int, odometry_name: str, imu: tuple[bool, str | None], timer: StageTimer,
             t_start: float, bar: ProgressFactory,
             on_result: Callable[[ProcessResult], None] | None,

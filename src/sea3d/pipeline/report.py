@@ -4,11 +4,19 @@ from __future__ import annotations
 
 import base64
 import html
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+    from sea3d.geometry.mesh import Mesh
+    from sea3d.io.trajectory_files import TrajectoryFile
+    from sea3d.pipeline.process import ProcessResult
 
 __all__ = ["colorbar_tag", "depth_check_html", "image_tag", "write_process_report"]
 
@@ -133,7 +141,7 @@ _STATUS_COLOURS = {
 }
 
 
-def _figure_tag(fig: Any, alt: str) -> str:
+def _figure_tag(fig: Figure, alt: str) -> str:
     """An ``<img>`` of a matplotlib figure (PNG, embedded)."""
     import io
 
@@ -146,7 +154,8 @@ def _figure_tag(fig: Any, alt: str) -> str:
     return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
 
 
-def _trajectory_figure(result: Any, gt: Any, T_ref_est: NDArray[np.float64]) -> str:
+def _trajectory_figure(result: ProcessResult, gt: TrajectoryFile | None,
+                       T_ref_est: NDArray[np.float64]) -> str:
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(7.5, 6.0))
@@ -173,7 +182,7 @@ def _trajectory_figure(result: Any, gt: Any, T_ref_est: NDArray[np.float64]) -> 
     return _figure_tag(fig, "trajectory from above")
 
 
-def _timeline_figure(result: Any, status_rows: list[dict[str, str]]) -> str:
+def _timeline_figure(result: ProcessResult, status_rows: list[dict[str, str]]) -> str:
     from matplotlib.figure import Figure
     from matplotlib.patches import Patch
 
@@ -204,13 +213,13 @@ def _timeline_figure(result: Any, status_rows: list[dict[str, str]]) -> str:
     return _figure_tag(fig, "status timeline")
 
 
-def _fmt(x: Any, unit: str = "", scale: float = 1.0, digits: int = 3) -> str:
+def _fmt(x: float | None, unit: str = "", scale: float = 1.0, digits: int = 3) -> str:
     if x is None or (isinstance(x, float) and not np.isfinite(x)):
         return "n/a"
     return f"{x * scale:.{digits}f}{unit}"
 
 
-def _files_note(path: Path, result: Any) -> str:
+def _files_note(path: Path, result: ProcessResult) -> str:
     """Where the run's files are, relative to the report (the demo's report sits one folder up)."""
     import os
 
@@ -225,7 +234,7 @@ def _files_note(path: Path, result: Any) -> str:
             "results.mcap opens in Foxglove (trajectory, mesh, cloud).</p>")
 
 
-def _water_model_html(info: Any) -> str:
+def _water_model_html(info: object) -> str:
     """The dive's water model (``--restore-colours seathru``): its fit status, checks and
     parameters, or why it could not be fitted."""
     if not isinstance(info, dict):
@@ -258,7 +267,7 @@ def _water_model_html(info: Any) -> str:
             + (f"<p>Checks that failed (by parameter):</p><ul>{checks}</ul>" if checks else ""))
 
 
-def _colour_html(colours: Any, pictures: Any) -> str:
+def _colour_html(colours: object, pictures: Sequence[NDArray[np.uint8]] | None) -> str:
     """The colour section: the restoration's status counts, each frame's status, and one
     frame before and after (``sea3d process --restore-colours``)."""
     if not isinstance(colours, dict) or colours.get("restore", "none") == "none":
@@ -281,7 +290,7 @@ def _colour_html(colours: Any, pictures: Any) -> str:
             f"<tr><th>t (ns)</th><th>colour status</th></tr>{cells}</table></details>")
 
 
-def _ground_truth_of(s: dict[str, Any]) -> tuple[Any, NDArray[np.float64]]:
+def _ground_truth_of(s: dict[str, Any]) -> tuple[TrajectoryFile | None, NDArray[np.float64]]:
     """The ground-truth path beside the session and ``T_ref_est``, or ``(None, I)``."""
     from sea3d.io.trajectory_files import read_trajectory
 
@@ -298,7 +307,7 @@ def _ground_truth_of(s: dict[str, Any]) -> tuple[Any, NDArray[np.float64]]:
     return gt, T_ref_est
 
 
-def _mesh_picture_html(mesh: Any, T_ref_est: NDArray[np.float64]) -> str:
+def _mesh_picture_html(mesh: Mesh, T_ref_est: NDArray[np.float64]) -> str:
     """The mesh shaded from above (in the ground truth's frame), or a line saying it is empty."""
     from sea3d.recon.render import render_mesh, view_from_above
 
@@ -331,7 +340,7 @@ def _facts_rows_html(s: dict[str, Any]) -> str:
                    for k, v in facts)
 
 
-def _trajectory_vs_gt_html(tv: Any) -> str:
+def _trajectory_vs_gt_html(tv: object) -> str:
     """The trajectory against the ground truth (ATE, RPE), or why it was not evaluated."""
     gt_html = "<p class=\"note\">The session has no ground truth beside it.</p>"
     if isinstance(tv, dict) and "ate_m" in tv:
@@ -354,7 +363,7 @@ def _trajectory_vs_gt_html(tv: Any) -> str:
     return gt_html
 
 
-def _mesh_vs_gt_html(mv: Any) -> str:
+def _mesh_vs_gt_html(mv: object) -> str:
     """The mesh against the scene (accuracy, completeness, F-scores), or nothing."""
     mesh_html = ""
     if isinstance(mv, dict) and "accuracy_m" in mv:
@@ -397,9 +406,9 @@ def _timing_rows_html(s: dict[str, Any]) -> tuple[str, str, float]:
     return trows, wrows, warm
 
 
-def write_process_report(path: Path, result: Any, *, title: str | None = None,
+def write_process_report(path: Path, result: ProcessResult, *, title: str | None = None,
                          intro_html: str = "", sections_html: str = "",
-                         colour_pictures: Any = None) -> Path:
+                         colour_pictures: Sequence[NDArray[np.uint8]] | None = None) -> Path:
     """Write ``report.html`` of a ``sea3d process`` run and return its path.
 
     The page holds: the run's figures, the path seen from above (against the ground truth

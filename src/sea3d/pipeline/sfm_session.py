@@ -18,12 +18,17 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from sea3d.errors import SfmError
 from sea3d.sfm.types import PosePriors, SfmConfig, SfmFrame, SfmResult
+
+if TYPE_CHECKING:
+    from sea3d._typing import F64
+    from sea3d.geometry.rig import StereoRig
+    from sea3d.io.session import ImuSeries
 
 __all__ = ["SfmFiles", "glob_frames", "read_pose_priors", "session_frames", "sfm_summary",
            "sfm_to_files"]
@@ -174,13 +179,13 @@ def sfm_summary(source: str, config: SfmConfig, result: SfmResult, rig: Any,
 @dataclass(frozen=True, kw_only=True, eq=False)
 class _Input:
     frames: Sequence[SfmFrame]
-    rig: Any
-    imu: Any
-    T_cam_body: Any
+    rig: StereoRig | None
+    imu: ImuSeries | None
+    T_cam_body: F64 | None
 
 
 def _gather(stack: contextlib.ExitStack, src: Path, source: str, session: bool,
-            config: SfmConfig, rig: Any, *, self_calibrate: bool, imu_scale: bool,
+            config: SfmConfig, rig: StereoRig | None, *, self_calibrate: bool, imu_scale: bool,
             imu_extrinsics: str | os.PathLike[str] | None) -> _Input:
     """The frames, the rig (given, else the session's unless self-calibrating) and the IMU."""
     imu = None
