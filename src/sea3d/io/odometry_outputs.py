@@ -21,13 +21,13 @@ __all__ = ["read_trusted_stamps", "write_odometry_status"]
 
 
 def write_odometry_status(path: str | os.PathLike[str], t_ns: Sequence[int],
-                          statuses: Sequence[Any], segments: Sequence[int]) -> None:
+                          statuses: Sequence[str], segments: Sequence[int]) -> None:
     """Write ``t_ns,status,segment`` per frame, atomically.
 
     Args:
         path: the CSV file.
         t_ns: (N,) frame stamps, nanoseconds.
-        statuses: (N,) tracking statuses (enum members with a ``value``, or strings).
+        statuses: (N,) tracking statuses (``TrackingStatus`` members are strings too).
         segments: (N,) segment ids.
 
     Raises:
@@ -37,7 +37,7 @@ def write_odometry_status(path: str | os.PathLike[str], t_ns: Sequence[int],
         raise OdometryError(f"status file {path}: {len(t_ns)} stamps, {len(statuses)} statuses "
                             f"and {len(segments)} segments")
     lines = ["t_ns,status,segment"]
-    lines += [f"{int(t)},{getattr(s, 'value', s)},{int(g)}"
+    lines += [f"{int(t)},{s},{int(g)}"
               for t, s, g in zip(t_ns, statuses, segments, strict=True)]
     try:
         atomic_write(Path(path), "\n".join(lines) + "\n")

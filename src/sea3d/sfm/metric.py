@@ -9,17 +9,20 @@ to apply it (:func:`imu_scale_for`), and the scaled trajectory, points and COLMA
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from sea3d._typing import F64
 from sea3d.errors import SfmError
 
+if TYPE_CHECKING:
+    from sea3d.geometry.rig import StereoRig
+
 __all__ = ["ImuScaleDecision", "imu_extrinsics", "imu_scale_for", "scaled_outputs"]
 
 
-def imu_extrinsics(rig: Any, file_T: F64 | None = None) -> F64:
+def imu_extrinsics(rig: StereoRig | None, file_T: F64 | None = None) -> F64:
     """``T_left_imu`` (the IMU in the left camera frame): ``file_T`` when given, else the
     rig's IMU block.
 
@@ -28,12 +31,11 @@ def imu_extrinsics(rig: Any, file_T: F64 | None = None) -> F64:
     """
     if file_T is not None:
         return np.asarray(file_T, dtype=np.float64)
-    imu = getattr(rig, "imu", None) if rig is not None else None
-    T_rig = getattr(imu, "T_left_imu", None)
-    if T_rig is None:
+    imu = rig.imu if rig is not None else None
+    if imu is None:
         raise SfmError("the IMU scale needs the IMU's place on the camera: the rig has no IMU "
                        "block and no extrinsics file was given (T_left_imu or T_body_left)")
-    return np.asarray(T_rig, dtype=np.float64)
+    return np.asarray(imu.T_left_imu, dtype=np.float64)
 
 
 @dataclass(frozen=True, kw_only=True)
