@@ -36,6 +36,10 @@ AlbedoArray = NDArray[np.float32]
 class Material(Protocol):
     """What a material provides."""
 
+    hard_edges: ClassVar[bool]
+    """Sharp texture edges (a board's squares, a marker's cells): the renderer supersamples
+    them."""
+
     def albedo(self, points_obj: FloatArray, footprint_m: FloatArray) -> AlbedoArray:
         """Linear RGB albedo.
 
@@ -64,6 +68,8 @@ class SandMaterial:
         contrast: relative brightness variation of the grain.
         seed: noise field.
     """
+
+    hard_edges: ClassVar[bool] = False
 
     colour_rgb: tuple[float, float, float] = (0.55, 0.48, 0.33)
     grain_m: float = 0.0015
@@ -96,6 +102,8 @@ class RockMaterial:
         colour_rgb: mean linear albedo.
         seed: noise field.
     """
+
+    hard_edges: ClassVar[bool] = False
 
     colour_rgb: tuple[float, float, float] = (0.30, 0.28, 0.25)
     seed: int = 23
@@ -130,6 +138,8 @@ class SolidMaterial:
         noise_freq_per_m: frequency of the first noise octave.
         seed: noise field.
     """
+
+    hard_edges: ClassVar[bool] = False
 
     colour_rgb: tuple[float, float, float] = (0.5, 0.5, 0.5)
     noise: float = 0.0

@@ -180,7 +180,7 @@ class Renderer:
         self._geom_lut = lut
         # Index object_id + 1 (so -1, nothing hit, is index 0): does the material have hard edges?
         self._hard_lut = np.array(
-            [False] + [bool(getattr(o.material, "hard_edges", False)) for o in scene.objects]
+            [False] + [o.material.hard_edges for o in scene.objects]
         )
         # Per-object tables for the fused shading kernel: which objects are sand (their texture
         # is evaluated inside the kernel), the sand parameters and world-to-object transforms.
