@@ -5,7 +5,14 @@ from __future__ import annotations
 
 import logging
 import sys
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from sea3d.capture.foxglove_live import FoxgloveBridge, FoxglovePublisher
+    from sea3d.capture.monitor import SessionPlayer
+    from sea3d.capture.recorder import Recorder
+    from sea3d.geometry.rig import StereoRig
+    from sea3d.pipeline.live_publish import LiveFeed
 
 __all__ = ["FOXGLOVE_HELP", "start_foxglove"]
 
@@ -17,7 +24,7 @@ FOXGLOVE_HELP = (
 )
 
 
-def _rig(rig_yaml: str | None) -> Any:
+def _rig(rig_yaml: str | None) -> StereoRig | None:
     if not rig_yaml:
         return None
     from sea3d.errors import Sea3dError
@@ -32,12 +39,12 @@ def _rig(rig_yaml: str | None) -> Any:
 
 def start_foxglove(
     address: str,
-    provider: Any,
+    provider: Recorder | SessionPlayer | LiveFeed,
     *,
     rig_yaml: str | None = None,
-    replay: Any = None,
+    replay: SessionPlayer | None = None,
     required: bool = True,
-) -> tuple[Any, Any] | None:
+) -> tuple[FoxglovePublisher, FoxgloveBridge] | None:
     """Start a publisher on ``address`` and a bridge from ``provider``.
 
     Args:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -17,10 +17,13 @@ from sea3d.io.depth_files import DepthGrid
 from sea3d.stereo.depth import DepthResult
 from sea3d.stereo.recipe import DepthConfig
 
+if TYPE_CHECKING:
+    from sea3d.rectify.maps import RectifyMaps
+
 __all__ = ["DepthPair", "depth_on_grid", "depth_pair", "rectified_grid"]
 
 
-def rectified_grid(maps: Any, rig: StereoRig) -> DepthGrid:
+def rectified_grid(maps: RectifyMaps, rig: StereoRig) -> DepthGrid:
     """The :class:`~sea3d.io.depth_files.DepthGrid` of depth as matched (rectified left)."""
     from sea3d.io.depth_files import rig_identity
     from sea3d.io.rig_file import rig_to_yaml
@@ -31,7 +34,7 @@ def rectified_grid(maps: Any, rig: StereoRig) -> DepthGrid:
                      rig_id=rig_identity(rig_to_yaml(rig)))
 
 
-def depth_on_grid(depth_rect_m: NDArray[np.floating], maps: Any, rig: StereoRig,
+def depth_on_grid(depth_rect_m: NDArray[np.floating], maps: RectifyMaps, rig: StereoRig,
                   grid: str) -> tuple[NDArray[np.floating], DepthGrid]:
     """Depth on the asked grid: ``rectified`` (as matched) or ``raw`` (resampled onto the raw
     left camera's pixels), with its :class:`~sea3d.io.depth_files.DepthGrid`.

@@ -9,13 +9,17 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from sea3d.errors import SessionError
 from sea3d.odometry.types import ImuChunk
+
+if TYPE_CHECKING:
+    from sea3d.geometry.rig import StereoRig
+    from sea3d.io.session import ImuSeries, SessionReader
 
 __all__ = ["FramePair", "SessionFrames", "imu_between"]
 
@@ -34,7 +38,7 @@ class FramePair:
     right_index: int
 
 
-def imu_between(imu: Any, t_prev: int | None, t: int) -> ImuChunk | None:
+def imu_between(imu: ImuSeries, t_prev: int | None, t: int) -> ImuChunk | None:
     """The IMU samples in ``(t_prev, t]`` (all up to ``t`` for the first frame), or None
     without an IMU."""
     if imu is None or len(imu) == 0:
@@ -60,7 +64,7 @@ class SessionFrames:
             the rig.
     """
 
-    def __init__(self, session: Any, path: Path, rig: Any, *,
+    def __init__(self, session: SessionReader, path: Path, rig: StereoRig, *,
                  max_frames: int | None = None) -> None:
         self.session = session
         self.path = Path(path)

@@ -23,7 +23,7 @@ import logging
 import os
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -41,6 +41,9 @@ from sea3d.geometry.rig import StereoRig
 from sea3d.geometry.se3 import invert_T
 from sea3d.io.ground_truth import GroundTruth, find_ground_truth
 from sea3d.stereo.recipe import DepthConfig
+
+if TYPE_CHECKING:
+    from sea3d.rectify.maps import RectifyMaps
 
 __all__ = ["run_sonar_check", "sonar_mount", "write_sonar_report"]
 
@@ -74,7 +77,7 @@ def sonar_mount(rig: StereoRig, gt: GroundTruth | None) -> tuple[np.ndarray, flo
     )
 
 
-def _rect_camera(maps: Any) -> PinholeCamera:
+def _rect_camera(maps: RectifyMaps) -> PinholeCamera:
     P = maps.P_left
     return PinholeCamera(
         fx=float(P[0, 0]), fy=float(P[1, 1]), cx=float(P[0, 2]), cy=float(P[1, 2]),
