@@ -53,7 +53,7 @@ def scene() -> tuple[np.ndarray, ...]:
 @pytest.mark.parametrize("fit", ["eq10", "envelope"])
 def test_backscatter_of_known_water_is_recovered(scene: tuple[np.ndarray, ...], fit: str) -> None:
     _J, z, I = scene
-    model = fit_seathru(I, z, _linear(backscatter_fit=fit, attenuation="none"))
+    model = fit_seathru([(I, z)], _linear(backscatter_fit=fit, attenuation="none"))
     zs = np.linspace(1.0, 6.0, 11)
     truth = B_INF * (1 - np.exp(-BETA_B * zs[:, None]))
     assert np.abs(model.backscatter_rgb(zs) - truth).max() < BACKSCATTER_TOL
@@ -80,7 +80,7 @@ def test_a_model_fitted_on_one_image_restores_another(
 ) -> None:
     _J, z, I = scene
     cfg = _linear(attenuation=attenuation)
-    model = fit_seathru(I, z, cfg)
+    model = fit_seathru([(I, z)], cfg)
     a = apply_seathru(I, z, model, cfg).image
     np.testing.assert_allclose(a, seathru(I, z, cfg).image, atol=1e-6)
     shifted = apply_seathru(I[:, 5:], z[:, 5:], model, cfg).image  # "the right image"
@@ -178,3 +178,32 @@ def test_denoising_removes_amplified_noise_and_keeps_the_colour(
     # Far pixels were amplified most: their spread drops, their mean colour stays.
     assert on[far].std(axis=0).mean() < 0.7 * off[far].std(axis=0).mean()
     np.testing.assert_allclose(on[far].mean(axis=0), off[far].mean(axis=0), atol=0.02)
+
+
+@pytest.mark.parametrize("attenuation", ["illuminant", "water-model"])
+def test_one_frame_and_the_same_frame_twice_are_the_same_fit(
+    scene: tuple[np.ndarray, ...], attenuation: str
+) -> None:
+    # Every stage pools the frames' samples: the same frame twice holds the same water (the
+    # water model subsamples each frame at random, so its parameters agree to 0.01, not
+    # exactly).
+    _J, z, I = scene
+    cfg = SeathruConfig(attenuation=attenuation, encoding="linear")  # type: ignore[arg-type]
+    once = fit_seathru([(I, z)], cfg)
+    twice = fit_seathru([(I, z), (I, z)], cfg)
+    np.testing.assert_allclose(twice.wb_gains, once.wb_gains, atol=0.01)
+    assert twice.exposure_gain == pytest.approx(once.exposure_gain, abs=0.01)
+    a = apply_seathru(I, z, once, cfg).image
+    b = apply_seathru(I, z, twice, cfg).image
+    assert float(np.median(np.abs(a - b))) < 0.01
+
+
+def test_a_fit_needs_a_frame_and_refuses_a_model_of_the_other_kind(
+    scene: tuple[np.ndarray, ...],
+) -> None:
+    _J, z, I = scene
+    with pytest.raises(EnhanceError, match="at least one"):
+        fit_seathru([], SeathruConfig())
+    per_image = fit_seathru([(I, z)], _linear())
+    with pytest.raises(EnhanceError, match="per-image attenuation"):
+        apply_seathru(I, z, per_image, SeathruConfig(attenuation="water-model"))

@@ -14,11 +14,14 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
 from sea3d._typing import F32, F64, BoolArray
+from sea3d.enhance.colour import channel_gains
+from sea3d.enhance.config import SeathruConfig
 from sea3d.errors import EnhanceError
 
 __all__ = [
     "area_down",
     "backscatter_envelope",
+    "balance",
     "fill_range",
     "harmonic_fill",
     "require_range_grid",
@@ -78,6 +81,51 @@ def backscatter_envelope(
         if obj > best[0]:
             best = (obj, b_inf, float(beta_b))
     return best[1], best[2]
+
+
+def balance(
+    j: np.ndarray, config: SeathruConfig, beta_d_per_m: F64 | None = None
+) -> tuple[F64, float]:
+    """The white balance and exposure of the restored samples ``j`` (``(N, 3)`` linear, every
+    fitted frame's pixels with range pooled, so a pair or a dive keeps one colour), as
+    ``config.white_balance`` and ``config.exposure`` say. ``beta_d_per_m``: the identified
+    wideband attenuation (``locus`` needs it; ``auto`` keeps ``J`` with it, balances by grey
+    world without).
+
+    Returns:
+        ``((3,) gains, exposure)``.
+    """
+    wb = config.white_balance
+    if wb == "auto":
+        wb = "none" if beta_d_per_m is not None else "grey-world"
+    if wb == "locus" and beta_d_per_m is None:
+        wb = "grey-world"
+    if wb == "grey-world":
+        gains = channel_gains([j], p=1.0, max_gain=config.max_restore_gain)
+    elif wb == "locus" and beta_d_per_m is not None:
+        gains = _locus_gains(j, beta_d_per_m, config.max_restore_gain)
+    else:
+        gains = np.ones(3)
+    exposure = 1.0
+    if config.exposure == "white-point":
+        exposure = white_point_exposure(j, gains, config.white_point_percentile)
+    return gains, exposure
+
+
+def _locus_gains(j: np.ndarray, beta_d: F64, max_gain: float) -> F64:
+    """Gains ``exp(beta_D d)`` for the water column ``d >= 0`` (metres) above the scene that
+    makes the restored samples closest to grey (least variance of the log channel means): the
+    ambient light reaching the scene has crossed ``d`` metres of the same water, so its colour
+    lies on that one-parameter locus (1 at ``d = 0``: white light)."""
+    mean = np.mean(np.asarray(j, dtype=np.float64), axis=0)  # the gains are per channel
+    if not np.all(mean > 1e-6):
+        return np.ones(3)
+    d_grid = np.linspace(0.0, 30.0, 301)[:, None]
+    g_all = np.minimum(np.exp(beta_d[None, :] * d_grid), max_gain)
+    spread = np.var(np.log(g_all * mean[None, :]), axis=1)
+    best_d = float(d_grid[int(np.argmin(spread)), 0])
+    g = np.minimum(np.exp(beta_d * best_d), max_gain)
+    return np.asarray(g / np.exp(np.mean(np.log(g))))
 
 
 def white_point_exposure(j: np.ndarray, gains: np.ndarray, percentile: float) -> float:

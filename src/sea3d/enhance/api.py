@@ -11,7 +11,7 @@ from sea3d.enhance.colour import white_balance_pair
 from sea3d.enhance.config import SeathruConfig
 from sea3d.enhance.registry import METHODS, enhancement, resolve
 from sea3d.enhance.seathru import SeathruModel, apply_seathru, fit_seathru
-from sea3d.enhance.water import WaterFitConfig, WaterModel, fit_water_model, restore
+from sea3d.enhance.water import WaterFitConfig, WaterModel
 from sea3d.errors import EnhanceError
 
 __all__ = ["METHODS", "EnhanceOutcome", "enhance_image", "enhance_pair"]
@@ -38,19 +38,27 @@ class EnhanceOutcome:
     notes: tuple[str, ...] = field(default_factory=tuple)
 
 
-def _water(
-    frames: list[tuple[np.ndarray, np.ndarray]], water_model: WaterModel | None,
-    config: SeathruConfig | None,
+def _seathru(
+    frames: list[tuple[np.ndarray, np.ndarray]], config: SeathruConfig | None,
+    water_model: WaterModel | None,
 ) -> EnhanceOutcome:
-    """The default Sea-thru: the given water model (fitted once per dive), or one fitted to
-    these frames; each frame restored with its own range."""
+    """Sea-thru of these frames, then each frame restored with its own range: the water model
+    is fitted to all of them (or is the dive's ``water_model``); a per-image Sea-thru is
+    fitted to the first (pooling a pair measured worse in turbid water, docs/enhance.md)."""
     cfg = config or WaterFitConfig()
-    model = water_model if water_model is not None else fit_water_model(frames, cfg)
-    outs = [restore(img, rng, model, cfg) for img, rng in frames]
+    model: SeathruModel | WaterModel
+    if cfg.water_model and water_model is not None:
+        model = water_model
+    else:
+        model = fit_seathru(frames if cfg.water_model else frames[:1], cfg)
+    outs = [apply_seathru(img, rng, model, cfg) for img, rng in frames]
     bad = [o.status for o in outs if o.status != "ok"]
     notes = tuple(dict.fromkeys(n for o in outs for n in o.notes))
-    return EnhanceOutcome(images=tuple(o.image for o in outs), method="seathru",
-                          status=bad[0] if bad else "ok", water_model=model, notes=notes)
+    return EnhanceOutcome(
+        images=tuple(o.image for o in outs), method="seathru", status=bad[0] if bad else "ok",
+        model=model if isinstance(model, SeathruModel) else None,
+        water_model=model if isinstance(model, WaterModel) else None, notes=notes,
+    )
 
 
 def _check_method(method: str) -> None:
@@ -97,14 +105,7 @@ def enhance_image(
     if method == "seathru":
         if range_m is None:
             raise EnhanceError("seathru needs a range or depth map (range_m)")
-        cfg = seathru_config
-        if cfg is None or cfg.water_model:
-            return _water([(image, range_m)], water_model, cfg)
-        model = fit_seathru(image, range_m, cfg)
-        res = apply_seathru(image, range_m, model, cfg)
-        return EnhanceOutcome(
-            images=(res.image,), method=method, status=res.status, model=model, notes=res.notes
-        )
+        return _seathru([(image, range_m)], seathru_config, water_model)
     return EnhanceOutcome(images=(_single(image, method, params),), method=method)
 
 
@@ -121,8 +122,8 @@ def enhance_pair(
 ) -> EnhanceOutcome:
     """Enhance a stereo pair so that both images keep one colour: white balances share their
     gains (:func:`white_balance_pair`), Sea-thru's water model is fitted to both images (or
-    given) and restores each with its own range map (a per-image ``seathru_config`` fits on
-    the left); CLAHE and UDCP work per image.
+    given; a per-image Sea-thru is fitted to the left) and restores each with its own range
+    map; CLAHE and UDCP work per image.
 
     Raises:
         EnhanceError: as :func:`enhance_image`.
@@ -134,17 +135,8 @@ def enhance_pair(
     if method == "seathru":
         if range_left_m is None or range_right_m is None:
             raise EnhanceError("seathru needs a range map for each image of the pair")
-        cfg = seathru_config
-        if cfg is None or cfg.water_model:
-            return _water([(left, range_left_m), (right, range_right_m)], water_model, cfg)
-        model = fit_seathru(left, range_left_m, cfg)
-        rl = apply_seathru(left, range_left_m, model, cfg)
-        rr = apply_seathru(right, range_right_m, model, cfg)
-        status = rl.status if rl.status != "ok" else rr.status
-        return EnhanceOutcome(
-            images=(rl.image, rr.image), method=method, status=status, model=model,
-            notes=rl.notes,
-        )
+        return _seathru([(left, range_left_m), (right, range_right_m)], seathru_config,
+                        water_model)
     return EnhanceOutcome(
         images=(_single(left, method, params), _single(right, method, params)), method=method
     )

@@ -68,10 +68,10 @@ from sea3d._typing import F32, F64, BoolArray
 from sea3d.enhance._formation import (
     area_down,
     backscatter_envelope,
+    balance,
     fill_range,
     harmonic_fill,
     require_range_grid,
-    white_point_exposure,
     work_size,
 )
 from sea3d.enhance._image import (
@@ -85,6 +85,7 @@ from sea3d.enhance._image import (
 )
 from sea3d.enhance.colour import channel_gains
 from sea3d.enhance.config import SeathruConfig
+from sea3d.enhance.water import WaterModel, fit_water_model, restore
 from sea3d.errors import EnhanceError
 
 __all__ = [
@@ -168,7 +169,8 @@ class SeathruResult:
 
     Attributes:
         image: restored image, the input's dtype and encoding.
-        model: the :class:`SeathruModel` used.
+        model: the model used (a :class:`~sea3d.enhance.water.WaterModel` for
+            ``attenuation="water-model"``).
         restored: ``(H, W)`` bool, pixels whose water was removed (with ``holes="mask"``, the
             pixels with range; otherwise all).
         range_filled: ``(H, W)`` bool, pixels whose range was inpainted.
@@ -177,7 +179,7 @@ class SeathruResult:
     """
 
     image: np.ndarray
-    model: SeathruModel
+    model: SeathruModel | WaterModel
     restored: BoolArray
     range_filled: BoolArray
     status: str = "ok"
@@ -268,8 +270,8 @@ class _Inputs:
 
 def _inputs(image: object, range_m: object, config: SeathruConfig, what: str) -> _Inputs:
     if config.water_model:
-        raise EnhanceError("attenuation 'water-model' is fitted to a dive's frames by "
-                           "fit_water_model and applied by restore")
+        raise EnhanceError("a per-image Sea-thru model needs the per-image attenuation it was "
+                           "fitted with, not 'water-model'")
     img, dtype = as_unit_float(image, what)
     require_rgb(img, "Sea-thru", what)
     z = np.asarray(range_m, dtype=np.float32)
@@ -302,10 +304,10 @@ def _inputs(image: object, range_m: object, config: SeathruConfig, what: str) ->
 
 
 def _fit_backscatter(
-    inp: _Inputs, config: SeathruConfig, notes: list[str]
+    inputs: Sequence[_Inputs], config: SeathruConfig, notes: list[str]
 ) -> tuple[tuple[float, float, float, float], ...]:
-    z_all = inp.z[inp.usable]
-    rgb_all = inp.lin[inp.usable]
+    z_all = np.concatenate([inp.z[inp.usable] for inp in inputs])
+    rgb_all = np.concatenate([inp.lin[inp.usable] for inp in inputs])
     step = max(1, z_all.size // 400_000)
     z_all, rgb_all = z_all[::step].astype(np.float64), rgb_all[::step].astype(np.float64)
     z_lo, z_hi = np.percentile(z_all, [0.5, 99.5])
@@ -433,10 +435,11 @@ def _illuminant(
 
 
 def _fit_attenuation(
-    e_work: F32, z_work: F32, ok: BoolArray, config: SeathruConfig, notes: list[str]
+    illuminants: Sequence[tuple[F32, F32, BoolArray]], config: SeathruConfig, notes: list[str]
 ) -> tuple[tuple[tuple[float, float, float, float], ...], str]:
-    z_pts = z_work[ok].astype(np.float64)
-    e_pts = e_work[ok].astype(np.float64)
+    """Eq. 14 over the working pixels of every frame's illuminant ``(E, z, ok)``, pooled."""
+    z_pts = np.concatenate([z_work[ok] for _e, z_work, ok in illuminants]).astype(np.float64)
+    e_pts = np.concatenate([e_work[ok] for e_work, _z, ok in illuminants]).astype(np.float64)
     n = z_pts.size
     if n > config.fit_pixels:
         sel = np.linspace(0, n - 1, config.fit_pixels).astype(np.int64)
@@ -528,60 +531,75 @@ def _fill_range(inp: _Inputs, config: SeathruConfig) -> F32:
 # ------------------------------------------------------------------------------ public
 
 
-def fit_seathru(
-    image: np.ndarray, range_m: np.ndarray, config: SeathruConfig | None = None
-) -> SeathruModel:
-    """Fit backscatter, attenuation, white balance and exposure to one image and its range.
+Frames = Sequence[tuple[np.ndarray, np.ndarray]]
+"""``(image, range_m)`` pairs of the same water: one frame, a stereo pair, or a dive's."""
+
+
+def fit_seathru(frames: Frames, config: SeathruConfig | None = None) -> SeathruModel | WaterModel:
+    """Fit Sea-thru to one frame or many frames of the same water: every stage pools the
+    samples of all frames (the pixels with range of each image, each with its own range), so
+    one frame and a dive are the same fit, fed one or many samples.
 
     Args:
-        image: ``(H, W, 3)`` RGB, ``uint8``/``uint16``/float ``[0, 1]`` in ``config.encoding``.
-        range_m: ``(H, W)`` float range, metres, NaN or <= 0 where unknown.
-        config: :class:`SeathruConfig` (default settings if None).
+        frames: ``(image, range_m)`` pairs: ``(H, W, 3)`` RGB ``uint8``/``uint16``/float
+            ``[0, 1]`` in ``config.encoding`` and ``(H, W)`` float range along the line of
+            sight in the image's pixel grid, metres, NaN (or <= 0) where unknown.
+        config: :class:`~sea3d.enhance.config.SeathruConfig` (default settings if None).
 
     Returns:
+        A :class:`~sea3d.enhance.water.WaterModel` for ``attenuation="water-model"`` (with a
+        status; see :func:`~sea3d.enhance.water.fit_water_model`), else a
         :class:`SeathruModel`.
 
     Raises:
-        EnhanceError: a one-channel image, a range map of another size, one with no (or too
-            few) valid pixels, or an image whose pixels with range are all clipped.
+        EnhanceError: no frame, a one-channel image, a range map of another size, one with no
+            (or too few) valid pixels, or an image whose pixels with range are all clipped.
     """
-    return _fit(image, range_m, config or SeathruConfig())[0]
+    config = config or SeathruConfig()
+    if config.water_model:
+        return fit_water_model(frames, config)
+    return _fit(_frame_inputs(frames, config), config)
 
 
-def _fit(
-    image: object, range_m: object, config: SeathruConfig
-) -> tuple[SeathruModel, _Inputs, F32]:
-    inp = _inputs(image, range_m, config, "image")
+def _frame_inputs(frames: Frames, config: SeathruConfig) -> list[_Inputs]:
+    items = list(frames)
+    if not items:
+        raise EnhanceError("Sea-thru needs at least one (image, range) frame to fit")
+    return [_inputs(img, rng, config, "image" if len(items) == 1 else f"image {k}")
+            for k, (img, rng) in enumerate(items)]
+
+
+def _fit(inputs: Sequence[_Inputs], config: SeathruConfig) -> SeathruModel:
     notes: list[str] = []
-    z_use = inp.z[inp.usable]
+    z_use = np.concatenate([inp.z[inp.usable] for inp in inputs])
     z_span = (float(np.percentile(z_use, 0.5)), float(np.percentile(z_use, 99.5)))
-    bs = _fit_backscatter(inp, config, notes) if config.backscatter else None
+    bs = _fit_backscatter(inputs, config, notes) if config.backscatter else None
     model0 = SeathruModel(
         backscatter=bs, attenuation=None, attenuation_kind="none", range_fit_m=z_span,
         wb_gains=(1.0, 1.0, 1.0), exposure_gain=1.0,
     )
-    d_lin = _direct(inp.lin, inp.z, inp.valid, model0)
+    d_lins = [_direct(inp.lin, inp.z, inp.valid, model0) for inp in inputs]
     att = None
     kind = "none"
-    e_full: F32 | None = None
+    e_fulls: list[F32 | None] = [None] * len(inputs)
     if config.attenuation != "none":
-        e_work, z_work, ok, _size = _illuminant(d_lin, inp, config)
+        illuminants = [_illuminant(d, inp, config)[:3] for d, inp in zip(d_lins, inputs,
+                                                                          strict=True)]
         if config.attenuation in ("fit", "fit-scaled"):
-            att, kind = _fit_attenuation(e_work, z_work, ok, config, notes)
+            att, kind = _fit_attenuation(illuminants, config, notes)
         else:
             kind = "illuminant"
-            e_full = _upsample_illuminant(e_work, ok, (inp.z.shape[0], inp.z.shape[1]))
+            e_fulls = [_upsample_illuminant(e, ok, (inp.z.shape[0], inp.z.shape[1]))
+                       for (e, _z, ok), inp in zip(illuminants, inputs, strict=True)]
     model1 = SeathruModel(
         backscatter=bs, attenuation=att, attenuation_kind=kind, range_fit_m=z_span,
         wb_gains=(1.0, 1.0, 1.0), exposure_gain=1.0,
     )
-    j, _gain = _restore(d_lin, inp.z, inp.valid, model1, config, e_full)
-    gains: F64 = np.ones(3)
-    if config.white_balance == "grey-world":
-        gains = channel_gains([j], p=1.0, masks=[inp.usable], max_gain=config.max_restore_gain)
-    exposure = 1.0
-    if config.exposure == "white-point":
-        exposure = white_point_exposure(j[inp.usable], gains, config.white_point_percentile)
+    j_use = np.concatenate([
+        _restore(d, inp.z, inp.valid, model1, config, e)[0][inp.usable]
+        for d, inp, e in zip(d_lins, inputs, e_fulls, strict=True)
+    ])
+    gains, exposure = balance(j_use, config)
     model = SeathruModel(
         backscatter=bs, attenuation=att, attenuation_kind=kind, range_fit_m=z_span,
         wb_gains=(float(gains[0]), float(gains[1]), float(gains[2])), exposure_gain=exposure,
@@ -589,7 +607,7 @@ def _fit(
     )
     for note in notes:
         _log.info("sea-thru: %s", note)
-    return model, inp, d_lin
+    return model
 
 
 def _upsample_illuminant(e_work: F32, ok: BoolArray, shape: tuple[int, int]) -> F32:
@@ -657,24 +675,35 @@ def _denoise(out_lin: F32, noise_gain: F32, config: SeathruConfig) -> F32:
 def apply_seathru(
     image: np.ndarray,
     range_m: np.ndarray,
-    model: SeathruModel,
+    model: SeathruModel | WaterModel,
     config: SeathruConfig | None = None,
 ) -> SeathruResult:
-    """Restore an image with a fitted model and its own range map (e.g. the right image of a
-    pair with the model of the left).
+    """Restore one image with a fitted model and the image's own range map (any frame of the
+    water the model was fitted to, e.g. the right image of a pair with the pair's model).
 
     Args:
         image: ``(H, W, 3)`` RGB in ``config.encoding``.
         range_m: ``(H, W)`` range, metres, NaN where unknown.
         model: from :func:`fit_seathru`.
-        config: the settings the model was fitted with (holes, caps, encoding).
+        config: the settings the model was fitted with (holes, caps, encoding); default
+            settings of the model's kind if None.
 
     Returns:
-        :class:`SeathruResult`.
+        :class:`SeathruResult`; a water model's result that would have come out black, NaN or
+        saturated is refused (``refused-…``, the white-balanced input instead), a per-image
+        one falls back to grey world (``fallback-grey-world``).
 
     Raises:
-        EnhanceError: as :func:`fit_seathru`.
+        EnhanceError: as :func:`fit_seathru`, or a config of the other kind than the model.
     """
+    if isinstance(model, WaterModel):
+        got = restore(image, range_m, model, config)
+        none = np.zeros(np.shape(range_m), dtype=bool)
+        return SeathruResult(
+            image=got.image, model=model, status=got.status, notes=got.notes,
+            restored=none if got.restored is None else got.restored,
+            range_filled=none if got.range_filled is None else got.range_filled,
+        )
     config = config or SeathruConfig()
     inp = _inputs(image, range_m, config, "image")
     return _apply(inp, model, config)
@@ -726,23 +755,25 @@ def _apply(inp: _Inputs, model: SeathruModel, config: SeathruConfig) -> SeathruR
 def seathru(
     image: np.ndarray, range_m: np.ndarray, config: SeathruConfig | None = None
 ) -> SeathruResult:
-    """Fit Sea-thru to ``image`` with ``range_m`` and restore it (see the module docstring).
+    """Fit Sea-thru to ``image`` with ``range_m`` and restore it: :func:`fit_seathru` on this
+    one frame, then :func:`apply_seathru`.
 
     Args:
         image: ``(H, W, 3)`` RGB, ``uint8``/``uint16``/float ``[0, 1]``, sRGB unless
             ``config.encoding == "linear"``.
         range_m: ``(H, W)`` float32 range along the line of sight, metres, NaN where unknown
             (see :func:`depth_to_range` for stereo depth).
-        config: :class:`SeathruConfig`.
+        config: :class:`~sea3d.enhance.config.SeathruConfig`.
 
     Returns:
         :class:`SeathruResult` with the restored image (input dtype), the fitted model and
         masks.
 
     Raises:
-        EnhanceError: a one-channel image, a range map of another size, all-NaN (or almost
-            empty) range, an image whose pixels with range are all clipped.
+        EnhanceError: as :func:`fit_seathru`.
     """
     config = config or SeathruConfig()
-    model, inp, _d_lin = _fit(image, range_m, config)
-    return _apply(inp, model, config)
+    if config.water_model:
+        return apply_seathru(image, range_m, fit_water_model([(image, range_m)], config), config)
+    inputs = _frame_inputs([(image, range_m)], config)
+    return _apply(inputs[0], _fit(inputs, config), config)

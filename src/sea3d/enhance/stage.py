@@ -24,8 +24,8 @@ import numpy as np
 
 from sea3d.enhance.colour import grey_world
 from sea3d.enhance.config import SeathruConfig
-from sea3d.enhance.seathru import SeathruModel, seathru
-from sea3d.enhance.water import WaterFitConfig, WaterModel, fit_water_model, restore
+from sea3d.enhance.seathru import SeathruModel, apply_seathru, fit_seathru
+from sea3d.enhance.water import WaterFitConfig, WaterModel
 from sea3d.errors import EnhanceError
 
 __all__ = ["ColourRestoreConfig", "ColourResult", "restore_colours_with_range"]
@@ -113,15 +113,18 @@ def restore_colours_with_range(
         return ColourResult(image=image, status="fallback-none",
                             notes=("a grey image has no colour to restore",))
     try:
-        if config.method == "water-model":
-            water_cfg = config.seathru if config.seathru.water_model else WaterFitConfig()
-            model = config.water_model or fit_water_model([(img, range_m)], water_cfg)
-            got = restore(img, range_m, model, water_cfg)
-            if got.status.startswith("refused") or got.status == "no-range":
-                raise EnhanceError("; ".join(got.notes) or got.status)
-            return ColourResult(image=got.image, status=got.status, water_model=model,
-                                notes=got.notes)
-        res = seathru(image, range_m, config.seathru)
+        cfg = config.seathru
+        if config.method == "water-model" and not cfg.water_model:
+            cfg = WaterFitConfig()
+        model: SeathruModel | WaterModel
+        if cfg.water_model and config.water_model is not None:
+            model = config.water_model
+        else:
+            model = fit_seathru([(img, range_m)], cfg)
+        res = apply_seathru(img, range_m, model, cfg)
+        if isinstance(model, WaterModel) and (res.status.startswith("refused")
+                                              or res.status == "no-range"):
+            raise EnhanceError("; ".join(res.notes) or res.status)
     except EnhanceError as err:
         _log.info("colour restoration fell back: %s", err)
         if config.fallback == "grey-world":
@@ -129,4 +132,8 @@ def restore_colours_with_range(
                 image=grey_world(image), status="fallback-grey-world", notes=(str(err),)
             )
         return ColourResult(image=image, status="fallback-none", notes=(str(err),))
-    return ColourResult(image=res.image, status=res.status, model=res.model, notes=res.notes)
+    return ColourResult(
+        image=res.image, status=res.status, notes=res.notes,
+        model=model if isinstance(model, SeathruModel) else None,
+        water_model=model if isinstance(model, WaterModel) else None,
+    )

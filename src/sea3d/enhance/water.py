@@ -54,6 +54,7 @@ Range holes near pixels with range (stereo holes) are filled from the surroundin
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field
@@ -67,9 +68,9 @@ from scipy.optimize import least_squares
 from sea3d._typing import F64
 from sea3d.enhance._formation import (
     backscatter_envelope,
+    balance,
     fill_range,
     require_range_grid,
-    white_point_exposure,
 )
 from sea3d.enhance._image import (
     DECODE_SRGB_U8,
@@ -81,7 +82,6 @@ from sea3d.enhance._image import (
     require_rgb,
     saturated_mask,
 )
-from sea3d.enhance.colour import channel_gains
 from sea3d.enhance.config import SeathruConfig
 from sea3d.errors import EnhanceError
 
@@ -174,11 +174,16 @@ class RestoreResult:
         status: ``ok``, the model's fallback status, or ``refused-…`` when the result would
             have been empty (then ``image`` is the grey-world balance of the input).
         notes: why, for the frame report.
+        restored: ``(H, W)`` bool, the pixels whose water was removed (the others got the
+            white balance and exposure only).
+        range_filled: ``(H, W)`` bool, the pixels among them whose range was filled.
     """
 
     image: np.ndarray
     status: str
     notes: tuple[str, ...] = ()
+    restored: NDArray[np.bool_] | None = None
+    range_filled: NDArray[np.bool_] | None = None
 
 
 # ------------------------------------------------------------------------------ tables
@@ -515,18 +520,7 @@ def fit_water_model(
         range_span_m=span, frames=n_frames, status=status, checks=tuple(checks),
     )
     j = _invert(rgb.astype(np.float32), z.astype(np.float32), model, config.max_restore_gain)
-    wb = config.white_balance
-    if wb == "auto":
-        wb = "none" if model.has_attenuation else "grey-world"
-    if wb == "locus" and not model.has_attenuation:
-        wb = "grey-world"
-    if wb == "grey-world":
-        gains = channel_gains([j], p=1.0, max_gain=config.max_restore_gain)
-    elif wb == "locus":
-        gains = _locus_gains(j, beta_d, config.max_restore_gain)
-    else:
-        gains = np.ones(3)
-    exposure = white_point_exposure(j, gains, config.white_point_percentile)
+    gains, exposure = balance(j, config, beta_d if model.has_attenuation else None)
     for check in checks:
         _log.info("water model: %s", check)
     return WaterModel(
@@ -552,22 +546,6 @@ def _water_config(config: SeathruConfig | None) -> SeathruConfig:
 
 def _t3(v: Sequence[float] | F64) -> tuple[float, float, float]:
     return (float(v[0]), float(v[1]), float(v[2]))
-
-
-def _locus_gains(j: F32 | F64, beta_d: F64, max_gain: float) -> F64:
-    """Gains ``exp(beta_D d)`` for the water column ``d >= 0`` (metres) above the scene that
-    makes the restored samples closest to grey (least variance of the log channel means): the
-    ambient light reaching the scene has crossed ``d`` metres of the same water, so its colour
-    lies on that one-parameter locus (1 at ``d = 0``: white light)."""
-    mean = np.mean(np.asarray(j, dtype=np.float64), axis=0)  # the gains are per channel
-    if not np.all(mean > 1e-6):
-        return np.ones(3)
-    d_grid = np.linspace(0.0, 30.0, 301)[:, None]
-    g_all = np.minimum(np.exp(beta_d[None, :] * d_grid), max_gain)
-    spread = np.var(np.log(g_all * mean[None, :]), axis=1)
-    best_d = float(d_grid[int(np.argmin(spread)), 0])
-    g = np.minimum(np.exp(beta_d * best_d), max_gain)
-    return np.asarray(g / np.exp(np.mean(np.log(g))))
 
 
 # ------------------------------------------------------------------------------ restore
@@ -626,7 +604,8 @@ def restore(
     scale = np.asarray(water_model.wb_gains, np.float32) * np.float32(water_model.exposure_gain)
     if frac < config.min_valid_fraction:
         notes.append(f"range valid on {100 * frac:.1f} % of the pixels: white balance only")
-        return _checked(lin, lin * scale, dtype, "no-range", notes, scale, config.encoding)
+        res = _checked(lin, lin * scale, dtype, "no-range", notes, scale, config.encoding)
+        return _with_masks(res, np.zeros_like(valid), valid)
     if config.holes == "inpaint" and not valid.all():
         z_use = fill_range(z, valid, config.work_max_side_px, min_cover=0.25)
         far = cv2.distanceTransform((~valid).astype(np.uint8), cv2.DIST_L2, 3)
@@ -643,11 +622,21 @@ def restore(
         gain_t, off_t = _range_tables(water_model, scale, z_max, config.max_restore_gain)
         out = invert_u8(np.ascontiguousarray(arr), z_k, DECODE_SRGB_U8, gain_t, off_t,
                         _Z_STEP_M, encode_srgb_table_u8(), scale.astype(np.float32))
-        return _checked_u8(lin, out, status, notes, scale)
+        return _with_masks(_checked_u8(lin, out, status, notes, scale), where, valid)
     j = _invert(lin, z_use, water_model, config.max_restore_gain)
     if not where.all():
         j = np.where(where[..., None], j, lin)
-    return _checked(lin, j * scale, dtype, status, notes, scale, config.encoding)
+    res = _checked(lin, j * scale, dtype, status, notes, scale, config.encoding)
+    return _with_masks(res, where, valid)
+
+
+def _with_masks(
+    res: RestoreResult, where: NDArray[np.bool_], valid: NDArray[np.bool_]
+) -> RestoreResult:
+    """``res`` with the pixels restored (none when it was refused) and those whose range was
+    filled."""
+    restored = where if not res.status.startswith("refused") else np.zeros_like(where)
+    return dataclasses.replace(res, restored=restored, range_filled=restored & ~valid)
 
 
 def _checked_u8(

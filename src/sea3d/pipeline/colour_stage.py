@@ -231,7 +231,8 @@ class DiveColours:
             out = grey_world(img) if img.ndim == 3 else img
             status, colors = "fallback-grey-world", np.asarray(out, np.uint8)
         else:
-            cfg = ColourRestoreConfig(enabled=True, method="water-model", water_model=self.model)
+            cfg = ColourRestoreConfig(enabled=True, method="water-model", water_model=self.model,
+                                      seathru=self.config.water)
             got = restore_colours_with_range(img, frame_range_m(res, self.maps), cfg)
             status, colors = got.status, np.asarray(got.image, np.uint8)
         if colors.ndim == 2:
@@ -255,7 +256,8 @@ class DiveColours:
         img = res.rect_right
         if img.ndim != 3:
             raise EnhanceError(f"frame {res.t_ns}: the right view has no colour to restore")
-        cfg = ColourRestoreConfig(enabled=True, method="water-model", water_model=self.model)
+        cfg = ColourRestoreConfig(enabled=True, method="water-model", water_model=self.model,
+                                      seathru=self.config.water)
         got = restore_colours_with_range(img, right_range_m(res, self.maps), cfg)
         return np.ascontiguousarray(got.image, np.uint8)
 
