@@ -17,6 +17,8 @@ from sea3d.cli._args import add_port_options, config_option, param_option
 from sea3d.errors import CalibrationError, ConfigError
 
 if TYPE_CHECKING:
+    from sea3d.calib.port import PortRigCalibration
+    from sea3d.calib.stereo import StereoCalibration
     from sea3d.cli._args import Subcommands
 
 log = logging.getLogger(__name__)
@@ -246,12 +248,13 @@ def _stereo(args: argparse.Namespace) -> int:
     return 0 if result.ok else 1
 
 
-def _print_stereo(result: Any, args: argparse.Namespace) -> None:
+def _print_stereo(result: StereoCalibration, args: argparse.Namespace) -> None:
     if not result.ok:
         print(f"calibration failed: {result.message}")
         if args.report:
             print(f"  report: {args.report}")
         return
+    assert result.left is not None and result.right is not None  # an ok result has both
     print(f"{result.message}; wrote {args.output}")
     if result.detector:
         print(f"  detector: {result.detector_reason}")
@@ -315,7 +318,7 @@ def _port(args: argparse.Namespace) -> int:
     return 0 if result.ok else 1
 
 
-def _print_port(result: Any, args: argparse.Namespace) -> None:
+def _print_port(result: PortRigCalibration, args: argparse.Namespace) -> None:
     import numpy as np
 
     from sea3d.calib.port import assess_port

@@ -18,6 +18,8 @@ from sea3d.cli._args import add_depth_range, config_option
 
 if TYPE_CHECKING:
     from sea3d.cli._args import Subcommands
+    from sea3d.geometry.rig import StereoRig
+    from sea3d.stereo.recipe import StereoDepth
 
 __all__ = ["register"]
 
@@ -75,7 +77,7 @@ def _read_rgb(path: Path) -> Any:
     return img
 
 
-def _stereo(rig: Any, args: argparse.Namespace) -> Any:
+def _stereo(rig: StereoRig, args: argparse.Namespace) -> StereoDepth:
     """The stereo depth of ``rig`` with the command's depth flags."""
     from sea3d.cli._args import depth_config
     from sea3d.errors import MonoDepthError

@@ -13,6 +13,7 @@ from sea3d.errors import ConfigError
 
 if TYPE_CHECKING:
     from sea3d.cli._args import Subcommands
+    from sea3d.geometry.rig import StereoRig
 
 
 def register(sub: Subcommands) -> None:
@@ -184,7 +185,7 @@ def _create(args: argparse.Namespace) -> int:
     return 0
 
 
-def _rig_summary(rig: Any) -> dict[str, Any]:
+def _rig_summary(rig: StereoRig) -> dict[str, Any]:
     from sea3d.io.rig_file import rig_to_dict
 
     data = rig_to_dict(rig)

@@ -25,6 +25,7 @@ _WATERS = ["none", "clear", "coastal", "turbid"]
 
 if TYPE_CHECKING:
     from sea3d.cli._args import Subcommands
+    from sea3d.geometry.rig import StereoRig
 
 
 def register(sub: Subcommands) -> None:
@@ -122,7 +123,7 @@ def register(sub: Subcommands) -> None:
     c.set_defaults(handler=_run_calibration)
 
 
-def _load_rig(path: Path | None, size: tuple[int, int] | None) -> Any:
+def _load_rig(path: Path | None, size: tuple[int, int] | None) -> StereoRig:
     from sea3d.refraction.presets import paper_rig
 
     if path is None:
